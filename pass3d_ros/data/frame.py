@@ -1,0 +1,55 @@
+"""One LiDAR scan as every reader yields it and every tool consumes it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Box3D:
+    """An oriented 3D box in the sensor frame: z up, yaw about z, size = (length, width, height)."""
+
+    center: np.ndarray
+    size: np.ndarray
+    yaw: float
+    label: int = 0
+    instance: int = -1
+    kind: str = ""  # source class name, e.g. KITTI's "Car", "Van", "Pedestrian"
+
+    def contains(self, xyz: np.ndarray, margin: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+        """Mask of the points of `xyz` (N x 3) inside the box enlarged by `margin` on each side."""
+        d = np.asarray(xyz, dtype=np.float64)[:, :3] - self.center
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        local_x = d[:, 0] * c + d[:, 1] * s
+        local_y = -d[:, 0] * s + d[:, 1] * c
+        half = np.asarray(self.size, dtype=np.float64) / 2.0 + np.asarray(margin, dtype=np.float64)
+        return (np.abs(local_x) <= half[0]) & (np.abs(local_y) <= half[1]) & (np.abs(d[:, 2]) <= half[2])
+
+
+@dataclass
+class Frame:
+    """A scan: points N x 4 float32 (x, y, z, intensity in [0,1]) in firing order, nothing dropped.
+
+    Optional per-point arrays are None when the source does not know them.
+    """
+
+    name: str
+    points: np.ndarray
+    stamp_ns: int = 0
+    ring: np.ndarray | None = None  # (N,) uint16
+    labels: np.ndarray | None = None  # (N,) uint8, 0 background, 1 car, 2 pedestrian, 3 cyclist
+    ground: np.ndarray | None = None  # (N,) bool
+    instance: np.ndarray | None = None  # (N,) int32, -1 none
+    boxes: list[Box3D] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.points = np.ascontiguousarray(self.points, dtype=np.float32)
+        if self.points.ndim != 2 or self.points.shape[1] != 4:
+            raise ValueError(f"frame {self.name}: points must be N x 4, got shape {self.points.shape}")
+        n = len(self.points)
+        for key in ("ring", "labels", "ground", "instance"):
+            value = getattr(self, key)
+            if value is not None and len(value) != n:
+                raise ValueError(f"frame {self.name}: {key} has {len(value)} entries for {n} points")

@@ -1,0 +1,36 @@
+"""`pass3d_benchmark SUITE ...`: speed benchmarks that print what they measured."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# suite name -> module with `add_arguments(parser)` and `run(args) -> int`.
+SUITES: dict[str, str] = {
+    "codec": "pass3d_ros.bench.codec",
+    "stage1": "pass3d_ros.bench.stage1",
+    "stage2": "pass3d_ros.bench.stage2",
+    "simulate": "pass3d_ros.bench.simulate",
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="pass3d_benchmark", description=__doc__)
+    sub = parser.add_subparsers(dest="suite", required=True)
+    modules = {}
+    for name, module_name in SUITES.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name != module_name:
+                raise
+            continue
+        modules[name] = module
+        module.add_arguments(sub.add_parser(name, help=(module.__doc__ or "").strip().splitlines()[0]))
+    args = parser.parse_args(argv)
+    return modules[args.suite].run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,41 @@
+"""ament_python package: console scripts double as `ros2 run pass3d_ros <name>` executables."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "pass3d_ros"
+
+CONSOLE_SCRIPTS = [
+    "cluster_proposal_node = pass3d_ros.ros.cluster_proposal_node:main",
+    "segmentation_node = pass3d_ros.ros.segmentation_node:main",
+    "pass3d_pipeline = pass3d_ros.ros.pipeline:main",
+    "pass3d_kitti2bag = pass3d_ros.tools.kitti2bag:main",
+    "pass3d_replay = pass3d_ros.tools.replay:main",
+    "pass3d_evaluate = pass3d_ros.tools.evaluate:main",
+    "pass3d_train = pass3d_ros.tools.train:main",
+    "pass3d_simulate = pass3d_ros.tools.simulate:main",
+    "pass3d_benchmark = pass3d_ros.tools.benchmark:main",
+    "pass3d_segment = pass3d_ros.tools.segment:main",
+]
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["weights/*.pt", "weights/*.md"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch_configs/*.launch.py") + glob("launch_configs/*.launch.yaml")),
+        (f"share/{PACKAGE}/config", glob("launch_configs/*.yaml") + glob("launch_configs/*.rviz")),
+    ],
+    install_requires=["setuptools", "numpy", "rosbags", "numba", "tqdm"],
+    zip_safe=True,
+    maintainer="pass3d_ros developers",
+    maintainer_email="dev@pass3d-ros.invalid",
+    description="PASS3D LiDAR point-wise semantic segmentation for ROS 2 Jazzy",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={"console_scripts": CONSOLE_SCRIPTS},
+)
