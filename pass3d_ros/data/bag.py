@@ -1,0 +1,229 @@
+"""rosbag2 bags (sqlite3 or MCAP) through `rosbags`: the `bag:PATH[#TOPIC]` reader and a safe writer.
+
+Reading: `bag:PATH` yields one Frame per PointCloud2 message of the bag's only PointCloud2 topic;
+`bag:PATH#/topic` picks one when there are several (an error lists them otherwise). Points keep their
+order and NaNs; intensity comes from `intensity` / `i` / `reflectance` as stored (no rescaling), ring and
+labels (`label` field) when present, stamp from the header, name = message index (6 digits).
+
+Writing: `BagWriter` builds the bag in a hidden sibling folder (`.NAME.partial-XXXX`) and renames it into
+place only when complete, so an interrupted or failed write leaves nothing that looks like a bag.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+from rosbags.interfaces import Connection
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.spec import DatasetError
+from pass3d_ros.ros.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, header_stamp_ns, to_xyzi
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+STORAGES: dict[str, StoragePlugin] = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+VERSIONS: tuple[int, ...] = (9, 8)  # 9: Jazzy's format; 8: what Humble reads
+
+
+class BagError(ValueError):
+    """A bag cannot be written (exists, bad option, ...); the message names the path and the problem."""
+
+
+def parse_bag_spec(text: str | Path) -> tuple[Path, str | None]:
+    """`PATH` or `PATH#/topic` -> (path, topic or None)."""
+    path, sep, topic = str(text).partition("#")
+    if sep and not topic:
+        raise DatasetError(f"bag spec {text!r}: empty topic after '#'")
+    if topic and not topic.startswith("/"):
+        topic = "/" + topic
+    return Path(path), topic or None
+
+
+def _open_reader(path: Path) -> Reader:
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as exc:  # rosbags raises FileNotFoundError, ReaderError, yaml and sqlite errors
+        raise DatasetError(f"{path}: cannot open as a rosbag2 bag ({exc})") from exc
+    return reader
+
+
+def topics_of_type(path: Path, msgtype: str = POINTCLOUD2_TYPE) -> dict[str, int]:
+    """Topic -> message count of the bag's topics of `msgtype`."""
+    reader = _open_reader(path)
+    try:
+        counts: dict[str, int] = {}
+        for conn in reader.connections:
+            if conn.msgtype == msgtype:
+                counts[conn.topic] = counts.get(conn.topic, 0) + conn.msgcount
+        return counts
+    finally:
+        reader.close()
+
+
+def select_topic(path: Path, topic: str | None, msgtype: str = POINTCLOUD2_TYPE) -> str:
+    """`topic` if the bag has it with `msgtype`, else the bag's only topic of that type; DatasetError otherwise."""
+    counts = topics_of_type(path, msgtype)
+    if topic is not None:
+        if topic not in counts:
+            raise DatasetError(f"{path}: no {msgtype} topic {topic!r}; {msgtype} topics: {sorted(counts) or 'none'}")
+        return topic
+    if len(counts) != 1:
+        listing = ", ".join(sorted(counts)) or "none"
+        raise DatasetError(f"{path}: {len(counts)} {msgtype} topics ({listing}); choose one with bag:PATH#/topic")
+    return next(iter(counts))
+
+
+def iter_raw(path: Path, topic: str) -> Iterator[tuple[Connection, int, bytes]]:
+    """(connection, bag time ns, CDR bytes) of every message on `topic`, in bag order."""
+    reader = _open_reader(path)
+    try:
+        connections = [conn for conn in reader.connections if conn.topic == topic]
+        yield from reader.messages(connections=connections)
+    finally:
+        reader.close()
+
+
+def cloud_to_frame(name: str, msg: Any) -> Frame:
+    """A Frame from a PointCloud2 (rclpy or rosbags): points in order, NaNs kept, ring and label when present."""
+    cloud = decode(msg)
+    xyzi = to_xyzi(cloud)
+    names = cloud.dtype.names or ()
+    labels = cloud["label"].astype(np.uint8) if "label" in names else None
+    return Frame(name=name, points=xyzi.points, stamp_ns=header_stamp_ns(msg), ring=xyzi.ring, labels=labels)
+
+
+def read_bag(path: str | Path) -> Iterator[Frame]:
+    """Frames of a bag's PointCloud2 topic (`PATH` or `PATH#/topic`), in bag order."""
+    bag, topic = parse_bag_spec(path)
+    topic = select_topic(bag, topic)
+    return _frames(bag, topic)
+
+
+def _frames(bag: Path, topic: str) -> Iterator[Frame]:
+    for index, (conn, _, raw) in enumerate(iter_raw(bag, topic)):
+        try:
+            msg = TYPESTORE.deserialize_cdr(raw, conn.msgtype)
+            yield cloud_to_frame(f"{index:06d}", msg)
+        except PointCloud2Error as exc:
+            raise DatasetError(f"{bag}#{topic}: message {index}: {exc}") from exc
+        except (ValueError, IndexError, AssertionError) as exc:  # truncated or foreign CDR
+            raise DatasetError(f"{bag}#{topic}: message {index} does not deserialize: {exc}") from exc
+
+
+def count_frames(path: str | Path) -> int | None:
+    """Message count of the chosen PointCloud2 topic, from the bag's metadata."""
+    bag, topic = parse_bag_spec(path)
+    try:
+        return topics_of_type(bag)[select_topic(bag, topic)]
+    except DatasetError:
+        return None
+
+
+class BagWriter:
+    """A rosbag2 writer that builds the bag in a hidden sibling and renames it into place on `close`.
+
+    `write_raw` takes CDR bytes, `write` a rosbags message; connections are added on first use.
+    Used as a context manager, an exception (Ctrl-C included) removes everything written.
+    """
+
+    def __init__(self, out: str | Path, *, storage: str = "mcap", version: int = 9, force: bool = False) -> None:
+        self.out = Path(out)
+        if storage not in STORAGES:
+            raise BagError(f"unknown storage {storage!r}, expected one of {', '.join(STORAGES)}")
+        if version not in VERSIONS:
+            raise BagError(f"unsupported rosbag2 version {version}, expected 9 (Jazzy) or 8 (Humble)")
+        self.storage, self.version, self.force = storage, version, force
+        self._check_target()
+        self.counts: dict[str, int] = {}
+        self._tmp: Path | None = None
+        self._writer: Writer | None = None
+        self._connections: dict[str, Connection] = {}
+
+    def _check_target(self) -> None:
+        if (self.out.exists() or self.out.is_symlink()) and not self.force:
+            raise BagError(f"{self.out} exists; pass --force to overwrite it")
+
+    @property
+    def temporary_path(self) -> Path | None:
+        """Where the bag is being built, while open."""
+        return self._tmp
+
+    def open(self) -> BagWriter:
+        """Create the hidden build folder and open the rosbags writer in it."""
+        self.out.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.partial-", dir=self.out.parent))
+        try:
+            self._writer = Writer(self._tmp / self.out.name, version=self.version, storage_plugin=STORAGES[self.storage])
+            self._writer.open()
+        except BaseException:
+            self.abort()
+            raise
+        return self
+
+    def write_raw(self, topic: str, msgtype: str, stamp_ns: int, data: bytes | memoryview) -> None:
+        """Append one CDR-serialized message at bag time `stamp_ns`."""
+        if self._writer is None:
+            raise BagError(f"{self.out}: writer is not open")
+        conn = self._connections.get(topic)
+        if conn is None:
+            if msgtype not in TYPESTORE.types:
+                raise BagError(f"{self.out}: message type {msgtype!r} unknown to the ROS 2 Jazzy typestore")
+            conn = self._writer.add_connection(topic, msgtype, typestore=TYPESTORE)
+            self._connections[topic] = conn
+        elif conn.msgtype != msgtype:
+            raise BagError(f"{self.out}: topic {topic} already holds {conn.msgtype}, not {msgtype}")
+        self._writer.write(conn, int(stamp_ns), data)
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def write(self, topic: str, msg: Any, stamp_ns: int) -> None:
+        """Serialize a rosbags message and append it."""
+        self.write_raw(topic, msg.__msgtype__, stamp_ns, TYPESTORE.serialize_cdr(msg, msg.__msgtype__))
+
+    def close(self) -> Path:
+        """Finish the bag and move it to `out` (replacing an old one only with force); returns `out`."""
+        if self._writer is None or self._tmp is None:
+            raise BagError(f"{self.out}: writer is not open")
+        try:
+            self._writer.close()
+            self._writer = None
+            self._check_target()
+            if self.out.exists() or self.out.is_symlink():
+                self.out.rename(self._tmp / ".replaced")
+            (self._tmp / self.out.name).rename(self.out)
+        except BaseException:
+            self.abort()
+            raise
+        shutil.rmtree(self._tmp, ignore_errors=True)
+        self._tmp = None
+        return self.out
+
+    def abort(self) -> None:
+        """Drop everything written so far; nothing is left at `out` or beside it."""
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            try:
+                writer.abort()
+            except Exception:  # the storage may already be broken; removing the folder is what matters
+                pass
+        if self._tmp is not None:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None
+
+    def __enter__(self) -> BagWriter:
+        return self.open()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()

@@ -1,0 +1,75 @@
+"""File helpers shared by the KITTI-family readers: validated .bin I/O, natural ordering, box labelling."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from pass3d_ros.classes import BACKGROUND
+from pass3d_ros.data.frame import Box3D
+from pass3d_ros.data.spec import DatasetError
+
+FRAME_PERIOD_NS = 100_000_000  # 10 Hz: the stamp of frame k when a dataset stores no time
+POINT_BYTES = 16  # x, y, z, reflectance as float32
+
+_DIGITS = re.compile(r"(\d+)")
+_TRAILING_DIGITS = re.compile(r"(\d+)$")
+
+
+def natural_key(name: str) -> list[int | str]:
+    """Sort key that orders `frame2` before `frame10` (digit runs compare as numbers)."""
+    return [int(part) if part.isdigit() else part for part in _DIGITS.split(name)]
+
+
+def require_dir(path: Path, what: str) -> Path:
+    """`path` if it is a directory, else a DatasetError naming it and what it should hold."""
+    if not path.is_dir():
+        raise DatasetError(f"{path}: {what} directory not found")
+    return path
+
+
+def sorted_files(directory: Path, suffix: str) -> list[Path]:
+    """Files of `directory` ending in `suffix`, in natural order; DatasetError if the folder is missing."""
+    require_dir(directory, f"'{suffix}' file")
+    return sorted((p for p in directory.iterdir() if p.is_file() and p.name.endswith(suffix)),
+                  key=lambda p: natural_key(p.name))
+
+
+def frame_index(stem: str, position: int) -> int:
+    """Frame number from the trailing digits of a file stem (KITTI names), else the listing position."""
+    match = _TRAILING_DIGITS.search(stem)
+    return int(match.group(1)) if match else position
+
+
+def read_bin(path: Path) -> np.ndarray:
+    """Points N x 4 float32 of a KITTI velodyne .bin, in file order; DatasetError if missing or mis-sized."""
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot read point file ({exc.strerror})") from exc
+    if size % POINT_BYTES:
+        raise DatasetError(f"{path}: size {size} bytes is not a multiple of {POINT_BYTES} (x, y, z, i float32)")
+    return np.fromfile(path, dtype="<f4").reshape(-1, 4)
+
+
+def write_bin(path: Path, points: np.ndarray) -> None:
+    """Write N x 4 points as little-endian float32, the KITTI velodyne layout."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.ascontiguousarray(points[:, :4], dtype="<f4").tofile(path)
+
+
+def label_points_in_boxes(xyz: np.ndarray, boxes: Iterable[Box3D]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-point (labels uint8, instance int32) from the foreground boxes; a later box wins an overlap."""
+    n = len(xyz)
+    labels = np.full(n, BACKGROUND, dtype=np.uint8)
+    instance = np.full(n, -1, dtype=np.int32)
+    for box in boxes:
+        if box.label == BACKGROUND:
+            continue
+        inside = box.contains(xyz)
+        labels[inside] = box.label
+        instance[inside] = box.instance
+    return labels, instance
