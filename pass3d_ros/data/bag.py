@@ -11,6 +11,7 @@ place only when complete, so an interrupted or failed write leaves nothing that 
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -111,11 +112,13 @@ def _frames(bag: Path, topic: str) -> Iterator[Frame]:
     for index, (conn, _, raw) in enumerate(iter_raw(bag, topic)):
         try:
             msg = TYPESTORE.deserialize_cdr(raw, conn.msgtype)
-            yield cloud_to_frame(f"{index:06d}", msg)
+        except Exception as exc:  # truncated or foreign CDR surfaces as struct, index or value errors
+            raise DatasetError(f"{bag}#{topic}: message {index} does not deserialize: {exc}") from exc
+        try:
+            frame = cloud_to_frame(f"{index:06d}", msg)
         except PointCloud2Error as exc:
             raise DatasetError(f"{bag}#{topic}: message {index}: {exc}") from exc
-        except (ValueError, IndexError, AssertionError) as exc:  # truncated or foreign CDR
-            raise DatasetError(f"{bag}#{topic}: message {index} does not deserialize: {exc}") from exc
+        yield frame
 
 
 def count_frames(path: str | Path) -> int | None:
@@ -130,8 +133,7 @@ def count_frames(path: str | Path) -> int | None:
 class BagWriter:
     """A rosbag2 writer that builds the bag in a hidden sibling and renames it into place on `close`.
 
-    `write_raw` takes CDR bytes, `write` a rosbags message; connections are added on first use.
-    Used as a context manager, an exception (Ctrl-C included) removes everything written.
+    In a `with`, any exception (Ctrl-C included) removes everything written.
     """
 
     def __init__(self, out: str | Path, *, storage: str = "mcap", version: int = 9, force: bool = False) -> None:
@@ -161,7 +163,8 @@ class BagWriter:
         self.out.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.partial-", dir=self.out.parent))
         try:
-            self._writer = Writer(self._tmp / self.out.name, version=self.version, storage_plugin=STORAGES[self.storage])
+            plugin = STORAGES[self.storage]
+            self._writer = Writer(self._tmp / self.out.name, version=self.version, storage_plugin=plugin)
             self._writer.open()
         except BaseException:
             self.abort()
@@ -195,9 +198,16 @@ class BagWriter:
             self._writer.close()
             self._writer = None
             self._check_target()
+            replaced = None
             if self.out.exists() or self.out.is_symlink():
-                self.out.rename(self._tmp / ".replaced")
-            (self._tmp / self.out.name).rename(self.out)
+                replaced = self._tmp / ".replaced"
+                self.out.rename(replaced)
+            try:
+                (self._tmp / self.out.name).rename(self.out)
+            except BaseException:
+                if replaced is not None:
+                    replaced.rename(self.out)
+                raise
         except BaseException:
             self.abort()
             raise
@@ -209,10 +219,9 @@ class BagWriter:
         """Drop everything written so far; nothing is left at `out` or beside it."""
         writer, self._writer = self._writer, None
         if writer is not None:
-            try:
+            # the storage may already be broken; removing the folder is what matters
+            with contextlib.suppress(Exception):
                 writer.abort()
-            except Exception:  # the storage may already be broken; removing the folder is what matters
-                pass
         if self._tmp is not None:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None

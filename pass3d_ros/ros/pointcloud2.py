@@ -1,0 +1,380 @@
+"""sensor_msgs/PointCloud2 <-> numpy structured arrays, for rclpy and rosbags messages alike.
+
+Decoding is a zero-copy `np.frombuffer` view with a dtype built from the message's fields, so a
+120k-point cloud costs microseconds; every way a message can be malformed is found here and raised as
+`PointCloud2Error`. rclpy is never imported at module level: ROS-free tools use this with rosbags.
+
+Decisions:
+- A field with `count > 1` is supported: it decodes to a subarray column of shape (N, count), and a
+  2-D column encodes back to `count`. x, y, z, intensity and ring must have count 1.
+- Big-endian messages are supported: the dtype is byteswapped ('>f4'), values read correctly.
+  Encoding always writes the machine's byte order.
+- Fields with an empty name are padding and are skipped (PCL writes such fields).
+- Decoding requires x, y and z; so does encoding, so every encoded cloud decodes.
+"""
+
+from __future__ import annotations
+
+import array
+import itertools
+import sys
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+import numpy as np
+
+POINTCLOUD2_TYPE = "sensor_msgs/msg/PointCloud2"
+
+# PointField.datatype -> numpy type (INT8=1 ... FLOAT64=8), and back.
+DATATYPES: dict[int, np.dtype] = {
+    1: np.dtype(np.int8),
+    2: np.dtype(np.uint8),
+    3: np.dtype(np.int16),
+    4: np.dtype(np.uint16),
+    5: np.dtype(np.int32),
+    6: np.dtype(np.uint32),
+    7: np.dtype(np.float32),
+    8: np.dtype(np.float64),
+}
+_DATATYPE_OF: dict[str, int] = {dt.str[1:]: code for code, dt in DATATYPES.items()}
+
+INTENSITY_NAMES: tuple[str, ...] = ("intensity", "i", "reflectance")
+_SCALAR_FIELDS = ("x", "y", "z", "ring", *INTENSITY_NAMES)
+
+
+class PointCloud2Error(ValueError):
+    """A PointCloud2 message (or array to encode) is malformed; the message names the problem."""
+
+
+class XYZI(NamedTuple):
+    """Points as the core wants them: N x 4 float32 (x, y, z, intensity) plus what the cloud knew."""
+
+    points: np.ndarray
+    has_intensity: bool
+    ring: np.ndarray | None
+
+
+def _as_count(value: Any, what: str) -> int:
+    """A non-negative Python int from a message attribute, else PointCloud2Error."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise PointCloud2Error(f"{what} must be an integer, got {value!r}")
+    if value < 0:
+        raise PointCloud2Error(f"{what} must be >= 0, got {value}")
+    return int(value)
+
+
+def fields_dtype(fields: Any, point_step: int, is_bigendian: bool = False) -> np.dtype:
+    """Structured dtype of one point (itemsize = point_step) from PointField-like objects, validated."""
+    point_step = _as_count(point_step, "point_step")
+    if point_step == 0:
+        raise PointCloud2Error("point_step is 0")
+    order = ">" if is_bigendian else "<"
+    names: list[str] = []
+    formats: list[Any] = []
+    offsets: list[int] = []
+    spans: list[tuple[int, int, str]] = []
+    try:
+        field_list = list(fields)
+    except TypeError:
+        raise PointCloud2Error(f"fields must be a sequence, got {type(fields).__name__}") from None
+    for index, field in enumerate(field_list):
+        try:
+            name, offset, datatype, count = field.name, field.offset, field.datatype, field.count
+        except AttributeError as exc:
+            raise PointCloud2Error(f"field {index} is not a PointField: {exc}") from None
+        if not isinstance(name, str):
+            raise PointCloud2Error(f"field {index}: name must be a string, got {name!r}")
+        label = f"field {name!r}" if name else f"field {index} (unnamed)"
+        offset = _as_count(offset, f"{label}: offset")
+        count = _as_count(count, f"{label}: count")
+        if isinstance(datatype, bool) or not isinstance(datatype, (int, np.integer)) or datatype not in DATATYPES:
+            raise PointCloud2Error(f"{label}: unknown datatype {datatype!r} (expected 1..8, INT8..FLOAT64)")
+        if count == 0:
+            raise PointCloud2Error(f"{label}: count is 0")
+        base = DATATYPES[int(datatype)]
+        end = offset + base.itemsize * count
+        if end > point_step:
+            raise PointCloud2Error(f"{label}: bytes {offset}..{end} out of range of point_step {point_step}")
+        spans.append((offset, end, label))
+        if not name:
+            continue
+        if name in names:
+            raise PointCloud2Error(f"duplicate field name {name!r}")
+        if count > 1 and name in _SCALAR_FIELDS:
+            raise PointCloud2Error(f"{label}: count {count} not supported, must be 1")
+        names.append(name)
+        typ = base.newbyteorder(order) if base.itemsize > 1 else base
+        formats.append(typ if count == 1 else (typ, (count,)))
+        offsets.append(offset)
+    spans.sort()
+    for (_, end_a, label_a), (start_b, _, label_b) in itertools.pairwise(spans):
+        if start_b < end_a:
+            raise PointCloud2Error(f"{label_a} and {label_b} overlap")
+    missing = [axis for axis in ("x", "y", "z") if axis not in names]
+    if missing:
+        raise PointCloud2Error(f"missing field(s) {', '.join(missing)}; fields are {names}")
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
+
+
+def _buffer(data: Any) -> memoryview:
+    """A flat byte view of the message's data, whatever holds it: array.array, ndarray, bytes, a list."""
+    try:
+        if isinstance(data, np.ndarray):
+            return memoryview(np.ascontiguousarray(data).reshape(-1).view(np.uint8))
+        try:
+            view = memoryview(data)
+        except TypeError:
+            return memoryview(np.asarray(data, dtype=np.uint8).reshape(-1))
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise PointCloud2Error(f"data is not a byte buffer: {exc}") from None
+    if view.format == "B" and view.ndim == 1 and view.c_contiguous:
+        return view
+    return memoryview(view.tobytes())
+
+
+def decode(msg: Any, *, skip_nans: bool = False) -> np.ndarray:
+    """Points of a PointCloud2 as an (N,) structured array, a zero-copy view of msg.data when rows are unpadded.
+
+    Organized clouds are flattened row-major; `skip_nans` drops points whose x, y or z is NaN.
+    """
+    try:
+        height, width = msg.height, msg.width
+        point_step, row_step = msg.point_step, msg.row_step
+        fields, data, bigendian = msg.fields, msg.data, msg.is_bigendian
+    except AttributeError as exc:
+        raise PointCloud2Error(f"not a PointCloud2 message: {exc}") from None
+    height = _as_count(height, "height")
+    width = _as_count(width, "width")
+    row_step = _as_count(row_step, "row_step")
+    dtype = fields_dtype(fields, point_step, bool(bigendian))
+    point_step = dtype.itemsize
+    if row_step < width * point_step:
+        raise PointCloud2Error(f"row_step {row_step} < width {width} * point_step {point_step}")
+    buf = _buffer(data)
+    if buf.nbytes != height * row_step:
+        raise PointCloud2Error(
+            f"data has {buf.nbytes} bytes, expected height {height} * row_step {row_step} = {height * row_step}"
+        )
+    count = height * width
+    if count == 0:
+        cloud = np.zeros(0, dtype=dtype)
+    elif height == 1 or row_step == width * point_step:
+        cloud = np.frombuffer(buf, dtype=dtype, count=count)
+    else:
+        rows = np.ndarray((height, width), dtype=dtype, buffer=buf, strides=(row_step, point_step))
+        cloud = rows.reshape(-1)
+    if skip_nans:
+        cloud = cloud[finite_mask(cloud)]
+    return cloud
+
+
+def finite_mask(cloud: np.ndarray) -> np.ndarray:
+    """True for points whose x, y and z are all numbers (integer coordinates are always finite)."""
+    keep = np.ones(len(cloud), dtype=bool)
+    for axis in ("x", "y", "z"):
+        column = cloud[axis]
+        if column.dtype.kind == "f":
+            keep &= ~np.isnan(column)
+    return keep
+
+
+def intensity_name(cloud: np.ndarray | np.dtype) -> str | None:
+    """Which of `intensity`, `i`, `reflectance` the cloud carries, first match wins; None if none."""
+    names = (cloud.dtype if isinstance(cloud, np.ndarray) else cloud).names or ()
+    return next((name for name in INTENSITY_NAMES if name in names), None)
+
+
+def _packed_xyzi(cloud: np.ndarray, name: str | None) -> np.ndarray | None:
+    """One strided copy when x, y, z, intensity are consecutive native float32 (the usual layout), else None."""
+    if name is None or not cloud.flags.c_contiguous or len(cloud) == 0:
+        return None
+    fields = cloud.dtype.fields
+    start = fields["x"][1]
+    for k, axis in enumerate(("x", "y", "z", name)):
+        dtype, offset = fields[axis][:2]
+        if dtype != np.dtype(np.float32) or offset != start + 4 * k:
+            return None
+    raw = cloud.view(np.uint8)
+    return np.ndarray((len(cloud), 4), np.float32, buffer=raw, offset=start, strides=(cloud.itemsize, 4)).copy()
+
+
+def to_xyzi(cloud: np.ndarray, *, with_ring: bool = True) -> XYZI:
+    """N x 4 float32 (x, y, z, intensity) from a decoded cloud; intensity zeros when it has none."""
+    name = intensity_name(cloud)
+    points = _packed_xyzi(cloud, name)
+    if points is None:
+        points = np.empty((len(cloud), 4), dtype=np.float32)
+        for column, axis in enumerate(("x", "y", "z")):
+            points[:, column] = cloud[axis]
+        points[:, 3] = 0.0 if name is None else cloud[name]
+    ring = None
+    if with_ring and "ring" in (cloud.dtype.names or ()):
+        ring = cloud["ring"].astype(np.uint16)
+    return XYZI(points, name is not None, ring)
+
+
+def decode_xyzi(msg: Any, *, skip_nans: bool = False, with_ring: bool = True) -> XYZI:
+    """`decode` then `to_xyzi`: the one call a node needs to feed the core."""
+    return to_xyzi(decode(msg, skip_nans=skip_nans), with_ring=with_ring)
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    """Nanoseconds of a builtin_interfaces/Time-like object (sec, nanosec)."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def header_stamp_ns(msg: Any) -> int:
+    """Nanoseconds of msg.header.stamp."""
+    return stamp_to_ns(msg.header.stamp)
+
+
+def columns_to_cloud(columns: Mapping[str, Any]) -> np.ndarray:
+    """A packed structured array from named columns (1-D, or N x count for a count > 1 field), in order."""
+    arrays = {name: np.asarray(values) for name, values in columns.items()}
+    lengths = {len(values) for values in arrays.values()}
+    if len(lengths) > 1:
+        raise PointCloud2Error(f"columns differ in length: { ({k: len(v) for k, v in arrays.items()}) }")
+    formats = []
+    for name, values in arrays.items():
+        if values.ndim not in (1, 2):
+            raise PointCloud2Error(f"column {name!r} must be 1-D or N x count, got shape {values.shape}")
+        formats.append((name, values.dtype) if values.ndim == 1 else (name, values.dtype, (values.shape[1],)))
+    cloud = np.empty(lengths.pop() if lengths else 0, dtype=np.dtype(formats))
+    for name, values in arrays.items():
+        cloud[name] = values
+    return cloud
+
+
+def cloud_fields(dtype: np.dtype) -> list[tuple[str, int, int, int]]:
+    """(name, offset, datatype, count) per field of a structured dtype, checked encodable."""
+    if dtype.names is None:
+        raise PointCloud2Error(f"expected a structured array, got dtype {dtype}")
+    result = []
+    for name in dtype.names:
+        field_dtype, offset = dtype.fields[name][:2]
+        base, shape = field_dtype.base, field_dtype.shape
+        code = _DATATYPE_OF.get(base.str[1:])
+        if code is None:
+            raise PointCloud2Error(f"field {name!r}: dtype {base} has no PointField datatype")
+        if len(shape) > 1:
+            raise PointCloud2Error(f"field {name!r}: subarray shape {shape} must be 1-D")
+        count = shape[0] if shape else 1
+        if not name or count < 1:
+            raise PointCloud2Error(f"field {name!r}: empty name or count 0")
+        if count > 1 and name in _SCALAR_FIELDS:
+            raise PointCloud2Error(f"field {name!r}: count {count} not supported, must be 1")
+        result.append((name, int(offset), code, int(count)))
+    missing = [axis for axis in ("x", "y", "z") if axis not in dtype.names]
+    if missing:
+        raise PointCloud2Error(f"missing field(s) {', '.join(missing)}")
+    spans = sorted((offset, offset + dtype.fields[name][0].itemsize) for name, offset, _, _ in result)
+    if any(b[0] < a[1] for a, b in itertools.pairwise(spans)):
+        raise PointCloud2Error(f"overlapping fields in dtype {dtype}")
+    return result
+
+
+def _native(dtype: np.dtype) -> np.dtype:
+    """The same layout with every field in the machine's byte order."""
+    formats = []
+    for name in dtype.names:
+        sub = dtype.fields[name][0]
+        base = sub.base.newbyteorder("=") if sub.base.itemsize > 1 else sub.base
+        formats.append(base if not sub.shape else (base, sub.shape))
+    return np.dtype(
+        {
+            "names": list(dtype.names),
+            "formats": formats,
+            "offsets": [dtype.fields[name][1] for name in dtype.names],
+            "itemsize": dtype.itemsize,
+        }
+    )
+
+
+def _message_classes(msg_class: Any, typestore: Any) -> tuple[Any, Any, Any, Any, bool]:
+    """(PointCloud2, PointField, Header, Time) classes and whether they are rosbags dataclasses."""
+    if typestore is not None:
+        types = typestore.types
+        return (
+            types[POINTCLOUD2_TYPE],
+            types["sensor_msgs/msg/PointField"],
+            types["std_msgs/msg/Header"],
+            types["builtin_interfaces/msg/Time"],
+            True,
+        )
+    if msg_class is None or not hasattr(msg_class, "__msgtype__"):
+        from builtin_interfaces.msg import Time
+        from sensor_msgs.msg import PointCloud2, PointField
+        from std_msgs.msg import Header
+
+        return msg_class or PointCloud2, PointField, Header, Time, False
+    module = sys.modules[msg_class.__module__]
+    try:
+        return (
+            msg_class,
+            module.sensor_msgs__msg__PointField,
+            module.std_msgs__msg__Header,
+            module.builtin_interfaces__msg__Time,
+            True,
+        )
+    except AttributeError:
+        raise PointCloud2Error(f"cannot find PointField/Header beside {msg_class}; pass typestore=") from None
+
+
+def encode(
+    cloud: np.ndarray | Mapping[str, Any],
+    *,
+    frame_id: str = "",
+    stamp_ns: int = 0,
+    header: Any = None,
+    msg_class: Any = None,
+    typestore: Any = None,
+    height: int = 1,
+    is_dense: bool | None = None,
+) -> Any:
+    """A PointCloud2 (rclpy, or rosbags given `typestore`/`msg_class`) from a structured array or columns.
+
+    Fields come from the dtype; `header` wins over frame_id/stamp_ns; the data is copied.
+    """
+    if isinstance(cloud, Mapping):
+        cloud = columns_to_cloud(cloud)
+    if not isinstance(cloud, np.ndarray) or cloud.ndim != 1:
+        raise PointCloud2Error(f"expected a 1-D structured array, got {type(cloud).__name__}")
+    fields = cloud_fields(cloud.dtype)
+    native = _native(cloud.dtype)
+    if native != cloud.dtype:
+        cloud = cloud.astype(native)
+    cloud = np.ascontiguousarray(cloud)
+    height = _as_count(height, "height")
+    if height == 0 or len(cloud) % height:
+        raise PointCloud2Error(f"{len(cloud)} points do not split into {height} rows")
+    width = len(cloud) // height
+    if is_dense is None:
+        is_dense = bool(finite_mask(cloud).all())
+    raw = cloud.view(np.uint8).reshape(-1) if len(cloud) else np.zeros(0, np.uint8)
+    cloud_cls, field_cls, header_cls, time_cls, is_rosbags = _message_classes(msg_class, typestore)
+    if header is None:
+        stamp_ns = int(stamp_ns)
+        if stamp_ns < 0:
+            raise PointCloud2Error(f"stamp_ns must be >= 0, got {stamp_ns}")
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        header = header_cls(stamp=time_cls(sec=sec, nanosec=nanosec), frame_id=frame_id)
+    point_fields = [
+        field_cls(name=name, offset=offset, datatype=code, count=count) for name, offset, code, count in fields
+    ]
+    msg = cloud_cls(
+        header=header,
+        height=height,
+        width=width,
+        fields=point_fields,
+        is_bigendian=sys.byteorder == "big",
+        point_step=cloud.dtype.itemsize,
+        row_step=cloud.dtype.itemsize * width,
+        data=raw.copy() if is_rosbags else array.array("B"),
+        is_dense=is_dense,
+    )
+    if not is_rosbags:
+        # rclpy's constructor copies `data` element-wise; its setter keeps an array.array('B') as is.
+        data = array.array("B")
+        data.frombytes(raw)
+        msg.data = data
+    return msg

@@ -1,0 +1,429 @@
+"""`pass3d_replay`: publish a bag's clouds at recorded pace, or record live topics into a bag.
+
+    pass3d_replay BAG [--rate R] [--loop] [--topic T] [--publish-topic P] [--qos sensor|reliable]
+    pass3d_replay --record TOPIC[:TYPE] [--record ...] --out BAG [--duration S | --count N]
+
+Replay publishes the stored CDR bytes unchanged (headers and stamps as recorded), paced by the bag's
+times divided by R (R = 0: as fast as possible). Recording writes each message at its header stamp; with
+--count it stops after N messages on the first topic. `replay()` and `Recorder` are the in-process API.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import queue
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+from rosbags.rosbag2 import WriterError
+
+from pass3d_ros.data.bag import STORAGES, TYPESTORE, VERSIONS, BagError, BagWriter, iter_raw, select_topic
+from pass3d_ros.data.spec import DatasetError
+from pass3d_ros.ros.pointcloud2 import POINTCLOUD2_TYPE, stamp_to_ns
+from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
+
+
+def ros_message_class(msgtype: str) -> type:
+    """The rclpy message class of `pkg/msg/Name`."""
+    try:
+        package, kind, name = msgtype.split("/")
+        return getattr(importlib.import_module(f"{package}.{kind}"), name)
+    except (ValueError, ImportError, AttributeError):
+        raise BagError(f"message type {msgtype!r} is not available to rclpy here") from None
+
+
+@dataclass
+class ReplayStats:
+    """What `replay` published."""
+
+    topic: str
+    published: int = 0
+    passes: int = 0
+    seconds: float = 0.0
+
+    @property
+    def rate_hz(self) -> float:
+        """Messages per second of wall time."""
+        return self.published / self.seconds if self.seconds > 0 else 0.0
+
+
+def wait_for_subscribers(publisher: Any, count: int, timeout: float, stop: threading.Event) -> bool:
+    """Poll until `publisher` has `count` matched subscribers; False on timeout or stop."""
+    deadline = time.monotonic() + timeout
+    while publisher.get_subscription_count() < count:
+        if time.monotonic() >= deadline or stop.wait(0.02):
+            return False
+    return True
+
+
+def replay(
+    bag: str | Path,
+    node: Any,
+    *,
+    topic: str | None = None,
+    publish_topic: str | None = None,
+    rate: float = 1.0,
+    loop: bool = False,
+    qos: str = "sensor",
+    depth: int = 5,
+    min_subscribers: int = 0,
+    wait_timeout: float = 10.0,
+    settle: float = 0.25,
+    linger: float = 0.2,
+    stop: threading.Event | None = None,
+    on_publish: Callable[[int, int], None] | None = None,
+) -> ReplayStats:
+    """Publish `topic` of `bag` (default: its only PointCloud2 topic) from `node` at bag pace / rate; blocks.
+
+    Waits for `min_subscribers` (+ `settle` s for their side of discovery); no spinning needed.
+    """
+    if rate < 0:
+        raise ValueError(f"rate must be >= 0, got {rate}")
+    path = Path(bag)
+    chosen = select_topic(path, topic)
+    stop = stop or threading.Event()
+    out_topic = publish_topic or chosen
+    publisher = None
+    stats = ReplayStats(out_topic)
+    start = time.monotonic()
+    try:
+        while not stop.is_set():
+            pass_start, first_ns, last_ns, before = None, 0, 0, stats.published
+            for conn, stamp_ns, raw in iter_raw(path, chosen):
+                if publisher is None:
+                    profile = qos_profile(qos, depth)
+                    publisher = node.create_publisher(ros_message_class(conn.msgtype), out_topic, profile)
+                    if min_subscribers:
+                        if not wait_for_subscribers(publisher, min_subscribers, wait_timeout, stop):
+                            node.get_logger().warning(f"{out_topic}: fewer than {min_subscribers} subscribers matched")
+                        # the subscriber side may match a moment later; best effort would drop the first cloud
+                        stop.wait(settle)
+                    start = time.monotonic()
+                if pass_start is None:
+                    pass_start, first_ns = time.monotonic(), stamp_ns
+                if rate > 0:
+                    delay = pass_start + (stamp_ns - first_ns) / 1e9 / rate - time.monotonic()
+                    if delay > 0 and stop.wait(delay):
+                        break
+                if stop.is_set():
+                    break
+                publisher.publish(bytes(raw))
+                last_ns = stamp_ns
+                if on_publish is not None:
+                    on_publish(stats.published, stamp_ns)
+                stats.published += 1
+            else:
+                stats.passes += 1
+            sent = stats.published - before
+            if not loop or sent == 0:
+                break
+            if rate > 0 and sent > 1:  # one mean message gap before the next pass keeps the pace
+                stop.wait((last_ns - first_ns) / 1e9 / rate / (sent - 1))
+        stats.seconds = time.monotonic() - start
+        if publisher is not None:
+            stop.wait(linger)
+    finally:
+        if publisher is not None:
+            node.destroy_publisher(publisher)
+    return stats
+
+
+def _stamp_of(msgtype: str, raw: bytes) -> int:
+    """The header stamp of a serialized message (MarkerArray: its first marker's), 0 when there is none."""
+    msg = TYPESTORE.deserialize_cdr(raw, msgtype)
+    header = getattr(msg, "header", None)
+    if header is None and getattr(msg, "markers", None):
+        header = msg.markers[0].header
+    return stamp_to_ns(header.stamp) if header is not None else 0
+
+
+class Recorder:
+    """Records topics of a node the caller spins into a bag at header stamps; `close()` keeps, `abort()` drops it.
+
+    A writer thread owns the bag (sqlite3 objects stay in one thread); `limit` caps the first topic.
+    """
+
+    def __init__(
+        self,
+        node: Any,
+        topics: Mapping[str, str] | Sequence[str],
+        out: str | Path,
+        *,
+        storage: str = "mcap",
+        version: int = 9,
+        force: bool = False,
+        qos: str = "reliable",
+        depth: int = 100,
+        queue_size: int = 256,
+        limit: int | None = None,
+    ) -> None:
+        self.node = node
+        self.limit = limit
+        self.topics: dict[str, str] = (
+            dict(topics) if isinstance(topics, Mapping) else dict.fromkeys(topics, POINTCLOUD2_TYPE)
+        )
+        if not self.topics:
+            raise BagError("nothing to record: no topics")
+        for msgtype in self.topics.values():
+            if msgtype not in TYPESTORE.types:
+                raise BagError(f"message type {msgtype!r} unknown to the ROS 2 Jazzy typestore")
+        classes = {topic: ros_message_class(msgtype) for topic, msgtype in self.topics.items()}
+        self.counts: dict[str, int] = dict.fromkeys(self.topics, 0)
+        self._accepted = 0
+        self.dropped = 0
+        self.error: BaseException | None = None
+        self._changed = threading.Condition()
+        self._queue: queue.Queue[tuple[str, int, bytes] | str] = queue.Queue(maxsize=queue_size)
+        self._writer = BagWriter(out, storage=storage, version=version, force=force)
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="pass3d-recorder", daemon=True)
+        self._thread.start()
+        self._ready.wait()
+        if self.error is not None:
+            raise self.error
+        self._subscriptions = [
+            node.create_subscription(cls, topic, partial(self._on_message, topic), qos_profile(qos, depth), raw=True)
+            for topic, cls in classes.items()
+        ]
+
+    @property
+    def out(self) -> Path:
+        """The bag being written."""
+        return self._writer.out
+
+    def _run(self) -> None:
+        """Writer thread: open the bag, write queued messages, then close or abort it on request."""
+        try:
+            self._writer.open()
+        except BaseException as exc:
+            self.error = exc
+            return
+        finally:
+            self._ready.set()
+        while True:
+            item = self._queue.get()
+            if isinstance(item, str):
+                break
+            topic, stamp, raw = item
+            if self.error is not None:
+                continue
+            try:
+                self._writer.write_raw(topic, self.topics[topic], stamp, raw)
+            except Exception as exc:  # kept and re-raised by wait()/close()
+                with self._changed:
+                    self.error = exc
+                    self._changed.notify_all()
+                continue
+            with self._changed:
+                self.counts[topic] += 1
+                self._changed.notify_all()
+        try:
+            if item == "close" and self.error is None:
+                self._writer.close()
+            else:
+                self._writer.abort()
+        except BaseException as exc:
+            self.error = self.error or exc
+
+    def _on_message(self, topic: str, raw: bytes) -> None:
+        if topic == next(iter(self.topics)):
+            if self.limit is not None and self._accepted >= self.limit:
+                return
+            self._accepted += 1
+        try:
+            stamp = _stamp_of(self.topics[topic], raw) or self.node.get_clock().now().nanoseconds
+            self._queue.put_nowait((topic, stamp, raw))
+        except queue.Full:
+            self.dropped += 1
+        except Exception as exc:  # an executor must not die of a bad message; wait()/close() re-raise it
+            with self._changed:
+                self.error = exc
+                self._changed.notify_all()
+
+    def wait(self, count: int | None = None, *, topic: str | None = None, timeout: float | None = None) -> bool:
+        """Block until `topic` (default: the first) has `count` messages written, or `timeout` s pass."""
+        topic = topic or next(iter(self.topics))
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._changed:
+            while self.error is None and (count is None or self.counts[topic] < count):
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    return False
+                self._changed.wait(remaining)
+            if self.error is not None:
+                raise self.error
+            return True
+
+    def _finish(self, action: str) -> None:
+        for subscription in self._subscriptions:
+            self.node.destroy_subscription(subscription)
+        self._subscriptions = []
+        if self._thread.is_alive():
+            self._queue.put(action)
+            self._thread.join()
+
+    def close(self) -> Path:
+        """Stop listening, write what is queued and finish the bag; returns its path."""
+        self._finish("close")
+        if self.error is not None:
+            raise self.error
+        return self.out
+
+    def abort(self) -> None:
+        """Stop listening and remove everything written."""
+        self._finish("abort")
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, *_: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of `pass3d_replay`."""
+    parser = argparse.ArgumentParser(
+        prog="pass3d_replay", description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("bag", nargs="?", help="bag to replay")
+    parser.add_argument("--rate", type=float, default=1.0, help="pace factor (default 1; 0 = as fast as possible)")
+    parser.add_argument("--loop", action="store_true", help="replay until Ctrl-C")
+    parser.add_argument("--topic", help="bag topic to replay (default: its only PointCloud2 topic)")
+    parser.add_argument("--publish-topic", help="publish under this name instead")
+    parser.add_argument("--qos", choices=QOS_NAMES, help="QoS (default: sensor to replay, reliable to record)")
+    parser.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
+                        help="wait (up to 10 s) for N subscribers before publishing")
+    parser.add_argument("--record", action="append", metavar="TOPIC[:TYPE]",
+                        help="record this topic (repeatable); TYPE defaults to what the graph says, else PointCloud2")
+    parser.add_argument("--out", help="bag to write when recording")
+    stop = parser.add_mutually_exclusive_group()
+    stop.add_argument("--duration", type=float, help="record for S seconds (default: until Ctrl-C)")
+    stop.add_argument("--count", type=int, help="record N messages of the first topic (default: until Ctrl-C)")
+    parser.add_argument("--storage", choices=sorted(STORAGES), default="mcap", help="storage plugin (default mcap)")
+    parser.add_argument("--rosbag-version", type=int, choices=VERSIONS, default=9, help="rosbag2 version (9 or 8)")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out bag")
+    return parser
+
+
+def _discover_types(node: Any, executor: Any, specs: Sequence[str], timeout: float = 2.0) -> dict[str, str]:
+    """TOPIC[:TYPE] -> {topic: type}; an unnamed type comes from the ROS graph, else PointCloud2."""
+    topics: dict[str, str] = {}
+    unknown: list[str] = []
+    for spec in specs:
+        topic, _, msgtype = spec.partition(":")
+        topics[topic] = msgtype
+        if not msgtype:
+            unknown.append(topic)
+    deadline = time.monotonic() + timeout
+    while unknown and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.1)
+        graph = dict(node.get_topic_names_and_types())
+        for topic in [t for t in unknown if graph.get(t)]:
+            topics[topic] = graph[topic][0]
+            unknown.remove(topic)
+    for topic in unknown:
+        topics[topic] = POINTCLOUD2_TYPE
+        print(f"note: {topic} not seen yet, recording it as {POINTCLOUD2_TYPE}", file=sys.stderr)
+    return topics
+
+
+def _record(args: argparse.Namespace, node: Any, executor: Any) -> int:
+    topics = _discover_types(node, executor, args.record)
+    recorder = Recorder(node, topics, args.out, storage=args.storage, version=args.rosbag_version,
+                        force=args.force, qos=args.qos or "reliable", limit=args.count)
+    first = next(iter(topics))
+    start = time.monotonic()
+    stop_given = args.duration is not None or args.count is not None
+    print(f"recording {', '.join(f'{t} ({m})' for t, m in topics.items())} into {args.out}", file=sys.stderr)
+    try:
+        while not (
+            (args.duration is not None and time.monotonic() - start >= args.duration)
+            or (args.count is not None and recorder.counts[first] >= args.count)
+        ):
+            executor.spin_once(timeout_sec=0.05)
+            if recorder.error is not None:
+                raise recorder.error
+    except KeyboardInterrupt:
+        if stop_given:
+            recorder.abort()
+            print(f"pass3d_replay: interrupted before the stop condition, {args.out} not written", file=sys.stderr)
+            return 130
+    except BaseException:
+        recorder.abort()
+        raise
+    path = recorder.close()
+    counts = ", ".join(f"{topic}: {n}" for topic, n in recorder.counts.items())
+    print(f"recorded {sum(recorder.counts.values())} messages in {time.monotonic() - start:.1f} s to {path} ({counts})")
+    return 0
+
+
+def _replay(args: argparse.Namespace, node: Any) -> int:
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:  # Ctrl-C / SIGTERM end a replay cleanly, with its summary
+        stats = replay(args.bag, node, topic=args.topic, publish_topic=args.publish_topic, rate=args.rate,
+                       loop=args.loop, qos=args.qos or "sensor", min_subscribers=args.wait_subscribers, stop=stop)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    print(f"published {stats.published} messages on {stats.topic} in {stats.seconds:.2f} s "
+          f"({stats.rate_hz:.2f} Hz, {stats.passes} full pass(es), rate x{args.rate:g})"
+          + (", stopped by Ctrl-C" if stop.is_set() else ""))
+    return 0
+
+
+def _interrupt(signum: int, _frame: object) -> None:
+    """SIGINT and SIGTERM both mean Ctrl-C (also where a background shell ignores SIGINT)."""
+    raise KeyboardInterrupt
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point: exit 0 on success, 2 on a user error, 130 when interrupted."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.record:
+        if not args.out:
+            parser.error("--record needs --out BAG")
+        if args.bag:
+            parser.error("give either a BAG to replay or --record topics, not both")
+        if (args.count is not None and args.count < 1) or (args.duration is not None and args.duration <= 0):
+            parser.error("--count and --duration must be positive")
+    elif not args.bag:
+        parser.error("give a BAG to replay or --record TOPIC --out BAG")
+    previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node("pass3d_replay")
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        return _record(args, node, executor) if args.record else _replay(args, node)
+    except (DatasetError, BagError, ValueError, OSError, WriterError) as exc:
+        print(f"pass3d_replay: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("pass3d_replay: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

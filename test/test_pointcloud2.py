@@ -1,0 +1,435 @@
+"""PointCloud2 codec: round trips on rclpy and rosbags messages, layouts, every documented error, fuzzing."""
+
+from __future__ import annotations
+
+import array
+import sys
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from rosbags.typesys import Stores, get_typestore
+
+from pass3d_ros.ros.pointcloud2 import (
+    DATATYPES,
+    PointCloud2Error,
+    columns_to_cloud,
+    decode,
+    decode_xyzi,
+    encode,
+    header_stamp_ns,
+    to_xyzi,
+)
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+RB_CLOUD = TYPESTORE.types["sensor_msgs/msg/PointCloud2"]
+RB_FIELD = TYPESTORE.types["sensor_msgs/msg/PointField"]
+PC2 = "sensor_msgs/msg/PointCloud2"
+
+
+def sample_columns(n: int = 257, seed: int = 1) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return {
+        "x": rng.normal(0, 20, n).astype(np.float32),
+        "y": rng.normal(0, 20, n).astype(np.float32),
+        "z": rng.normal(0, 2, n).astype(np.float32),
+        "intensity": rng.random(n, dtype=np.float32),
+        "ring": rng.integers(0, 64, n).astype(np.uint16),
+        "cluster_id": rng.integers(-1, 40, n).astype(np.int32),
+        "label": rng.integers(0, 4, n).astype(np.uint8),
+        "t": rng.random(n),
+    }
+
+
+def make_msg(fields, point_step, rows: bytes | np.ndarray, height=1, width=None, row_step=None, bigendian=False):
+    """A rosbags PointCloud2 from raw parts (no validation: tests build broken ones on purpose)."""
+    data = np.frombuffer(bytes(rows), np.uint8).copy()
+    if width is None:
+        width = len(data) // point_step // max(height, 1)
+    if row_step is None:
+        row_step = width * point_step
+    header = TYPESTORE.types["std_msgs/msg/Header"](
+        stamp=TYPESTORE.types["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="f"
+    )
+    return RB_CLOUD(
+        header=header,
+        height=height,
+        width=width,
+        fields=[RB_FIELD(name=n, offset=o, datatype=d, count=c) for n, o, d, c in fields],
+        is_bigendian=bigendian,
+        point_step=point_step,
+        row_step=row_step,
+        data=data,
+        is_dense=False,
+    )
+
+
+def test_round_trip_rclpy_message_through_serialization() -> None:
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import PointCloud2
+
+    cloud = columns_to_cloud(sample_columns())
+    msg = encode(cloud, frame_id="velodyne", stamp_ns=1_234_567_890_123)
+    assert isinstance(msg, PointCloud2)
+    assert isinstance(msg.data, array.array)
+    assert (msg.height, msg.width, msg.point_step) == (1, len(cloud), cloud.dtype.itemsize)
+    assert msg.header.frame_id == "velodyne"
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1234, 567_890_123)
+    assert msg.is_dense
+    wire = deserialize_message(serialize_message(msg), PointCloud2)
+    out = decode(wire)
+    assert out.dtype.names == cloud.dtype.names
+    assert out.tobytes() == cloud.tobytes()
+    assert header_stamp_ns(wire) == 1_234_567_890_123
+    assert np.shares_memory(out, np.frombuffer(wire.data, np.uint8)), "decode must be zero-copy"
+
+
+def test_round_trip_rosbags_message_through_cdr() -> None:
+    cols = sample_columns(seed=3)
+    msg = encode(cols, frame_id="lidar", stamp_ns=5, typestore=TYPESTORE)
+    assert type(msg) is RB_CLOUD
+    back = TYPESTORE.deserialize_cdr(TYPESTORE.serialize_cdr(msg, PC2), PC2)
+    out = decode(back)
+    for name, values in cols.items():
+        assert np.array_equal(out[name], values), name
+    assert back.header.frame_id == "lidar" and header_stamp_ns(back) == 5
+    via_class = encode(cols, msg_class=RB_CLOUD)
+    assert type(via_class) is RB_CLOUD and np.array_equal(decode(via_class), out)
+
+
+def test_encode_keeps_given_header_and_copies_data() -> None:
+    from std_msgs.msg import Header
+
+    cloud = columns_to_cloud(sample_columns(10))
+    header = Header(frame_id="keep")
+    header.stamp.sec, header.stamp.nanosec = 7, 8
+    msg = encode(cloud, header=header, frame_id="ignored", stamp_ns=99)
+    assert msg.header.frame_id == "keep" and header_stamp_ns(msg) == 7_000_000_008
+    cloud["x"][:] = 0.0
+    assert decode(msg)["x"].any(), "message must not alias the caller's array"
+
+
+def test_padding_and_reordered_fields() -> None:
+    n = 5
+    layout = np.dtype(
+        {"names": ["z", "intensity", "x", "y"], "formats": ["<f4"] * 4, "offsets": [20, 0, 12, 8], "itemsize": 32}
+    )
+    rows = np.zeros(n, layout)
+    rows["x"], rows["y"], rows["z"], rows["intensity"] = np.arange(n), -np.arange(n), 10 + np.arange(n), 0.5
+    raw = rows.tobytes()
+    fields = [("z", 20, 7, 1), ("intensity", 0, 7, 1), ("x", 12, 7, 1), ("y", 8, 7, 1)]
+    out = decode(make_msg(fields, 32, raw))
+    assert out.dtype.itemsize == 32 and out.dtype.names == ("z", "intensity", "x", "y")
+    xyzi = to_xyzi(out)
+    expected = np.stack([np.arange(n), -np.arange(n), 10 + np.arange(n), np.full(n, 0.5)], axis=1)
+    assert np.array_equal(xyzi.points, expected.astype(np.float32))
+    assert xyzi.has_intensity and xyzi.ring is None
+
+
+def test_organized_cloud_with_row_padding_is_row_major() -> None:
+    height, width, step, pad = 3, 4, 12, 8
+    values = np.arange(height * width * 3, dtype=np.float32).reshape(height, width * 3)
+    rows = b"".join(row.tobytes() + b"\xee" * pad for row in values)
+    msg = make_msg(
+        [("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1)],
+        step,
+        rows,
+        height=height,
+        width=width,
+        row_step=width * step + pad,
+    )
+    out = decode(msg)
+    assert len(out) == height * width
+    assert np.array_equal(out["x"], values.reshape(-1, 3)[:, 0])
+    assert np.array_equal(out["z"], values.reshape(-1, 3)[:, 2])
+
+
+def test_organized_encode_round_trip() -> None:
+    cloud = columns_to_cloud(sample_columns(12))
+    msg = encode(cloud, height=3, typestore=TYPESTORE)
+    assert (msg.height, msg.width, msg.row_step) == (3, 4, 4 * cloud.dtype.itemsize)
+    assert decode(msg).tobytes() == cloud.tobytes()
+    with pytest.raises(PointCloud2Error, match="rows"):
+        encode(cloud, height=5)
+
+
+@pytest.mark.parametrize("bigendian", [False, True])
+def test_every_datatype_and_count(bigendian: bool) -> None:
+    order = ">" if bigendian else "<"
+    rng = np.random.default_rng(7)
+    n = 9
+    names, formats, offsets, fields, offset = [], [], [], [], 0
+    for code, base in DATATYPES.items():
+        for count in (1, 3):
+            name = "x" if (code, count) == (7, 1) else f"f{code}_{count}"
+            names.append(name)
+            formats.append(base.newbyteorder(order) if count == 1 else (base.newbyteorder(order), (count,)))
+            offsets.append(offset)
+            fields.append((name, offset, code, count))
+            offset += base.itemsize * count + 1
+    names += ["y", "z"]
+    formats += [order + "f8", order + "i2"]
+    offsets += [offset, offset + 8]
+    fields += [("y", offset, 8, 1), ("z", offset + 8, 3, 1)]
+    layout = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": offset + 11})
+    rows = np.frombuffer(rng.integers(0, 256, n * layout.itemsize, dtype=np.uint8).tobytes(), layout)
+    out = decode(make_msg(fields, layout.itemsize, rows.tobytes(), bigendian=bigendian))
+    for name in names:
+        expected = rows[name]
+        assert out[name].shape == expected.shape, name
+        assert np.array_equal(
+            out[name].astype(expected.dtype.base.newbyteorder("=")),
+            expected.astype(expected.dtype.base.newbyteorder("=")),
+            equal_nan=True,
+        ), name
+    encoded = encode(out, typestore=TYPESTORE)
+    assert bool(encoded.is_bigendian) == (sys.byteorder == "big")
+    again = decode(encoded)
+    for name in names:
+        assert np.array_equal(again[name], out[name], equal_nan=True), name
+
+
+def test_nan_points_kept_or_dropped() -> None:
+    cols = sample_columns(6)
+    cols["x"][1] = np.nan
+    cols["z"][4] = np.nan
+    msg = encode(cols)
+    assert not msg.is_dense
+    kept = decode(msg)
+    assert len(kept) == 6 and np.isnan(kept["x"][1])
+    dropped = decode(msg, skip_nans=True)
+    assert len(dropped) == 4
+    assert np.array_equal(dropped["y"], cols["y"][[0, 2, 3, 5]])
+    assert decode_xyzi(msg, skip_nans=True).points.shape == (4, 4)
+
+
+@pytest.mark.parametrize("alias", ["intensity", "i", "reflectance"])
+def test_intensity_aliases(alias: str) -> None:
+    cols = sample_columns(20)
+    values = cols.pop("intensity")
+    cols[alias] = values.astype(np.float64) if alias == "reflectance" else values
+    result = decode_xyzi(encode(cols))
+    assert result.has_intensity
+    assert np.array_equal(result.points[:, 3], values)
+    assert np.array_equal(result.ring, cols["ring"])
+    assert np.array_equal(result.points[:, 0], cols["x"])
+
+
+def test_missing_intensity_gives_zeros_and_flag() -> None:
+    cols = {k: v for k, v in sample_columns(8).items() if k in ("x", "y", "z")}
+    result = decode_xyzi(encode(cols))
+    assert not result.has_intensity and result.ring is None
+    assert np.array_equal(result.points[:, 3], np.zeros(8, np.float32))
+    assert np.array_equal(result.points[:, 2], cols["z"])
+
+
+def test_empty_cloud() -> None:
+    msg = encode({"x": np.zeros(0, np.float32), "y": np.zeros(0, np.float32), "z": np.zeros(0, np.float32)})
+    assert len(decode(msg)) == 0 and decode_xyzi(msg).points.shape == (0, 4)
+
+
+XYZ = [("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1)]
+
+
+@pytest.mark.parametrize(
+    ("fields", "step", "kwargs", "nbytes", "match"),
+    [
+        (XYZ, 12, {}, 35, "data has 35 bytes, expected"),
+        (XYZ, 12, {"row_step": 20, "width": 3}, 36, "row_step 20 < width 3"),
+        (XYZ[:2], 12, {}, 36, "missing field.*z"),
+        ([*XYZ, ("intensity", 10, 7, 1)], 16, {}, 48, "overlap"),
+        ([*XYZ, ("intensity", 12, 7, 1)], 14, {}, 42, "out of range of point_step 14"),
+        ([*XYZ, ("intensity", 12, 7, 2)], 20, {}, 60, "count 2 not supported"),
+        ([*XYZ, ("intensity", 12, 7, 0)], 16, {}, 48, "count is 0"),
+        ([*XYZ, ("intensity", 12, 9, 1)], 16, {}, 48, "unknown datatype 9"),
+        (XYZ, 0, {"width": 3, "row_step": 0}, 0, "point_step is 0"),
+        ([*XYZ, ("y", 12, 7, 1)], 16, {}, 48, "duplicate field name 'y'"),
+        ([("x", -4, 7, 1), *XYZ[1:]], 12, {}, 36, "offset must be >= 0"),
+    ],
+)
+def test_documented_errors(fields, step, kwargs, nbytes, match) -> None:
+    msg = make_msg(fields, step, bytes(nbytes), **({"width": 3} | kwargs))
+    with pytest.raises(PointCloud2Error, match=match):
+        decode(msg)
+
+
+def test_not_a_message_and_bad_data() -> None:
+    with pytest.raises(PointCloud2Error, match="not a PointCloud2"):
+        decode(SimpleNamespace(height=1))
+    msg = make_msg(XYZ, 12, bytes(12))
+    msg.data = ["a"] * 12
+    with pytest.raises(PointCloud2Error, match="not a byte buffer"):
+        decode(msg)
+    msg.data = list(range(12))
+    assert len(decode(msg)) == 1
+
+
+def test_unnamed_fields_are_padding() -> None:
+    out = decode(make_msg([*XYZ, ("", 12, 2, 4)], 16, bytes(32)))
+    assert out.dtype.names == ("x", "y", "z") and len(out) == 2
+
+
+def test_encode_errors() -> None:
+    with pytest.raises(PointCloud2Error, match="no PointField datatype"):
+        encode({"x": np.zeros(2, np.float32), "y": np.zeros(2), "z": np.zeros(2), "id": np.zeros(2, np.int64)})
+    with pytest.raises(PointCloud2Error, match="missing field"):
+        encode({"x": np.zeros(2), "y": np.zeros(2)})
+    with pytest.raises(PointCloud2Error, match="differ in length"):
+        encode({"x": np.zeros(2), "y": np.zeros(2), "z": np.zeros(3)})
+    with pytest.raises(PointCloud2Error, match="structured"):
+        encode(np.zeros(3, np.float32))
+
+
+def test_big_endian_input_array_encodes_native() -> None:
+    cloud = np.zeros(4, dtype=[("x", ">f4"), ("y", ">f4"), ("z", ">f8")])
+    cloud["x"] = [1, 2, 3, 4]
+    msg = encode(cloud, typestore=TYPESTORE)
+    assert bool(msg.is_bigendian) == (sys.byteorder == "big")
+    assert np.array_equal(decode(msg)["x"], [1, 2, 3, 4])
+
+
+# ---- fuzzing: every corrupted message decodes to what its bytes say, or raises PointCloud2Error ----
+
+EXTRA_NAMES = ["intensity", "ring", "t", "label", "extra", "i"]
+SCALAR = {"x", "y", "z", "ring", "intensity", "i", "reflectance"}
+
+
+def random_message(rng: np.random.Generator):
+    """A valid random layout: shuffled fields, gaps, tail padding, organized rows, either byte order."""
+    names = ["x", "y", "z", *rng.choice(EXTRA_NAMES, rng.integers(0, 4), replace=False)]
+    fields, offset = [], 0
+    for name in names:
+        code = int(rng.choice([7, 8])) if name in "xyz" and rng.random() < 0.8 else int(rng.integers(1, 9))
+        count = 1 if name in SCALAR else int(rng.integers(1, 4))
+        offset += int(rng.integers(0, 3))
+        fields.append([name, offset, code, count])
+        offset += DATATYPES[code].itemsize * count
+    order = rng.permutation(len(fields))
+    fields = [fields[k] for k in order]
+    step = offset + int(rng.integers(0, 4))
+    height, width = int(rng.integers(1, 4)), int(rng.integers(0, 6))
+    row_step = width * step + (int(rng.integers(0, 6)) if rng.random() < 0.4 else 0)
+    data = rng.integers(0, 256, height * row_step, dtype=np.uint8).tobytes()
+    return fields, step, data, height, width, row_step, bool(rng.random() < 0.3)
+
+
+def mutate(rng: np.random.Generator, parts):
+    fields, step, data, height, width, row_step, big = parts
+    fields = [list(f) for f in fields]
+    kind = int(rng.integers(0, 13))
+    k = int(rng.integers(0, len(fields)))
+    if kind == 0:
+        fields[k][1] = max(-2, fields[k][1] + int(rng.integers(-4, 5)))
+    elif kind == 1:
+        fields[k][2] = int(rng.integers(-1, 11))
+    elif kind == 2:
+        fields[k][3] = int(rng.integers(0, 4))
+    elif kind == 3:
+        fields[k][0] = str(rng.choice(["", "xx", fields[int(rng.integers(0, len(fields)))][0]]))
+    elif kind == 4:
+        del fields[k]
+    elif kind == 5:
+        fields.append(list(fields[k]))
+    elif kind == 6:
+        step = max(-1, step + int(rng.integers(-3, 4))) if rng.random() < 0.8 else 0
+    elif kind == 7:
+        row_step = max(0, row_step + int(rng.integers(-5, 6)))
+    elif kind == 8:
+        height = max(0, height + int(rng.choice([-1, 1])))
+    elif kind == 9:
+        width = max(0, width + int(rng.choice([-1, 1])))
+    elif kind == 10:
+        cut = int(rng.integers(-6, 7))
+        data = data[:cut] if cut < 0 else data + bytes(cut)
+    elif kind == 11:
+        big = not big
+    else:
+        junk = [None, 2.5, "4", True][int(rng.integers(0, 4))]
+        target = int(rng.integers(0, 7))
+        if target < 3:
+            fields[k][1 + target] = junk
+        else:
+            step, row_step, height, width = [
+                junk if t == target else v for t, v in zip((3, 4, 5, 6), (step, row_step, height, width), strict=True)
+            ]
+    return fields, step, data, height, width, row_step, big
+
+
+def expected_valid(fields, step, data, height, width, row_step) -> bool:
+    """The codec's documented rules, restated independently."""
+    numbers = [step, height, width, row_step, *(value for f in fields for value in f[1:])]
+    if any(isinstance(v, bool) or not isinstance(v, int) for v in numbers):
+        return False
+    if step <= 0 or row_step < width * step or len(data) != height * row_step:
+        return False
+    spans, names = [], []
+    for name, offset, code, count in fields:
+        if code not in DATATYPES or count < 1 or offset < 0:
+            return False
+        end = offset + DATATYPES[code].itemsize * count
+        if end > step or (name in SCALAR and count != 1):
+            return False
+        spans.append((offset, end))
+        if name:
+            names.append(name)
+    overlap = any(a[0] < b[1] and b[0] < a[1] for i, a in enumerate(spans) for b in spans[i + 1 :])
+    return not overlap and len(set(names)) == len(names) and {"x", "y", "z"} <= set(names)
+
+
+def reference_column(field, step, data, width, height, row_step, big) -> np.ndarray:
+    """One field's values gathered byte by byte from the raw data (no structured dtype involved)."""
+    _, offset, code, count = field
+    base = DATATYPES[code].newbyteorder(">" if big else "<")
+    raw = np.frombuffer(data, np.uint8)
+    index = np.arange(height * width)
+    starts = (index // max(width, 1)) * row_step + (index % max(width, 1)) * step + offset
+    gathered = raw[starts[:, None] + np.arange(base.itemsize * count)[None, :]]
+    values = np.ascontiguousarray(gathered).view(base)
+    return values.reshape(-1) if count == 1 else values.reshape(-1, count)
+
+
+def test_fuzz_corrupted_messages() -> None:
+    rng = np.random.default_rng(20240611)
+    outcomes = {"decoded": 0, "rejected": 0}
+    for trial in range(1500):
+        parts = random_message(rng)
+        for _ in range(int(rng.integers(1, 3))):
+            parts = mutate(rng, parts)
+        fields, step, data, height, width, row_step, big = parts
+        msg = make_msg([tuple(f) for f in fields], 1, data, width=0, row_step=0, bigendian=big)
+        msg.point_step, msg.row_step, msg.height, msg.width = step, row_step, height, width
+        if trial % 3 == 0:
+            msg.data = array.array("B", data)
+        elif trial % 3 == 1:
+            msg.data = data
+        valid = expected_valid(fields, step, data, height, width, row_step)
+        try:
+            out = decode(msg, skip_nans=trial % 5 == 0)
+        except PointCloud2Error:
+            assert not valid, f"trial {trial}: valid message rejected: {parts}"
+            outcomes["rejected"] += 1
+            continue
+        assert valid, f"trial {trial}: invalid message accepted: {parts}"
+        outcomes["decoded"] += 1
+        named = [f for f in fields if f[0]]
+        assert list(out.dtype.names) == [f[0] for f in named]
+        keep = np.ones(height * width, bool)
+        if trial % 5 == 0:
+            for f in named:
+                if f[0] in "xyz" and DATATYPES[f[2]].kind == "f":
+                    keep &= ~np.isnan(reference_column(f, step, data, width, height, row_step, big))
+        for f in named:
+            expected = reference_column(f, step, data, width, height, row_step, big)[keep]
+            assert out[f[0]].dtype == expected.dtype and out[f[0]].shape == expected.shape
+            assert out[f[0]].tobytes() == expected.tobytes(), f"trial {trial}: field {f[0]} differs"
+    assert outcomes["decoded"] > 200 and outcomes["rejected"] > 500, outcomes
+
+
+def test_codec_benchmark_runs(capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.tools.benchmark import main
+
+    assert main(["codec", "--points", "2000", "--repeat", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "2000 points" in out and "ring:uint16" in out
+    for name in ("encode", "decode", "decode_xyzi"):
+        assert f"\n{name} " in out
