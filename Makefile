@@ -3,17 +3,20 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.setup-stamp
+# numba compiles the stage-1 loops and the scan simulator; tqdm draws progress bars (see README).
+RUNTIME_DEPS := 'ros-jazzy-rclpy[fastrtps]==7.1.6' ros-jazzy-common-interfaces==5.3.6 'rosbags>=0.10' numpy numba tqdm pyyaml
+TEST_DEPS := pytest pytest-timeout ruff
 
 .PHONY: setup demo test lint bench clean
 
 setup: $(STAMP)
 
 # torch first and pinned: an unpinned torch pulls several GB of CUDA wheels.
-$(STAMP): setup.py package.xml requirements.txt
+$(STAMP): setup.py package.xml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==2.13.0
-	$(BIN)/python -m pip install --quiet -r requirements.txt
+	$(BIN)/python -m pip install --quiet $(RUNTIME_DEPS) $(TEST_DEPS)
 	$(BIN)/python -m pip install --quiet --no-deps -e .
 	touch $(STAMP)
 

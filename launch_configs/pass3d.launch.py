@@ -1,0 +1,49 @@
+"""Launch both PASS3D nodes (and optionally rviz2) in a real ROS 2 Jazzy install.
+
+    ros2 launch pass3d_ros pass3d.launch.py input_topic:=/velodyne_points rviz:=true
+"""
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch_ros.actions import Node
+from launch_ros.substitutions import FindPackageShare
+
+
+def generate_launch_description() -> LaunchDescription:
+    config_dir = PathJoinSubstitution([FindPackageShare("pass3d_ros"), "config"])
+    params_file = LaunchConfiguration("params_file")
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument(
+                "params_file",
+                default_value=PathJoinSubstitution([config_dir, "pass3d_params.yaml"]),
+                description="parameter YAML for both nodes",
+            ),
+            DeclareLaunchArgument("input_topic", default_value="/velodyne_points", description="LiDAR topic"),
+            DeclareLaunchArgument("weights", default_value="", description="stage-2 checkpoint; empty = shipped"),
+            DeclareLaunchArgument("rviz", default_value="false", description="also start rviz2"),
+            Node(
+                package="pass3d_ros",
+                executable="cluster_proposal_node",
+                name="cluster_proposal_node",
+                output="screen",
+                parameters=[params_file, {"input_topic": LaunchConfiguration("input_topic")}],
+            ),
+            Node(
+                package="pass3d_ros",
+                executable="segmentation_node",
+                name="segmentation_node",
+                output="screen",
+                parameters=[params_file, {"weights": LaunchConfiguration("weights")}],
+            ),
+            Node(
+                package="rviz2",
+                executable="rviz2",
+                name="rviz2",
+                arguments=["-d", PathJoinSubstitution([config_dir, "pass3d.rviz"])],
+                condition=IfCondition(LaunchConfiguration("rviz")),
+            ),
+        ]
+    )

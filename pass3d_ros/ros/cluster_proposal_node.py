@@ -1,0 +1,148 @@
+"""Stage-1 node: Velodyne PointCloud2 in, proposals cloud (ring, ground, cluster ids) and proposal boxes out."""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import PointCloud2
+from visualization_msgs.msg import MarkerArray
+
+from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, propose, warm_up
+from pass3d_ros.ros import params
+from pass3d_ros.ros.latest_frame import LatestFrameWorker
+from pass3d_ros.ros.markers import boxes_to_markers
+from pass3d_ros.ros.pointcloud2 import PointCloud2Error, decode_xyzi, encode
+from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
+
+STAGE1_PREFIX = "stage1."
+LOG_PERIOD_S = 5.0
+
+NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
+    "input_topic": ("/velodyne_points", "PointCloud2 topic of the LiDAR driver", None),
+    "proposals_topic": ("/pass3d/proposals", "output: all valid points with ring, ground, cluster_id(2)", None),
+    "boxes_topic": ("/pass3d/proposal_boxes", "output: MarkerArray of the proposal boxes", None),
+    "input_qos": ("sensor", f"QoS of the input subscription: {' or '.join(QOS_NAMES)}", None),
+    "output_qos": ("reliable", f"QoS of the outputs: {' or '.join(QOS_NAMES)}", None),
+    "intensity_scale": (1.0, "multiplies the input intensity into [0,1] (1/255 for a 0..255 driver)", (0.0, 1.0)),
+    "use_ring_field": (True, "use the cloud's ring field when present, else recover rings from azimuth", None),
+    "publish_boxes": (True, "publish the proposal boxes MarkerArray", None),
+}
+
+
+def proposals_cloud(points: np.ndarray, result: Stage1Result) -> dict[str, np.ndarray]:
+    """The columns of /pass3d/proposals: everything the segmentation node needs, point order kept."""
+    return {
+        "x": points[:, 0],
+        "y": points[:, 1],
+        "z": points[:, 2],
+        "intensity": points[:, 3],
+        "ring": result.ring.astype(np.uint16),
+        "ground": result.ground.astype(np.uint8),
+        "cluster_id": result.cluster_id.astype(np.int32),
+        "cluster_id2": result.cluster_id2.astype(np.int32),
+    }
+
+
+class ClusterProposalNode(Node):
+    """Subscribes a scan, runs ground plane fitting, scan-line-run clustering and proposal refinement."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("cluster_proposal_node", **kwargs)
+        for name, (default, description, value_range) in NODE_PARAMETERS.items():
+            self.declare_parameter(name, default, params.describe(description, value_range, default))
+        params.declare_config(self, Stage1Config(), STAGE1_PREFIX)
+        for name in ("input_qos", "output_qos"):
+            if self.get_parameter(name).value not in QOS_NAMES:
+                raise ValueError(f"parameter {name} must be one of {QOS_NAMES}")
+        self.config = params.read_config(self, Stage1Config, STAGE1_PREFIX)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        started = time.perf_counter()
+        warm_up()
+        self.get_logger().info(f"stage 1 ready (numba warm-up {1e3 * (time.perf_counter() - started):.0f} ms)")
+
+        output_qos = qos_profile(self.get_parameter("output_qos").value)
+        self.proposals_pub = self.create_publisher(PointCloud2, self.get_parameter("proposals_topic").value, output_qos)
+        self.boxes_pub = self.create_publisher(MarkerArray, self.get_parameter("boxes_topic").value, output_qos)
+        self.worker: LatestFrameWorker[PointCloud2] = LatestFrameWorker(self._process, self._on_error, "stage1")
+        self.subscription = self.create_subscription(
+            PointCloud2,
+            self.get_parameter("input_topic").value,
+            self.worker.submit,
+            qos_profile(self.get_parameter("input_qos").value),
+        )
+
+    def _on_set_parameters(self, changed: list[Parameter]) -> Any:
+        """Refuse invalid stage-1 values; apply valid ones to the next frame."""
+        fixed = [p.name for p in changed if p.name in ("input_topic", "proposals_topic", "boxes_topic")]
+        if fixed:
+            return params.result(False, f"{', '.join(fixed)} can only be set at start-up")
+        config, reason = params.validate_changes(self, Stage1Config, changed, STAGE1_PREFIX)
+        if config is None:
+            return params.result(False, reason)
+        self.config = config
+        return params.result(True)
+
+    def _process(self, msg: PointCloud2) -> None:
+        """One frame: decode, propose, publish; a malformed or empty frame is logged and skipped."""
+        received = time.perf_counter()
+        try:
+            scan = decode_xyzi(msg, skip_nans=True)
+        except PointCloud2Error as exc:
+            self.get_logger().warning(f"skipping malformed PointCloud2: {exc}", throttle_duration_sec=LOG_PERIOD_S)
+            return
+        if len(scan.points) == 0:
+            self.get_logger().warning("skipping empty PointCloud2", throttle_duration_sec=LOG_PERIOD_S)
+            return
+        points = scan.points
+        scale = self.get_parameter("intensity_scale").value
+        if scale != 1.0:
+            points[:, 3] *= scale
+        ring = scan.ring if self.get_parameter("use_ring_field").value else None
+        result = propose(points, ring, self.config)
+        self.proposals_pub.publish(encode(proposals_cloud(points, result), header=msg.header))
+        if self.get_parameter("publish_boxes").value:
+            self.boxes_pub.publish(boxes_to_markers(result.boxes, msg.header, "proposals"))
+        steps = " ".join(f"{k}={v:.1f}" for k, v in result.timings_ms.items())
+        self.get_logger().info(
+            f"{len(points)} points, {len(result.boxes)} proposals, stage1 ms: {steps}, "
+            f"node {1e3 * (time.perf_counter() - received):.1f} ms, dropped {self.worker.counters.dropped}",
+            throttle_duration_sec=LOG_PERIOD_S,
+        )
+
+    def _on_error(self, exc: BaseException) -> None:
+        self.get_logger().error(f"frame failed: {type(exc).__name__}: {exc}", throttle_duration_sec=LOG_PERIOD_S)
+
+    def destroy_node(self) -> None:
+        self.worker.stop()
+        super().destroy_node()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`ros2 run pass3d_ros cluster_proposal_node [--ros-args ...]`."""
+    rclpy.init(args=argv if argv is not None else sys.argv)
+    node = None
+    try:
+        node = ClusterProposalNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as exc:
+        print(f"cluster_proposal_node: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

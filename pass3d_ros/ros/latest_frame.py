@@ -1,0 +1,78 @@
+"""A one-slot mailbox with a worker thread: a slow stage drops stale frames and counts them, never queues."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+T = TypeVar("T")
+
+
+@dataclass
+class FrameCounters:
+    received: int = 0
+    processed: int = 0
+    dropped: int = 0
+    failed: int = 0
+
+
+class LatestFrameWorker(Generic[T]):
+    """Runs `process` on the newest submitted item in a background thread.
+
+    `submit` never blocks: an item still waiting when a newer one arrives is replaced and counted as dropped,
+    so memory stays bounded however slow `process` is. Exceptions from `process` go to `on_error`.
+    """
+
+    def __init__(self, process: Callable[[T], None], on_error: Callable[[BaseException], None], name: str) -> None:
+        self._process = process
+        self._on_error = on_error
+        self._pending: T | None = None
+        self._has_pending = False
+        self._cond = threading.Condition()
+        self._stopping = False
+        self._busy = False
+        self.counters = FrameCounters()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, item: T) -> None:
+        """Hand over the newest item; a still-pending older one is dropped."""
+        with self._cond:
+            self.counters.received += 1
+            if self._has_pending:
+                self.counters.dropped += 1
+            self._pending, self._has_pending = item, True
+            self._cond.notify()
+
+    def idle(self) -> bool:
+        """True when nothing is pending or being processed."""
+        with self._cond:
+            return not self._has_pending and not self._busy
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Finish the item in hand, drop what is pending, and join the thread."""
+        with self._cond:
+            self._stopping = True
+            self._cond.notify()
+        self._thread.join(timeout)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._has_pending and not self._stopping:
+                    self._cond.wait()
+                if self._stopping:
+                    return
+                item, self._pending, self._has_pending = self._pending, None, False
+                self._busy = True
+            try:
+                self._process(item)  # type: ignore[arg-type]
+                self.counters.processed += 1
+            except Exception as exc:  # a bad frame must never kill the worker
+                self.counters.failed += 1
+                self._on_error(exc)
+            finally:
+                with self._cond:
+                    self._busy = False

@@ -1,0 +1,458 @@
+"""Live-path evaluation: a bag's clouds through both real nodes in one process, outputs matched by header stamp.
+
+`run_live` starts ClusterProposalNode and SegmentationNode on a MultiThreadedExecutor in a private rclpy
+context (its own DDS domain, so a real robot on the default domain never sees the test traffic), publishes
+the bag's PointCloud2 CDR bytes unchanged on the cluster node's input topic and listens to the labeled
+output (and, for per-stage times, to the proposals in between). Ground truth comes from the bag's `label`
+field. `score` turns a LiveResult into the nested dict `pass3d_evaluate` writes as JSON.
+
+Timing: latency = publish wall time -> receipt of /pass3d/labeled; stage1_ms = publish -> receipt of
+/pass3d/proposals; stage2_ms = that receipt -> receipt of /pass3d/labeled. Each includes the DDS hop of
+its output message, which is what a live consumer sees.
+"""
+
+from __future__ import annotations
+
+import random
+import struct
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pass3d_ros.classes import CLASS_NAMES, FOREGROUND, NUM_CLASSES
+from pass3d_ros.core.metrics import ConfusionAccumulator
+from pass3d_ros.data.bag import TYPESTORE, BagWriter, count_frames, iter_raw, parse_bag_spec, select_topic
+from pass3d_ros.ros.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, finite_mask, header_stamp_ns
+
+NODE_NAMES: tuple[str, ...] = ("cluster_proposal_node", "segmentation_node")
+DISCOVERY_TIMEOUT_S = 15.0
+SETTLE_S = 0.3  # after matching: the subscriber side of discovery may finish a moment later
+QUIET_S = 1.0  # at the end, both nodes idle and no output for this long: nothing more will come
+
+
+class LiveEvalError(RuntimeError):
+    """The live run could not start (discovery) or its bag is unusable; the message says which."""
+
+
+@dataclass
+class LiveFrame:
+    """One output frame matched to its input."""
+
+    index: int  # position of the input in the bag's topic
+    stamp_ns: int
+    points: int  # finite input points
+    latency_ms: float
+    stage1_ms: float | None
+    stage2_ms: float | None
+    mismatch: bool  # output point count differs from the input's, or no label field
+    truth: np.ndarray | None = None  # kept only with keep_labels
+    predicted: np.ndarray | None = None  # kept only with keep_labels
+
+
+@dataclass
+class LiveResult:
+    """What a live run published, what came back, and the accumulated point-wise confusion."""
+
+    lockstep: bool
+    rate: float
+    frames_in: int = 0
+    frames_out: int = 0
+    mismatched: int = 0
+    timeouts: int = 0  # lockstep: outputs not back within timeout_s (they may still arrive later)
+    skipped: int = 0  # input frames not published: empty, undecodable, or not stamped after their predecessor
+    unmatched_outputs: int = 0  # outputs whose stamp matches no pending input
+    labeled_frames: int = 0  # output frames that entered the confusion matrix
+    latency_ms: list[float] = field(default_factory=list)
+    frames: list[LiveFrame] = field(default_factory=list)
+    confusion: ConfusionAccumulator = field(default_factory=ConfusionAccumulator)
+    node_counters: dict[str, dict[str, int]] = field(default_factory=dict)
+    wall_s: float = 0.0
+    record_out: Path | None = None
+
+    @property
+    def dropped(self) -> int:
+        """Inputs without an output: dropped by a node's one-slot mailbox, lost in transport, or skipped by a node."""
+        return self.frames_in - self.frames_out
+
+
+@dataclass
+class _Pending:
+    index: int
+    points: int
+    truth: np.ndarray | None
+    published: float = 0.0
+    proposals_at: float | None = None
+
+
+def cdr_stamp_ns(raw: bytes | memoryview) -> int:
+    """Header stamp of a serialized message whose first field is a std_msgs/Header (PointCloud2 is)."""
+    order = "<" if raw[1] == 1 else ">"  # CDR encapsulation: 0x0001 little endian, 0x0000 big endian
+    sec, nanosec = struct.unpack_from(order + "iI", raw, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+def _input_frame(raw: bytes, msgtype: str) -> tuple[int, int, np.ndarray | None]:
+    """(stamp, finite point count, ground-truth labels of the finite points or None) of one bag message."""
+    msg = TYPESTORE.deserialize_cdr(raw, msgtype)
+    cloud = decode(msg)
+    keep = finite_mask(cloud)
+    truth = None
+    if "label" in (cloud.dtype.names or ()):
+        truth = np.ascontiguousarray(cloud["label"][keep], dtype=np.uint8)
+        if truth.size and truth.max() >= NUM_CLASSES:
+            raise PointCloud2Error(f"label field holds ids above {NUM_CLASSES - 1}")
+    return header_stamp_ns(msg), int(np.count_nonzero(keep)), truth
+
+
+def _overrides(node_parameters: Mapping[str, Mapping[str, Any]] | None) -> dict[str, list]:
+    """{node name: [rclpy Parameter]} from {node name: {parameter: value}}, node names checked."""
+    from rclpy.parameter import Parameter
+
+    unknown = sorted(set(node_parameters or {}) - set(NODE_NAMES))
+    if unknown:
+        raise ValueError(f"node_parameters: unknown node(s) {', '.join(unknown)}; nodes: {', '.join(NODE_NAMES)}")
+    out: dict[str, list] = {}
+    for name in NODE_NAMES:
+        values = dict((node_parameters or {}).get(name, {}))
+        out[name] = [Parameter(k, value=list(v) if isinstance(v, tuple) else v) for k, v in values.items()]
+    return out
+
+
+def _check_declared(node: Any, overrides: list) -> None:
+    unknown = [p.name for p in overrides if not node.has_parameter(p.name)]
+    if unknown:
+        raise ValueError(f"{node.get_name()}: unknown parameter(s) {', '.join(unknown)}")
+
+
+def _wait(predicate: Callable[[], bool], timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+class _Session:
+    """Shared state of one run: pending inputs by stamp, matched outputs, the optional recording."""
+
+    def __init__(self, result: LiveResult, keep_labels: bool, writer: BagWriter | None, labeled_topic: str) -> None:
+        self.result = result
+        self.keep_labels = keep_labels
+        self.writer = writer
+        self.labeled_topic = labeled_topic
+        self.pending: dict[int, _Pending] = {}
+        self.cond = threading.Condition()
+        self.last_output = time.perf_counter()
+        self.error: BaseException | None = None
+
+    def on_proposals(self, raw: bytes) -> None:
+        now = time.perf_counter()
+        stamp = cdr_stamp_ns(raw)
+        with self.cond:
+            entry = self.pending.get(stamp)
+            if entry is not None and entry.proposals_at is None:
+                entry.proposals_at = now
+
+    def on_labeled(self, raw: bytes) -> None:
+        now = time.perf_counter()
+        try:
+            self._labeled(raw, now)
+        except Exception as exc:  # an executor callback must not die; run_live re-raises it
+            with self.cond:
+                self.error = self.error or exc
+                self.cond.notify_all()
+
+    def _labeled(self, raw: bytes, now: float) -> None:
+        stamp = cdr_stamp_ns(raw)
+        if self.writer is not None:
+            self.writer.write_raw(self.labeled_topic, POINTCLOUD2_TYPE, stamp, raw)
+        with self.cond:
+            entry = self.pending.get(stamp)
+        if entry is None:
+            with self.cond:
+                self.result.unmatched_outputs += 1
+                self.last_output = now
+                self.cond.notify_all()
+            return
+        cloud = decode(TYPESTORE.deserialize_cdr(raw, POINTCLOUD2_TYPE))
+        predicted = cloud["label"].astype(np.uint8) if "label" in (cloud.dtype.names or ()) else None
+        mismatch = predicted is None or len(predicted) != entry.points
+        frame = LiveFrame(
+            index=entry.index,
+            stamp_ns=stamp,
+            points=entry.points,
+            latency_ms=1e3 * (now - entry.published),
+            stage1_ms=None if entry.proposals_at is None else 1e3 * (entry.proposals_at - entry.published),
+            stage2_ms=None if entry.proposals_at is None else 1e3 * (now - entry.proposals_at),
+            mismatch=mismatch,
+        )
+        if self.keep_labels:
+            frame.truth, frame.predicted = entry.truth, predicted
+        with self.cond:
+            for older in [s for s in self.pending if s <= stamp]:  # outputs come in input order
+                del self.pending[older]
+            result = self.result
+            result.frames_out += 1
+            result.latency_ms.append(frame.latency_ms)
+            result.frames.append(frame)
+            if mismatch:
+                result.mismatched += 1
+            elif entry.truth is not None:
+                result.confusion.update(entry.truth, predicted)
+                result.labeled_frames += 1
+            self.last_output = now
+            self.cond.notify_all()
+
+
+def run_live(
+    bag: str | Path,
+    *,
+    lockstep: bool = True,
+    rate: float = 1.0,
+    node_parameters: Mapping[str, Mapping[str, Any]] | None = None,
+    record_out: Path | None = None,
+    timeout_s: float = 30.0,
+    keep_labels: bool = True,
+    stage_timing: bool = True,
+    domain_id: int | None = None,
+    force: bool = False,
+    log_level: str | None = None,
+    progress: bool = False,
+) -> LiveResult:
+    """Play `bag` (`PATH` or `PATH#/topic`) through both live nodes and collect what comes out.
+
+    lockstep: publish the next frame only once the previous one's labeled output arrived or `timeout_s`
+    passed (counted in `timeouts`). Otherwise publish at `rate` x the recorded pace (0: as fast as
+    possible) and wait at most `timeout_s` after the last publish for the outputs. `node_parameters` =
+    {"cluster_proposal_node": {...}, "segmentation_node": {...}}; unknown nodes or parameters are a
+    ValueError, bad weights the node's own error. `record_out`: the received labeled messages as an MCAP
+    bag (`force` replaces an existing one). keep_labels=False keeps per-frame records without label
+    arrays (long soaks: the confusion matrix still accumulates). `domain_id` defaults to a random one in
+    100..200.
+    """
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.logging import LoggingSeverity, set_logger_level
+    from sensor_msgs.msg import PointCloud2
+    from tqdm import tqdm
+
+    from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+    from pass3d_ros.ros.qos import qos_profile
+    from pass3d_ros.ros.segmentation_node import SegmentationNode
+
+    if rate < 0:
+        raise ValueError(f"rate must be >= 0, got {rate}")
+    if timeout_s <= 0:
+        raise ValueError(f"timeout_s must be > 0, got {timeout_s}")
+    path, topic = parse_bag_spec(bag)
+    topic = select_topic(path, topic)
+    overrides = _overrides(node_parameters)
+    if log_level is not None:
+        severity = LoggingSeverity[log_level.upper()]
+        for name in NODE_NAMES:
+            set_logger_level(name, severity)
+
+    result = LiveResult(lockstep=lockstep, rate=rate, record_out=Path(record_out) if record_out else None)
+    writer = BagWriter(record_out, force=force) if record_out is not None else None
+    context = Context()
+    rclpy.init(args=[], context=context, domain_id=random.randint(100, 200) if domain_id is None else domain_id)
+    executor = MultiThreadedExecutor(num_threads=3, context=context)
+    nodes: list[Any] = []
+    spinner: threading.Thread | None = None
+    try:
+        cluster = ClusterProposalNode(context=context, parameter_overrides=overrides[NODE_NAMES[0]])
+        nodes.append(cluster)
+        _check_declared(cluster, overrides[NODE_NAMES[0]])
+        segmenter = SegmentationNode(context=context, parameter_overrides=overrides[NODE_NAMES[1]])
+        nodes.append(segmenter)
+        _check_declared(segmenter, overrides[NODE_NAMES[1]])
+        probe = rclpy.create_node(f"pass3d_live_eval_{random.getrandbits(32):08x}", context=context)
+        nodes.append(probe)
+        labeled_topic = segmenter.get_parameter("labeled_topic").value
+        if writer is not None:
+            writer.open()
+        session = _Session(result, keep_labels, writer, labeled_topic)
+        output_qos = qos_profile(segmenter.get_parameter("output_qos").value, depth=50)
+        labeled_sub = probe.create_subscription(PointCloud2, labeled_topic, session.on_labeled, output_qos, raw=True)
+        if stage_timing:
+            probe.create_subscription(
+                PointCloud2,
+                cluster.get_parameter("proposals_topic").value,
+                session.on_proposals,
+                qos_profile(cluster.get_parameter("output_qos").value, depth=50),
+                raw=True,
+            )
+        publisher = probe.create_publisher(PointCloud2, cluster.get_parameter("input_topic").value,
+                                           qos_profile("reliable", depth=10))
+        for node in nodes:
+            executor.add_node(node)
+        spinner = threading.Thread(target=executor.spin, name="pass3d-live-eval", daemon=True)
+        spinner.start()
+
+        def connected() -> bool:
+            return (
+                publisher.get_subscription_count() >= 1
+                and cluster.proposals_pub.get_subscription_count() >= 1 + int(stage_timing)
+                and segmenter.labeled_pub.get_subscription_count() >= 1
+                and labeled_sub.get_publisher_count() >= 1
+            )
+
+        if not _wait(connected, DISCOVERY_TIMEOUT_S):
+            raise LiveEvalError(f"the nodes and the evaluator did not discover each other in {DISCOVERY_TIMEOUT_S} s")
+        time.sleep(SETTLE_S)
+
+        started = time.perf_counter()
+        bar = tqdm(total=count_frames(bag), unit="frame", desc="live", disable=not progress)
+        pace_start, first_bag_ns, last_stamp = None, 0, None
+        for index, (conn, bag_ns, raw) in enumerate(iter_raw(path, topic)):
+            bar.update(1)
+            try:
+                stamp, points, truth = _input_frame(raw, conn.msgtype)
+            except (PointCloud2Error, ValueError, IndexError, struct.error):
+                result.skipped += 1
+                continue
+            if points == 0 or (last_stamp is not None and stamp <= last_stamp):
+                result.skipped += 1
+                continue
+            last_stamp = stamp
+            if not lockstep and rate > 0:
+                if pace_start is None:
+                    pace_start, first_bag_ns = time.perf_counter(), bag_ns
+                delay = pace_start + (bag_ns - first_bag_ns) / 1e9 / rate - time.perf_counter()
+                if delay > 0:
+                    time.sleep(delay)
+            entry = _Pending(index, points, truth)
+            with session.cond:
+                if session.error is not None:
+                    raise session.error
+                session.pending[stamp] = entry
+                result.frames_in += 1
+                entry.published = time.perf_counter()
+            publisher.publish(bytes(raw))
+            if lockstep:
+                with session.cond:
+                    arrived = session.cond.wait_for(
+                        lambda s=stamp: s not in session.pending or session.error is not None, timeout_s
+                    )
+                    if not arrived:
+                        result.timeouts += 1
+        bar.close()
+
+        def finished() -> bool:
+            with session.cond:
+                if not session.pending or session.error is not None:
+                    return True
+                quiet = time.perf_counter() - session.last_output >= QUIET_S
+            return quiet and cluster.worker.idle() and segmenter.worker.idle()
+
+        _wait(finished, timeout_s)
+        result.wall_s = time.perf_counter() - started
+        _wait(lambda: cluster.worker.idle() and segmenter.worker.idle(), timeout_s)  # counters final
+        if session.error is not None:
+            raise session.error
+        result.node_counters = {
+            NODE_NAMES[0]: asdict(cluster.worker.counters),
+            NODE_NAMES[1]: asdict(segmenter.worker.counters),
+        }
+    except BaseException:
+        _stop(executor, nodes, context, spinner)
+        if writer is not None:
+            writer.abort()
+        raise
+    _stop(executor, nodes, context, spinner)  # no callback writes any more: the recording can be closed
+    if writer is not None:
+        writer.close()
+    return result
+
+
+def _stop(executor: Any, nodes: list[Any], context: Any, spinner: threading.Thread | None) -> None:
+    """Stop spinning, destroy the nodes (their workers join) and shut the private context down."""
+    import rclpy
+
+    executor.shutdown()
+    if spinner is not None:
+        spinner.join(timeout=5)
+    for node in reversed(nodes):
+        node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+def _stats(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    v = np.asarray(values, dtype=np.float64)
+    return {"median": float(np.median(v)), "mean": float(v.mean()), "p95": float(np.percentile(v, 95)),
+            "max": float(v.max())}
+
+
+def score(result: LiveResult) -> dict:
+    """Per-class precision / recall / IoU and mean IoU (foreground classes) plus the `live` counters and times."""
+    summary = result.confusion.summary(FOREGROUND)
+    has_truth = result.labeled_frames > 0
+    stage1 = [f.stage1_ms for f in result.frames if f.stage1_ms is not None]
+    stage2 = [f.stage2_ms for f in result.frames if f.stage2_ms is not None]
+    return {
+        "frames": result.labeled_frames,
+        "per_class": summary["per_class"] if has_truth else None,
+        "mean_iou": summary["mean_iou"] if has_truth else None,
+        "live": {
+            "lockstep": result.lockstep,
+            "rate": result.rate,
+            "frames_in": result.frames_in,
+            "frames_out": result.frames_out,
+            "dropped": result.dropped,
+            "mismatched": result.mismatched,
+            "timeouts": result.timeouts,
+            "skipped": result.skipped,
+            "unmatched_outputs": result.unmatched_outputs,
+            "wall_s": result.wall_s,
+            "output_hz": result.frames_out / result.wall_s if result.wall_s > 0 else None,
+            "latency_ms": _stats(result.latency_ms),
+            "stage_ms": {"stage1": _stats(stage1), "stage2": _stats(stage2)},
+            "nodes": result.node_counters,
+        },
+    }
+
+
+def _pct(value: float | None) -> str:
+    return "   n/a" if value is None else f"{100 * value:6.1f}"
+
+
+def _ms(stats: dict | None) -> str:
+    return "n/a" if stats is None else f"median {stats['median']:.1f} ms, p95 {stats['p95']:.1f} ms"
+
+
+def format_metrics(per_class: dict, mean_iou: float | None) -> list[str]:
+    """Table lines: per-class precision / recall / IoU in %, point counts, and the foreground mean IoU."""
+    lines = [f"{'class':<12}{'prec %':>8}{'recall %':>10}{'IoU %':>8}{'points':>10}"]
+    for name in CLASS_NAMES:
+        row = per_class[name]
+        lines.append(f"{name:<12}{_pct(row['precision']):>8}{_pct(row['recall']):>10}{_pct(row['iou']):>8}"
+                     f"{row['points']:>10}")
+    lines.append(f"mean IoU (car, pedestrian, cyclist): {_pct(mean_iou).strip()} %")
+    return lines
+
+
+def format_report(scores: dict) -> str:
+    """A plain-text table of a `score` dict: per-class P / R / IoU (%), mean IoU, live counters and times."""
+    if scores.get("per_class"):
+        lines = format_metrics(scores["per_class"], scores["mean_iou"])
+    else:
+        lines = ["no ground-truth labels: no segmentation metrics"]
+    live = scores["live"]
+    mode = "lockstep" if live["lockstep"] else f"rate x{live['rate']:g}"
+    lines.append(
+        f"live ({mode}): {live['frames_in']} in, {live['frames_out']} out, {live['dropped']} dropped, "
+        f"{live['mismatched']} mismatched, {live['timeouts']} timeouts, {live['skipped']} skipped"
+    )
+    lines.append(f"latency publish -> /pass3d/labeled: {_ms(live['latency_ms'])}")
+    lines.append(f"stage 1 (publish -> /pass3d/proposals): {_ms(live['stage_ms']['stage1'])}")
+    lines.append(f"stage 2 (/pass3d/proposals -> /pass3d/labeled): {_ms(live['stage_ms']['stage2'])}")
+    return "\n".join(lines)

@@ -1,0 +1,38 @@
+"""`pass3d_pipeline`: both nodes in one process on a multi-threaded executor, for machines without ros2 launch."""
+
+from __future__ import annotations
+
+import sys
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+
+from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+from pass3d_ros.ros.segmentation_node import SegmentationNode
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run cluster_proposal_node and segmentation_node together; `--ros-args --params-file launch_configs/pass3d_params.yaml` sets parameters."""
+    rclpy.init(args=argv if argv is not None else sys.argv)
+    nodes = []
+    executor = MultiThreadedExecutor(num_threads=2)
+    try:
+        nodes = [ClusterProposalNode(), SegmentationNode()]
+        for node in nodes:
+            executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ValueError, OSError) as exc:
+        print(f"pass3d_pipeline: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        executor.shutdown()
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,194 @@
+"""Stage-2 node: proposals cloud in, labeled cloud (label, confidence, rgb) and object boxes out."""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import PointCloud2
+from visualization_msgs.msg import MarkerArray
+
+from pass3d_ros.classes import BACKGROUND, packed_rgb
+from pass3d_ros.core.canonical import fit_box_members
+from pass3d_ros.core.segmentation import Classifier, SegmentResult, load_classifier
+from pass3d_ros.core.stage1 import proposal_members
+from pass3d_ros.data.frame import Box3D
+from pass3d_ros.ros import params
+from pass3d_ros.ros.latest_frame import LatestFrameWorker
+from pass3d_ros.ros.markers import boxes_to_markers
+from pass3d_ros.ros.pointcloud2 import PointCloud2Error, decode, encode, to_xyzi
+from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
+from pass3d_ros.weights import default_weights
+
+LOG_PERIOD_S = 5.0
+REQUIRED_FIELDS = ("cluster_id",)
+
+NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
+    "input_topic": ("/pass3d/proposals", "proposals cloud from cluster_proposal_node", None),
+    "labeled_topic": ("/pass3d/labeled", "output: labeled cloud (label, confidence, rgb)", None),
+    "objects_topic": ("/pass3d/objects", "output: MarkerArray, one box and text per labeled proposal", None),
+    "input_qos": ("reliable", f"QoS of the input subscription: {' or '.join(QOS_NAMES)}", None),
+    "output_qos": ("reliable", f"QoS of the outputs: {' or '.join(QOS_NAMES)}", None),
+    "classifier": ("network", "network (PointNet++) or size_rules (geometric baseline)", None),
+    "weights": ("", "stage-2 checkpoint; empty = the weights shipped with the package", None),
+    "device": ("cpu", "torch device: cpu or cuda", None),
+    "max_proposals": (64, "at most this many proposals per frame, nearest first", (1, 1024)),
+    "min_confidence": (0.0, "points predicted below this confidence are labeled background", (0.0, 1.0)),
+}
+
+
+def labeled_cloud(cloud: np.ndarray, points: np.ndarray, result: SegmentResult, min_confidence: float) -> dict:
+    """The columns of /pass3d/labeled: input geometry and ids plus label, confidence and rgb."""
+    labels = result.labels.astype(np.uint8)
+    if min_confidence > 0.0:
+        labels = np.where(result.confidence >= min_confidence, labels, BACKGROUND).astype(np.uint8)
+    names = cloud.dtype.names or ()
+    columns = {
+        "x": points[:, 0],
+        "y": points[:, 1],
+        "z": points[:, 2],
+        "intensity": points[:, 3],
+    }
+    if "ring" in names:
+        columns["ring"] = cloud["ring"].astype(np.uint16)
+    columns["cluster_id"] = cloud["cluster_id"].astype(np.int32)
+    columns["label"] = labels
+    columns["confidence"] = result.confidence.astype(np.float32)
+    columns["rgb"] = packed_rgb(labels)
+    return columns
+
+
+def object_boxes(points: np.ndarray, members: list[np.ndarray], result: SegmentResult) -> tuple[list[Box3D], list]:
+    """Boxes of the proposals classified as an object, with their classes."""
+    chosen = [i for i, c in enumerate(result.proposal_class) if c > BACKGROUND and len(members[i])]
+    if not chosen:
+        return [], []
+    fitted = fit_box_members(points, [members[i] for i in chosen])
+    boxes = [
+        Box3D(
+            center=np.array([fitted.center[k, 0], fitted.center[k, 1], fitted.zmin[k] + fitted.size[k, 2] / 2]),
+            size=fitted.size[k],
+            yaw=float(fitted.yaw[k]),
+            label=int(result.proposal_class[i]),
+        )
+        for k, i in enumerate(chosen)
+    ]
+    return boxes, [int(result.proposal_class[i]) for i in chosen]
+
+
+def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:
+    """Point indices of each proposal from the per-point cluster_id (and cluster_id2 when present)."""
+    names = cloud.dtype.names or ()
+    first = cloud["cluster_id"].astype(np.int32)
+    second = cloud["cluster_id2"].astype(np.int32) if "cluster_id2" in names else np.full_like(first, -1)
+    return proposal_members(first, second)
+
+
+class SegmentationNode(Node):
+    """Runs the stage-2 classifier on every proposal of a frame in one batched pass."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("segmentation_node", **kwargs)
+        for name, (default, description, value_range) in NODE_PARAMETERS.items():
+            self.declare_parameter(name, default, params.describe(description, value_range, default))
+        for name in ("input_qos", "output_qos"):
+            if self.get_parameter(name).value not in QOS_NAMES:
+                raise ValueError(f"parameter {name} must be one of {QOS_NAMES}")
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.classifier = self._load_classifier()
+
+        output_qos = qos_profile(self.get_parameter("output_qos").value)
+        self.labeled_pub = self.create_publisher(PointCloud2, self.get_parameter("labeled_topic").value, output_qos)
+        self.objects_pub = self.create_publisher(MarkerArray, self.get_parameter("objects_topic").value, output_qos)
+        self.worker: LatestFrameWorker[PointCloud2] = LatestFrameWorker(self._process, self._on_error, "stage2")
+        self.subscription = self.create_subscription(
+            PointCloud2,
+            self.get_parameter("input_topic").value,
+            self.worker.submit,
+            qos_profile(self.get_parameter("input_qos").value),
+        )
+
+    def _load_classifier(self) -> Classifier:
+        """Load and warm up the classifier; missing or incompatible weights end start-up with the reason."""
+        kind = self.get_parameter("classifier").value
+        weights = self.get_parameter("weights").value or (str(default_weights()) if kind == "network" else None)
+        started = time.perf_counter()
+        classifier = load_classifier(kind, weights, device=self.get_parameter("device").value)
+        if hasattr(classifier, "max_proposals"):
+            classifier.max_proposals = self.get_parameter("max_proposals").value
+        classifier.warm_up()
+        took = 1e3 * (time.perf_counter() - started)
+        self.get_logger().info(f"stage 2 ready: {kind} {weights or ''} (load + warm-up {took:.0f} ms)")
+        return classifier
+
+    def _on_set_parameters(self, changed: list[Parameter]) -> Any:
+        """Only max_proposals and min_confidence change at run time; the rest need a restart."""
+        live = {"max_proposals", "min_confidence"}
+        fixed = [p.name for p in changed if p.name not in live]
+        if fixed:
+            return params.result(False, f"{', '.join(fixed)} can only be set at start-up")
+        for p in changed:
+            if p.name == "max_proposals" and hasattr(self, "classifier") and hasattr(self.classifier, "max_proposals"):
+                self.classifier.max_proposals = int(p.value)
+        return params.result(True)
+
+    def _process(self, msg: PointCloud2) -> None:
+        """One frame: decode, segment every proposal, publish; malformed input is logged and skipped."""
+        received = time.perf_counter()
+        try:
+            cloud = decode(msg, skip_nans=True)
+            missing = [name for name in REQUIRED_FIELDS if name not in (cloud.dtype.names or ())]
+            if missing:
+                raise PointCloud2Error(f"no {', '.join(missing)} field: is this a /pass3d/proposals cloud?")
+            points = to_xyzi(cloud, with_ring=False).points
+        except PointCloud2Error as exc:
+            self.get_logger().warning(f"skipping malformed proposals cloud: {exc}", throttle_duration_sec=LOG_PERIOD_S)
+            return
+        members = members_from_cloud(cloud)
+        result = self.classifier.segment(points, members)
+        columns = labeled_cloud(cloud, points, result, self.get_parameter("min_confidence").value)
+        self.labeled_pub.publish(encode(columns, header=msg.header))
+        boxes, classes = object_boxes(points, members, result)
+        self.objects_pub.publish(boxes_to_markers(boxes, msg.header, "objects", classes, with_text=True))
+        counts = np.bincount(columns["label"], minlength=4)
+        self.get_logger().info(
+            f"{len(points)} points, {len(members)} proposals, labeled car/ped/cyc points {counts[1:].tolist()}, "
+            f"stage2 {1e3 * (time.perf_counter() - received):.1f} ms, dropped {self.worker.counters.dropped}",
+            throttle_duration_sec=LOG_PERIOD_S,
+        )
+
+    def _on_error(self, exc: BaseException) -> None:
+        self.get_logger().error(f"frame failed: {type(exc).__name__}: {exc}", throttle_duration_sec=LOG_PERIOD_S)
+
+    def destroy_node(self) -> None:
+        self.worker.stop()
+        super().destroy_node()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`ros2 run pass3d_ros segmentation_node [--ros-args ...]`."""
+    rclpy.init(args=argv if argv is not None else sys.argv)
+    node = None
+    try:
+        node = SegmentationNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ValueError, OSError) as exc:  # missing or incompatible weights, bad parameters
+        print(f"segmentation_node: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

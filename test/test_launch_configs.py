@@ -1,0 +1,120 @@
+"""launch_configs/ parsed and checked: every executable, parameter and topic they name exists."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import re
+from pathlib import Path
+
+import pytest
+import yaml
+
+from pass3d_ros.core.stage1 import Stage1Config
+from pass3d_ros.ros import cluster_proposal_node, segmentation_node
+
+ROOT = Path(__file__).resolve().parents[1]
+LAUNCH = ROOT / "launch_configs"
+PARAMS_FILE = LAUNCH / "pass3d_params.yaml"
+
+
+def console_scripts() -> set[str]:
+    """Executable names declared in setup.py's console_scripts."""
+    text = (ROOT / "setup.py").read_text()
+    return set(re.findall(r'"(\w+) = pass3d_ros\.[\w.]+:main"', text))
+
+
+def declared_parameters() -> dict[str, set[str]]:
+    """Parameter names each node declares, flattened with dots as ROS does."""
+    stage1 = {f"stage1.{f.name}" for f in dataclasses.fields(Stage1Config)}
+    return {
+        "cluster_proposal_node": set(cluster_proposal_node.NODE_PARAMETERS) | stage1,
+        "segmentation_node": set(segmentation_node.NODE_PARAMETERS),
+    }
+
+
+def flatten(tree: dict, prefix: str = "") -> dict[str, object]:
+    """{'a': {'b': 1}} -> {'a.b': 1}."""
+    flat: dict[str, object] = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            flat.update(flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def test_every_executable_is_declared() -> None:
+    scripts = console_scripts()
+    assert {"cluster_proposal_node", "segmentation_node", "pass3d_pipeline"} <= scripts
+    launch_yaml = yaml.safe_load((LAUNCH / "pass3d.launch.yaml").read_text())
+    yaml_nodes = [entry["node"] for entry in launch_yaml["launch"] if "node" in entry]
+    ours = [n["exec"] for n in yaml_nodes if n["pkg"] == "pass3d_ros"]
+    assert ours == ["cluster_proposal_node", "segmentation_node"]
+    assert set(ours) <= scripts
+
+    tree = ast.parse((LAUNCH / "pass3d.launch.py").read_text())
+    calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "Node"]
+    kwargs = [{k.arg: k.value for k in call.keywords} for call in calls]
+    py_execs = [k["executable"].value for k in kwargs if k["package"].value == "pass3d_ros"]
+    assert py_execs == ours
+
+
+def test_parameter_yaml_names_only_declared_parameters_with_valid_values() -> None:
+    data = yaml.safe_load(PARAMS_FILE.read_text())
+    declared = declared_parameters()
+    assert set(data) == set(declared)
+    for node_name, body in data.items():
+        values = flatten(body["ros__parameters"])
+        unknown = set(values) - declared[node_name]
+        assert not unknown, f"{node_name}: {unknown} are not declared by the node"
+    stage1 = data["cluster_proposal_node"]["ros__parameters"]["stage1"]
+    config = Stage1Config.from_mapping(stage1)
+    assert config == Stage1Config(), "the YAML must carry the paper's defaults"
+
+
+def test_launch_files_set_only_declared_parameters() -> None:
+    declared = declared_parameters()
+    launch_yaml = yaml.safe_load((LAUNCH / "pass3d.launch.yaml").read_text())
+    for entry in launch_yaml["launch"]:
+        node = entry.get("node")
+        if not node or node["pkg"] != "pass3d_ros":
+            continue
+        names = {p["name"] for p in node["param"] if "name" in p}
+        assert names <= declared[node["name"]]
+    tree = ast.parse((LAUNCH / "pass3d.launch.py").read_text())
+    for call in (n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "Node"):
+        kw = {k.arg: k.value for k in call.keywords}
+        if kw["package"].value != "pass3d_ros":
+            continue
+        for item in kw["parameters"].elts:
+            if isinstance(item, ast.Dict):
+                assert {k.value for k in item.keys} <= declared[kw["name"].value]
+
+
+def test_rviz_config_shows_the_nodes_topics() -> None:
+    rviz = yaml.safe_load((LAUNCH / "pass3d.rviz").read_text())
+    displays = {d["Name"]: d for d in rviz["Visualization Manager"]["Displays"]}
+    cloud = displays["Labeled cloud"]
+    assert cloud["Class"] == "rviz_default_plugins/PointCloud2"
+    assert cloud["Color Transformer"] == "RGB8"
+    assert cloud["Topic"]["Value"] == segmentation_node.NODE_PARAMETERS["labeled_topic"][0]
+    assert displays["Objects"]["Topic"]["Value"] == segmentation_node.NODE_PARAMETERS["objects_topic"][0]
+    assert displays["Proposals"]["Topic"]["Value"] == cluster_proposal_node.NODE_PARAMETERS["boxes_topic"][0]
+
+
+def test_a_real_node_loads_the_parameter_file() -> None:
+    rclpy = pytest.importorskip("rclpy")
+    from rclpy.context import Context
+
+    context = Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(PARAMS_FILE)], context=context, domain_id=87)
+    try:
+        node = cluster_proposal_node.ClusterProposalNode(context=context)
+        try:
+            assert node.get_parameter("stage1.th_ring").value == 0.5
+            assert node.config == Stage1Config()
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
