@@ -1,0 +1,62 @@
+"""Synthetic scan generation speed: seconds per HDL-64E frame (scene, ray casting, noise and labels), one thread."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+TARGET_S_PER_FRAME = 0.5
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `pass3d_benchmark simulate`."""
+    parser.add_argument("--frames", type=int, default=10, help="frames to time (default 10)")
+    parser.add_argument("--seed", type=int, default=0, help="sequence seed (default 0)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Time generate_frame after one untimed first call (numba compilation or cache load) and print medians."""
+    from pass3d_ros.synthetic import dataset as ds
+    from pass3d_ros.synthetic import scene as sc
+    from pass3d_ros.synthetic.sensor import ray_bundle
+
+    if args.frames < 1:
+        print("simulate: --frames must be at least 1")
+        return 2
+    start = time.perf_counter()
+    ds.generate_frame(args.seed + 1, 0)
+    first = time.perf_counter() - start
+    wall, cpu, points = [], [], []
+    for index in range(args.frames):
+        t0, c0 = time.perf_counter(), time.process_time()
+        frame = ds.generate_frame(args.seed, index)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+        points.append(len(frame.points))
+    scene_s, cast_s, post_s = [], [], []
+    for index in range(args.frames):
+        rng = np.random.default_rng(np.random.SeedSequence([args.seed, index]))
+        t0 = time.perf_counter()
+        scene = sc.generate_scene(rng)
+        t1 = time.perf_counter()
+        ds.simulate_scan(scene, rng)
+        t2 = time.perf_counter()
+        origins, dirs, _ = ray_bundle(ds.DEFAULT_SENSOR, rng)
+        ds.cast_scene(scene, origins, dirs, ds.DEFAULT_SENSOR.max_range_m)
+        t3 = time.perf_counter()
+        scene_s.append(t1 - t0)
+        cast_s.append(t3 - t2)
+        post_s.append(max(t2 - t1 - (t3 - t2), 0.0))
+    med = float(np.median(wall))
+    print(f"simulate: {args.frames} frames of seed {args.seed}, single thread")
+    print(f"  first call (numba compile or cache load), excluded: {first:.2f} s")
+    print(f"  s/frame wall: median {med:.3f}  min {min(wall):.3f}  max {max(wall):.3f}")
+    print(f"  s/frame cpu:  median {float(np.median(cpu)):.3f}")
+    print(f"  stages (median): scene {float(np.median(scene_s)):.3f} s, rays + cast {float(np.median(cast_s)):.3f} s, "
+          f"noise + labels + boxes {float(np.median(post_s)):.3f} s")
+    print(f"  points/frame: median {int(np.median(points))}  min {min(points)}  max {max(points)}")
+    verdict = "ok" if med <= TARGET_S_PER_FRAME else "SLOWER THAN TARGET"
+    print(f"  target <= {TARGET_S_PER_FRAME} s/frame: {verdict}")
+    return 0

@@ -1,0 +1,224 @@
+"""Synthetic KITTI-like scans with exact labels: `generate_frame(seed, index)` and the `synthetic:` reader.
+
+A frame is one HDL-64E revolution ray-cast into a random street scene: points in firing order (ring after
+ring, top laser first), per-point labels, instance ids, ground mask and ring, one box per car, van, truck,
+pedestrian and cyclist that has points (instance id = the box's position in the list, foreground only), and
+a 10 Hz stamp. Everything is drawn from SeedSequence([seed, index]), so a (seed, index) pair always gives the
+same bytes. Spec: `synthetic:frames=N,seed=S[,start=K]` yields frames K .. K+N-1 of seed S, generated on
+the fly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from pass3d_ros.classes import BACKGROUND
+from pass3d_ros.data.frame import Box3D, Frame
+from pass3d_ros.data.spec import DatasetError
+from pass3d_ros.synthetic import raycast as rc
+from pass3d_ros.synthetic import scene as sc
+from pass3d_ros.synthetic.sensor import (
+    HDL64E,
+    measured_intensity,
+    ray_bundle,
+    return_probability,
+    signal_to_noise,
+)
+
+FRAME_PERIOD_NS = 100_000_000  # 10 Hz
+BOX_MARGIN_M = 0.02  # a box reaches at least this far beyond its object's outermost point
+FOLIAGE_DEPTH_M = 0.25  # mean depth a ray reaches into foliage before it returns
+GLASS_DROPOUT = 0.45  # side windows: share of rays with no return
+FENCE_DROPOUT = 0.5  # mesh fences: share of rays that find a hole
+MAX_ATTEMPTS = 8  # scenes redrawn when a ring would miss the +x axis (its start could not be recovered)
+LANE_MARK_HALF_WIDTH = 0.07
+DEFAULT_SENSOR = HDL64E()
+
+
+@dataclass
+class Scan:
+    """Per-point arrays of one simulated revolution, before they become a Frame."""
+
+    points: np.ndarray
+    ring: np.ndarray
+    labels: np.ndarray
+    ground: np.ndarray
+    instance: np.ndarray
+    boxes: list[Box3D]
+
+
+def _object_spheres(scene: sc.Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding sphere (centre, radius) of every object, from its primitives' world-axis extents."""
+    rt = np.transpose(scene.prot, (0, 2, 1))  # columns: primitive axes in world coordinates
+    half = scene.psize[:, :3]
+    ext_box = np.einsum("pij,pj->pi", np.abs(rt), half)
+    ext_ell = np.sqrt(np.einsum("pij,pj->pi", rt**2, half**2))
+    axis = scene.prot[:, 2, :]
+    ext_cyl = np.abs(axis) * half[:, 2:3] + half[:, 0:1] * np.sqrt(np.clip(1.0 - axis**2, 0.0, 1.0))
+    ext = np.where((scene.ptype == rc.BOX)[:, None], ext_box,
+                   np.where((scene.ptype == rc.ELLIPSOID)[:, None], ext_ell, ext_cyl))
+    first = np.array([o.first for o in scene.objects], dtype=np.int64)
+    lo = np.minimum.reduceat(scene.pcenter - ext, first, axis=0)
+    hi = np.maximum.reduceat(scene.pcenter + ext, first, axis=0)
+    return 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1) + 1e-6
+
+
+def cast_scene(scene: sc.Scene, origins: np.ndarray, dirs: np.ndarray, max_range: float) -> tuple[np.ndarray, ...]:
+    """First hits of the rays in the scene: (t, t_exit, hit, normal, region), see raycast.cast_rays."""
+    center, radius = _object_spheres(scene)
+    bin_start, bin_items = rc.azimuth_bins(center, radius)
+    first = np.array([o.first for o in scene.objects], dtype=np.int32)
+    count = np.array([o.count for o in scene.objects], dtype=np.int32)
+    return rc.cast_rays(origins, dirs, max_range, scene.ground, scene.bumps, scene.waves, scene.ptype, scene.prot,
+                        scene.pcenter, scene.psize, first, count, center, radius, bin_start, bin_items)
+
+
+def _surface(scene: sc.Scene, hit: np.ndarray, region: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(material, reflectivity) of every hit; ground materials from the region and the lane markings."""
+    on_prim = hit >= 0
+    prim = np.where(on_prim, hit, 0)
+    material = np.where(on_prim, scene.pmaterial[prim], -1).astype(np.int16)
+    rho = np.where(on_prim, scene.prho[prim], 0.0)
+    ground_rho = np.array([0.0, scene.road_rho, scene.walk_rho, scene.terrain_rho])
+    rho = np.where(on_prim, rho, ground_rho[region])
+    road = region == rc.ROAD
+    if road.any() and len(scene.lane_lines):
+        uv = scene.to_road(xyz[road, :2])
+        near_line = np.min(np.abs(uv[:, 1:2] - scene.lane_lines[None, :]), axis=1) < LANE_MARK_HALF_WIDTH
+        outer = np.abs(np.abs(uv[:, 1]) - np.abs(scene.lane_lines).max()) < LANE_MARK_HALF_WIDTH
+        dashed = (np.mod(uv[:, 0], 9.0) < 3.0) | outer
+        rho[np.flatnonzero(road)[near_line & dashed]] = 0.6
+        for u0, u1, v0, v1 in scene.dark_patches:
+            inside = (uv[:, 0] >= u0) & (uv[:, 0] < u1) & (uv[:, 1] >= v0) & (uv[:, 1] < v1)
+            rho[np.flatnonzero(road)[inside]] = 0.01
+    return material, rho
+
+
+def simulate_scan(scene: sc.Scene, rng: np.random.Generator, sensor: HDL64E = DEFAULT_SENSOR) -> Scan:
+    """Cast one revolution into `scene` and turn the hits into noisy, labelled points in firing order."""
+    origins, dirs, ring = ray_bundle(sensor, rng)
+    t, t_exit, hit, normal, region = cast_scene(scene, origins, dirs, sensor.max_range_m)
+    n = len(t)
+    u_keep, u_glass, u_zero = rng.random(n), rng.random(n), rng.random(n)
+    noise_r, noise_i, depth = rng.standard_normal(n), rng.standard_normal(n), rng.exponential(FOLIAGE_DEPTH_M, n)
+    has_hit = hit != rc.NO_HIT
+    t_hit = np.where(has_hit, t, 0.0)
+    xyz = origins + t_hit[:, None] * dirs
+    material, rho = _surface(scene, hit, region, xyz)
+    cos_inc = np.abs(np.einsum("ij,ij->i", normal, dirs))
+    foliage = np.isin(material, sc.POROUS_MATERIALS)
+    t_hit = np.where(foliage, t_hit + np.minimum(depth, np.maximum(t_exit - t_hit, 0.0)), t_hit)
+    cos_inc = np.where(foliage, 0.2 + 0.8 * u_glass, cos_inc)
+    cos_inc = np.where(region == rc.TERRAIN, 0.3 + 0.7 * cos_inc, cos_inc)  # grass is rough: never quite grazing
+    glass = (material == sc.M_CABIN) & (np.abs(normal[:, 2]) < 0.6)
+    snr = signal_to_noise(sensor, rho + 0.05, cos_inc, t_hit)
+    keep = has_hit & (u_keep < return_probability(sensor, snr, t_hit))
+    keep &= ~(glass & (u_glass < GLASS_DROPOUT))
+    keep &= ~((material == sc.M_FENCE) & (u_glass < FENCE_DROPOUT))
+    idx = np.flatnonzero(keep)
+    sigma = sensor.range_noise_m
+    t_noisy = t_hit[idx] + np.clip(noise_r[idx] * sigma, -3 * sigma, 3 * sigma)
+    rho_read = np.where(glass[idx], 0.0, rho[idx])
+    points = np.empty((len(idx), 4), dtype=np.float32)
+    points[:, :3] = origins[idx] + t_noisy[:, None] * dirs[idx]
+    points[:, 3] = measured_intensity(sensor, rho_read, cos_inc[idx], ring[idx], snr[idx], noise_i[idx], u_zero[idx])
+    return _label(scene, points, ring[idx], hit[idx])
+
+
+def _label(scene: sc.Scene, points: np.ndarray, ring: np.ndarray, hit: np.ndarray) -> Scan:
+    """Exact labels, ground, instances and boxes for the kept points (hit: primitive index or GROUND_HIT)."""
+    ground = hit == rc.GROUND_HIT
+    obj = np.where(ground, -1, scene.pobject[np.where(ground, 0, hit)])
+    obj_label = np.array([o.label for o in scene.objects] + [BACKGROUND], dtype=np.uint8)
+    labels = obj_label[obj]
+    instance = np.full(len(points), -1, dtype=np.int32)
+    boxes: list[Box3D] = []
+    counts = np.bincount(obj[obj >= 0], minlength=len(scene.objects))
+    order = np.argsort(obj, kind="stable")
+    starts = np.searchsorted(obj[order], np.arange(len(scene.objects)))
+    for k, o in enumerate(scene.objects):
+        if not o.boxed or counts[k] == 0:
+            continue
+        members = order[starts[k]:starts[k] + counts[k]]
+        box = _fit_box(o, points[members, :3], len(boxes))
+        if o.label != BACKGROUND:
+            instance[members] = box.instance
+        boxes.append(box)
+    return Scan(points, ring.astype(np.uint16), labels, ground, instance, boxes)
+
+
+def _fit_box(o: sc.SceneObject, xyz: np.ndarray, instance: int) -> Box3D:
+    """The object's box (its shape's extent, on the ground), grown where needed to hold all its noisy points."""
+    c, s = np.cos(o.yaw), np.sin(o.yaw)
+    d = xyz.astype(np.float64) - np.array([o.x, o.y, o.z])
+    local = np.stack([d[:, 0] * c + d[:, 1] * s, -d[:, 0] * s + d[:, 1] * c, d[:, 2]], axis=1)
+    lo = np.minimum(o.local_min, local.min(axis=0) - BOX_MARGIN_M)
+    hi = np.maximum(o.local_max, local.max(axis=0) + BOX_MARGIN_M)
+    mid = 0.5 * (lo + hi)
+    center = np.array([o.x + c * mid[0] - s * mid[1], o.y + s * mid[0] + c * mid[1], o.z + mid[2]])
+    box = Box3D(center=center, size=hi - lo, yaw=float(o.yaw), label=o.label, instance=instance, kind=o.kind)
+    if not box.contains(xyz).all():  # rounding at the faces: widen by a millimetre
+        box.size = box.size + 2e-3
+    return box
+
+
+def rings_recoverable(points: np.ndarray, ring: np.ndarray, n_lasers: int) -> bool:
+    """Every ring has points, starts in quadrant 1 and ends in quadrant 4 (so the +x crossing marks it)."""
+    if len(ring) == 0:
+        return False
+    bounds = np.flatnonzero(np.diff(ring.astype(np.int64))) + 1
+    firsts = np.concatenate([[0], bounds])
+    lasts = np.concatenate([bounds - 1, [len(ring) - 1]])
+    if len(firsts) != n_lasers:
+        return False
+    x, y = points[:, 0], points[:, 1]
+    return bool(np.all((x[firsts] > 0) & (y[firsts] >= 0)) and np.all((x[lasts] > 0) & (y[lasts] < 0)))
+
+
+def generate_frame(seed: int, index: int, sensor: HDL64E = DEFAULT_SENSOR) -> Frame:
+    """Frame `index` of the synthetic sequence `seed`; the same pair always gives the same bytes."""
+    if seed < 0 or index < 0:
+        raise ValueError(f"seed and index must not be negative, got seed={seed}, index={index}")
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
+    for _ in range(MAX_ATTEMPTS):
+        scan = simulate_scan(sc.generate_scene(rng), rng, sensor)
+        if rings_recoverable(scan.points, scan.ring, sensor.n_lasers):
+            break
+    return Frame(name=f"{index:06d}", points=scan.points, stamp_ns=index * FRAME_PERIOD_NS, ring=scan.ring,
+                 labels=scan.labels, ground=scan.ground, instance=scan.instance, boxes=scan.boxes)
+
+
+def parse_synthetic_spec(text: str) -> dict[str, int]:
+    """`frames=N,seed=S[,start=K]` -> {'frames': N, 'seed': S, 'start': K}; DatasetError on anything else."""
+    values = {"frames": 10, "seed": 0, "start": 0}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or key not in values:
+            raise DatasetError(f"synthetic spec {text!r}: expected frames=N,seed=S[,start=K], got {item!r}")
+        try:
+            values[key] = int(value)
+        except ValueError as exc:
+            raise DatasetError(f"synthetic spec {text!r}: {key} must be an integer, got {value.strip()!r}") from exc
+    if min(values.values()) < 0:
+        raise DatasetError(f"synthetic spec {text!r}: frames, seed and start must not be negative")
+    return values
+
+
+def read_synthetic(path: str) -> Iterator[Frame]:
+    """Frames of the spec `synthetic:frames=N,seed=S[,start=K]`, generated as they are read."""
+    spec = parse_synthetic_spec(path)
+
+    def frames() -> Iterator[Frame]:
+        for index in range(spec["start"], spec["start"] + spec["frames"]):
+            yield generate_frame(spec["seed"], index)
+
+    return frames()
+
+
+def count_frames(path: str) -> int:
+    """Number of frames a synthetic spec yields."""
+    return parse_synthetic_spec(path)["frames"]

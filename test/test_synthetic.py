@@ -1,0 +1,263 @@
+"""Synthetic HDL-64E scans: firing order and rings, exact labels and boxes, determinism, readers and writers, CLI."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
+from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset
+from pass3d_ros.synthetic import raycast as rc
+from pass3d_ros.synthetic import scene as sc
+from pass3d_ros.synthetic.dataset import cast_scene, generate_frame
+from pass3d_ros.synthetic.sensor import HDL64E, ray_bundle
+
+SEEDS = [(0, 0), (1, 3), (2, 5)]
+KIND_LABEL = {"Car": CAR, "Van": BACKGROUND, "Truck": BACKGROUND, "Pedestrian": PEDESTRIAN, "Cyclist": CYCLIST}
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return [generate_frame(seed, index) for seed, index in SEEDS]
+
+
+def wrap_rings(points: np.ndarray) -> np.ndarray:
+    """Independent ring recovery: a ring starts where the firing order crosses from quadrant 4 into quadrant 1."""
+    q4 = (points[:, 0] > 0) & (points[:, 1] < 0)
+    q1 = (points[:, 0] > 0) & (points[:, 1] >= 0)
+    starts = q4[:-1] & q1[1:]
+    return np.concatenate([[0], np.cumsum(starts)])
+
+
+def test_quadrant_wraps_give_exactly_64_rings_top_laser_first(frames):
+    for frame in frames:
+        ring = wrap_rings(frame.points)
+        assert ring[-1] + 1 == 64
+        np.testing.assert_array_equal(ring, frame.ring.astype(np.int64))
+        r = np.hypot(frame.points[:, 0], frame.points[:, 1])
+        # Each laser's points lie on a cone z = offset + r tan(elevation): fit it ring by ring.
+        slope = np.array([np.polyfit(r[ring == k], frame.points[ring == k, 2], 1)[0] for k in range(64)])
+        assert np.all(np.diff(slope) < 0), "elevation must fall ring by ring"
+        assert math.degrees(math.atan(slope[0])) == pytest.approx(1.94, abs=0.05)
+        assert math.degrees(math.atan(slope[-1])) == pytest.approx(-25.0, abs=0.05)
+        azimuth = np.arctan2(frame.points[:, 1], frame.points[:, 0]) % (2 * np.pi)
+        for k in (0, 31, 63):
+            assert np.all(np.diff(azimuth[ring == k]) > 0), "azimuth rises within a ring"
+
+
+def test_stage1_ring_recovery_agrees(frames):
+    ring_module = pytest.importorskip("pass3d_ros.core.ring")
+    for frame in frames:
+        rings = ring_module.recover_rings(frame.points)
+        assert rings.source == "azimuth_wrap"
+        np.testing.assert_array_equal(rings.ring, frame.ring)
+
+
+def test_every_labelled_point_is_inside_its_box(frames):
+    for frame in frames:
+        boxes = {b.instance: b for b in frame.boxes}
+        fg = frame.labels != BACKGROUND
+        assert fg.any()
+        assert np.all(frame.instance[fg] >= 0) and np.all(frame.instance[~fg] == -1)
+        for instance in np.unique(frame.instance[fg]):
+            members = frame.instance == instance
+            box = boxes[int(instance)]
+            assert box.label != BACKGROUND and np.all(frame.labels[members] == box.label)
+            assert box.contains(frame.points[members]).all()
+
+
+def test_points_inside_a_foreground_box_carry_its_label(frames):
+    for frame in frames:
+        for box in frame.boxes:
+            assert KIND_LABEL[box.kind] == box.label
+            if box.label == BACKGROUND:
+                continue
+            inside = box.contains(frame.points) & ~frame.ground
+            assert inside.any()
+            assert np.all(frame.labels[inside] == box.label)
+            assert np.all(frame.instance[inside] == box.instance)
+
+
+def test_boxes_stand_on_the_ground_in_instance_order(frames):
+    for frame in frames:
+        assert [b.instance for b in frame.boxes] == list(range(len(frame.boxes)))
+        assert np.all(np.array([b.size for b in frame.boxes]) > 0.2)
+        ground = frame.points[frame.ground]
+        for box in frame.boxes:
+            near = np.hypot(*(ground[:, :2] - box.center[:2]).T) < max(box.size[0], 3.0)
+            if near.sum() > 20:
+                bottom = box.center[2] - box.size[2] / 2
+                assert abs(bottom - np.median(ground[near, 2])) < 0.25
+    assert {"Car", "Pedestrian", "Cyclist"} <= {b.kind for frame in frames for b in frame.boxes}
+
+
+def test_ground_mask_and_point_counts(frames):
+    for frame in frames:
+        assert 100_000 <= len(frame.points) <= 130_000
+        assert 0.3 < frame.ground.mean() < 0.85
+        assert np.all(frame.labels[frame.ground] == BACKGROUND)
+        below = frame.points[frame.ground, 2]
+        assert np.median(below) < -1.3
+        assert frame.points.dtype == np.float32 and frame.ring.dtype == np.uint16
+        assert frame.labels.dtype == np.uint8 and frame.instance.dtype == np.int32
+
+
+def test_intensity_is_kitti_like(frames):
+    for frame in frames:
+        intensity = frame.points[:, 3]
+        assert intensity.min() >= 0.0 and intensity.max() <= 1.0
+        assert 0.15 < intensity.mean() < 0.4
+        np.testing.assert_allclose(intensity * 100, np.round(intensity * 100), atol=1e-3)
+    everything = np.concatenate([f.points[:, 3] for f in frames])
+    assert 0.02 < np.mean(everything == 0.0) < 0.2  # KITTI: about 9% read 0 (far, grazing, dark paint)
+    cars = np.concatenate([f.points[f.labels == CAR, 3] for f in frames])
+    assert cars.mean() < everything.mean()
+
+
+def test_same_seed_same_bytes_other_seeds_differ(frames):
+    again = generate_frame(*SEEDS[0])
+    first = frames[0]
+    assert again.points.tobytes() == first.points.tobytes()
+    for key in ("ring", "labels", "ground", "instance"):
+        assert getattr(again, key).tobytes() == getattr(first, key).tobytes()
+    assert [(b.center.tobytes(), b.size.tobytes(), b.yaw) for b in again.boxes] == \
+        [(b.center.tobytes(), b.size.tobytes(), b.yaw) for b in first.boxes]
+    other_seed = generate_frame(SEEDS[0][0] + 100, SEEDS[0][1])
+    other_index = generate_frame(SEEDS[0][0], SEEDS[0][1] + 1)
+    assert other_seed.points.tobytes() != first.points.tobytes()
+    assert other_index.points.tobytes() != first.points.tobytes()
+    assert first.stamp_ns == SEEDS[0][1] * 100_000_000 and other_index.stamp_ns - first.stamp_ns == 100_000_000
+
+
+def test_synthetic_spec_reader():
+    spec = "synthetic:frames=2,seed=4,start=1"
+    assert count_frames(spec) == 2
+    read = list(open_dataset(spec))
+    assert [f.name for f in read] == ["000001", "000002"]
+    assert read[1].points.tobytes() == generate_frame(4, 2).points.tobytes()
+    for bad in ("synthetic:frames=x", "synthetic:color=3", "synthetic:frames=-1"):
+        with pytest.raises(DatasetError):
+            list(open_dataset(bad))
+
+
+def test_semantickitti_round_trip(frames, tmp_path):
+    mod = pytest.importorskip("pass3d_ros.data.semantickitti")
+    frame = frames[1]
+    mod.write_semantickitti_frame(tmp_path, frame)
+    (back,) = list(mod.read_semantickitti(tmp_path))
+    assert back.points.tobytes() == frame.points.tobytes()
+    np.testing.assert_array_equal(back.labels, frame.labels)
+    np.testing.assert_array_equal(back.ground, frame.ground)
+    np.testing.assert_array_equal(back.instance, frame.instance)
+
+
+def test_kitti_object_round_trip(frames, tmp_path):
+    mod = pytest.importorskip("pass3d_ros.data.kitti_object")
+    frame = frames[2]
+    mod.write_kitti_object_frame(tmp_path, frame)
+    (back,) = list(mod.read_kitti_object(tmp_path))
+    assert back.points.tobytes() == frame.points.tobytes()
+    assert [b.kind for b in back.boxes] == [b.kind for b in frame.boxes]
+    for a, b in zip(back.boxes, frame.boxes, strict=True):
+        np.testing.assert_allclose(a.center, b.center, atol=1e-9)
+        np.testing.assert_allclose(a.size, b.size, atol=1e-9)
+        assert abs(math.remainder(a.yaw - b.yaw, 2 * math.pi)) < 1e-9
+    # KITTI object labels come from boxes (SqueezeSeg's rule): equal to ours off the ground.
+    off_ground = ~frame.ground
+    np.testing.assert_array_equal(back.labels[off_ground], frame.labels[off_ground])
+    np.testing.assert_array_equal(back.instance[off_ground], frame.instance[off_ground])
+
+
+# ------------------------------------------------------------------------------------------------ ray caster
+def _flat_scene(parts_at: list[tuple[list[sc.Part], float, float, float]]) -> sc.Scene:
+    """A flat road (no slope, bumps, crown or curbs in reach) with the given objects at (u, v, yaw)."""
+    gp = np.zeros(rc.N_GROUND_PARAMS)
+    gp[rc.G_COS], gp[rc.G_W], gp[rc.G_S], gp[rc.G_Z0] = 1.0, 500.0, 1.0, -1.73
+    gp[rc.G_ZMIN], gp[rc.G_ZMAX] = -1.74, -1.72
+    b = sc.SceneBuilder(gp, np.zeros((0, 4)), np.zeros((0, 4)))
+    for parts, u, v, yaw in parts_at:
+        assert b.place(parts, u, v, yaw)
+    return b.build(np.zeros(0), np.zeros((0, 4)), 0.3, 0.4, 0.4)
+
+
+def _cast(scene: sc.Scene, dirs: np.ndarray, origin_z: float = 0.0):
+    dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    origins = np.zeros_like(dirs)
+    origins[:, 2] = origin_z
+    return cast_scene(scene, origins, dirs, 120.0)
+
+
+def test_ray_hits_are_exact_and_first():
+    wall = [sc.box([0, 0, 1.0], [0.5, 2.0, 3.0], sc.M_WALL, 0.5)]
+    ball = [sc.ellipsoid([0, 0, 1.73], [0.5, 0.5, 0.5], sc.M_OTHER, 0.5)]
+    scene = _flat_scene([(wall, 20.0, 0.0, 0.0), (ball, 10.0, 0.0, 0.0)])
+    t, _, hit, normal, region = _cast(scene, np.array([[1.0, 0.0, 0.0], [1.0, 0.1, 0.0], [1.0, 0.0, -0.2]]))
+    assert t[0] == pytest.approx(9.5, abs=1e-9)  # the ball hides the wall behind it
+    assert scene.pobject[hit[0]] == 1
+    np.testing.assert_allclose(normal[0], [-1.0, 0.0, 0.0], atol=1e-9)
+    assert t[1] == pytest.approx(19.5 / math.cos(math.atan(0.1)), abs=1e-9)  # beside the ball: the wall
+    assert hit[2] == rc.GROUND_HIT and region[2] == rc.ROAD
+    assert t[2] * math.sin(math.atan(0.2)) == pytest.approx(1.73, abs=3e-3)
+
+
+def test_tube_wheel_lets_rays_through_its_hole():
+    wheel = [sc.disc([0, 0, 1.73], [1, 0, 0], 0.5, 0.03, sc.M_TIRE, 0.1, inner=0.45)]
+    scene = _flat_scene([(wheel, 5.0, 0.0, 0.0)])
+    t, _, hit, _, _ = _cast(scene, np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.475 / 4.97]]))
+    assert hit[0] == rc.NO_HIT  # through the hub: sky
+    assert hit[1] >= 0 and t[1] == pytest.approx(math.hypot(4.97, 0.475), abs=2e-3)
+
+
+def test_curb_face_is_hit_and_labelled_sidewalk():
+    gp = np.zeros(rc.N_GROUND_PARAMS)
+    gp[rc.G_COS], gp[rc.G_W], gp[rc.G_S], gp[rc.G_CURB], gp[rc.G_Z0] = 1.0, 4.0, 3.0, 0.15, -1.73
+    gp[rc.G_ZMIN], gp[rc.G_ZMAX] = -1.74, -1.5
+    scene = sc.SceneBuilder(gp, np.zeros((0, 4)), np.zeros((0, 4))).build(np.zeros(0), np.zeros((0, 4)), 0.3, 0.4, 0.4)
+    slope = 1.65 / 4.0  # reaches z = -1.65 (inside the 0.15 m curb) exactly at the curb line y = 4
+    t, _, hit, normal, region = _cast(scene, np.array([[0.0, 1.0, -slope]]))
+    assert hit[0] == rc.GROUND_HIT and region[0] == rc.SIDEWALK
+    assert t[0] * math.cos(math.atan(slope)) == pytest.approx(4.0, abs=1e-6)
+    np.testing.assert_allclose(normal[0], [0.0, -1.0, 0.0], atol=1e-9)
+
+
+def test_azimuth_culling_matches_brute_force():
+    rng = np.random.default_rng(np.random.SeedSequence([11, 0]))
+    scene = sc.generate_scene(rng)
+    origins, dirs, _ = ray_bundle(HDL64E(), rng)
+    pick = np.arange(0, len(dirs), 9)
+    origins, dirs = origins[pick], dirs[pick]
+    binned = cast_scene(scene, origins, dirs, 120.0)
+    first = np.array([o.first for o in scene.objects], dtype=np.int32)
+    count = np.array([o.count for o in scene.objects], dtype=np.int32)
+    everything = np.arange(len(scene.objects), dtype=np.int32)
+    one_bin = np.array([0, len(everything)], dtype=np.int64)
+    huge = np.full((len(everything), 3), 0.0), np.full(len(everything), 1e4)  # spheres that never cull
+    brute = rc.cast_rays(origins, dirs, 120.0, scene.ground, scene.bumps, scene.waves, scene.ptype, scene.prot,
+                         scene.pcenter, scene.psize, first, count, huge[0], huge[1], one_bin, everything)
+    np.testing.assert_array_equal(binned[2], brute[2])
+    np.testing.assert_array_equal(binned[0], brute[0])
+
+
+# ------------------------------------------------------------------------------------------------ CLI
+def test_cli_writes_refuses_non_empty_and_reports(tmp_path, capsys):
+    from pass3d_ros.tools.simulate import main
+
+    out = tmp_path / "seq"
+    assert main(["--frames", "2", "--seed", "5", "--out", str(out)]) == 0
+    assert sorted(p.name for p in (out / "velodyne").iterdir()) == ["000000.bin", "000001.bin"]
+    assert len(list((out / "labels").iterdir())) == 2
+    assert main(["--frames", "1", "--out", str(out)]) == 2
+    assert "not empty" in capsys.readouterr().err
+    assert main(["--frames", "1", "--seed", "5", "--out", str(out), "--force"]) == 0
+    objects = tmp_path / "object"
+    assert main(["--frames", "1", "--out", str(objects), "--format", "kitti_object"]) == 0
+    assert (objects / "label_2" / "000000.txt").read_text().split()[0] in KIND_LABEL
+    assert main(["--frames", "1", "--out", str(objects / "calib" / "000000.txt")]) == 2
+    capsys.readouterr()
+    assert main(["--report", "--frames", "1", "--seed", "5", "--real", f"semantickitti:{out}"]) == 0
+    report = capsys.readouterr().out
+    assert "points/ring median" in report and "semantickitti:seq" in report
+    with pytest.raises(SystemExit):
+        main(["--frames", "1"])
