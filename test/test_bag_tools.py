@@ -211,10 +211,10 @@ def ros():
     thread.start()
     yield make_node, domain
     executor.shutdown()
+    thread.join(timeout=5)
     for node in nodes:
         node.destroy_node()
     rclpy.try_shutdown(context=context)
-    thread.join(timeout=5)
 
 
 def small_bag(tmp_path: Path, frames: int = 8) -> Path:

@@ -105,7 +105,7 @@ def _input_frame(raw: bytes, msgtype: str) -> tuple[int, int, np.ndarray | None]
     if "label" in (cloud.dtype.names or ()):
         truth = np.ascontiguousarray(cloud["label"][keep], dtype=np.uint8)
         if truth.size and truth.max() >= NUM_CLASSES:
-            raise PointCloud2Error(f"label field holds ids above {NUM_CLASSES - 1}")
+            raise LiveEvalError(f"label field holds class ids above {NUM_CLASSES - 1}: not this project's labels")
     return header_stamp_ns(msg), int(np.count_nonzero(keep)), truth
 
 
@@ -119,14 +119,38 @@ def _overrides(node_parameters: Mapping[str, Mapping[str, Any]] | None) -> dict[
     out: dict[str, list] = {}
     for name in NODE_NAMES:
         values = dict((node_parameters or {}).get(name, {}))
-        out[name] = [Parameter(k, value=list(v) if isinstance(v, tuple) else v) for k, v in values.items()]
+        out[name] = [Parameter(k, value=_plain(v)) for k, v in values.items()]
     return out
+
+
+def _plain(value: Any) -> Any:
+    """A value rclpy accepts: paths as str, tuples and arrays as lists, numpy scalars as Python numbers."""
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, (tuple, np.ndarray)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
 
 
 def _check_declared(node: Any, overrides: list) -> None:
     unknown = [p.name for p in overrides if not node.has_parameter(p.name)]
     if unknown:
         raise ValueError(f"{node.get_name()}: unknown parameter(s) {', '.join(unknown)}")
+
+
+def _make_node(node_class: type, context: Any, overrides: list, nodes: list[Any]) -> Any:
+    """Construct one node with its parameter overrides; a refused or unknown parameter is a ValueError."""
+    from rclpy.exceptions import ParameterException
+
+    try:
+        node = node_class(context=context, parameter_overrides=overrides)
+    except ParameterException as exc:
+        raise ValueError(f"{node_class.__name__}: {exc}") from exc
+    nodes.append(node)
+    _check_declared(node, overrides)
+    return node
 
 
 def _wait(predicate: Callable[[], bool], timeout: float) -> bool:
@@ -234,7 +258,7 @@ def run_live(
     ValueError, bad weights the node's own error. `record_out`: the received labeled messages as an MCAP
     bag (`force` replaces an existing one). keep_labels=False keeps per-frame records without label
     arrays (long soaks: the confusion matrix still accumulates). `domain_id` defaults to a random one in
-    100..200.
+    100..200. `log_level` (debug, info, warn, error) sets both nodes' loggers for the rest of the process.
     """
     import rclpy
     from rclpy.context import Context
@@ -255,7 +279,10 @@ def run_live(
     topic = select_topic(path, topic)
     overrides = _overrides(node_parameters)
     if log_level is not None:
-        severity = LoggingSeverity[log_level.upper()]
+        levels = {"debug": "DEBUG", "info": "INFO", "warn": "WARN", "warning": "WARN", "error": "ERROR"}
+        if log_level.lower() not in levels:
+            raise ValueError(f"log_level must be one of {', '.join(levels)}, got {log_level!r}")
+        severity = LoggingSeverity[levels[log_level.lower()]]
         for name in NODE_NAMES:
             set_logger_level(name, severity)
 
@@ -267,12 +294,8 @@ def run_live(
     nodes: list[Any] = []
     spinner: threading.Thread | None = None
     try:
-        cluster = ClusterProposalNode(context=context, parameter_overrides=overrides[NODE_NAMES[0]])
-        nodes.append(cluster)
-        _check_declared(cluster, overrides[NODE_NAMES[0]])
-        segmenter = SegmentationNode(context=context, parameter_overrides=overrides[NODE_NAMES[1]])
-        nodes.append(segmenter)
-        _check_declared(segmenter, overrides[NODE_NAMES[1]])
+        cluster = _make_node(ClusterProposalNode, context, overrides[NODE_NAMES[0]], nodes)
+        segmenter = _make_node(SegmentationNode, context, overrides[NODE_NAMES[1]], nodes)
         probe = rclpy.create_node(f"pass3d_live_eval_{random.getrandbits(32):08x}", context=context)
         nodes.append(probe)
         labeled_topic = segmenter.get_parameter("labeled_topic").value
@@ -315,8 +338,10 @@ def run_live(
             bar.update(1)
             try:
                 stamp, points, truth = _input_frame(raw, conn.msgtype)
+            except LiveEvalError as exc:
+                raise LiveEvalError(f"{path}#{topic}: message {index}: {exc}") from None
             except (PointCloud2Error, ValueError, IndexError, struct.error):
-                result.skipped += 1
+                result.skipped += 1  # the node would skip it too: nothing to wait for
                 continue
             if points == 0 or (last_stamp is not None and stamp <= last_stamp):
                 result.skipped += 1

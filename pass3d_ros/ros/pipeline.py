@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
@@ -23,7 +24,7 @@ def main(argv: list[str] | None = None) -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError, ParameterException) as exc:
         print(f"pass3d_pipeline: {exc}", file=sys.stderr)
         return 2
     finally:

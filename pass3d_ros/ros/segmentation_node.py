@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -180,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (ValueError, OSError) as exc:  # missing or incompatible weights, bad parameters
+    except (ValueError, OSError, ParameterException) as exc:  # missing or incompatible weights, bad parameters
         print(f"segmentation_node: {exc}", file=sys.stderr)
         return 2
     finally:

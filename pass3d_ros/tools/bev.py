@@ -27,6 +27,8 @@ def write_png(path: Path, image: np.ndarray) -> None:
 
 def render_bev(points: np.ndarray, labels: np.ndarray, extent_m: float = 40.0, pixels: int = 800) -> np.ndarray:
     """Top view, sensor at the centre, x up: background grey and dim, classes in the paper's colours."""
+    finite = np.isfinite(points[:, :3]).all(axis=1)
+    points, labels = points[finite], np.asarray(labels)[finite]
     scale = pixels / (2.0 * extent_m)
     col = ((points[:, 1] * -1.0 + extent_m) * scale).astype(np.int64)
     row = ((extent_m - points[:, 0]) * scale).astype(np.int64)

@@ -1,0 +1,214 @@
+"""`make demo`: a short synthetic drive through both live ROS nodes, evaluated, with pictures.
+
+    python -m pass3d_ros.tools.demo [--frames 20] [--seed 7] [--out demo_out]
+                                    [--classifier auto|network|size_rules] [--weights W] [--force]
+
+Steps: generate a synthetic HDL-64E drive with exact labels and write it as a rosbag2 (MCAP) bag; play it
+in lockstep through cluster_proposal_node and segmentation_node running in this process (private DDS
+domain), recording /pass3d/labeled into a second bag; score it (per-class precision / recall / IoU, mean
+IoU, latency, time per stage); draw bird's-eye views of some recorded output frames beside their ground
+truth. The classifier is the PASS3D network with the shipped weights when they exist; otherwise the
+geometric size-rules baseline, and the output says so.
+
+Everything lands in --out (default ./demo_out, git-ignored). A folder the demo made before (it holds a
+`.pass3d_demo` marker) is reused; any other non-empty folder needs --force.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pass3d_ros.core.metrics import Stage1Metrics
+from pass3d_ros.core.stage1 import propose
+from pass3d_ros.data.bag import read_bag
+from pass3d_ros.tools.bev import render_bev, write_png
+from pass3d_ros.tools.kitti2bag import convert
+from pass3d_ros.weights import DEFAULT_WEIGHTS_NAME, WEIGHTS_DIR
+
+MARKER = ".pass3d_demo"
+OUTPUTS = ("input_bag", "labeled_bag", "bev", "metrics.json")
+BEV_FRAMES = 4
+
+
+class DemoError(ValueError):
+    """The demo cannot run as asked; the message says why."""
+
+
+def choose_classifier(kind: str, weights: str | None) -> tuple[str, str, str]:
+    """(classifier, weights or "", note for the user): auto = network with the shipped weights, else size_rules."""
+    shipped = WEIGHTS_DIR / DEFAULT_WEIGHTS_NAME
+    if kind == "size_rules":
+        if weights:
+            raise DemoError("--weights applies to the network classifier, not size_rules")
+        return "size_rules", "", "classifier: size_rules (geometric baseline, chosen with --classifier)"
+    if weights:
+        if not Path(weights).is_file():
+            raise DemoError(f"{weights}: no such checkpoint file")
+        return "network", str(weights), f"classifier: PASS3D network, weights {weights}"
+    if shipped.is_file():
+        return "network", str(shipped), f"classifier: PASS3D network, shipped weights {shipped}"
+    if kind == "network":
+        raise DemoError(f"shipped stage-2 weights missing: {shipped}; pass --weights W or --classifier size_rules")
+    return "size_rules", "", (
+        f"NOTE: shipped weights {shipped} are absent, so this demo uses the size_rules classifier "
+        "(a geometric baseline, NOT the PASS3D network). Train weights with pass3d_train to demo the network."
+    )
+
+
+def prepare_out(out: Path, force: bool) -> None:
+    """Create `out`, or clear the demo's own outputs from an earlier run; refuse a foreign non-empty folder."""
+    if out.exists() and not out.is_dir():
+        raise DemoError(f"{out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not (out / MARKER).exists() and not force:
+        raise DemoError(f"{out} is not empty and was not made by the demo; choose another --out or pass --force")
+    out.mkdir(parents=True, exist_ok=True)
+    for name in OUTPUTS:
+        path = out / name
+        if path.is_dir():
+            shutil.rmtree(path)
+        elif path.exists():
+            path.unlink()
+    (out / MARKER).write_text("made by python -m pass3d_ros.tools.demo\n")
+
+
+def stage1_offline(bag: Path) -> dict:
+    """Stage 1 on the input bag without ROS: foreground recall, proposals and ms per step (core timings)."""
+    metrics = Stage1Metrics()
+    for frame in read_bag(bag):
+        result = propose(frame.points, frame.ring)
+        metrics.update_result(frame.name, result, frame.labels)
+    return metrics.summary()["stage1"]
+
+
+def draw_frames(input_bag: Path, labeled_bag: Path, out: Path, count: int = BEV_FRAMES) -> list[Path]:
+    """Bird's-eye PNGs of `count` evenly spaced recorded output frames and of their ground truth."""
+    truth = {frame.stamp_ns: frame for frame in read_bag(input_bag)}
+    outputs = list(read_bag(labeled_bag))
+    chosen = sorted({int(k) for k in np.linspace(0, len(outputs) - 1, min(count, len(outputs)))}) if outputs else []
+    folder = out / "bev"
+    folder.mkdir(exist_ok=True)
+    written = []
+    for position in chosen:
+        frame = outputs[position]
+        reference = truth.get(frame.stamp_ns)
+        name = reference.name if reference is not None else frame.name
+        path = folder / f"{name}_predicted.png"
+        write_png(path, render_bev(frame.points, frame.labels))
+        written.append(path)
+        if reference is not None and reference.labels is not None:
+            path = folder / f"{name}_truth.png"
+            write_png(path, render_bev(reference.points, reference.labels))
+            written.append(path)
+    return written
+
+
+def run(args: argparse.Namespace) -> int:
+    """The demo itself; returns the exit status."""
+    from pass3d_ros.ros.live_eval import format_report, run_live, score
+
+    started = time.perf_counter()
+    if args.frames < 1:
+        raise DemoError(f"--frames must be >= 1, got {args.frames}")
+    kind, weights, note = choose_classifier(args.classifier, args.weights)
+    out = Path(args.out)
+    prepare_out(out, args.force)
+    print(note, flush=True)
+
+    step = time.perf_counter()
+    input_bag = out / "input_bag"
+    spec = f"synthetic:frames={args.frames},seed={args.seed}"
+    convert([spec], input_bag, with_labels=True, log=lambda _: None)
+    print(f"[1/4] {args.frames} synthetic frames ({spec}) -> {input_bag} in {time.perf_counter() - step:.1f} s",
+          flush=True)
+
+    step = time.perf_counter()
+    labeled_bag = out / "labeled_bag"
+    result = run_live(
+        input_bag,
+        lockstep=True,
+        node_parameters={"segmentation_node": {"classifier": kind, "weights": weights}},
+        record_out=labeled_bag,
+        timeout_s=120.0,
+        log_level="warn",
+        progress=True,
+    )
+    scores = score(result)
+    print(f"[2/4] live run through cluster_proposal_node + segmentation_node ({kind}), lockstep, "
+          f"recorded /pass3d/labeled -> {labeled_bag} in {time.perf_counter() - step:.1f} s", flush=True)
+
+    step = time.perf_counter()
+    stage1 = stage1_offline(input_bag)
+    scores["classifier"] = {"kind": kind, "weights": weights or None}
+    scores["stage1_offline"] = stage1
+    (out / "metrics.json").write_text(json.dumps(scores, indent=2) + "\n")
+    print(f"[3/4] evaluated in {time.perf_counter() - step:.1f} s", flush=True)
+
+    step = time.perf_counter()
+    pictures = draw_frames(input_bag, labeled_bag, out)
+    print(f"[4/4] {len(pictures)} bird's-eye views in {time.perf_counter() - step:.1f} s", flush=True)
+
+    steps = ", ".join(f"{name} {ms:.1f}" for name, ms in stage1["ms_per_step"].items())
+    recall = stage1["foreground_recall"]
+    print()
+    print(format_report(scores))
+    print(f"stage 1 core (offline, same frames): ms per step (median): {steps}; "
+          f"{stage1['proposals_per_frame']['median']:.0f} proposals per frame; foreground recall "
+          + ("n/a" if recall is None else f"{100 * recall:.1f} %"))
+    print()
+    print(note)
+    print(f"input bag:        {input_bag}")
+    print(f"labeled bag:      {labeled_bag}   (rviz2: play it and show /pass3d/labeled, colour by rgb)")
+    print(f"metrics:          {out / 'metrics.json'}")
+    print(f"bird's-eye views: {out / 'bev'}   (predicted and truth; car green, pedestrian blue, cyclist pink)")
+    print(f"demo finished in {time.perf_counter() - started:.1f} s")
+    lost = result.dropped + result.mismatched
+    if lost:
+        print(f"warning: {lost} of {result.frames_in} frames did not come back complete", file=sys.stderr)
+        return 1
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of the demo."""
+    parser = argparse.ArgumentParser(prog="python -m pass3d_ros.tools.demo", description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=20, help="synthetic frames to drive (default 20)")
+    parser.add_argument("--seed", type=int, default=7, help="synthetic scene seed (default 7)")
+    parser.add_argument("--out", default="demo_out", help="output folder (default ./demo_out)")
+    parser.add_argument("--classifier", choices=("auto", "network", "size_rules"), default="auto",
+                        help="auto (default): the network with the shipped weights, else size_rules")
+    parser.add_argument("--weights", help="stage-2 checkpoint for the network (default: the shipped weights)")
+    parser.add_argument("--force", action="store_true", help="use a non-empty --out the demo did not make")
+    return parser
+
+
+def _interrupt(signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: 0 done, 1 frames lost on the way, 2 user error, 130 interrupted."""
+    args = build_parser().parse_args(argv)
+    previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        return run(args)
+    except (DemoError, ValueError, OSError) as exc:
+        print(f"demo: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("demo: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

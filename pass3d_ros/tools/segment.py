@@ -1,0 +1,262 @@
+"""`pass3d_segment`: label every point of every frame offline (stage 1 + stage 2), no ROS needed.
+
+    pass3d_segment --data SPEC [--data ...] --out DIR [--weights W] [--classifier network|size_rules]
+                   [--threads N] [--no-png] [--force] [--no-progress]
+
+Writes, per frame, `labels/NAME.label` in SemanticKITTI's format (one little-endian uint32 per point, in
+the scan's point order, instance bits 0) and, unless --no-png, `bev/NAME.png`, a bird's-eye view coloured
+by class. NAME is the reader's frame name. With several --data, each gets its own folder `OUT/NN/` (NN =
+position of the --data, from 00) so equal frame names cannot collide. `OUT/summary.json` records the
+inputs, the classifier, times per stage and, when the data has ground-truth labels, per-class precision,
+recall and IoU.
+
+Label ids: car 10, pedestrian 30 (person), cyclist 31 (bicyclist), background 0 (unlabeled): PASS3D
+only tells the three object classes from everything else, so background is left unnamed rather than
+guessed as road or building. The `semantickitti:` reader maps these back to the project's classes.
+
+Default classifier: `network` with the shipped weights (pass3d_ros/weights/pass3d_lite.pt), or --weights.
+Exit status: 0 done, 2 user error (bad spec, weights, non-empty --out without --force), 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from pass3d_ros.classes import NUM_CLASSES
+from pass3d_ros.core.metrics import ConfusionAccumulator
+from pass3d_ros.core.segmentation import Classifier, load_classifier
+from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset, parse_spec
+from pass3d_ros.tools.bev import render_bev, write_png
+from pass3d_ros.weights import default_weights
+
+SEMANTIC_KITTI_IDS: np.ndarray = np.array([0, 10, 30, 31], dtype=np.uint32)  # by class id: bg, car, ped, cyc
+CLASSIFIERS: tuple[str, ...] = ("network", "size_rules")
+
+
+class SegmentError(ValueError):
+    """The command cannot run as asked (output folder, classifier choice); the message says why."""
+
+
+@dataclass
+class SegmentStats:
+    """What a run wrote and how long the stages took."""
+
+    frames: int = 0
+    points: int = 0
+    folders: list[str] = field(default_factory=list)
+    stage1_ms: list[float] = field(default_factory=list)
+    stage2_ms: list[float] = field(default_factory=list)
+    confusion: ConfusionAccumulator = field(default_factory=ConfusionAccumulator)
+    labeled_frames: int = 0
+
+
+def to_semantic_kitti(labels: np.ndarray) -> np.ndarray:
+    """Project class ids (0..3) -> SemanticKITTI label words (uint32)."""
+    labels = np.asarray(labels)
+    if labels.size and (labels.min() < 0 or labels.max() >= NUM_CLASSES):
+        raise ValueError(f"labels must lie in 0..{NUM_CLASSES - 1}")
+    return SEMANTIC_KITTI_IDS[labels.astype(np.intp)]
+
+
+def check_out_dir(out: Path, force: bool) -> None:
+    """Refuse a file, or a non-empty folder unless `force` (files of the same name are then replaced)."""
+    if out.exists() and not out.is_dir():
+        raise SegmentError(f"{out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise SegmentError(f"{out} is not empty; pass --force to write into it")
+
+
+def resolve_classifier(kind: str | None, weights: str | Path | None) -> tuple[str, str | None]:
+    """(kind, weights path or None): network by default, with the shipped weights unless `weights` is given."""
+    kind = kind or "network"
+    if kind not in CLASSIFIERS:
+        raise SegmentError(f"unknown classifier {kind!r}: choose {' or '.join(CLASSIFIERS)}")
+    if kind == "size_rules":
+        if weights:
+            raise SegmentError("--weights applies to the network classifier, not size_rules")
+        return kind, None
+    if weights:
+        return kind, str(weights)
+    try:
+        return kind, str(default_weights())
+    except FileNotFoundError as exc:
+        raise SegmentError(f"{exc}; pass --weights W or --classifier size_rules") from None
+
+
+def _safe_name(name: str) -> str:
+    return name.replace("/", "_").replace("\\", "_") or "frame"
+
+
+def segment(
+    specs: Sequence[str],
+    out: str | Path,
+    *,
+    classifier: Classifier,
+    png: bool = True,
+    force: bool = False,
+    progress: bool = True,
+) -> SegmentStats:
+    """Stage 1 + `classifier` on every frame of `specs`; writes labels (and PNGs) under `out`."""
+    if not specs:
+        raise DatasetError("no --data given")
+    parsed = [parse_spec(spec) for spec in specs]
+    out = Path(out)
+    check_out_dir(out, force)
+    counts = [count_frames(spec) for spec in parsed]
+    total = None if None in counts else sum(c for c in counts if c is not None)
+    stats = SegmentStats()
+    with tqdm(total=total, unit="frame", desc="segment", disable=not progress) as bar:
+        for position, spec in enumerate(parsed):
+            folder = out if len(parsed) == 1 else out / f"{position:02d}"
+            (folder / "labels").mkdir(parents=True, exist_ok=True)
+            if png:
+                (folder / "bev").mkdir(exist_ok=True)
+            stats.folders.append(str(folder))
+            seen: set[str] = set()
+            for frame in open_dataset(spec):
+                name = _safe_name(frame.name)
+                if name in seen:
+                    raise DatasetError(f"{spec}: frame name {frame.name!r} repeats; outputs would overwrite")
+                seen.add(name)
+                labels = _segment_frame(frame.points, frame.ring, classifier, stats)
+                to_semantic_kitti(labels).astype("<u4").tofile(folder / "labels" / f"{name}.label")
+                if png:
+                    finite = np.isfinite(frame.points[:, :3]).all(axis=1)
+                    image = render_bev(frame.points[finite], labels[finite])
+                    write_png(folder / "bev" / f"{name}.png", image)
+                if frame.labels is not None:
+                    stats.confusion.update(frame.labels, labels)
+                    stats.labeled_frames += 1
+                stats.frames += 1
+                stats.points += len(frame.points)
+                bar.update(1)
+    if stats.frames == 0:
+        raise DatasetError(f"{', '.join(specs)}: no frames")
+    return stats
+
+
+def _segment_frame(
+    points: np.ndarray, ring: np.ndarray | None, classifier: Classifier, stats: SegmentStats
+) -> np.ndarray:
+    """Labels of one scan; NaN points (as KITTI raw may hold) are background and never reach the core."""
+    finite = np.isfinite(points[:, :3]).all(axis=1)
+    keep = None if finite.all() else finite
+    pts = points if keep is None else points[keep]
+    rng = ring if ring is None or keep is None else ring[keep]
+    labels = np.zeros(len(points), dtype=np.uint8)
+    if len(pts) == 0:
+        stats.stage1_ms.append(0.0)
+        stats.stage2_ms.append(0.0)
+        return labels
+    result = propose(pts, rng)
+    started = time.perf_counter()
+    predicted = classifier.segment(pts, proposal_members(result.cluster_id, result.cluster_id2)).labels
+    stats.stage2_ms.append(1e3 * (time.perf_counter() - started))
+    stats.stage1_ms.append(result.timings_ms["total"])
+    if keep is None:
+        return predicted.astype(np.uint8)
+    labels[keep] = predicted
+    return labels
+
+
+def _median(values: list[float]) -> float | None:
+    return float(np.median(values)) if values else None
+
+
+def summary(stats: SegmentStats, specs: Sequence[str], kind: str, weights: str | None) -> dict:
+    """The JSON summary of a run: inputs, outputs, stage medians and, with ground truth, the metrics."""
+    metrics = stats.confusion.summary() if stats.labeled_frames else None
+    return {
+        "data": list(specs),
+        "folders": stats.folders,
+        "label_ids": {"background": 0, "car": 10, "pedestrian": 30, "cyclist": 31},
+        "classifier": kind,
+        "weights": weights,
+        "frames": stats.frames,
+        "points": stats.points,
+        "ms_per_frame": {"stage1": _median(stats.stage1_ms), "stage2": _median(stats.stage2_ms)},
+        "labeled_frames": stats.labeled_frames,
+        "per_class": metrics["per_class"] if metrics else None,
+        "mean_iou": metrics["mean_iou"] if metrics else None,
+    }
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of `pass3d_segment`."""
+    parser = argparse.ArgumentParser(prog="pass3d_segment", description=__doc__.splitlines()[0])
+    parser.add_argument("--data", action="append", required=True, metavar="SPEC",
+                        help="dataset FORMAT:PATH (repeatable), e.g. semantickitti:.../sequences/08, bag:run.mcap")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output folder (labels/, bev/, summary.json)")
+    parser.add_argument("--classifier", choices=CLASSIFIERS, help="stage-2 classifier (default network)")
+    parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
+    parser.add_argument("--device", default="cpu", help="torch device for the network (default cpu)")
+    parser.add_argument("--threads", type=int, metavar="N",
+                        help="torch CPU threads (default: torch's choice; 1 is often faster on a busy machine)")
+    parser.add_argument("--no-png", action="store_true", help="skip the bird's-eye-view PNGs")
+    parser.add_argument("--force", action="store_true", help="write into a non-empty --out")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def _interrupt(signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def main(argv: list[str] | None = None, log: Callable[[str], None] = print) -> int:
+    """Console entry point: exit 0 on success, 2 on a user error, 130 when interrupted."""
+    args = build_parser().parse_args(argv)
+    previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    out = Path(args.out)
+    try:
+        for spec in args.data:
+            parse_spec(spec)
+        check_out_dir(out, args.force)
+        kind, weights = resolve_classifier(args.classifier, args.weights)
+        if args.threads is not None:
+            if args.threads < 1:
+                raise SegmentError(f"--threads must be >= 1, got {args.threads}")
+            import torch
+
+            torch.set_num_threads(args.threads)
+        classifier = load_classifier(kind, weights, device=args.device)
+        started = time.perf_counter()
+        stats = segment(args.data, out, classifier=classifier, png=not args.no_png, force=True,
+                        progress=not args.no_progress)
+        report = summary(stats, args.data, kind, weights)
+        (out / "summary.json").write_text(json.dumps(report, indent=2) + "\n")
+    except (SegmentError, DatasetError, ValueError, OSError) as exc:
+        print(f"pass3d_segment: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"pass3d_segment: interrupted; frames written so far stay in {out}", file=sys.stderr)
+        return 130
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    took = time.perf_counter() - started
+    stage1, stage2 = report["ms_per_frame"]["stage1"], report["ms_per_frame"]["stage2"]
+    log(f"segmented {stats.frames} frames ({stats.points} points) in {took:.1f} s with {kind}"
+        + (f" ({weights})" if weights else "") + f"; median ms per frame: stage 1 {stage1:.1f}, stage 2 {stage2:.1f}")
+    if report["per_class"]:
+        from pass3d_ros.ros.live_eval import format_metrics
+
+        log("\n".join(format_metrics(report["per_class"], report["mean_iou"])))
+    log(f"labels: {', '.join(f + '/labels' for f in stats.folders)}"
+        + ("" if args.no_png else f"; bird's-eye views: {', '.join(f + '/bev' for f in stats.folders)}")
+        + f"; summary: {out / 'summary.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

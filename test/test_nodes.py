@@ -1,0 +1,395 @@
+"""Both real nodes in-process: real publishers, subscribers and services on a real executor spun in a thread.
+
+Every test runs in a private rclpy context on a random DDS domain (100..200), so parallel test runs and a
+real robot on the default domain never see each other's traffic.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import re
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+rclpy = pytest.importorskip("rclpy")
+
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
+from sensor_msgs.msg import PointCloud2  # noqa: E402
+from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
+
+from pass3d_ros.classes import BACKGROUND, NUM_CLASSES, packed_rgb  # noqa: E402
+from pass3d_ros.core import pointnet2  # noqa: E402
+from pass3d_ros.core.segmentation import load_classifier, make_checkpoint  # noqa: E402
+from pass3d_ros.core.size_rules import SizeRuleClassifier  # noqa: E402
+from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose  # noqa: E402
+from pass3d_ros.data.bag import read_bag  # noqa: E402
+from pass3d_ros.data.frame import Frame  # noqa: E402
+from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode  # noqa: E402
+from pass3d_ros.ros.live_eval import run_live, score  # noqa: E402
+from pass3d_ros.ros.pointcloud2 import decode, encode, header_stamp_ns  # noqa: E402
+from pass3d_ros.ros.qos import qos_profile  # noqa: E402
+from pass3d_ros.ros.segmentation_node import SegmentationNode  # noqa: E402
+from pass3d_ros.synthetic.dataset import generate_frame  # noqa: E402
+from pass3d_ros.tools.kitti2bag import convert, frame_cloud  # noqa: E402
+from pass3d_ros.weights import DEFAULT_WEIGHTS_NAME, WEIGHTS_DIR  # noqa: E402
+
+STAMP0 = 1_700_000_000_123_456_789
+WAIT_S = 30.0
+PROPOSAL_FIELDS = ("x", "y", "z", "intensity", "ring", "ground", "cluster_id", "cluster_id2")
+
+
+class Ros:
+    """A private context, a multi-threaded executor spinning in a thread, and a probe node to talk with."""
+
+    def __init__(self) -> None:
+        self.domain = random.randint(100, 200)
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=self.domain)
+        self.executor = MultiThreadedExecutor(num_threads=3, context=self.context)
+        self.nodes: list = []
+        self.probe = self.add(rclpy.create_node(f"probe_{random.getrandbits(32):08x}", context=self.context))
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def add(self, node):
+        self.executor.add_node(node)
+        self.nodes.append(node)
+        return node
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.thread.join(timeout=5)
+        for node in reversed(self.nodes):
+            node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+class Collector:
+    """Messages of one topic received by the probe node, in arrival order."""
+
+    def __init__(self, ros: Ros, msg_type: type, topic: str) -> None:
+        self.messages: list = []
+        self.cond = threading.Condition()
+        self.sub = ros.probe.create_subscription(msg_type, topic, self._on, qos_profile("reliable", 20))
+
+    def _on(self, msg) -> None:
+        with self.cond:
+            self.messages.append(msg)
+            self.cond.notify_all()
+
+    def wait(self, count: int, timeout: float = WAIT_S) -> list:
+        with self.cond:
+            assert self.cond.wait_for(lambda: len(self.messages) >= count, timeout), (
+                f"{self.sub.topic_name}: {len(self.messages)} of {count} messages"
+            )
+            return list(self.messages)
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def connect(publisher, *collectors: Collector) -> None:
+    """Wait until every endpoint is matched, plus a moment for the other side of discovery."""
+    assert wait_until(lambda: publisher.get_subscription_count() >= 1), "input not matched"
+    assert wait_until(lambda: all(c.sub.get_publisher_count() >= 1 for c in collectors)), "outputs not matched"
+    time.sleep(0.3)
+
+
+@pytest.fixture
+def ros() -> Iterator[Ros]:
+    session = Ros()
+    yield session
+    session.close()
+
+
+@pytest.fixture(scope="module")
+def frame() -> Frame:
+    """A synthetic HDL-64E scan with cars and people, labels included."""
+    scan = generate_frame(seed=5, index=0)
+    assert np.count_nonzero(scan.labels) > 1000
+    return scan
+
+
+@pytest.fixture(scope="module")
+def lite_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An untrained `lite` checkpoint: real network code, arbitrary but fixed weights."""
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("weights") / "lite_untrained.pt"
+    torch.save(make_checkpoint(pointnet2.PointNet2Seg(pointnet2.make_config("lite"))), path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def small_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("bags") / "synthetic"
+    convert(["synthetic:frames=3,seed=9"], out, with_labels=True, progress=False, log=lambda _: None)
+    return out
+
+
+def scan_message(frame: Frame, stamp_ns: int, with_ring: bool = True, frame_id: str = "velodyne_test"):
+    cloud = frame_cloud(frame)
+    if not with_ring:
+        cloud = frame_cloud(Frame(frame.name, frame.points))
+    return encode(cloud, stamp_ns=stamp_ns, frame_id=frame_id)
+
+
+def columns(msg) -> np.ndarray:
+    return decode(msg)
+
+
+# ---- cluster_proposal_node ----
+
+def test_proposals_keep_header_order_and_match_offline(ros: Ros, frame: Frame) -> None:
+    ros.add(ClusterProposalNode(context=ros.context))
+    clouds = Collector(ros, PointCloud2, "/pass3d/proposals")
+    boxes = Collector(ros, MarkerArray, "/pass3d/proposal_boxes")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, clouds, boxes)
+
+    pub.publish(scan_message(frame, STAMP0))
+    first = clouds.wait(1)[0]
+    pub.publish(scan_message(frame, STAMP0 + 100_000_000, with_ring=False))
+    second = clouds.wait(2)[1]
+
+    for msg, stamp, ring in ((first, STAMP0, frame.ring), (second, STAMP0 + 100_000_000, None)):
+        assert header_stamp_ns(msg) == stamp and msg.header.frame_id == "velodyne_test"
+        cloud = columns(msg)
+        assert cloud.dtype.names == PROPOSAL_FIELDS
+        got = np.stack([cloud[k] for k in ("x", "y", "z", "intensity")], axis=1)
+        assert got.tobytes() == frame.points.tobytes(), "point order and values must be kept"
+        offline = propose(frame.points, ring)
+        assert offline.n_proposals > 3
+        np.testing.assert_array_equal(cloud["cluster_id"], offline.cluster_id)
+        np.testing.assert_array_equal(cloud["cluster_id2"], offline.cluster_id2)
+        np.testing.assert_array_equal(cloud["ground"].astype(bool), offline.ground)
+        np.testing.assert_array_equal(cloud["ring"], offline.ring)
+    np.testing.assert_array_equal(columns(first)["ring"], frame.ring)
+
+    markers = boxes.wait(2)[0].markers
+    assert markers[0].action == Marker.DELETEALL
+    assert markers[0].header.stamp == first.header.stamp
+    wires = [m for m in markers[1:] if m.type == Marker.LINE_LIST]
+    assert len(wires) == propose(frame.points, frame.ring).n_proposals
+
+
+def test_malformed_and_empty_frames_are_skipped(ros: Ros, frame: Frame, capfd: pytest.CaptureFixture[str]) -> None:
+    node = ros.add(ClusterProposalNode(context=ros.context))
+    clouds = Collector(ros, PointCloud2, "/pass3d/proposals")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, clouds)
+
+    short = scan_message(frame, STAMP0 + 1)
+    short.data = short.data[: len(short.data) - 10]  # shorter than width * point_step
+    no_z = scan_message(frame, STAMP0 + 2)
+    no_z.fields = [f for f in no_z.fields if f.name != "z"]
+    empty = encode({"x": np.zeros(0, np.float32), "y": np.zeros(0, np.float32), "z": np.zeros(0, np.float32)},
+                   stamp_ns=STAMP0 + 3)
+    for count, msg in enumerate((short, no_z, empty), start=1):
+        pub.publish(msg)  # one at a time: the one-slot mailbox must not drop them unprocessed
+        assert wait_until(lambda n=count: node.worker.counters.processed >= n and node.worker.idle())
+    pub.publish(scan_message(frame, STAMP0 + 4))
+    got = clouds.wait(1)
+    time.sleep(0.2)
+
+    assert [header_stamp_ns(m) for m in clouds.messages] == [STAMP0 + 4], "only the good frame comes out"
+    counters = node.worker.counters
+    assert counters.failed == 0 and counters.dropped == 0 and counters.processed == 4
+    assert len(columns(got[0])) == len(frame.points)
+    err = capfd.readouterr().err
+    assert "skipping malformed PointCloud2" in err and "skipping empty PointCloud2" in err
+
+
+def test_parameters_are_validated_at_run_time(ros: Ros, frame: Frame) -> None:
+    node = ros.add(ClusterProposalNode(context=ros.context))
+    client = AsyncParameterClient(ros.probe, node.get_name())
+    assert client.wait_for_services(timeout_sec=WAIT_S)
+
+    def set_remote(name: str, value) -> bool:
+        future = client.set_parameters([Parameter(name, value=value)])
+        assert wait_until(future.done)
+        return future.result().results[0].successful
+
+    assert not set_remote("stage1.th_ring", -1.0)
+    assert not set_remote("stage1.th_ring", "wide")  # wrong type
+    assert not set_remote("input_topic", "/elsewhere")  # start-up only
+    assert node.config.th_ring == 0.5 and node.get_parameter("stage1.th_ring").value == 0.5
+    assert set_remote("stage1.th_ring", 0.25)
+    assert node.config.th_ring == 0.25
+
+    changed = propose(frame.points, frame.ring, Stage1Config(th_ring=0.25))
+    assert not np.array_equal(changed.cluster_id, propose(frame.points, frame.ring).cluster_id)
+    clouds = Collector(ros, PointCloud2, "/pass3d/proposals")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, clouds)
+    pub.publish(scan_message(frame, STAMP0))
+    np.testing.assert_array_equal(columns(clouds.wait(1)[0])["cluster_id"], changed.cluster_id)
+
+
+# ---- segmentation_node ----
+
+@pytest.mark.parametrize("kind", ["size_rules", "network"])
+def test_labeled_cloud_matches_offline(ros: Ros, frame: Frame, lite_weights: Path, kind: str) -> None:
+    weights = str(lite_weights) if kind == "network" else ""
+    ros.add(ClusterProposalNode(context=ros.context))
+    ros.add(SegmentationNode(context=ros.context, parameter_overrides=[
+        Parameter("classifier", value=kind), Parameter("weights", value=weights)]))
+    labeled = Collector(ros, PointCloud2, "/pass3d/labeled")
+    objects = Collector(ros, MarkerArray, "/pass3d/objects")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, labeled, objects)
+    pub.publish(scan_message(frame, STAMP0))
+    msg = labeled.wait(1)[0]
+
+    assert header_stamp_ns(msg) == STAMP0 and msg.header.frame_id == "velodyne_test"
+    cloud = columns(msg)
+    assert {"label", "confidence", "rgb", "cluster_id"} <= set(cloud.dtype.names)
+    assert len(cloud) == len(frame.points), "every point is labeled"
+    assert cloud["label"].max() < NUM_CLASSES
+
+    stage1 = propose(frame.points, frame.ring)
+    members = proposal_members(stage1.cluster_id, stage1.cluster_id2)
+    classifier = load_classifier(kind, weights or None)
+    expected = classifier.segment(frame.points, members)
+    np.testing.assert_array_equal(cloud["label"], expected.labels)
+    np.testing.assert_allclose(cloud["confidence"], expected.confidence, rtol=1e-5, atol=1e-6)
+    assert cloud["rgb"].tobytes() == packed_rgb(expected.labels).tobytes()
+    outside = (stage1.cluster_id < 0) & (stage1.cluster_id2 < 0)
+    assert np.all(cloud["label"][outside] == BACKGROUND)
+    if kind == "size_rules":
+        assert np.count_nonzero(cloud["label"]) > 1000, "the scene has cars; size rules must find some"
+
+    markers = objects.wait(1)[0].markers
+    assert markers[0].action == Marker.DELETEALL
+    wires = [m for m in markers[1:] if m.type == Marker.LINE_LIST]
+    assert len(wires) == sum(1 for c in expected.proposal_class if c > BACKGROUND)
+
+
+def test_bad_weights_fail_at_construction(ros: Ros, tmp_path: Path, lite_weights: Path) -> None:
+    def make(**values):
+        overrides = [Parameter(k, value=v) for k, v in values.items()]
+        return SegmentationNode(context=ros.context, parameter_overrides=overrides)
+
+    missing = tmp_path / "nowhere.pt"
+    with pytest.raises(ValueError, match=re.escape(str(missing))):
+        make(classifier="network", weights=str(missing))
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match=re.escape(str(garbage)) + ".*not a readable"):
+        make(classifier="network", weights=str(garbage))
+    checkpoint = torch.load(lite_weights, weights_only=True)
+    del checkpoint["state_dict"][next(iter(checkpoint["state_dict"]))]
+    broken = tmp_path / "broken.pt"
+    torch.save(checkpoint, broken)
+    with pytest.raises(ValueError, match=re.escape(str(broken)) + ".*do not fit"):
+        make(classifier="network", weights=str(broken))
+    with pytest.raises(ValueError, match="unknown classifier"):
+        make(classifier="svm")
+    with pytest.raises(ValueError, match="output_qos"):
+        make(classifier="size_rules", output_qos="fast")
+    if not (WEIGHTS_DIR / DEFAULT_WEIGHTS_NAME).is_file():
+        with pytest.raises(OSError, match=DEFAULT_WEIGHTS_NAME):
+            make(classifier="network")
+
+
+# ---- a bag through both live nodes ----
+
+def offline_labels(frame: Frame) -> np.ndarray:
+    stage1 = propose(frame.points, frame.ring)
+    members = proposal_members(stage1.cluster_id, stage1.cluster_id2)
+    return SizeRuleClassifier().segment(frame.points, members).labels
+
+
+def test_bag_through_live_nodes_lockstep(small_bag: Path, tmp_path: Path) -> None:
+    record = tmp_path / "labeled_bag"
+    result = run_live(small_bag, lockstep=True, rate=1.0, timeout_s=WAIT_S, record_out=record,
+                      node_parameters={"segmentation_node": {"classifier": "size_rules"}})
+    frames = list(read_bag(small_bag))
+    assert result.frames_in == result.frames_out == 3 and result.dropped == 0
+    assert result.mismatched == result.timeouts == result.skipped == result.unmatched_outputs == 0
+    assert [f.stamp_ns for f in result.frames] == [f.stamp_ns for f in frames]
+    for got, frame in zip(result.frames, frames, strict=True):
+        np.testing.assert_array_equal(got.truth, frame.labels)
+        np.testing.assert_array_equal(got.predicted, offline_labels(frame))
+        assert got.latency_ms > 0 and 0 < got.stage1_ms < got.latency_ms
+    counters = result.node_counters
+    assert counters["cluster_proposal_node"]["processed"] == counters["segmentation_node"]["processed"] == 3
+
+    recorded = list(read_bag(record))
+    assert [f.stamp_ns for f in recorded] == [f.stamp_ns for f in frames]
+    for rec, got in zip(recorded, result.frames, strict=True):
+        np.testing.assert_array_equal(rec.labels, got.predicted)
+
+    scores = score(result)
+    assert scores["frames"] == 3 and scores["live"]["frames_out"] == 3 and scores["live"]["dropped"] == 0
+    assert scores["live"]["latency_ms"]["median"] == pytest.approx(float(np.median(result.latency_ms)))
+    car = scores["per_class"]["car"]
+    truth = np.concatenate([f.labels for f in frames])
+    assert car["points"] == int(np.count_nonzero(truth == 1))
+    assert 0.0 < car["iou"] <= 1.0 and scores["mean_iou"] is not None
+
+
+def test_bag_free_running_counts_drops(small_bag: Path) -> None:
+    result = run_live(small_bag, lockstep=False, rate=0.0, timeout_s=WAIT_S, keep_labels=False,
+                      node_parameters={"segmentation_node": {"classifier": "size_rules"}})
+    assert result.frames_in == 3 and 1 <= result.frames_out <= 3
+    assert result.dropped == 3 - result.frames_out
+    assert all(f.truth is None and f.predicted is None for f in result.frames)
+    assert result.labeled_frames == result.frames_out and result.confusion.matrix.sum() > 0
+    stamps = [f.stamp_ns for f in result.frames]
+    assert stamps == sorted(stamps) and stamps[-1] == max(f.stamp_ns for f in read_bag(small_bag))
+
+
+def test_run_live_rejects_unknown_parameters(small_bag: Path) -> None:
+    with pytest.raises(ValueError, match="unknown node"):
+        run_live(small_bag, node_parameters={"segmenter": {}})
+    with pytest.raises(ValueError, match=r"stage1\.th_ring"):
+        run_live(small_bag, node_parameters={"cluster_proposal_node": {"stage1.th_ring": -1.0}})
+    with pytest.raises(ValueError, match=r"unknown parameter.*stage1\.th_rnig"):
+        run_live(small_bag, node_parameters={"cluster_proposal_node": {"stage1.th_rnig": 0.5}})
+
+
+# ---- the demo ----
+
+def test_demo_small_drive(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.tools import demo
+
+    out = tmp_path / "demo"
+    assert demo.main(["--frames=2", "--seed=3", f"--out={out}", "--classifier=size_rules"]) == 0
+    printed = capsys.readouterr().out
+    assert "mean IoU" in printed and "latency" in printed and str(out / "labeled_bag") in printed
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["live"]["frames_in"] == metrics["live"]["frames_out"] == 2
+    assert metrics["classifier"] == {"kind": "size_rules", "weights": None}
+    assert len(list(read_bag(out / "labeled_bag"))) == 2
+    assert sorted(p.name for p in (out / "bev").iterdir()) == [
+        "000000_predicted.png", "000000_truth.png", "000001_predicted.png", "000001_truth.png"]
+    assert demo.main(["--frames=1", f"--out={out}", "--classifier=size_rules"]) == 0, "its own folder is reused"
+    assert len(list(read_bag(out / "labeled_bag"))) == 1
+
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert demo.main([f"--out={foreign}", "--classifier=size_rules"]) == 2
+    assert "not empty" in capsys.readouterr().err and sorted(p.name for p in foreign.iterdir()) == ["notes.txt"]
+    if not (WEIGHTS_DIR / DEFAULT_WEIGHTS_NAME).is_file():
+        assert demo.main([f"--out={tmp_path / 'net'}", "--classifier=network"]) == 2
+        assert DEFAULT_WEIGHTS_NAME in capsys.readouterr().err
+        assert demo.choose_classifier("auto", None)[0] == "size_rules"
+        assert "NOT the PASS3D network" in demo.choose_classifier("auto", None)[2]
