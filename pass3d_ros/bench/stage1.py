@@ -1,0 +1,123 @@
+"""Stage 1 speed: per-step medians over repeated runs, and pypatchworkpp ground removal side by side.
+
+`pass3d_benchmark stage1 [--data FORMAT:PATH ...] [--repeat R] [--limit N] [--json PATH]`. Without --data
+it times a built-in synthetic scan. pypatchworkpp (Patchwork++) is an optional peer, not a dependency:
+when it is importable its ground estimation runs on the same frames, and the time ratio is printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pass3d_ros.core.stage1 import STEPS, Stage1Config, propose, synthetic_scan, warm_up
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.spec import DatasetError, open_dataset, parse_spec
+
+PATCHWORK_HINT = "pip install pypatchworkpp"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of the stage1 suite."""
+    parser.add_argument("--data", action="append", default=[], metavar="FORMAT:PATH",
+                        help="dataset spec, repeatable; default: a built-in synthetic 64-ring scan")
+    parser.add_argument("--repeat", type=int, default=20, metavar="R", help="runs per frame (default 20)")
+    parser.add_argument("--limit", type=int, default=10, metavar="N", help="at most N frames per spec (default 10)")
+    parser.add_argument("--no-patchwork", action="store_true", help="skip the pypatchworkpp comparison")
+    parser.add_argument("--json", type=Path, metavar="PATH", help="write the numbers as JSON here")
+
+
+def load_frames(specs: list[str], limit: int) -> list[Frame]:
+    """Frames to time: the specs' first `limit` frames each, or the built-in synthetic scan."""
+    if not specs:
+        return [Frame("synthetic-builtin", synthetic_scan(points_per_ring=1800))]
+    frames: list[Frame] = []
+    for spec in specs:
+        parse_spec(spec)
+        for index, frame in enumerate(open_dataset(spec)):
+            if index >= limit:
+                break
+            frames.append(frame)
+    return frames
+
+
+def time_stage1(frames: list[Frame], repeat: int, config: Stage1Config) -> dict[str, list[float]]:
+    """Wall-clock milliseconds per step of every run (frames x repeats), after a warm-up, and the thread's
+    CPU milliseconds per run ("cpu"): on a shared machine wall time also counts waiting for a core."""
+    warm_up()
+    times: dict[str, list[float]] = {step: [] for step in (*STEPS, "cpu")}
+    for frame in frames:
+        propose(frame.points, frame.ring, config)
+        for _ in range(repeat):
+            cpu = time.thread_time()
+            result = propose(frame.points, frame.ring, config)
+            times["cpu"].append(1e3 * (time.thread_time() - cpu))
+            for step in STEPS:
+                times[step].append(result.timings_ms[step])
+    return times
+
+
+def time_patchwork(frames: list[Frame], repeat: int, sensor_height: float) -> list[float] | None:
+    """Milliseconds of every pypatchworkpp ground estimation (frames x repeats), None when it is absent."""
+    try:
+        import pypatchworkpp
+    except ImportError:
+        return None
+    params = pypatchworkpp.Parameters()
+    params.verbose = False
+    params.sensor_height = sensor_height
+    estimator = pypatchworkpp.patchworkpp(params)
+    times = []
+    for frame in frames:
+        cloud = np.ascontiguousarray(frame.points, dtype=np.float64)
+        estimator.estimateGround(cloud)
+        for _ in range(repeat):
+            start = time.perf_counter()
+            estimator.estimateGround(cloud)
+            times.append(1e3 * (time.perf_counter() - start))
+    return times
+
+
+def run(args: argparse.Namespace) -> int:
+    """Time stage 1 (and pypatchworkpp) and print the medians."""
+    if args.repeat < 1 or args.limit < 1:
+        print("pass3d_benchmark stage1: --repeat and --limit must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        frames = load_frames(args.data, args.limit)
+    except (DatasetError, FileNotFoundError, NotADirectoryError) as exc:
+        print(f"pass3d_benchmark stage1: error: {exc}", file=sys.stderr)
+        return 2
+    if not frames:
+        print("pass3d_benchmark stage1: error: no frames to time", file=sys.stderr)
+        return 2
+    config = Stage1Config()
+    times = time_stage1(frames, args.repeat, config)
+    points = int(np.median([len(f.points) for f in frames]))
+    medians = {step: statistics.median(values) for step, values in times.items()}
+    print(f"stage 1: {len(frames)} frame(s), median {points} points, {args.repeat} run(s) each, median ms per step")
+    for step in STEPS:
+        print(f"  {step:<11} {medians[step]:7.3f}")
+    print(f"  {'total CPU':<11} {medians['cpu']:7.3f}  (thread CPU time; wall time also counts waiting for a core)")
+    report = {"frames": len(frames), "points_median": points, "repeat": args.repeat, "stage1_ms_median": medians}
+    if not args.no_patchwork:
+        patchwork = time_patchwork(frames, args.repeat, config.sensor_height)
+        if patchwork is None:
+            print(f"pypatchworkpp: absent (optional peer for a side-by-side ground timing: {PATCHWORK_HINT})")
+            report["patchwork_ms_median"] = None
+        else:
+            pw = statistics.median(patchwork)
+            print(f"pypatchworkpp ground estimation: {pw:.3f} ms median on the same frames")
+            print(f"  stage 1 ground step is {pw / max(medians['ground'], 1e-9):.1f}x faster; "
+                  f"all of stage 1 takes {medians['total'] / pw:.2f}x Patchwork++'s ground time")
+            report["patchwork_ms_median"] = pw
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    return 0

@@ -1,0 +1,300 @@
+"""Ground plane fitting (Zermas et al., ICRA 2017), as PASS3D's stage 1 uses it.
+
+The scan is split into `n_seg` segments of equal length along x (the direction of travel). In each, the
+mean height of the `n_lpr` lowest points (the lowest point representative, LPR) sets the seed height;
+points within `th_seeds` above it seed a plane, fitted as the smallest eigenvector of their covariance
+(normal turned upwards). Points with |distance| < `th_dist` from the plane are ground (two-sided); the plane
+is fitted `n_iter` times in all, each time from the ground of the previous fit.
+
+Robustness the paper leaves open, needed on full 360-degree KITTI scans: points more than
+`below_ground_margin` under the expected road (-sensor_height) never seed; only points within a lateral band
+|y| < `seed_band` seed and fit (terrain falling away 30 m to the side is not the road); sparse height bins
+below the road (a pit, stray returns) cannot set the LPR; an outer segment whose plane is degenerate, too
+steep, or steps away from its inner neighbour at their shared edge takes the neighbour's plane. The LPR and
+the fits read every `fit_stride`-th point (the same planes at a quarter of the cost); the final ground test
+reads every point.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numba as nb
+import numpy as np
+
+
+class GroundFit(NamedTuple):
+    """Ground mask and one plane (a, b, c, d with a x + b y + c z + d = 0, unit normal up) per segment."""
+
+    ground: np.ndarray  # (N,) bool
+    planes: np.ndarray  # (n_seg, 4) float64
+    segment_edges: np.ndarray  # (n_seg + 1,) x boundaries
+
+
+@nb.njit(cache=True)
+def _segment_of(x: float, x0: float, width: float, n_seg: int) -> int:
+    """Segment index of an x coordinate; points beyond the extent fall into the end segments."""
+    s = int((x - x0) / width)
+    if s < 0:
+        return 0
+    if s >= n_seg:
+        return n_seg - 1
+    return s
+
+
+@nb.njit(cache=True)
+def _lowest_means(pts: np.ndarray, x0: float, width: float, n_seg: int, n_lpr: int, z_floor: float, band: float,
+                  outlier_share: float, bin_size: float, stride: int) -> np.ndarray:
+    """Per segment, the mean z of the `n_lpr` lowest candidate points (NaN if none).
+
+    Candidates lie above `z_floor`, within |y| < band, and not below the lowest height bin that holds at
+    least `outlier_share` of the fullest bin (a pit or a few stray returns below the road cannot set the LPR).
+    """
+    n_bins = 64
+    hist = np.zeros((n_seg, n_bins), dtype=np.int64)
+    for i in range(0, pts.shape[0], stride):
+        z = pts[i, 2]
+        if z < z_floor or abs(pts[i, 1]) >= band:
+            continue
+        b = int((z - z_floor) / bin_size)
+        if b < n_bins:
+            hist[_segment_of(pts[i, 0], x0, width, n_seg), b] += 1
+    z_low = np.full(n_seg, z_floor)
+    for s in range(n_seg):
+        need = outlier_share * hist[s].max()
+        for b in range(n_bins):
+            if hist[s, b] > 0 and hist[s, b] >= need:
+                z_low[s] = z_floor + b * bin_size
+                break
+    low = np.full((n_seg, n_lpr), np.inf)  # per segment, ascending
+    for i in range(0, pts.shape[0], stride):
+        z = pts[i, 2]
+        if abs(pts[i, 1]) >= band:
+            continue
+        s = _segment_of(pts[i, 0], x0, width, n_seg)
+        if z < z_low[s] or z >= low[s, n_lpr - 1]:
+            continue
+        j = n_lpr - 1
+        while j > 0 and low[s, j - 1] > z:
+            low[s, j] = low[s, j - 1]
+            j -= 1
+        low[s, j] = z
+    out = np.full(n_seg, np.nan)
+    for s in range(n_seg):
+        total = 0.0
+        count = 0
+        for j in range(n_lpr):
+            if np.isfinite(low[s, j]):
+                total += low[s, j]
+                count += 1
+        if count > 0:
+            out[s] = total / count
+    return out
+
+
+@nb.njit(cache=True)
+def smallest_eigenvector(cov: np.ndarray) -> np.ndarray:
+    """Eigenvector of the smallest eigenvalue of a symmetric 3 x 3 matrix (cyclic Jacobi rotations)."""
+    a = cov.copy()
+    v = np.eye(3)
+    for _ in range(32):
+        off = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
+        if off < 1e-30 * (a[0, 0] * a[0, 0] + a[1, 1] * a[1, 1] + a[2, 2] * a[2, 2]) + 1e-300:
+            break
+        for p in range(2):
+            for q in range(p + 1, 3):
+                if a[p, q] == 0.0:
+                    continue
+                theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
+                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+                c = 1.0 / np.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(3):
+                    akp = a[k, p]
+                    akq = a[k, q]
+                    a[k, p] = c * akp - s * akq
+                    a[k, q] = s * akp + c * akq
+                for k in range(3):
+                    apk = a[p, k]
+                    aqk = a[q, k]
+                    a[p, k] = c * apk - s * aqk
+                    a[q, k] = s * apk + c * aqk
+                for k in range(3):
+                    vkp = v[k, p]
+                    vkq = v[k, q]
+                    v[k, p] = c * vkp - s * vkq
+                    v[k, q] = s * vkp + c * vkq
+    best = 0
+    for k in range(1, 3):
+        if a[k, k] < a[best, best]:
+            best = k
+    return v[:, best].copy()
+
+
+@nb.njit(cache=True)
+def _edge_height(plane: np.ndarray, x: float) -> float:
+    """Height of a plane at (x, 0)."""
+    return -(plane[0] * x + plane[3]) / plane[2]
+
+
+@nb.njit(cache=True, inline="always")
+def _accumulate(acc: np.ndarray, s: int, x: float, y: float, z: float) -> None:
+    """Add a point to segment s's moment sums (count, first and second moments)."""
+    acc[s, 0] += 1.0
+    acc[s, 1] += x
+    acc[s, 2] += y
+    acc[s, 3] += z
+    acc[s, 4] += x * x
+    acc[s, 5] += x * y
+    acc[s, 6] += x * z
+    acc[s, 7] += y * y
+    acc[s, 8] += y * z
+    acc[s, 9] += z * z
+
+
+@nb.njit(cache=True)
+def _planes_from_sums(acc: np.ndarray, edges: np.ndarray, fallback_z: np.ndarray, min_normal_z: float,
+                      min_points: int, max_step: float) -> np.ndarray:
+    """Least-squares plane (smallest covariance eigenvector) per segment from accumulated moments.
+
+    The segment holding x = 0 stands alone (horizontal at its `fallback_z` when degenerate); the others,
+    outwards from it, take their inner neighbour's plane when they have fewer than `min_points` members, are
+    steeper than allowed, or step by more than `max_step` from the neighbour at their shared edge.
+    """
+    n_seg = edges.shape[0] - 1
+    planes = np.zeros((n_seg, 4))
+    ok = np.zeros(n_seg, dtype=np.bool_)
+    cov = np.empty((3, 3))
+    for s in range(n_seg):
+        planes[s, 2] = 1.0
+        planes[s, 3] = -fallback_z[s]
+        n = acc[s, 0]
+        if n < max(min_points, 3):
+            continue
+        mx = acc[s, 1] / n
+        my = acc[s, 2] / n
+        mz = acc[s, 3] / n
+        cov[0, 0] = acc[s, 4] / n - mx * mx
+        cov[0, 1] = acc[s, 5] / n - mx * my
+        cov[0, 2] = acc[s, 6] / n - mx * mz
+        cov[1, 1] = acc[s, 7] / n - my * my
+        cov[1, 2] = acc[s, 8] / n - my * mz
+        cov[2, 2] = acc[s, 9] / n - mz * mz
+        cov[1, 0] = cov[0, 1]
+        cov[2, 0] = cov[0, 2]
+        cov[2, 1] = cov[1, 2]
+        normal = smallest_eigenvector(cov)
+        if normal[2] < 0.0:
+            normal = -normal
+        if normal[2] < min_normal_z:
+            continue
+        planes[s, 0] = normal[0]
+        planes[s, 1] = normal[1]
+        planes[s, 2] = normal[2]
+        planes[s, 3] = -(normal[0] * mx + normal[1] * my + normal[2] * mz)
+        ok[s] = True
+    centre = 0
+    while centre < n_seg - 1 and edges[centre + 1] <= 0.0:
+        centre += 1
+    for s in range(centre + 1, n_seg):
+        x = edges[s]
+        if not ok[s] or abs(_edge_height(planes[s], x) - _edge_height(planes[s - 1], x)) > max_step:
+            planes[s] = planes[s - 1]
+    for s in range(centre - 1, -1, -1):
+        x = edges[s + 1]
+        if not ok[s] or abs(_edge_height(planes[s], x) - _edge_height(planes[s + 1], x)) > max_step:
+            planes[s] = planes[s + 1]
+    return planes
+
+
+@nb.njit(cache=True)
+def _ground_kernel(pts: np.ndarray, edges: np.ndarray, n_lpr: int, n_iter: int, th_seeds: float, th_dist: float,
+                   z_floor: float, min_normal_z: float, band: float, outlier_share: float, max_step: float,
+                   stride: int) -> tuple:
+    """Ground mask and planes; the LPR and the plane fits read every `stride`-th point, the final test all."""
+    n = pts.shape[0]
+    n_seg = edges.shape[0] - 1
+    x0 = edges[0]
+    width = edges[1] - edges[0]
+    lpr = _lowest_means(pts, x0, width, n_seg, n_lpr, z_floor, band, outlier_share, 0.1, stride)
+    fallback_z = np.where(np.isnan(lpr), z_floor, lpr)
+    acc = np.zeros((n_seg, 10))
+    for i in range(0, n, stride):
+        x = pts[i, 0]
+        y = pts[i, 1]
+        z = pts[i, 2]
+        s = _segment_of(x, x0, width, n_seg)
+        if z >= z_floor and z < lpr[s] + th_seeds and abs(y) < band:
+            _accumulate(acc, s, x, y, z)
+    min_points = max(n_lpr // stride, 3)
+    planes = _planes_from_sums(acc, edges, fallback_z, min_normal_z, min_points, max_step)
+    for _ in range(n_iter - 1):
+        acc[:] = 0.0
+        for i in range(0, n, stride):
+            x = pts[i, 0]
+            y = pts[i, 1]
+            z = pts[i, 2]
+            s = _segment_of(x, x0, width, n_seg)
+            d = planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * z + planes[s, 3]
+            if abs(d) < th_dist and abs(y) < band:
+                _accumulate(acc, s, x, y, z)
+        planes = _planes_from_sums(acc, edges, fallback_z, min_normal_z, min_points, max_step)
+    ground = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        x = pts[i, 0]
+        s = _segment_of(x, x0, width, n_seg)
+        ground[i] = abs(planes[s, 0] * x + planes[s, 1] * pts[i, 1] + planes[s, 2] * pts[i, 2] + planes[s, 3]) < th_dist
+    return ground, planes
+
+
+def fit_ground(
+    points: np.ndarray,
+    n_seg: int = 3,
+    n_iter: int = 3,
+    n_lpr: int = 20,
+    th_seeds: float = 0.4,
+    th_dist: float = 0.3,
+    sensor_height: float = 1.73,
+    below_ground_margin: float = 1.0,
+    max_slope_deg: float = 25.0,
+    x_extent: float = 80.0,
+    seed_band: float = 20.0,
+    lpr_outlier_share: float = 0.05,
+    max_step: float = 0.5,
+    fit_stride: int = 4,
+) -> GroundFit:
+    """Ground mask and planes of a scan (N x >=3, sensor frame, z up); see the module docstring.
+
+    Segments span x in [-x_extent, x_extent] (points beyond fall into the end segments); a plane steeper than
+    `max_slope_deg` or stepping more than `max_step` at its inner edge takes its inner neighbour's plane (the
+    centre segment's falls back to a horizontal plane at its LPR).
+    """
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    n_seg = max(int(n_seg), 1)
+    width = 2.0 * x_extent / n_seg
+    edges = -x_extent + width * np.arange(n_seg + 1)
+    if len(pts) == 0:
+        return GroundFit(np.zeros(0, dtype=bool), np.tile([0.0, 0.0, 1.0, sensor_height], (n_seg, 1)), edges)
+    ground, planes = _ground_kernel(
+        pts, edges, max(int(n_lpr), 1),
+        max(int(n_iter), 1), th_seeds, th_dist, -(sensor_height + below_ground_margin),
+        float(np.cos(np.deg2rad(max_slope_deg))), seed_band, lpr_outlier_share, max_step, max(int(fit_stride), 1),
+    )
+    return GroundFit(ground, planes, edges)
+
+
+def height_above_ground(points: np.ndarray, fit: GroundFit) -> np.ndarray:
+    """Signed distance of each point to its segment's ground plane (positive above)."""
+    n_seg = len(fit.planes)
+    width = fit.segment_edges[1] - fit.segment_edges[0]
+    seg = np.clip(((points[:, 0] - fit.segment_edges[0]) // width).astype(np.int64), 0, n_seg - 1)
+    p = fit.planes[seg]
+    return p[:, 0] * points[:, 0] + p[:, 1] * points[:, 1] + p[:, 2] * points[:, 2] + p[:, 3]
+
+
+def warm_up() -> None:
+    """Compile the ground kernels on a tiny synthetic scan."""
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-10.0, 10.0, size=(200, 4)).astype(np.float32)
+    pts[:100, 2] = -1.73
+    fit_ground(pts)

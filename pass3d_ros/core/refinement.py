@@ -1,0 +1,389 @@
+"""Proposal refinement: boxes around clusters, gates that keep what could be a car / pedestrian / cyclist,
+and the enlarged boxes' point membership.
+
+Boxes are minimal-area rectangles in the sensor's x-y plane (convex hull of the Akl-Toussaint survivors,
+then every hull edge direction: the rotating-calipers candidates; exact, and on a KITTI frame's 33 kept
+clusters 0.12 ms against 0.41 ms for a 1-degree search over 90 angles) extruded over the cluster's z range.
+z is the sensor's up axis, perpendicular to the ground for a level-mounted sensor (KITTI's ground normal is
+within 2 degrees of it); Box3D holds a yaw only. Gates: a point count that falls as 1/distance, a bottom
+near and a top not far above the ground plane, and footprints an occluded or whole road user can have. Kept
+boxes are enlarged (per side) and take in every point inside, ground points too: wheels and feet often sit
+in the ground band.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from pass3d_ros.data.frame import Box3D
+
+
+@dataclass(frozen=True)
+class Gates:
+    """What a cluster must look like to become a proposal (metres; counts in points)."""
+
+    num_near: float = 30.0  # point count required up to `num_ref_range` ...
+    num_ref_range: float = 20.0  # ... and num_near * num_ref_range / range beyond it ...
+    num_floor: int = 5  # ... but never fewer than this
+    max_length: float = 7.0  # long side of the footprint (a car is up to ~5.5 m; clutter and mirrors add)
+    max_width: float = 3.5  # short side of the footprint
+    max_height: float = 3.0  # z extent (cars, riders and pedestrians stay under ~2.2 m)
+    max_bottom: float = 1.5  # lowest point above the ground plane (occluded objects show only their top)
+    min_top: float = 0.9  # highest point above the ground plane (a child, a car's roof seen from afar)
+    max_top: float = 2.3  # highest point above the ground plane (road users stay under ~2 m; trees do not)
+    min_extent: float = 0.2  # largest of length and height must reach this (no specks)
+    max_range: float = 70.0  # horizontal distance of the cluster centre (farther objects have a few points)
+
+
+@nb.njit(cache=True)
+def _cluster_stats(pts: np.ndarray, label: np.ndarray, n_clusters: int, planes: np.ndarray,
+                   edges: np.ndarray) -> tuple:
+    """Count, x-y sums, x/y/z bounds, and lowest and highest height above the ground plane of every cluster."""
+    count = np.zeros(n_clusters, dtype=np.int64)
+    sums = np.zeros((n_clusters, 2))
+    lo = np.full((n_clusters, 3), np.inf)
+    hi = np.full((n_clusters, 3), -np.inf)
+    bottom = np.full(n_clusters, np.inf)
+    top = np.full(n_clusters, -np.inf)
+    n_seg = planes.shape[0]
+    width = edges[1] - edges[0]
+    for i in range(pts.shape[0]):
+        c = label[i]
+        if c < 0:
+            continue
+        count[c] += 1
+        sums[c, 0] += pts[i, 0]
+        sums[c, 1] += pts[i, 1]
+        for a in range(3):
+            v = pts[i, a]
+            if v < lo[c, a]:
+                lo[c, a] = v
+            if v > hi[c, a]:
+                hi[c, a] = v
+        s = int((pts[i, 0] - edges[0]) / width)
+        s = min(max(s, 0), n_seg - 1)
+        h = planes[s, 0] * pts[i, 0] + planes[s, 1] * pts[i, 1] + planes[s, 2] * pts[i, 2] + planes[s, 3]
+        if h < bottom[c]:
+            bottom[c] = h
+        if h > top[c]:
+            top[c] = h
+    return count, sums, lo, hi, bottom, top
+
+
+@nb.njit(cache=True)
+def _cross(ox: float, oy: float, ax: float, ay: float, bx: float, by: float) -> float:
+    """z of (a - o) x (b - o): positive when o, a, b turn counter-clockwise."""
+    return (ax - ox) * (by - oy) - (ay - oy) * (bx - ox)
+
+
+@nb.njit(cache=True)
+def _hull_candidates(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Indices of the points not strictly inside the octagon of extreme points (Akl-Toussaint): the hull's
+    vertices are among them, and usually few points remain."""
+    n = x.shape[0]
+    ext = np.zeros(8, dtype=np.int64)  # support points facing 180, 225, ..., 495 degrees: counter-clockwise
+    for i in range(1, n):
+        if x[i] < x[ext[0]]:
+            ext[0] = i
+        if x[i] + y[i] < x[ext[1]] + y[ext[1]]:
+            ext[1] = i
+        if y[i] < y[ext[2]]:
+            ext[2] = i
+        if y[i] - x[i] < y[ext[3]] - x[ext[3]]:
+            ext[3] = i
+        if x[i] > x[ext[4]]:
+            ext[4] = i
+        if x[i] + y[i] > x[ext[5]] + y[ext[5]]:
+            ext[5] = i
+        if y[i] > y[ext[6]]:
+            ext[6] = i
+        if y[i] - x[i] > y[ext[7]] - x[ext[7]]:
+            ext[7] = i
+    keep = np.empty(n, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        inside = False  # stays False when all extremes coincide (every point is the same point)
+        for t in range(8):
+            a = ext[t]
+            b = ext[(t + 1) % 8]
+            if a == b:
+                continue
+            inside = _cross(x[a], y[a], x[b], y[b], x[i], y[i]) > 0.0
+            if not inside:
+                break
+        if not inside:
+            keep[m] = i
+            m += 1
+    return keep[:m]
+
+
+@nb.njit(cache=True)
+def _min_area_rect(x_all: np.ndarray, y_all: np.ndarray) -> tuple:
+    """(centre x, centre y, length, width, yaw) of the minimal-area rectangle around 2D points; length >= width.
+
+    Convex hull (monotone chain over the Akl-Toussaint survivors), then each hull edge direction in turn.
+    """
+    keep = _hull_candidates(x_all, y_all)
+    x = x_all[keep]
+    y = y_all[keep]
+    n = x.shape[0]
+    order = np.argsort(x + 1e-9 * y)
+    hull = np.empty(2 * n + 1, dtype=np.int64)
+    k = 0
+    for t in range(n):
+        i = order[t]
+        while k >= 2 and _cross(x[hull[k - 2]], y[hull[k - 2]], x[hull[k - 1]], y[hull[k - 1]], x[i], y[i]) <= 0.0:
+            k -= 1
+        hull[k] = i
+        k += 1
+    lower = k + 1
+    for t in range(n - 2, -1, -1):
+        i = order[t]
+        while k >= lower and _cross(x[hull[k - 2]], y[hull[k - 2]], x[hull[k - 1]], y[hull[k - 1]], x[i], y[i]) <= 0.0:
+            k -= 1
+        hull[k] = i
+        k += 1
+    h = max(k - 1, 1)
+    best_area = np.inf
+    bux, buy, bu, bv, length, width = 1.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    for e in range(h):
+        a = hull[e]
+        b = hull[(e + 1) % h]
+        ux = x[b] - x[a]
+        uy = y[b] - y[a]
+        norm = np.sqrt(ux * ux + uy * uy)
+        if norm == 0.0:
+            ux, uy, norm = 1.0, 0.0, 1.0
+        ux /= norm
+        uy /= norm
+        u_lo = np.inf
+        u_hi = -np.inf
+        v_lo = np.inf
+        v_hi = -np.inf
+        for t in range(h):
+            p = hull[t]
+            u = x[p] * ux + y[p] * uy
+            v = y[p] * ux - x[p] * uy
+            u_lo = min(u_lo, u)
+            u_hi = max(u_hi, u)
+            v_lo = min(v_lo, v)
+            v_hi = max(v_hi, v)
+        area = (u_hi - u_lo) * (v_hi - v_lo)
+        if area < best_area:
+            best_area = area
+            bux, buy = ux, uy
+            bu = 0.5 * (u_lo + u_hi)
+            bv = 0.5 * (v_lo + v_hi)
+            length = u_hi - u_lo
+            width = v_hi - v_lo
+    cx = bu * bux - bv * buy
+    cy = bu * buy + bv * bux
+    yaw = np.arctan2(buy, bux)
+    if width > length:
+        length, width = width, length
+        yaw += 0.5 * np.pi
+    if yaw > 0.5 * np.pi:
+        yaw -= np.pi
+    elif yaw <= -0.5 * np.pi:
+        yaw += np.pi
+    return cx, cy, length, width, yaw
+
+
+def min_area_rectangle(xy: np.ndarray) -> tuple[float, float, float, float, float]:
+    """Minimal-area rectangle around 2D points: (centre x, centre y, length, width, yaw), length >= width."""
+    xy = np.asarray(xy, dtype=np.float64)
+    if len(xy) == 0:
+        raise ValueError("min_area_rectangle needs at least one point")
+    return tuple(float(v) for v in _min_area_rect(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])))
+
+
+@nb.njit(cache=True)
+def _cluster_rects(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """Minimal-area rectangle (cx, cy, length, width, yaw) of each candidate cluster (rows in candidate order)."""
+    n_clusters = label.max() + 1 if label.shape[0] > 0 else 0
+    slot = np.full(max(n_clusters, 1), -1, dtype=np.int64)
+    for t in range(candidates.shape[0]):
+        slot[candidates[t]] = t
+    k = candidates.shape[0]
+    start = np.zeros(k + 1, dtype=np.int64)
+    for i in range(pts.shape[0]):
+        c = label[i]
+        if c >= 0 and slot[c] >= 0:
+            start[slot[c] + 1] += 1
+    for t in range(k):
+        start[t + 1] += start[t]
+    fill = start[:k].copy()
+    xs = np.empty(start[k])
+    ys = np.empty(start[k])
+    for i in range(pts.shape[0]):
+        c = label[i]
+        if c >= 0 and slot[c] >= 0:
+            t = slot[c]
+            xs[fill[t]] = pts[i, 0]
+            ys[fill[t]] = pts[i, 1]
+            fill[t] += 1
+    out = np.zeros((k, 5))
+    for t in range(k):
+        if start[t + 1] > start[t]:
+            cx, cy, length, width, yaw = _min_area_rect(xs[start[t]:start[t + 1]], ys[start[t]:start[t + 1]])
+            out[t, 0] = cx
+            out[t, 1] = cy
+            out[t, 2] = length
+            out[t, 3] = width
+            out[t, 4] = yaw
+    return out
+
+
+def select_proposals(
+    points: np.ndarray,
+    label: np.ndarray,
+    n_clusters: int,
+    planes: np.ndarray,
+    segment_edges: np.ndarray,
+    gates: Gates,
+) -> tuple[list[Box3D], np.ndarray]:
+    """Boxes of the clusters that pass the gates, and those clusters' ids (index = proposal id)."""
+    if n_clusters == 0:
+        return [], np.zeros(0, dtype=np.int64)
+    count, sums, lo, hi, bottom, top = _cluster_stats(points, label, n_clusters, planes, segment_edges)
+    centre = sums / np.maximum(count, 1)[:, None]
+    rng = np.hypot(centre[:, 0], centre[:, 1])
+    need = np.maximum(gates.num_floor, gates.num_near * gates.num_ref_range / np.maximum(rng, gates.num_ref_range))
+    extent = hi - lo
+    ok = (count >= need) & (rng <= gates.max_range) & (extent[:, 2] <= gates.max_height)
+    ok &= (bottom <= gates.max_bottom) & (top >= gates.min_top) & (top <= gates.max_top)
+    # The footprint rectangle's diagonal bounds the x-y extent: clusters too long for any rectangle go now.
+    ok &= np.maximum(extent[:, 0], extent[:, 1]) <= np.hypot(gates.max_length, gates.max_width)
+    candidates = np.flatnonzero(ok)
+    if len(candidates) == 0:
+        return [], candidates
+    rects = _cluster_rects(points, label, candidates)
+    z_extent = extent[candidates, 2]
+    keep = (rects[:, 2] <= gates.max_length) & (rects[:, 3] <= gates.max_width)
+    keep &= np.maximum(rects[:, 2], z_extent) >= gates.min_extent
+    kept = candidates[keep]
+    boxes = []
+    for (cx, cy, length, width, yaw), c in zip(rects[keep], kept, strict=True):
+        z0, z1 = lo[c, 2], hi[c, 2]
+        boxes.append(
+            Box3D(center=np.array([cx, cy, 0.5 * (z0 + z1)]), size=np.array([length, width, z1 - z0]), yaw=float(yaw))
+        )
+    return boxes, kept
+
+
+@nb.njit(cache=True)
+def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: np.ndarray, margin: np.ndarray,
+                cell: float) -> tuple:
+    """Primary and secondary proposal of every point inside an enlarged box (see `enlarged_membership`);
+    `own_of` maps a cluster id to its proposal id or -1."""
+    n = pts.shape[0]
+    k = boxes.shape[0]
+    primary = np.empty(n, dtype=np.int32)
+    for i in range(n):
+        primary[i] = own_of[label[i]] if label[i] >= 0 else -1
+    secondary = np.full(n, -1, dtype=np.int32)
+    if k == 0:
+        return primary, secondary
+    half = np.empty((k, 3))
+    cos_y = np.cos(boxes[:, 6])
+    sin_y = np.sin(boxes[:, 6])
+    box_lo = np.empty((k, 2))
+    box_hi = np.empty((k, 2))
+    for b in range(k):
+        for a in range(3):
+            half[b, a] = 0.5 * boxes[b, 3 + a] + margin[a]
+        ex = abs(cos_y[b]) * half[b, 0] + abs(sin_y[b]) * half[b, 1]
+        ey = abs(sin_y[b]) * half[b, 0] + abs(cos_y[b]) * half[b, 1]
+        box_lo[b, 0] = boxes[b, 0] - ex
+        box_hi[b, 0] = boxes[b, 0] + ex
+        box_lo[b, 1] = boxes[b, 1] - ey
+        box_hi[b, 1] = boxes[b, 1] + ey
+    gx0 = box_lo[:, 0].min()
+    gy0 = box_lo[:, 1].min()
+    nx = int((box_hi[:, 0].max() - gx0) / cell) + 1
+    ny = int((box_hi[:, 1].max() - gy0) / cell) + 1
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    for rep in range(2):
+        if rep == 1:
+            for c in range(nx * ny):
+                start[c + 1] += start[c]
+            fill = start[:-1].copy()
+            ids = np.empty(start[nx * ny], dtype=np.int64)
+        for b in range(k):
+            for ix in range(int((box_lo[b, 0] - gx0) / cell), int((box_hi[b, 0] - gx0) / cell) + 1):
+                for iy in range(int((box_lo[b, 1] - gy0) / cell), int((box_hi[b, 1] - gy0) / cell) + 1):
+                    c = ix * ny + iy
+                    if rep == 0:
+                        start[c + 1] += 1
+                    else:
+                        ids[fill[c]] = b
+                        fill[c] += 1
+    inv = 1.0 / cell
+    occupied = np.zeros(nx * ny + 1, dtype=np.bool_)  # the extra last cell stands for "outside the grid"
+    for c in range(nx * ny):
+        occupied[c] = start[c + 1] > start[c]
+    cells = np.empty(n, dtype=np.int64)
+    for i in range(n):  # branch-free, so it vectorises
+        fx = (pts[i, 0] - gx0) * inv
+        fy = (pts[i, 1] - gy0) * inv
+        inside = (fx >= 0.0) & (fy >= 0.0) & (fx < nx) & (fy < ny)
+        cells[i] = np.int64(min(max(fx, 0.0), nx - 1)) * ny + np.int64(min(max(fy, 0.0), ny - 1)) if inside else nx * ny
+    for i in range(n):
+        c = cells[i]
+        if not occupied[c]:
+            continue
+        x = pts[i, 0]
+        y = pts[i, 1]
+        for t in range(start[c], start[c + 1]):
+            b = ids[t]
+            if b == primary[i] or b == secondary[i]:
+                continue
+            dx = x - boxes[b, 0]
+            dy = y - boxes[b, 1]
+            if abs(dx * cos_y[b] + dy * sin_y[b]) > half[b, 0] or abs(dy * cos_y[b] - dx * sin_y[b]) > half[b, 1]:
+                continue
+            if abs(pts[i, 2] - boxes[b, 2]) > half[b, 2]:
+                continue
+            if primary[i] < 0:
+                primary[i] = b
+            elif secondary[i] < 0:
+                secondary[i] = b
+    return primary, secondary
+
+
+def boxes_array(boxes: list[Box3D]) -> np.ndarray:
+    """K x 7 float64 rows (cx, cy, cz, length, width, height, yaw)."""
+    if not boxes:
+        return np.zeros((0, 7))
+    return np.array([[*b.center, *b.size, b.yaw] for b in boxes], dtype=np.float64)
+
+
+def enlarged_membership(
+    points: np.ndarray,
+    label: np.ndarray,
+    kept: np.ndarray,
+    boxes: list[Box3D],
+    margin: tuple[float, float, float] = (0.1, 0.1, 0.4),
+    cell: float = 2.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(cluster_id, cluster_id2) per point: its own kept cluster's proposal first, then the enlarged boxes it
+    falls in (lowest id first); -1 where there is none. `margin` is added on each side, as in Box3D.contains."""
+    label = np.ascontiguousarray(label, dtype=np.int32)
+    own_of = np.full(max(int(label.max()) + 1, 1) if len(label) else 1, -1, dtype=np.int32)
+    own_of[kept] = np.arange(len(kept), dtype=np.int32)
+    return _membership(points, label, own_of, boxes_array(boxes), np.asarray(margin, dtype=np.float64), float(cell))
+
+
+def warm_up() -> None:
+    """Compile the refinement kernels on a tiny cluster."""
+    pts = np.zeros((8, 4), dtype=np.float32)
+    pts[:, 0] = [5.0, 6.0, 6.0, 5.0, 5.0, 6.0, 6.0, 5.0]
+    pts[:, 1] = [0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 1.0]
+    pts[:, 2] = [-1.0, -1.0, -1.0, -1.0, 0.0, 0.0, 0.0, 0.0]
+    label = np.zeros(8, dtype=np.int32)
+    planes = np.array([[0.0, 0.0, 1.0, 1.73]])
+    boxes, kept = select_proposals(pts, label, 1, planes, np.array([-80.0, 80.0]), Gates(num_floor=1, num_near=1))
+    enlarged_membership(pts, label, kept, boxes)

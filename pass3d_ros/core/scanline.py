@@ -1,0 +1,270 @@
+"""Scan-line-run clustering (Zermas et al., ICRA 2017) of the non-ground points of a scan.
+
+Within a ring, in azimuth order, consecutive points closer than `th_ring` form a run; a ring that closes on
+itself (its last point near its first) joins its last run to its first. A run takes the label of the nearest
+point of the previous ring when that point is closer than `th_prop`; when the previous ring has nothing that
+close the search goes on to up to `n_prev_rings` rings back (holes left by dark or removed points). A run
+touching several labels merges them (union-find, the smallest label wins); a run touching none starts a new
+label. The nearest point is searched in an azimuth window of the neighbouring ring: rings are sorted by a
+pseudo-azimuth, a pointer into the previous ring advances with the current one (binary search for older
+rings), and the search walks outwards until the angular lower bound on the distance passes the best found;
+a point closer than th_ring / 2 ends it early (anything nearer would lie within th_ring of it, in its run).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True, inline="always")
+def _pseudo_azimuth(x: float, y: float) -> float:
+    """A cheap angle in [0, 4) that orders like atan2(y, x) mapped to [0, 2 pi)."""
+    s = abs(x) + abs(y)
+    if s == 0.0:
+        return 0.0
+    p = y / s
+    if x < 0.0:
+        return 2.0 - p
+    if y < 0.0:
+        return 4.0 + p
+    return p
+
+
+@nb.njit(cache=True)
+def _sort_ring(keys: np.ndarray, idx: np.ndarray) -> None:
+    """Sort one ring's (key, index) pairs by key in place: rotate at the wrap, then insertion-sort the jitter."""
+    m = keys.shape[0]
+    if m < 2:
+        return
+    cut = 0
+    biggest = 2.0
+    for j in range(1, m):
+        drop = keys[j - 1] - keys[j]
+        if drop > biggest:
+            biggest = drop
+            cut = j
+    if cut > 0:
+        keys[:] = np.concatenate((keys[cut:], keys[:cut]))
+        idx[:] = np.concatenate((idx[cut:], idx[:cut]))
+    budget = 16 * m
+    moves = 0
+    for j in range(1, m):
+        k = keys[j]
+        v = idx[j]
+        i = j - 1
+        while i >= 0 and keys[i] > k:
+            keys[i + 1] = keys[i]
+            idx[i + 1] = idx[i]
+            i -= 1
+            moves += 1
+        keys[i + 1] = k
+        idx[i + 1] = v
+        if moves > budget:
+            order = np.argsort(keys, kind="mergesort")
+            keys[:] = keys[order]
+            idx[:] = idx[order]
+            return
+
+
+@nb.njit(cache=True)
+def _find(parent: np.ndarray, a: int) -> int:
+    """Root of a's set, compressing the path on the way."""
+    root = a
+    while parent[root] != root:
+        root = parent[root]
+    while parent[a] != root:
+        nxt = parent[a]
+        parent[a] = root
+        a = nxt
+    return root
+
+
+@nb.njit(cache=True)
+def _union(parent: np.ndarray, a: int, b: int) -> int:
+    """Join the sets of a and b; the smaller root wins and is returned."""
+    ra = _find(parent, a)
+    rb = _find(parent, b)
+    if ra == rb:
+        return ra
+    if ra < rb:
+        parent[rb] = ra
+        return ra
+    parent[ra] = rb
+    return rb
+
+
+@nb.njit(cache=True, inline="always")
+def _gap2(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, a: int, b: int) -> float:
+    """Squared distance between sorted positions a and b."""
+    dx = xs[a] - xs[b]
+    dy = ys[a] - ys[b]
+    dz = zs[a] - zs[b]
+    return dx * dx + dy * dy + dz * dz
+
+
+@nb.njit(cache=True, inline="always")
+def _lower_bound(keys: np.ndarray, lo: int, hi: int, key: float) -> int:
+    """First position in keys[lo:hi] (ascending) whose key is >= `key`, hi if none."""
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@nb.njit(cache=True)
+def _nearest_in_ring(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, r2s: np.ndarray, k: int, lo: int, hi: int,
+                     start: int, best2: float, enough2: float) -> int:
+    """Sorted position (lo..hi-1) nearest to position k if closer than sqrt(best2), else -1.
+
+    `start` is the first position at or past k's azimuth. The search walks outwards in azimuth from there;
+    a point at azimuth offset d from k is at least r_k sin(d) away (r_k for offsets past 90 degrees), so each
+    direction stops when that bound reaches the best distance found. A point closer than sqrt(enough2) ends
+    the search at once (with enough2 = (th_ring / 2)^2 anything nearer is within th_ring of it, in its run).
+    """
+    m = hi - lo
+    if m == 0:
+        return -1
+    px = xs[k]
+    py = ys[k]
+    rp2 = r2s[k]
+    found = -1
+    for direction in (1, -1):
+        j = start if direction == 1 else start - 1
+        for _ in range(m):
+            if j >= hi:
+                j = lo
+            elif j < lo:
+                j = hi - 1
+            qx = xs[j]
+            qy = ys[j]
+            if px * qx + py * qy > 0.0:
+                cross = px * qy - py * qx
+                if cross * cross >= best2 * r2s[j]:
+                    break
+            elif rp2 >= best2:
+                break
+            d2 = _gap2(xs, ys, zs, k, j)
+            if d2 < best2:
+                best2 = d2
+                found = j
+                if d2 < enough2:
+                    return found
+            j += direction
+    return found
+
+
+@nb.njit(cache=True)
+def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings: int, th_ring: float,
+                    th_prop: float, n_prev_rings: int) -> tuple:
+    """Labels (compact 0..C-1, -1 where unused) and C; the steps of the module docstring."""
+    n = pts.shape[0]
+    start = np.zeros(n_rings + 1, dtype=np.int64)
+    for i in range(n):
+        if use[i]:
+            start[ring[i] + 1] += 1
+    for r in range(n_rings):
+        start[r + 1] += start[r]
+    m = start[n_rings]
+    idx = np.empty(m, dtype=np.int64)
+    keys = np.empty(m, dtype=np.float64)
+    fill = start[:n_rings].copy()
+    for i in range(n):
+        if use[i]:
+            r = ring[i]
+            idx[fill[r]] = i
+            keys[fill[r]] = _pseudo_azimuth(pts[i, 0], pts[i, 1])
+            fill[r] += 1
+    for r in range(n_rings):
+        _sort_ring(keys[start[r]:start[r + 1]], idx[start[r]:start[r + 1]])
+    xs = np.empty(m, dtype=np.float64)
+    ys = np.empty(m, dtype=np.float64)
+    zs = np.empty(m, dtype=np.float64)
+    r2s = np.empty(m, dtype=np.float64)
+    for k in range(m):
+        i = idx[k]
+        xs[k] = pts[i, 0]
+        ys[k] = pts[i, 1]
+        zs[k] = pts[i, 2]
+        r2s[k] = xs[k] * xs[k] + ys[k] * ys[k]
+
+    run_of = np.empty(m, dtype=np.int64)  # run label per sorted position
+    parent = np.empty(m, dtype=np.int64)
+    n_runs = 0
+    th_ring2 = th_ring * th_ring
+    th_prop2 = th_prop * th_prop
+    enough2 = 0.25 * th_ring2
+    for r in range(n_rings):
+        lo = start[r]
+        hi = start[r + 1]
+        j = lo
+        first_run = n_runs
+        ptr = start[r - 1] if r > 0 else 0
+        while j < hi:
+            run_lo = j
+            j += 1
+            while j < hi and _gap2(xs, ys, zs, j - 1, j) < th_ring2:
+                j += 1
+            label = n_runs
+            parent[label] = label
+            n_runs += 1
+            for k in range(run_lo, j):
+                if r > 0:
+                    while ptr < lo and keys[ptr] < keys[k]:
+                        ptr += 1
+                for back in range(1, n_prev_rings + 1):
+                    pr = r - back
+                    if pr < 0:
+                        break
+                    at = ptr if back == 1 else _lower_bound(keys, start[pr], start[pr + 1], keys[k])
+                    near = _nearest_in_ring(xs, ys, zs, r2s, k, start[pr], start[pr + 1], at, th_prop2, enough2)
+                    if near >= 0:
+                        label = _union(parent, label, run_of[near])
+                        break
+            for k in range(run_lo, j):
+                run_of[k] = label
+        if n_runs - first_run > 1 and _gap2(xs, ys, zs, lo, hi - 1) < th_ring2:
+            _union(parent, run_of[lo], run_of[hi - 1])
+
+    labels = np.full(n, -1, dtype=np.int32)
+    compact = np.full(n_runs, -1, dtype=np.int64)
+    n_clusters = 0
+    for k in range(m):
+        root = _find(parent, run_of[k])
+        if compact[root] < 0:
+            compact[root] = n_clusters
+            n_clusters += 1
+        labels[idx[k]] = compact[root]
+    return labels, n_clusters
+
+
+def cluster_scanlines(
+    points: np.ndarray,
+    ring: np.ndarray,
+    use: np.ndarray,
+    th_ring: float = 0.5,
+    th_prop: float = 1.0,
+    n_prev_rings: int = 2,
+) -> tuple[np.ndarray, int]:
+    """Cluster id per point ((N,) int32, -1 where `use` is False) and the cluster count; see the module docstring."""
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    if len(pts) == 0 or not np.any(use):
+        return np.full(len(pts), -1, dtype=np.int32), 0
+    ring = np.ascontiguousarray(ring, dtype=np.uint16)
+    n_rings = int(ring.max()) + 1
+    return _cluster_kernel(pts, ring, np.ascontiguousarray(use, dtype=np.bool_), n_rings, float(th_ring),
+                           float(th_prop), max(int(n_prev_rings), 1))
+
+
+def warm_up() -> None:
+    """Compile the clustering kernels on a tiny two-ring scan."""
+    az = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+    pts = np.zeros((64, 4), dtype=np.float32)
+    pts[:, 0] = np.tile(5.0 * np.cos(az), 2)
+    pts[:, 1] = np.tile(5.0 * np.sin(az), 2)
+    pts[32:, 2] = -0.1
+    ring = np.repeat(np.arange(2), 32).astype(np.uint16)
+    cluster_scanlines(pts, ring, np.ones(64, dtype=bool))

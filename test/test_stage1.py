@@ -1,0 +1,356 @@
+"""Stage 1 on constructed scans with known answers: rings, ground, scan-line runs, refinement, propose()."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from pass3d_ros.core import ground, refinement, ring, scanline, stage1
+from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
+from pass3d_ros.data.frame import Box3D
+
+SENSOR_HEIGHT = 1.73
+ELEVATIONS = np.deg2rad(np.linspace(2.0, -24.8, 64))  # ring 0 on top, as KITTI's firing order
+
+
+@dataclass
+class Solid:
+    """An oriented box obstacle: centre, size (length, width, height), yaw."""
+
+    center: tuple[float, float, float]
+    size: tuple[float, float, float]
+    yaw: float = 0.0
+
+
+def raycast(solids: list[Solid], slope: float = 0.0, n_az: int = 1200, backdrop: float = 90.0) -> tuple:
+    """A 64-ring scan in KITTI firing order (ring after ring, azimuth rising from the +x axis) of a ground
+    z = -SENSOR_HEIGHT + slope * x, some boxes, and a backdrop cylinder (buildings far away) that every ray
+    reaches. Returns (points N x 4, ring, hit: -1 ground, -2 backdrop, i = solid i)."""
+    az = np.arange(n_az) * (2.0 * np.pi / n_az) + 1e-4
+    e, a = np.meshgrid(ELEVATIONS, az, indexing="ij")
+    u = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1).reshape(-1, 3)
+    best = backdrop / np.hypot(u[:, 0], u[:, 1])
+    hit = np.full(len(u), -2)
+    denom = u[:, 2] - slope * u[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_ground = np.where(denom < 0.0, -SENSOR_HEIGHT / denom, np.inf)
+    best, hit = np.where(t_ground < best, t_ground, best), np.where(t_ground < best, -1, hit)
+    for index, solid in enumerate(solids):
+        c, s = np.cos(solid.yaw), np.sin(solid.yaw)
+        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        origin = -rot.T @ np.asarray(solid.center)
+        d = u @ rot
+        half = np.asarray(solid.size) / 2.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1 = (-half - origin) / d
+            t2 = (half - origin) / d
+        t_near = np.nanmax(np.minimum(t1, t2), axis=1)
+        t_far = np.nanmin(np.maximum(t1, t2), axis=1)
+        ok = (t_far >= t_near) & (t_near > 0.0) & (t_near < best)
+        best, hit = np.where(ok, t_near, best), np.where(ok, index, hit)
+    pts = u * best[:, None]
+    points = np.concatenate([pts, np.full((len(pts), 1), 0.5)], axis=1).astype(np.float32)
+    return points, np.repeat(np.arange(64), n_az).astype(np.uint16), hit
+
+
+CAR = (4.2, 1.8, 1.5)
+PEDESTRIAN = (0.6, 0.6, 1.8)
+
+
+def car_at(x: float, y: float, yaw: float = 0.0, slope: float = 0.0) -> Solid:
+    return Solid((x, y, -SENSOR_HEIGHT + slope * x + CAR[2] / 2), CAR, yaw)
+
+
+# ---------------------------------------------------------------- ring recovery
+
+
+def test_rings_recovered_from_firing_order():
+    points, rings, _ = raycast([car_at(10.0, 3.0)])
+    result = ring.recover_rings(points)
+    assert result.source == "azimuth_wrap"
+    assert np.array_equal(result.ring, rings)
+
+
+def test_rings_recovered_on_camera_crop_in_firing_order():
+    points, rings, _ = raycast([car_at(10.0, 3.0)])
+    az = np.degrees(np.arctan2(points[:, 1], points[:, 0]))
+    crop = (np.abs(az) < 40.0) & (points[:, 0] > 0.0)
+    result = ring.recover_rings(points[crop])
+    assert len(np.unique(result.ring)) == 64
+    assert np.array_equal(result.ring, rings[crop])
+
+
+def test_rings_recovered_on_frontal_arcs_cut_behind_the_sensor():
+    """Rings that are frontal arcs -40..40 degrees in firing order: no +x crossing starts them, a jump back does."""
+    points, rings, _ = raycast([car_at(10.0, 3.0)])
+    az = np.arctan2(points[:, 1], points[:, 0])
+    order = np.lexsort((np.mod(az + np.pi, 2 * np.pi), rings))  # each ring from -180 to 180 degrees
+    points, rings, az = points[order], rings[order], az[order]
+    crop = np.abs(np.degrees(az)) < 40.0
+    result = ring.recover_rings(points[crop])
+    assert result.source == "azimuth_jump"
+    assert np.array_equal(result.ring, rings[crop])
+    full = ring.recover_rings(points)  # the whole scan cut behind: the -x crossing starts rings
+    assert full.source == "azimuth_wrap" and np.array_equal(full.ring, rings)
+
+
+def test_ring_fallback_is_reported():
+    points, rings, _ = raycast([])
+    shuffled = np.random.default_rng(0).permutation(len(points))
+    result = ring.recover_rings(points[shuffled])
+    assert result.source == "elevation_bins"
+    assert result.ring.dtype == np.uint16 and result.ring.max() <= 63
+    assert np.corrcoef(result.ring.astype(float), rings[shuffled].astype(float))[0, 1] > 0.95
+
+
+def test_given_ring_field_is_used():
+    points, rings, _ = raycast([car_at(10.0, 3.0)])
+    result = propose(points, ring=rings[::-1].copy())
+    assert result.ring_source == "field" and np.array_equal(result.ring, rings[::-1])
+    with pytest.raises(ValueError, match="ring field"):
+        propose(points, ring=rings[:-1])
+
+
+# ---------------------------------------------------------------- ground
+
+
+@pytest.mark.parametrize("slope", [0.0, 0.06])
+def test_ground_found_under_boxes(slope: float):
+    solids = [car_at(12.0, -4.0, 0.3, slope), car_at(-9.0, 5.0, 1.2, slope), car_at(25.0, 6.0, 0.0, slope)]
+    points, _, hit = raycast(solids, slope=slope)
+    fit = ground.fit_ground(points)
+    truth = hit == -1
+    assert np.count_nonzero(fit.ground & truth) / np.count_nonzero(truth) > 0.99
+    high = points[:, 2] > -SENSOR_HEIGHT + slope * points[:, 0] + 0.35  # box points above the ground band
+    assert not np.any(fit.ground & (hit >= 0) & high)
+    centre = fit.planes[1]
+    assert abs(centre[0] / centre[2] + slope) < 0.01 and abs(centre[3] / centre[2] - SENSOR_HEIGHT) < 0.05
+
+
+def test_ground_ignores_a_pit_and_reflections_below_the_road():
+    points, _, hit = raycast([car_at(12.0, -4.0)])
+    rng = np.random.default_rng(1)
+    pit = np.column_stack([rng.uniform(4, 6, 300), rng.uniform(-8, -6, 300), rng.uniform(-3.2, -2.6, 300),
+                           np.full(300, 0.5)]).astype(np.float32)
+    fit = ground.fit_ground(np.concatenate([points, pit]))
+    truth = np.concatenate([hit == -1, np.zeros(300, dtype=bool)])
+    assert np.count_nonzero(fit.ground & truth) / np.count_nonzero(truth) > 0.99
+    assert abs(fit.planes[1, 3] - SENSOR_HEIGHT) < 0.05
+
+
+def test_smallest_eigenvector_matches_numpy():
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        a = rng.normal(size=(3, 3))
+        cov = a @ a.T
+        _, vecs = np.linalg.eigh(cov)
+        assert abs(abs(ground.smallest_eigenvector(cov) @ vecs[:, 0]) - 1.0) < 1e-8
+
+
+# ---------------------------------------------------------------- scan-line runs
+
+
+def _arc(radius: float, z: float, y_from: float, y_to: float, step: float = 0.05) -> np.ndarray:
+    """Points of one ring on a straight wall piece at x = radius between y_from and y_to."""
+    y = np.arange(y_from, y_to + 1e-9, step)
+    return np.column_stack([np.full_like(y, radius), y, np.full_like(y, z), np.full_like(y, 0.5)])
+
+
+@pytest.mark.parametrize(("gap", "clusters"), [(0.3, 1), (0.8, 2)])
+def test_runs_split_at_th_ring(gap: float, clusters: int):
+    """One ring crosses two objects: a 0.3 m gap is inside Th_ring = 0.5 (one run), 0.8 m is not."""
+    pts = np.concatenate([_arc(10.0, 0.0, -1.0, 0.0), _arc(10.0, 0.0, gap, gap + 1.0)]).astype(np.float32)
+    label, n = scanline.cluster_scanlines(pts, np.zeros(len(pts), np.uint16), np.ones(len(pts), bool), 0.5, 1.0)
+    assert n == clusters
+    assert len(np.unique(label)) == clusters
+
+
+@pytest.mark.parametrize(("gap", "clusters"), [(0.8, 1), (1.2, 2)])
+def test_previous_ring_joins_runs_within_th_prop(gap: float, clusters: int):
+    """Ring 1 crosses two pieces `gap` apart, ring 0 above only the left one: the right run joins the left
+    piece through ring 0 when its nearest ring-0 point is closer than Th_prop = 1.0 (0.8 m), not at 1.2 m."""
+    upper = _arc(10.0, 0.0, -1.0, 0.0)
+    lower = np.concatenate([_arc(10.0, -0.1, -1.0, 0.0), _arc(10.0, -0.1, gap, gap + 1.0)])
+    pts = np.concatenate([upper, lower]).astype(np.float32)
+    rings = np.repeat([0, 1], [len(upper), len(lower)]).astype(np.uint16)
+    _, n = scanline.cluster_scanlines(pts, rings, np.ones(len(pts), bool), 0.5, 1.0)
+    assert n == clusters
+
+
+def test_runs_merge_labels_smallest_wins_and_ring_closes():
+    """A V: two upper pieces get labels 0 and 1, a lower run under both merges them; a full circle closes."""
+    left = _arc(10.0, 0.0, -2.0, -1.0)
+    right = _arc(10.0, 0.0, 1.0, 2.0)
+    bottom = _arc(10.0, -0.1, -1.5, 1.5)
+    pts = np.concatenate([left, right, bottom]).astype(np.float32)
+    rings = np.repeat([0, 0, 1], [len(left), len(right), len(bottom)]).astype(np.uint16)
+    label, n = scanline.cluster_scanlines(pts, rings, np.ones(len(pts), bool), 0.5, 1.0)
+    assert n == 1 and np.all(label == 0)
+    az = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
+    circle = np.column_stack([5 * np.cos(az), 5 * np.sin(az), np.zeros(400), np.zeros(400)]).astype(np.float32)
+    circle[150:170, :2] *= 3.0  # a break: without closing at the wrap the circle would be two runs
+    label, n = scanline.cluster_scanlines(circle, np.zeros(400, np.uint16), np.ones(400, bool), 0.5, 1.0)
+    assert label[0] == label[-1] == label[100] and n == 2
+
+
+def test_clustering_uses_only_the_given_points():
+    pts = _arc(10.0, 0.0, -1.0, 1.0).astype(np.float32)
+    use = np.zeros(len(pts), bool)
+    use[:10] = True
+    label, n = scanline.cluster_scanlines(pts, np.zeros(len(pts), np.uint16), use, 0.5, 1.0)
+    assert n == 1 and np.all(label[:10] == 0) and np.all(label[10:] == -1)
+
+
+# ---------------------------------------------------------------- refinement
+
+
+def test_min_area_rectangle_recovers_rotated_rectangles():
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        length, width = sorted(rng.uniform(0.2, 5.0, 2), reverse=True)
+        yaw, centre = rng.uniform(-np.pi, np.pi), rng.uniform(-30, 30, 2)
+        local = np.column_stack([rng.uniform(-length / 2, length / 2, 60), rng.uniform(-width / 2, width / 2, 60)])
+        local[:4] = [[-length / 2, -width / 2], [length / 2, -width / 2], [length / 2, width / 2],
+                     [-length / 2, width / 2]]
+        c, s = np.cos(yaw), np.sin(yaw)
+        xy = local @ np.array([[c, s], [-s, c]]) + centre
+        cx, cy, got_l, got_w, got_yaw = refinement.min_area_rectangle(xy)
+        assert got_l == pytest.approx(length, abs=1e-6) and got_w == pytest.approx(width, abs=1e-6)
+        assert (cx, cy) == pytest.approx(tuple(centre), abs=1e-6)
+        box = Box3D(np.array([cx, cy, 0.0]), np.array([got_l, got_w, 1.0]), got_yaw)
+        assert box.contains(np.column_stack([xy, np.zeros(len(xy))]), margin=(1e-6, 1e-6, 0.0)).all()
+    assert refinement.min_area_rectangle(np.ones((4, 2)))[2:4] == (0.0, 0.0)
+
+
+# ---------------------------------------------------------------- propose()
+
+
+@pytest.mark.parametrize("slope", [0.0, 0.05])
+def test_propose_finds_each_object_once(slope: float):
+    solids = [car_at(10.0, -4.0, 0.4, slope), car_at(-12.0, 6.0, -1.0, slope), car_at(20.0, 8.0, 0.0, slope),
+              Solid((7.0, 5.0, -SENSOR_HEIGHT + slope * 7.0 + 0.9), PEDESTRIAN)]
+    points, _, hit = raycast(solids, slope=slope)
+    result = propose(points)
+    assert result.ring_source == "azimuth_wrap"
+    assert len(result.boxes) == len(solids)
+    truth = hit == -1
+    assert np.count_nonzero(result.ground & truth) / np.count_nonzero(truth) > 0.99
+    covered = (result.cluster_id >= 0) | (result.cluster_id2 >= 0)
+    for index, solid in enumerate(solids):
+        mine = hit == index
+        assert covered[mine].all(), f"object {index} not fully covered"
+        ids = np.unique(result.cluster_id[mine & ~result.ground])
+        assert len(ids) == 1  # one proposal per object
+        box = result.boxes[ids[0]]  # minimal area: a car seen as an L may get a tighter, turned rectangle
+        assert box.size[0] * box.size[1] <= solid.size[0] * solid.size[1] + 0.1
+        assert box.size[0] >= 0.5 * solid.size[0] and box.size[2] <= solid.size[2]
+        assert np.hypot(*(box.center[:2] - solid.center[:2])) < 1.0
+    assert set(result.timings_ms) == set(stage1.STEPS)
+    assert result.cluster_id.dtype == np.int32 and result.ring.dtype == np.uint16
+
+
+def test_pedestrian_beside_wall_kept_wall_rejected():
+    wall = Solid((12.0, 6.0, -SENSOR_HEIGHT + 1.5), (14.0, 0.3, 3.0))
+    person = Solid((12.0, 4.45, -SENSOR_HEIGHT + 0.9), PEDESTRIAN)  # 1.3 m from the wall face
+    points, _, hit = raycast([wall, person])
+    result = propose(points)
+    covered = (result.cluster_id >= 0) | (result.cluster_id2 >= 0)
+    assert covered[hit == 1].all()
+    assert covered[hit == 0].mean() < 0.05  # only the wall foot next to the person's enlarged box, if any
+    assert len(result.boxes) == 1 and result.boxes[0].size[0] < 1.0
+
+
+def test_enlarged_boxes_take_ground_points_and_overlap():
+    """A person inside a U-shaped object (opening to the sensor), more than Th_prop from it: two proposals;
+    the U's rectangle covers the person, whose points then carry both ids; the feet in the ground band join."""
+    z = -SENSOR_HEIGHT + 1.1
+    side_left = Solid((11.6, 1.5, z), (3.2, 0.2, 2.2))
+    side_right = Solid((11.6, -1.5, z), (3.2, 0.2, 2.2))
+    back = Solid((13.1, 0.0, z), (0.2, 3.2, 2.2))  # taller than the person: seen above its head, one piece
+    person = Solid((11.4, 0.0, -SENSOR_HEIGHT + 0.9), PEDESTRIAN)
+    points, _, hit = raycast([side_left, side_right, back, person], n_az=2400)
+    hit = np.where(hit == 3, 2, np.where(hit >= 0, 0, hit))  # 0: the U, 2: the person
+    result = propose(points)
+    assert len(result.boxes) == 2
+    own = np.unique(result.cluster_id[(hit == 2) & ~result.ground])
+    assert len(own) == 1
+    members = proposal_members(result.cluster_id, result.cluster_id2)
+    person_points = np.flatnonzero(hit == 2)
+    assert np.isin(person_points, members[own[0]]).all()
+    assert np.isin(person_points, members[1 - own[0]]).all()  # inside the U's rectangle as well
+    body = (hit == 2) & ~result.ground
+    assert np.all(result.cluster_id[body] == own[0]) and np.all(result.cluster_id2[body] == 1 - own[0])
+    feet = (hit == 2) & result.ground  # in no cluster: both boxes, the lower id first
+    assert feet.any() and np.all(result.cluster_id[feet] == 0) and np.all(result.cluster_id2[feet] == 1)
+    for k, box in enumerate(result.boxes):
+        inside = box.contains(points[:, :3].astype(np.float64), margin=Stage1Config().enlarge)
+        assert np.array_equal(np.flatnonzero(inside), members[k])
+
+
+def test_proposal_members_from_the_two_fields():
+    cid = np.array([0, 0, 1, -1, 2, 1], dtype=np.int32)
+    cid2 = np.array([-1, 1, -1, 2, -1, 0], dtype=np.int32)
+    members = proposal_members(cid, cid2)
+    assert [m.tolist() for m in members] == [[0, 1, 5], [1, 2, 5], [3, 4]]
+    assert [m.tolist() for m in proposal_members(cid, cid2, n_proposals=4)][3] == []
+    assert proposal_members(np.full(3, -1), np.full(3, -1)) == []
+    with pytest.raises(ValueError):
+        proposal_members(cid, cid2[:-1])
+    with pytest.raises(ValueError):
+        proposal_members(cid, cid2, n_proposals=2)
+
+
+def test_size_gates_reject_what_is_not_a_road_user():
+    solids = [Solid((25.0, 0.0, -SENSOR_HEIGHT + 4.0), (3.0, 3.0, 8.0)),  # a tower: too tall (seen to 2.6 m)
+              Solid((-10.0, 8.0, -SENSOR_HEIGHT + 1.0), (12.0, 3.0, 2.0)),  # a bus-sized block: too long
+              Solid((6.0, -8.0, -SENSOR_HEIGHT + 0.45), (1.0, 1.0, 0.2)),  # a flat slab in the ground band
+              car_at(-6.0, -7.0)]
+    points, _, hit = raycast(solids)
+    result = propose(points)
+    assert len(result.boxes) == 1
+    assert np.all(result.cluster_id[hit == 3] >= 0)
+
+
+def test_non_finite_points_take_no_part():
+    points, rings, hit = raycast([car_at(10.0, -4.0)])
+    clean = propose(points)
+    holes = points.copy()
+    holes[::7, 0] = np.nan
+    holes[3::11, 2] = np.inf
+    bad = ~np.isfinite(holes[:, :3]).all(axis=1)
+    result = propose(holes, ring=rings)
+    assert np.all(result.cluster_id[bad] == -1) and not result.ground[bad].any()
+    assert len(result.boxes) == len(clean.boxes) == 1
+    assert np.all(result.cluster_id[(hit == 0) & ~bad] == 0)
+    assert np.array_equal(result.ring[~bad], rings[~bad])
+
+
+def test_empty_and_tiny_scans():
+    empty = propose(np.zeros((0, 4), np.float32))
+    assert empty.boxes == [] and len(empty.cluster_id) == 0
+    tiny = propose(np.array([[5.0, 0.0, -1.7, 0.5], [5.0, 0.1, -1.7, 0.5]], np.float32))
+    assert tiny.boxes == [] and tiny.ground.all()
+    with pytest.raises(ValueError):
+        propose(np.zeros((5, 2), np.float32))
+
+
+def test_config_checks_and_mapping():
+    with pytest.raises(ValueError, match="th_dist"):
+        Stage1Config(th_dist=-1.0)
+    with pytest.raises(ValueError, match="unknown"):
+        Stage1Config.from_mapping({"th_distance": 0.2})
+    config = Stage1Config.from_mapping({"th_dist": 0.25, "enlarge": [0.2, 0.2, 0.5]})
+    assert config.enlarge == (0.2, 0.2, 0.5) and config.to_dict()["th_dist"] == 0.25
+    defaults = Stage1Config()
+    paper = (defaults.n_seg, defaults.n_iter, defaults.n_lpr, defaults.th_seeds, defaults.th_dist,
+             defaults.th_ring, defaults.th_prop, defaults.enlarge)
+    assert paper == (3, 3, 20, 0.4, 0.3, 0.5, 1.0, (0.1, 0.1, 0.4))
+    assert defaults.gates() == refinement.Gates()
+
+
+def test_warm_up_and_synthetic_scan_run():
+    stage1.warm_up()
+    result = propose(stage1.synthetic_scan())
+    assert result.ring_source == "azimuth_wrap" and len(result.boxes) == 1

@@ -1,0 +1,142 @@
+"""Stage 1 metrics, `pass3d_evaluate --stage1-only`, `pass3d_benchmark stage1`, and the real KITTI frames."""
+
+from __future__ import annotations
+
+import argparse
+import builtins
+import json
+
+import numpy as np
+import pytest
+
+from pass3d_ros.bench import stage1 as bench
+from pass3d_ros.core.metrics import ConfusionAccumulator, Stage1Metrics
+from pass3d_ros.core.stage1 import Stage1Config, propose, synthetic_scan
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.tools import evaluate
+
+TIMINGS = {"ring": 0.1, "ground": 0.2, "clustering": 0.3, "refinement": 0.4, "total": 1.0}
+
+
+def test_confusion_accumulator_precision_recall_iou():
+    acc = ConfusionAccumulator()
+    acc.update(np.array([0, 0, 1, 1, 1, 2]), np.array([0, 1, 1, 1, 0, 0]))
+    acc.update(np.array([3]), np.array([3]))
+    assert acc.precision()[1] == pytest.approx(2 / 3) and acc.recall()[1] == pytest.approx(2 / 3)
+    assert acc.iou()[1] == pytest.approx(2 / 4) and acc.iou()[2] == 0.0 and acc.iou()[3] == 1.0
+    summary = acc.summary()
+    assert summary["per_class"]["pedestrian"]["points"] == 1
+    assert summary["mean_iou"] == pytest.approx((0.5 + 0.0 + 1.0) / 3)
+    assert ConfusionAccumulator().summary()["mean_iou"] is None
+    with pytest.raises(ValueError):
+        acc.update(np.array([0, 1]), np.array([0]))
+    with pytest.raises(ValueError):
+        acc.update(np.array([4]), np.array([0]))
+
+
+def test_stage1_metrics_accumulate_over_frames():
+    m = Stage1Metrics()
+    labels = np.array([0, 1, 1, 2, 0, 3], dtype=np.uint8)
+    cid = np.array([-1, 0, -1, 1, 0, -1], dtype=np.int32)
+    cid2 = np.array([-1, -1, -1, -1, -1, 1], dtype=np.int32)
+    ground = np.array([True, False, False, False, True, True])
+    truth = np.array([True, False, False, False, False, True])
+    row = m.update("a", 2, cid, cid2, ground, TIMINGS, labels, truth)
+    assert row["foreground_recall"] == pytest.approx(3 / 4)
+    assert row["ground_precision"] == pytest.approx(2 / 3) and row["ground_recall"] == 1.0
+    m.update("b", 4, np.full(3, -1), np.full(3, -1), np.zeros(3, bool), {**TIMINGS, "total": 3.0})
+    s = m.summary()
+    assert s["frames"] == 2
+    st = s["stage1"]
+    assert st["foreground_recall"] == pytest.approx(3 / 4) and st["foreground_points"] == 4
+    assert st["class_recall"] == {"car": 0.5, "pedestrian": 1.0, "cyclist": 1.0}
+    assert st["proposals_per_frame"] == {"median": 3.0, "mean": 3.0}
+    assert st["ms_per_frame"]["median"] == pytest.approx(2.0) and st["ms_per_step"]["ring"] == pytest.approx(0.1)
+    assert st["ground"] == {"precision": pytest.approx(2 / 3), "recall": 1.0} and st["ground_frames"] == 1
+    empty = Stage1Metrics()
+    empty.update("c", 0, np.full(2, -1), np.full(2, -1), np.zeros(2, bool), TIMINGS)
+    st = empty.summary()["stage1"]
+    assert st["foreground_recall"] is None and st["ground"] == {"precision": None, "recall": None}
+
+
+def test_evaluate_stage1_on_constructed_frames():
+    pts = synthetic_scan()
+    result = propose(pts)
+    labels = np.zeros(len(pts), np.uint8)
+    labels[result.cluster_id >= 0] = 1
+    frames = iter([("mem", Frame("f0", pts, labels=labels, ground=result.ground))])
+    summary = evaluate.evaluate_stage1(frames, Stage1Config())
+    st = summary["stage1"]
+    assert summary["frames"] == 1 and st["foreground_recall"] == 1.0
+    assert st["ground"] == {"precision": 1.0, "recall": 1.0}
+    assert summary["per_frame"][0]["ring_source"] == "azimuth_wrap"
+    assert "foreground recall" in evaluate.format_stage1(summary, per_frame=True)
+
+
+def test_evaluate_cli_errors(capsys):
+    assert evaluate.main(["--stage1-only", "--data", "nosuchformat:/x"]) == 2
+    assert "unknown format" in capsys.readouterr().err
+    assert evaluate.main(["--stage1-only", "--data", "kitti_object"]) == 2
+    assert evaluate.main(["--data", "synthetic:frames=1,seed=0"]) == 2
+    assert "not yet available" in capsys.readouterr().err
+    assert evaluate.main(["--stage1-only", "--data", "synthetic:frames=1,seed=0", "--param", "th_dist=-2"]) == 2
+    assert "th_dist" in capsys.readouterr().err
+    assert evaluate.main(["--stage1-only", "--data", "synthetic:frames=1,seed=0", "--param", "bogus"]) == 2
+
+
+def test_evaluate_cli_writes_nested_json(tmp_path, capsys):
+    out = tmp_path / "eval.json"
+    code = evaluate.main(["--stage1-only", "--data", "synthetic:frames=1,seed=0", "--json", str(out), "--no-progress",
+                          "--param", "th_num_floor=6"])
+    assert code == 0
+    data = json.loads(out.read_text())
+    st = data["stage1"]
+    assert data["frames"] == 1 and data["mode"] == "stage1" and data["config"]["th_num_floor"] == 6
+    for key in ("median", "mean"):
+        assert isinstance(st["proposals_per_frame"][key], float)
+    assert st["ms_per_frame"]["median"] > 0 and st["foreground_recall"] > 0.8
+    assert 0.9 < st["ground"]["precision"] <= 1.0 and 0.9 < st["ground"]["recall"] <= 1.0
+    assert set(st["ms_per_step"]) == {"ring", "ground", "clustering", "refinement", "total"}
+    assert "ground precision" in capsys.readouterr().out
+
+
+def test_benchmark_runs_and_reports_missing_patchwork(tmp_path, capsys, monkeypatch):
+    real_import = builtins.__import__
+
+    def no_patchwork(name, *args, **kwargs):
+        if name == "pypatchworkpp":
+            raise ImportError(name)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_patchwork)
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    out = tmp_path / "bench.json"
+    assert bench.run(parser.parse_args(["--repeat", "2", "--json", str(out)])) == 0
+    text = capsys.readouterr().out
+    assert "clustering" in text and "pip install pypatchworkpp" in text
+    report = json.loads(out.read_text())
+    assert report["patchwork_ms_median"] is None and report["stage1_ms_median"]["total"] > 0
+    assert bench.run(parser.parse_args(["--data", "nosuch:x"])) == 2
+
+
+# Measured on the six kitti_dev frames (this 2-core machine): foreground recall 0.981 (car 0.981, pedestrian
+# 0.992, cyclist 1.000), proposals per frame median 34.5 / mean 29.3, ground precision 0.912, recall 0.994.
+# The floors below sit a little under those numbers, so a regression shows.
+def test_real_kitti_frames_meet_the_measured_floors(kitti_dev, tmp_path):
+    out = tmp_path / "real.json"
+    specs = [f"kitti_object:{kitti_dev / 'object' / 'training'}",
+             f"semantickitti:{kitti_dev / 'semantickitti' / 'sequences' / '00'}"]
+    args = ["--stage1-only", "--no-progress", "--json", str(out)]
+    for spec in specs:
+        args += ["--data", spec]
+    assert evaluate.main(args) == 0
+    data = json.loads(out.read_text())
+    st = data["stage1"]
+    assert data["frames"] == 6
+    assert st["foreground_recall"] >= 0.97
+    assert st["class_recall"]["pedestrian"] >= 0.95
+    assert st["proposals_per_frame"]["median"] <= 35 and st["proposals_per_frame"]["mean"] <= 31
+    assert st["ground"]["precision"] >= 0.90 and st["ground"]["recall"] >= 0.99
+    assert all(row["ring_source"] == "azimuth_wrap" for row in data["per_frame"])
+    assert st["ms_per_frame"]["median"] < 100.0  # a loose sanity bound: timing here is shared and noisy
