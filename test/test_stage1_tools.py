@@ -77,8 +77,6 @@ def test_evaluate_cli_errors(capsys):
     assert evaluate.main(["--stage1-only", "--data", "nosuchformat:/x"]) == 2
     assert "unknown format" in capsys.readouterr().err
     assert evaluate.main(["--stage1-only", "--data", "kitti_object"]) == 2
-    assert evaluate.main(["--data", "synthetic:frames=1,seed=0"]) == 2
-    assert "not yet available" in capsys.readouterr().err
     assert evaluate.main(["--stage1-only", "--data", "synthetic:frames=1,seed=0", "--param", "th_dist=-2"]) == 2
     assert "th_dist" in capsys.readouterr().err
     assert evaluate.main(["--stage1-only", "--data", "synthetic:frames=1,seed=0", "--param", "bogus"]) == 2

@@ -1,6 +1,7 @@
-"""Evaluation accumulators: stage 1 proposal metrics and per-class precision / recall / IoU.
+"""Evaluation accumulators: stage 1 proposal metrics, per-class precision / recall / IoU, and the full
+pipeline's per-stage times; plus the one table printer of per-class metrics every tool shares.
 
-Both accumulate over frames and summarise into plain dicts (JSON-ready; a metric without data is None).
+All accumulate over frames and summarise into plain dicts (JSON-ready; a metric without data is None).
 """
 
 from __future__ import annotations
@@ -163,3 +164,77 @@ class Stage1Metrics:
             "ground_frames": self.ground_frames,
         }
         return {"frames": self.frames, "stage1": stage1}
+
+
+def median_or_none(values: list[float]) -> float | None:
+    """Median of `values`, None when there are none (JSON null rather than NaN)."""
+    return float(np.median(np.asarray(values, dtype=np.float64))) if values else None
+
+
+class SegmentationMetrics:
+    """The full pipeline over frames: point-wise confusion against ground truth and milliseconds per stage.
+
+    Stage times are per frame; `total` is each frame's own total (stage 1 + stage 2 offline, the end-to-end
+    latency live), so its median is not the sum of the stage medians.
+    """
+
+    STAGES: tuple[str, ...] = ("stage1", "stage2", "total")
+
+    def __init__(self) -> None:
+        self.confusion = ConfusionAccumulator()
+        self.stage_ms: dict[str, list[float]] = {stage: [] for stage in self.STAGES}
+        self.frames = 0
+        self.per_frame: list[dict] = []
+
+    def update(
+        self,
+        name: str,
+        truth: np.ndarray,
+        predicted: np.ndarray,
+        stage1_ms: float | None = None,
+        stage2_ms: float | None = None,
+        total_ms: float | None = None,
+    ) -> dict:
+        """Add one frame (total defaults to stage1 + stage2); returns its row: points, ms, per-class IoU."""
+        frame = ConfusionAccumulator(self.confusion.num_classes, self.confusion.names)
+        frame.update(truth, predicted)
+        self.confusion.matrix += frame.matrix
+        if total_ms is None and stage1_ms is not None and stage2_ms is not None:
+            total_ms = stage1_ms + stage2_ms
+        row: dict = {"frame": name, "points": len(truth)}
+        for stage, ms in zip(self.STAGES, (stage1_ms, stage2_ms, total_ms), strict=True):
+            row[f"{stage}_ms"] = None if ms is None else float(ms)
+            if ms is not None:
+                self.stage_ms[stage].append(float(ms))
+        summary = frame.summary()
+        row["iou"] = {self.confusion.names[c]: summary["per_class"][self.confusion.names[c]]["iou"] for c in FOREGROUND}
+        row["mean_iou"] = summary["mean_iou"]
+        self.frames += 1
+        self.per_frame.append(row)
+        return row
+
+    def summary(self) -> dict:
+        """{"frames", "classes": {name: {precision, recall, iou, points}}, "mean_iou" (car, pedestrian,
+        cyclist with ground-truth points), "ms_per_frame": {stage1, stage2, total} (medians)}."""
+        metrics = self.confusion.summary(FOREGROUND)
+        return {
+            "frames": self.frames,
+            "classes": metrics["per_class"],
+            "mean_iou": metrics["mean_iou"],
+            "ms_per_frame": {stage: median_or_none(values) for stage, values in self.stage_ms.items()},
+        }
+
+
+def _pct(value: float | None) -> str:
+    return "   n/a" if value is None else f"{100 * value:6.1f}"
+
+
+def format_metrics(per_class: dict, mean_iou: float | None) -> list[str]:
+    """Table lines: per-class precision / recall / IoU in %, point counts, and the foreground mean IoU."""
+    lines = [f"{'class':<12}{'prec %':>8}{'recall %':>10}{'IoU %':>8}{'points':>10}"]
+    for name in CLASS_NAMES:
+        row = per_class[name]
+        lines.append(f"{name:<12}{_pct(row['precision']):>8}{_pct(row['recall']):>10}{_pct(row['iou']):>8}"
+                     f"{row['points']:>10}")
+    lines.append(f"mean IoU (car, pedestrian, cyclist): {_pct(mean_iou).strip()} %")
+    return lines

@@ -1,6 +1,6 @@
 """Live-path evaluation: a bag's clouds through both real nodes in one process, outputs matched by header stamp.
 
-`run_live` starts ClusterProposalNode and SegmentationNode on a MultiThreadedExecutor in a private rclpy
+`run_live` starts ClusterProposalNode and SegmentationNode on a SingleThreadedExecutor in a private rclpy
 context (its own DDS domain, so a real robot on the default domain never sees the test traffic), publishes
 the bag's PointCloud2 CDR bytes unchanged on the cluster node's input topic and listens to the labeled
 output (and, for per-stage times, to the proposals in between). Ground truth comes from the bag's `label`
@@ -17,15 +17,15 @@ import random
 import struct
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from pass3d_ros.classes import CLASS_NAMES, FOREGROUND, NUM_CLASSES
-from pass3d_ros.core.metrics import ConfusionAccumulator
+from pass3d_ros.classes import FOREGROUND, NUM_CLASSES
+from pass3d_ros.core.metrics import ConfusionAccumulator, format_metrics
 from pass3d_ros.data.bag import TYPESTORE, BagWriter, count_frames, iter_raw, parse_bag_spec, select_topic
 from pass3d_ros.ros.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, finite_mask, header_stamp_ns
 
@@ -33,6 +33,7 @@ NODE_NAMES: tuple[str, ...] = ("cluster_proposal_node", "segmentation_node")
 DISCOVERY_TIMEOUT_S = 15.0
 SETTLE_S = 0.3  # after matching: the subscriber side of discovery may finish a moment later
 QUIET_S = 1.0  # at the end, both nodes idle and no output for this long: nothing more will come
+FRAME_GAP_NS = 100_000_000  # replay spacing between passes of a one-message bag (10 Hz)
 
 
 class LiveEvalError(RuntimeError):
@@ -43,7 +44,7 @@ class LiveEvalError(RuntimeError):
 class LiveFrame:
     """One output frame matched to its input."""
 
-    index: int  # position of the input in the bag's topic
+    index: int  # position of the input in the replay: pass x bag messages + position in the bag's topic
     stamp_ns: int
     points: int  # finite input points
     latency_ms: float
@@ -94,6 +95,52 @@ def cdr_stamp_ns(raw: bytes | memoryview) -> int:
     order = "<" if raw[1] == 1 else ">"  # CDR encapsulation: 0x0001 little endian, 0x0000 big endian
     sec, nanosec = struct.unpack_from(order + "iI", raw, 4)
     return sec * 1_000_000_000 + nanosec
+
+
+def with_stamp(raw: bytes | memoryview, stamp_ns: int) -> bytes:
+    """A copy of a serialized message whose first field is a std_msgs/Header, with a new header stamp."""
+    order = "<" if raw[1] == 1 else ">"
+    out = bytearray(raw)
+    struct.pack_into(order + "iI", out, 4, *divmod(stamp_ns, 1_000_000_000))
+    return bytes(out)
+
+
+def _replay(path: Path, topic: str, repeat: int) -> Iterator[tuple[int, str, int, bytes]]:
+    """(replay index, message type, bag time ns, CDR bytes) of the topic's messages, `repeat` times over.
+
+    Pass k shifts the header stamps and bag times by k x (span of the topic + its mean message spacing,
+    100 ms for a single message), so stamps keep increasing from pass to pass and the pace stays the bag's.
+    """
+    first: tuple[int, int] | None = None  # (header stamp, bag time) of the first message
+    last: tuple[int, int] = (0, 0)
+    count = index = 0
+    shift = (0, 0)
+    for lap in range(repeat):
+        for conn, bag_ns, raw in iter_raw(path, topic):
+            if lap == 0:
+                try:
+                    stamp = cdr_stamp_ns(raw)
+                except (IndexError, struct.error):
+                    stamp = last[0]
+                if first is None:
+                    first = (stamp, bag_ns)
+                last, count = (stamp, bag_ns), count + 1
+                yield index, conn.msgtype, bag_ns, raw
+            else:
+                try:
+                    shifted = with_stamp(raw, cdr_stamp_ns(raw) + lap * shift[0])
+                except (IndexError, struct.error):
+                    shifted = bytes(raw)  # too short for a header: the consumer skips it as undecodable
+                yield index, conn.msgtype, bag_ns + lap * shift[1], shifted
+            index += 1
+        if lap == 0:
+            if first is None:
+                return
+            stamp_span, time_span = last[0] - first[0], last[1] - first[1]
+            if count > 1:
+                shift = (stamp_span + stamp_span // (count - 1), time_span + time_span // (count - 1))
+            else:
+                shift = (FRAME_GAP_NS, FRAME_GAP_NS)
 
 
 def _input_frame(raw: bytes, msgtype: str) -> tuple[int, int, np.ndarray | None]:
@@ -248,6 +295,7 @@ def run_live(
     force: bool = False,
     log_level: str | None = None,
     progress: bool = False,
+    repeat: int = 1,
 ) -> LiveResult:
     """Play `bag` (`PATH` or `PATH#/topic`) through both live nodes and collect what comes out.
 
@@ -259,10 +307,12 @@ def run_live(
     bag (`force` replaces an existing one). keep_labels=False keeps per-frame records without label
     arrays (long soaks: the confusion matrix still accumulates). `domain_id` defaults to a random one in
     100..200. `log_level` (debug, info, warn, error) sets both nodes' loggers for the rest of the process.
+    `repeat` plays the bag that many times back to back (long runs from a short bag), every pass shifted
+    in stamp and time by the bag's span plus one frame spacing so stamps keep increasing.
     """
     import rclpy
     from rclpy.context import Context
-    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.logging import LoggingSeverity, set_logger_level
     from sensor_msgs.msg import PointCloud2
     from tqdm import tqdm
@@ -275,6 +325,8 @@ def run_live(
         raise ValueError(f"rate must be >= 0, got {rate}")
     if timeout_s <= 0:
         raise ValueError(f"timeout_s must be > 0, got {timeout_s}")
+    if repeat < 1:
+        raise ValueError(f"repeat must be >= 1, got {repeat}")
     path, topic = parse_bag_spec(bag)
     topic = select_topic(path, topic)
     overrides = _overrides(node_parameters)
@@ -290,7 +342,9 @@ def run_live(
     writer = BagWriter(record_out, force=force) if record_out is not None else None
     context = Context()
     rclpy.init(args=[], context=context, domain_id=random.randint(100, 200) if domain_id is None else domain_id)
-    executor = MultiThreadedExecutor(num_threads=3, context=context)
+    # Callbacks only hand frames to the nodes' worker threads. rclpy 7.1.6's MultiThreadedExecutor stalls on
+    # long runs (ros2/rclpy#1452), so a single-threaded executor is both enough and reliable.
+    executor = SingleThreadedExecutor(context=context)
     nodes: list[Any] = []
     spinner: threading.Thread | None = None
     try:
@@ -332,12 +386,13 @@ def run_live(
         time.sleep(SETTLE_S)
 
         started = time.perf_counter()
-        bar = tqdm(total=count_frames(bag), unit="frame", desc="live", disable=not progress)
+        total = count_frames(bag)
+        bar = tqdm(total=None if total is None else total * repeat, unit="frame", desc="live", disable=not progress)
         pace_start, first_bag_ns, last_stamp = None, 0, None
-        for index, (conn, bag_ns, raw) in enumerate(iter_raw(path, topic)):
+        for index, msgtype, bag_ns, raw in _replay(path, topic, repeat):
             bar.update(1)
             try:
-                stamp, points, truth = _input_frame(raw, conn.msgtype)
+                stamp, points, truth = _input_frame(raw, msgtype)
             except LiveEvalError as exc:
                 raise LiveEvalError(f"{path}#{topic}: message {index}: {exc}") from None
             except (PointCloud2Error, ValueError, IndexError, struct.error):
@@ -446,23 +501,8 @@ def score(result: LiveResult) -> dict:
     }
 
 
-def _pct(value: float | None) -> str:
-    return "   n/a" if value is None else f"{100 * value:6.1f}"
-
-
 def _ms(stats: dict | None) -> str:
     return "n/a" if stats is None else f"median {stats['median']:.1f} ms, p95 {stats['p95']:.1f} ms"
-
-
-def format_metrics(per_class: dict, mean_iou: float | None) -> list[str]:
-    """Table lines: per-class precision / recall / IoU in %, point counts, and the foreground mean IoU."""
-    lines = [f"{'class':<12}{'prec %':>8}{'recall %':>10}{'IoU %':>8}{'points':>10}"]
-    for name in CLASS_NAMES:
-        row = per_class[name]
-        lines.append(f"{name:<12}{_pct(row['precision']):>8}{_pct(row['recall']):>10}{_pct(row['iou']):>8}"
-                     f"{row['points']:>10}")
-    lines.append(f"mean IoU (car, pedestrian, cyclist): {_pct(mean_iou).strip()} %")
-    return lines
 
 
 def format_report(scores: dict) -> str:

@@ -1,4 +1,8 @@
-"""`pass3d_pipeline`: both nodes in one process on a multi-threaded executor, for machines without ros2 launch."""
+"""`pass3d_pipeline`: both nodes in one process, for machines without `ros2 launch`.
+
+One single-threaded executor is enough: callbacks only hand frames to each node's worker thread, and rclpy
+7.1.6's MultiThreadedExecutor stalls on long runs (ros2/rclpy#1452).
+"""
 
 from __future__ import annotations
 
@@ -6,17 +10,17 @@ import sys
 
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
 from pass3d_ros.ros.segmentation_node import SegmentationNode
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run cluster_proposal_node and segmentation_node together; `--ros-args --params-file launch_configs/pass3d_params.yaml` sets parameters."""
+    """Run both nodes together; `--ros-args --params-file launch_configs/pass3d_params.yaml` sets parameters."""
     rclpy.init(args=argv if argv is not None else sys.argv)
     nodes = []
-    executor = MultiThreadedExecutor(num_threads=2)
+    executor = SingleThreadedExecutor()
     try:
         nodes = [ClusterProposalNode(), SegmentationNode()]
         for node in nodes:

@@ -12,6 +12,7 @@ SUITES: dict[str, str] = {
     "stage1": "pass3d_ros.bench.stage1",
     "stage2": "pass3d_ros.bench.stage2",
     "simulate": "pass3d_ros.bench.simulate",
+    "live": "pass3d_ros.bench.live",
 }
 
 

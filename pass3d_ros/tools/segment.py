@@ -33,7 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pass3d_ros.classes import NUM_CLASSES
-from pass3d_ros.core.metrics import ConfusionAccumulator
+from pass3d_ros.core.metrics import ConfusionAccumulator, format_metrics
 from pass3d_ros.core.segmentation import Classifier, load_classifier
 from pass3d_ros.core.stage1 import proposal_members, propose
 from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset, parse_spec
@@ -249,8 +249,6 @@ def main(argv: list[str] | None = None, log: Callable[[str], None] = print) -> i
     log(f"segmented {stats.frames} frames ({stats.points} points) in {took:.1f} s with {kind}"
         + (f" ({weights})" if weights else "") + f"; median ms per frame: stage 1 {stage1:.1f}, stage 2 {stage2:.1f}")
     if report["per_class"]:
-        from pass3d_ros.ros.live_eval import format_metrics
-
         log("\n".join(format_metrics(report["per_class"], report["mean_iou"])))
     log(f"labels: {', '.join(f + '/labels' for f in stats.folders)}"
         + ("" if args.no_png else f"; bird's-eye views: {', '.join(f + '/bev' for f in stats.folders)}")
