@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
+import torch
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -39,6 +40,7 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "classifier": ("network", "network (PointNet++) or size_rules (geometric baseline)", None),
     "weights": ("", "stage-2 checkpoint; empty = the weights shipped with the package", None),
     "device": ("cpu", "torch device: cpu or cuda", None),
+    "threads": (1, "torch CPU threads for stage 2; 0 = torch's default (1 is fastest on a busy 2-core CPU)", (0, 64)),
     "max_proposals": (64, "at most this many proposals per frame, nearest first", (1, 1024)),
     "min_confidence": (0.0, "points predicted below this confidence are labeled background", (0.0, 1.0)),
 }
@@ -119,6 +121,9 @@ class SegmentationNode(Node):
         """Load and warm up the classifier; missing or incompatible weights end start-up with the reason."""
         kind = self.get_parameter("classifier").value
         weights = self.get_parameter("weights").value or (str(default_weights()) if kind == "network" else None)
+        threads = self.get_parameter("threads").value
+        if threads > 0:
+            torch.set_num_threads(threads)
         started = time.perf_counter()
         classifier = load_classifier(kind, weights, device=self.get_parameter("device").value)
         if hasattr(classifier, "max_proposals"):
