@@ -1,0 +1,292 @@
+"""Stage 2 inference: per-point labels for a frame's proposals in one batched forward pass.
+
+Every member point of a proposal gets the network's own prediction: the N sampled points go through the
+set-abstraction levels, then the last feature-propagation level and the head run at *all* member points
+(3-NN interpolation from the finest SA centres plus the point's own features; the same per-point
+computation a sampled point gets). This costs one cheap per-point MLP per member point and avoids copying
+the label of the nearest sampled neighbour. A point in two proposals takes the more confident prediction;
+a point in no proposal is background with confidence 1. Beyond `max_proposals` proposals, the nearest to
+the sensor are run; the others count as no proposal (their class is -1).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+import torch
+
+from pass3d_ros.classes import BACKGROUND, CLASS_NAMES
+from pass3d_ros.core import canonical
+from pass3d_ros.core.pointnet2 import ModelConfig, PointNet2Seg, fuse_batchnorm
+
+CHECKPOINT_FORMAT = "pass3d_stage2"
+CHECKPOINT_VERSION = 1
+# Query points are decoded in blocks of this many points of one proposal (padding wastes < one block each).
+BLOCK = 128
+
+
+class CheckpointError(ValueError):
+    """A stage-2 checkpoint is missing, unreadable or does not fit this code; the message names file and problem."""
+
+
+class SegmentResult(NamedTuple):
+    """labels (N,) uint8, confidence (N,) float32, proposal_class (P,) int16 (-1: proposal not classified)."""
+
+    labels: np.ndarray
+    confidence: np.ndarray
+    proposal_class: np.ndarray
+
+
+class Classifier(Protocol):
+    """What the evaluation and the ROS node need from a stage-2 classifier."""
+
+    def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult: ...
+
+    def warm_up(self) -> None: ...
+
+
+@dataclass
+class ProposalBatch:
+    """Network input for P proposals: N sampled points each, plus (for inference) every member point as a
+    query, laid out in blocks of BLOCK points of one proposal."""
+
+    sample_xyz: np.ndarray  # (P, N, 3) float32, canonical frame
+    sample_feat: np.ndarray  # (P, N, 2) float32: intensity, n
+    sample_index: np.ndarray  # (P, N) int64: index of each sampled point in `points`
+    query_xyz: np.ndarray | None = None  # (M, 3) float32: every member point, canonical frame
+    query_feat: np.ndarray | None = None  # (M, 2) float32
+    query_batch: np.ndarray | None = None  # (M,) int64: proposal of each query point
+    query_index: np.ndarray | None = None  # (M,) int64: index of each query point in `points`
+    block_proposal: np.ndarray | None = None  # (Q,) int64: proposal of each block of BLOCK query slots
+    block_slot: np.ndarray | None = None  # (M,) int64: slot of each query point in the flattened blocks
+
+    def blocks(self, values: np.ndarray) -> np.ndarray:
+        """Per-query values (M, C) laid out in zero-padded blocks (Q, BLOCK, C)."""
+        out = np.zeros((len(self.block_proposal) * BLOCK, values.shape[1]), dtype=values.dtype)
+        out[self.block_slot] = values
+        return out.reshape(len(self.block_proposal), BLOCK, values.shape[1])
+
+
+def _canonical_input(
+    points: np.ndarray, index: np.ndarray, batch: np.ndarray, boxes: canonical.Boxes, views: np.ndarray, n: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Canonical xyz (K, 3) and features (K, 2) = (intensity in [0, 1], n of the proposal) of points[index]."""
+    local = canonical.to_canonical(points[index, :3], boxes, batch, views).astype(np.float32)
+    feat = np.empty((len(index), 2), dtype=np.float32)
+    feat[:, 0] = np.clip(points[index, 3], 0.0, 1.0)
+    feat[:, 1] = n[batch]
+    return local, feat
+
+
+def prepare_proposals(
+    points: np.ndarray,
+    members: list[np.ndarray],
+    config: ModelConfig,
+    views: np.ndarray | None = None,
+    rng: np.random.Generator | None = None,
+    boxes: canonical.Boxes | None = None,
+    queries: bool = True,
+) -> ProposalBatch:
+    """Canonical frames and N-point samples of non-empty proposals `members` (indices into points (N, 4)).
+
+    Inference (views None, rng None): the vertex nearest the sensor and a generator seeded from each
+    proposal's point count, so the result depends on the input alone. Training passes views and rng (and
+    queries=False: only the sampled points are transformed).
+    """
+    points = np.asarray(points, dtype=np.float32)
+    counts = np.array([len(m) for m in members], dtype=np.int64)
+    num, count = config.num_points, len(members)
+    index = np.concatenate(members).astype(np.int64) if members else np.zeros(0, dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    if boxes is None:
+        boxes = canonical.fit_boxes(points[index, :3], offsets)
+    if views is None:
+        views = canonical.inference_views(boxes)
+    n = canonical.n_feature(counts, num, config.n_mode) if config.n_feature else np.zeros(count)
+    pos = np.empty((count, num), dtype=np.int64)
+    for p, size in enumerate(counts):
+        gen = rng if rng is not None else canonical.inference_rng(int(size))
+        pos[p] = offsets[p] + canonical.sample_indices(int(size), num, gen)
+    if not queries:
+        local, feat = _canonical_input(points, index[pos.ravel()], np.repeat(np.arange(count), num), boxes, views, n)
+        return ProposalBatch(local.reshape(count, num, 3), feat.reshape(count, num, 2), index[pos])
+    batch = np.repeat(np.arange(count), counts)
+    local, feat = _canonical_input(points, index, batch, boxes, views, n)
+    nblocks = -(-counts // BLOCK)
+    block_start = np.concatenate([[0], np.cumsum(nblocks)])
+    slot = block_start[batch] * BLOCK + (np.arange(len(index)) - offsets[batch])
+    block_proposal = np.repeat(np.arange(count), nblocks)
+    return ProposalBatch(local[pos], feat[pos], index[pos], local, feat, batch, index, block_proposal, slot)
+
+
+def predict_probabilities(model: PointNet2Seg, batch: ProposalBatch, device: torch.device | str) -> np.ndarray:
+    """Class probabilities (M, K) of every query point, in one forward pass of the model (eval mode)."""
+    with torch.inference_mode():
+        coarse_xyz, coarse_feat = model.encode(
+            torch.from_numpy(batch.sample_xyz).to(device), torch.from_numpy(batch.sample_feat).to(device)
+        )
+        logits = model.decode(
+            coarse_xyz,
+            coarse_feat,
+            torch.from_numpy(batch.blocks(batch.query_xyz)).to(device),
+            torch.from_numpy(batch.blocks(batch.query_feat)).to(device),
+            torch.from_numpy(batch.block_proposal).to(device),
+        )
+        logits = logits.reshape(-1, logits.shape[-1])[torch.from_numpy(batch.block_slot).to(device)]
+        return torch.softmax(logits.float(), dim=-1).cpu().numpy()
+
+
+def scatter_predictions(
+    num_points: int, point_index: np.ndarray, labels: np.ndarray, confidence: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-point labels (uint8) and confidences (float32) of a frame from possibly repeated predictions:
+    the most confident prediction of a point wins (ties: the later one); unpredicted points are background, 1."""
+    out_labels = np.full(num_points, BACKGROUND, dtype=np.uint8)
+    out_conf = np.ones(num_points, dtype=np.float32)
+    if len(point_index) == 0:
+        return out_labels, out_conf
+    order = np.lexsort((np.arange(len(point_index)), confidence, point_index))
+    idx = point_index[order]
+    last = np.ones(len(idx), dtype=bool)
+    last[:-1] = idx[1:] != idx[:-1]
+    winners = order[last]
+    out_labels[point_index[winners]] = labels[winners]
+    out_conf[point_index[winners]] = confidence[winners]
+    return out_labels, out_conf
+
+
+def proposal_majority(query_batch: np.ndarray, labels: np.ndarray, num_proposals: int, num_classes: int) -> np.ndarray:
+    """The most frequent predicted label of each proposal's points (P,) int16 (ties: the lower class)."""
+    votes = np.bincount(query_batch * num_classes + labels, minlength=num_proposals * num_classes)
+    return np.argmax(votes.reshape(num_proposals, num_classes), axis=1).astype(np.int16)
+
+
+def nearest_first(points: np.ndarray, members: list[np.ndarray], limit: int) -> np.ndarray:
+    """Indices of up to `limit` non-empty proposals, the nearest to the sensor (x-y of the mean point) first."""
+    valid = np.array([i for i, m in enumerate(members) if len(m) > 0], dtype=np.int64)
+    if len(valid) <= limit:
+        return valid
+    dist = np.array([np.hypot(*points[members[i], :2].mean(axis=0)) for i in valid])
+    return np.sort(valid[np.argsort(dist, kind="stable")[:limit]])
+
+
+# ------------------------------------------------------------------------------------------- checkpoints
+
+
+def make_checkpoint(model: PointNet2Seg, **info: Any) -> dict:
+    """A checkpoint dict: format tag, model config, class list, weights, plus `info` (data, command, epoch, ...)."""
+    return {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "config": model.config.to_dict(),
+        "classes": list(CLASS_NAMES),
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        **info,
+    }
+
+
+def _read_checkpoint(source: str | os.PathLike | dict) -> tuple[dict, str]:
+    if isinstance(source, dict):
+        return source, "checkpoint dict"
+    path = Path(source)
+    where = str(path)
+    if not path.is_file():
+        raise CheckpointError(f"{where}: no such checkpoint file")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise CheckpointError(f"{where}: not a readable PyTorch checkpoint ({type(exc).__name__}: {exc})") from exc
+    return data, where
+
+
+def load_model(source: str | os.PathLike | dict) -> tuple[PointNet2Seg, dict]:
+    """The model (eval mode, on CPU) and the checkpoint dict; CheckpointError on any problem."""
+    data, where = _read_checkpoint(source)
+    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+        keys = sorted(data)[:8] if isinstance(data, dict) else type(data).__name__
+        raise CheckpointError(f"{where}: not a pass3d stage-2 checkpoint (format tag missing; found {keys})")
+    if data.get("version", 0) > CHECKPOINT_VERSION:
+        raise CheckpointError(
+            f"{where}: checkpoint format version {data.get('version')}, this code reads up to {CHECKPOINT_VERSION}"
+        )
+    if list(data.get("classes", [])) != list(CLASS_NAMES):
+        raise CheckpointError(
+            f"{where}: trained for classes {data.get('classes')}, this package uses {list(CLASS_NAMES)}"
+        )
+    try:
+        config = ModelConfig.from_dict(data["config"])
+        model = PointNet2Seg(config)
+    except (KeyError, ValueError, TypeError) as exc:
+        raise CheckpointError(f"{where}: bad model config ({exc})") from exc
+    state = data.get("state_dict")
+    if not isinstance(state, dict):
+        raise CheckpointError(f"{where}: no state_dict")
+    expected = model.state_dict()
+    missing = sorted(set(expected) - set(state))
+    unexpected = sorted(set(state) - set(expected))
+    wrong = sorted(k for k in set(expected) & set(state) if tuple(expected[k].shape) != tuple(state[k].shape))
+    if missing or unexpected or wrong:
+        problems = []
+        for title, keys in (("missing", missing), ("unexpected", unexpected), ("wrong shape", wrong)):
+            if keys:
+                problems.append(f"{title}: {', '.join(keys[:4])}{' ...' if len(keys) > 4 else ''} ({len(keys)})")
+        raise CheckpointError(f"{where}: weights do not fit the '{config.name}' model config; " + "; ".join(problems))
+    model.load_state_dict(state)
+    return model.eval(), data
+
+
+class Segmenter:
+    """Stage-2 network classifier loaded from a checkpoint file or dict."""
+
+    def __init__(
+        self, weights: str | os.PathLike | dict, device: str = "cpu", max_proposals: int = 64, fuse: bool = True
+    ) -> None:
+        model, checkpoint = load_model(weights)
+        self.device = torch.device(device)
+        self.config: ModelConfig = model.config
+        self.classes: list[str] = list(checkpoint["classes"])
+        self.data_description = checkpoint.get("data")
+        self.checkpoint_info = {k: v for k, v in checkpoint.items() if k not in ("state_dict", "optimizer")}
+        self.max_proposals = max_proposals
+        self.model = (fuse_batchnorm(model) if fuse else model).to(self.device).eval()
+
+    def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult:
+        """Labels and confidences of all points, and the class of each proposal (nearest `max_proposals`)."""
+        points = np.asarray(points, dtype=np.float32)
+        proposal_class = np.full(len(members), -1, dtype=np.int16)
+        chosen = nearest_first(points, members, self.max_proposals)
+        if len(chosen) == 0:
+            labels, conf = scatter_predictions(len(points), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0))
+            return SegmentResult(labels, conf, proposal_class)
+        batch = prepare_proposals(points, [np.asarray(members[i]) for i in chosen], self.config)
+        probs = predict_probabilities(self.model, batch, self.device)
+        pred = probs.argmax(axis=1)
+        conf = probs[np.arange(len(pred)), pred]
+        labels, confidence = scatter_predictions(len(points), batch.query_index, pred.astype(np.uint8), conf)
+        proposal_class[chosen] = proposal_majority(batch.query_batch, pred, len(chosen), self.config.num_classes)
+        return SegmentResult(labels, confidence, proposal_class)
+
+    def warm_up(self) -> None:
+        """Run a dummy frame through the whole path once (allocations, lazy initialisation)."""
+        rng = np.random.default_rng(0)
+        car = rng.uniform([5, -2, -1.7, 0], [9, 2, 0, 1], (600, 4))
+        person = rng.uniform([-8, 3, -1.7, 0], [-7, 4, 0, 1], (60, 4))
+        pts = np.concatenate([car, person]).astype(np.float32)
+        self.segment(pts, [np.arange(600), np.arange(600, 660)])
+
+
+def load_classifier(kind: str, weights: str | os.PathLike | dict | None = None, device: str = "cpu") -> Classifier:
+    """'network' (needs weights) or 'size_rules' (geometry only)."""
+    if kind == "network":
+        if weights is None:
+            raise ValueError("the network classifier needs weights (a stage-2 checkpoint)")
+        return Segmenter(weights, device=device)
+    if kind == "size_rules":
+        from pass3d_ros.core.size_rules import SizeRuleClassifier
+
+        return SizeRuleClassifier()
+    raise ValueError(f"unknown classifier {kind!r}: choose network or size_rules")

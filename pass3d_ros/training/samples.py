@@ -1,0 +1,236 @@
+"""Stage-2 training samples: stage-1 proposals of labelled frames, their points and per-point labels.
+
+Stage 1 runs once per frame; the samples are cached as one npz file (in the training output folder) so
+later epochs and runs skip it. A validation set also keeps every frame's full label array, so validation
+scores the whole pipeline point by point (points outside every proposal count as background).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from pass3d_ros.classes import BACKGROUND, NUM_CLASSES
+from pass3d_ros.core import canonical
+from pass3d_ros.core.pointnet2 import ModelConfig
+from pass3d_ros.core.segmentation import prepare_proposals
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.spec import DatasetError
+
+CACHE_VERSION = 1
+Proposer = Callable[[Frame], list[np.ndarray]]
+
+
+def stage1_proposer(frame: Frame) -> list[np.ndarray]:
+    """Member indices of the stage-1 proposals of a frame (the real pipeline)."""
+    from pass3d_ros.core.stage1 import proposal_members, propose
+
+    result = propose(frame.points, ring=frame.ring)
+    return proposal_members(result.cluster_id, result.cluster_id2)
+
+
+@dataclass
+class SampleSet:
+    """P proposals: points (M, 4) float32 and labels (M,) uint8 of all members, proposal p at
+    offsets[p]:offsets[p+1]; frame (P,) and point_index (M,) locate them in their frames."""
+
+    points: np.ndarray
+    labels: np.ndarray
+    offsets: np.ndarray
+    frame: np.ndarray
+    point_index: np.ndarray
+    frame_names: list[str]
+    frame_sizes: np.ndarray
+    frame_labels: np.ndarray | None = None  # (sum of frame sizes,) uint8, validation sets only
+    _boxes: canonical.Boxes | None = None
+
+    def __len__(self) -> int:
+        return len(self.offsets) - 1
+
+    @property
+    def counts(self) -> np.ndarray:
+        """Points per proposal (P,)."""
+        return np.diff(self.offsets)
+
+    @property
+    def boxes(self) -> canonical.Boxes:
+        """The fitted box of every proposal (computed once)."""
+        if self._boxes is None:
+            self._boxes = canonical.fit_boxes(self.points[:, :3], self.offsets)
+        return self._boxes
+
+    def members(self, ids: np.ndarray) -> list[np.ndarray]:
+        """Index arrays into `points` of proposals `ids`."""
+        return [np.arange(self.offsets[i], self.offsets[i + 1]) for i in ids]
+
+    def proposal_class(self) -> np.ndarray:
+        """Majority foreground label of each proposal (background if it has no foreground point) (P,)."""
+        seg = np.repeat(np.arange(len(self)), self.counts)
+        votes = np.bincount(seg * NUM_CLASSES + self.labels, minlength=len(self) * NUM_CLASSES)
+        votes = votes.reshape(len(self), NUM_CLASSES)
+        fg = votes[:, 1:]
+        return np.where(fg.sum(1) > 0, 1 + fg.argmax(1), BACKGROUND)
+
+    def frame_offsets(self) -> np.ndarray:
+        """Start of each frame in frame_labels (F + 1,)."""
+        return np.concatenate([[0], np.cumsum(self.frame_sizes)])
+
+    def describe(self) -> dict:
+        """Counts for checkpoints and logs."""
+        return {
+            "frames": len(self.frame_names),
+            "proposals": len(self),
+            "points": len(self.points),
+            "proposals_per_class": np.bincount(self.proposal_class(), minlength=NUM_CLASSES).tolist(),
+            "points_per_class": np.bincount(self.labels, minlength=NUM_CLASSES).tolist(),
+        }
+
+    def save(self, path: Path) -> None:
+        """Write as one npz file."""
+        arrays = {
+            "points": self.points,
+            "labels": self.labels,
+            "offsets": self.offsets,
+            "frame": self.frame,
+            "point_index": self.point_index,
+            "frame_names": np.array(self.frame_names, dtype=str),
+            "frame_sizes": self.frame_sizes,
+            "version": np.array(CACHE_VERSION),
+        }
+        if self.frame_labels is not None:
+            arrays["frame_labels"] = self.frame_labels
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: Path) -> SampleSet:
+        """Read a file written by save()."""
+        with np.load(path) as data:
+            if int(data["version"]) != CACHE_VERSION:
+                raise ValueError(f"{path}: sample cache version {int(data['version'])}, expected {CACHE_VERSION}")
+            return cls(
+                points=data["points"],
+                labels=data["labels"],
+                offsets=data["offsets"],
+                frame=data["frame"],
+                point_index=data["point_index"],
+                frame_names=[str(n) for n in data["frame_names"]],
+                frame_sizes=data["frame_sizes"],
+                frame_labels=data.get("frame_labels"),
+            )
+
+
+def build_samples(
+    frames: Iterable[Frame],
+    background_keep: float = 1.0,
+    seed: int = 0,
+    keep_frame_labels: bool = False,
+    proposer: Proposer | None = None,
+    progress: bool = True,
+    total: int | None = None,
+) -> SampleSet:
+    """Run the proposer on every frame and collect its proposals; a proposal without any foreground point
+    is kept with probability `background_keep` (seeded)."""
+    proposer = proposer or stage1_proposer
+    rng = np.random.default_rng(seed)
+    points, labels, index, counts, frame_ids = [], [], [], [], []
+    names, sizes, frame_labels = [], [], []
+    for f, frame in enumerate(tqdm(frames, desc="stage 1 proposals", unit="frame", disable=not progress, total=total)):
+        if frame.labels is None:
+            raise DatasetError(f"frame {frame.name}: no per-point labels, cannot train or validate on it")
+        frame_label = np.asarray(frame.labels, dtype=np.uint8)
+        names.append(frame.name)
+        sizes.append(len(frame.points))
+        if keep_frame_labels:
+            frame_labels.append(frame_label)
+        for member in proposer(frame):
+            member = np.asarray(member, dtype=np.int64)
+            if len(member) == 0:
+                continue
+            member_labels = frame_label[member]
+            if not np.any(member_labels != BACKGROUND) and rng.random() >= background_keep:
+                continue
+            points.append(frame.points[member])
+            labels.append(member_labels)
+            index.append(member.astype(np.int32))
+            counts.append(len(member))
+            frame_ids.append(f)
+    return SampleSet(
+        points=np.concatenate(points).astype(np.float32) if points else np.zeros((0, 4), np.float32),
+        labels=np.concatenate(labels).astype(np.uint8) if labels else np.zeros(0, np.uint8),
+        offsets=np.concatenate([[0], np.cumsum(counts, dtype=np.int64)]).astype(np.int64),
+        frame=np.asarray(frame_ids, dtype=np.int32),
+        point_index=np.concatenate(index) if index else np.zeros(0, np.int32),
+        frame_names=names,
+        frame_sizes=np.asarray(sizes, dtype=np.int64),
+        frame_labels=np.concatenate(frame_labels) if keep_frame_labels and frame_labels else None,
+    )
+
+
+def cache_key(specs: list[str], background_keep: float, seed: int, keep_frame_labels: bool, proposer: str) -> str:
+    """Short hash naming a sample cache: the data specs, sampling settings, and the proposer's identity."""
+    text = json.dumps([CACHE_VERSION, specs, background_keep, seed, keep_frame_labels, proposer])
+    return hashlib.sha1(text.encode()).hexdigest()[:12]
+
+
+def stage1_identity() -> str:
+    """A hash of the stage-1 source files, so a changed stage 1 rebuilds the caches."""
+    core = Path(__file__).resolve().parents[1] / "core"
+    digest = hashlib.sha1()
+    for name in ("stage1.py", "ground.py", "scanline.py", "ring.py"):
+        path = core / name
+        if path.is_file():
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+def cached_samples(
+    specs: list[str],
+    cache_dir: Path,
+    frames: Callable[[list[str]], Iterable[Frame]],
+    background_keep: float,
+    seed: int,
+    keep_frame_labels: bool,
+    proposer: Proposer | None = None,
+    proposer_name: str | None = None,
+    rebuild: bool = False,
+    progress: bool = True,
+    total: int | None = None,
+) -> tuple[SampleSet, Path]:
+    """The samples of `specs`, from the cache in `cache_dir` when present, else built (and cached)."""
+    name = proposer_name or ("stage1-" + stage1_identity() if proposer is None else "custom")
+    path = Path(cache_dir) / f"samples_{cache_key(specs, background_keep, seed, keep_frame_labels, name)}.npz"
+    if path.is_file() and not rebuild:
+        try:
+            return SampleSet.load(path), path
+        except (OSError, ValueError, KeyError):
+            pass
+    samples = build_samples(frames(specs), background_keep, seed, keep_frame_labels, proposer, progress, total)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    samples.save(path)
+    return samples, path
+
+
+def training_batch(
+    samples: SampleSet, ids: np.ndarray, config: ModelConfig, rng: np.random.Generator, augment: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Network input of proposals `ids`: xyz (B, N, 3), features (B, N, 2), labels (B, N).
+
+    augment: a random one of the 8 views per proposal; else the inference view (vertex nearest the sensor).
+    The N points are a fresh random sample every time.
+    """
+    ids = np.asarray(ids, dtype=np.int64)
+    all_boxes = samples.boxes
+    boxes = canonical.Boxes(all_boxes.center[ids], all_boxes.size[ids], all_boxes.yaw[ids], all_boxes.zmin[ids])
+    views = rng.integers(0, canonical.NUM_VIEWS, len(ids)) if augment else None
+    batch = prepare_proposals(
+        samples.points, samples.members(ids), config, views=views, rng=rng, boxes=boxes, queries=False
+    )
+    return batch.sample_xyz, batch.sample_feat, samples.labels[batch.sample_index]

@@ -1,0 +1,254 @@
+"""Stage-2 training: losses, sample building and caching, a tiny overfit, and a pass3d_train smoke run."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from pass3d_ros.classes import BACKGROUND, CAR, NUM_CLASSES, PEDESTRIAN
+from pass3d_ros.core.pointnet2 import PointNet2Seg, make_config
+from pass3d_ros.core.segmentation import Segmenter, load_model
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.tools import train
+from pass3d_ros.training.losses import class_alpha, cross_entropy, focal_loss, make_loss
+from pass3d_ros.training.samples import SampleSet, build_samples, cached_samples, training_batch
+
+
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """One intra-op thread: on a shared 2-core machine two spinning OpenMP threads can stall each other."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+# ------------------------------------------------------------------------------------------------ losses
+
+
+def test_focal_equals_cross_entropy_with_gamma_zero_and_neutral_alpha():
+    torch.manual_seed(0)
+    logits, target = torch.randn(64, NUM_CLASSES) * 3, torch.randint(0, NUM_CLASSES, (64,))
+    ce = cross_entropy(logits, target)
+    assert torch.allclose(focal_loss(logits, target, alpha=None, gamma=0.0), ce, atol=1e-6)
+    assert torch.allclose(focal_loss(logits, target, alpha=[1.0] * NUM_CLASSES, gamma=0.0), ce, atol=1e-6)
+    assert torch.allclose(focal_loss(logits, target, alpha=0.5, gamma=0.0), 0.5 * ce, atol=1e-6)
+    assert focal_loss(logits, target, alpha=None, gamma=2.0) < ce
+
+
+def test_focal_down_weights_easy_points_and_alpha_convention():
+    easy = torch.tensor([[8.0, 0, 0, 0]])
+    hard = torch.tensor([[0.0, 0, 0, 0]])
+    target = torch.tensor([0])
+    ratio_focal = focal_loss(easy, target, None, 2.0) / focal_loss(hard, target, None, 2.0)
+    ratio_ce = cross_entropy(easy, target) / cross_entropy(hard, target)
+    assert ratio_focal < 0.01 * ratio_ce
+    assert class_alpha(0.25).tolist() == [0.75, 0.25, 0.25, 0.25]
+    assert torch.allclose(
+        focal_loss(hard, torch.tensor([CAR]), 0.25, 2.0) / focal_loss(hard, torch.tensor([BACKGROUND]), 0.25, 2.0),
+        torch.tensor(1 / 3),
+    )
+    with pytest.raises(ValueError):
+        class_alpha([1.0, 2.0])
+    with pytest.raises(ValueError):
+        make_loss("hinge")
+
+
+# --------------------------------------------------------------------------------------- constructed data
+
+
+def car_points(rng, centre, yaw, count):
+    """An L-shaped car-like shell (two visible sides) of 4 x 1.8 x 1.5 m."""
+    t = rng.uniform(0, 1, count)
+    side = rng.random(count) < 0.6
+    x = np.where(side, -2 + 4 * t, -2.0)
+    y = np.where(side, -0.9, -0.9 + 1.8 * t)
+    z = rng.uniform(0.3, 1.5, count)
+    c, s = np.cos(yaw), np.sin(yaw)
+    xyz = np.stack([centre[0] + x * c - y * s, centre[1] + x * s + y * c, z - 1.7], axis=1)
+    return np.column_stack([xyz, rng.uniform(0.2, 0.6, count)])
+
+
+def person_points(rng, centre, count):
+    """A thin vertical cylinder 1.75 m tall."""
+    a = rng.uniform(0, 2 * np.pi, count)
+    r = 0.25
+    xyz = np.stack([centre[0] + r * np.cos(a), centre[1] + r * np.sin(a), rng.uniform(0, 1.75, count) - 1.7], 1)
+    return np.column_stack([xyz, rng.uniform(0.0, 0.3, count)])
+
+
+def ground_points(rng, centre, half, count):
+    xy = rng.uniform(-half, half, (count, 2)) + centre
+    return np.column_stack([xy, rng.normal(-1.72, 0.02, count), rng.uniform(0, 0.2, count)])
+
+
+def constructed_frame(rng, name="f"):
+    """A labelled frame: a car and a person (each with some ground in its proposal), a background bush."""
+    parts, labels, instance = [], [], []
+    objects = [
+        (car_points(rng, (rng.uniform(6, 20), rng.uniform(-8, 8)), rng.uniform(-np.pi, np.pi), 300), CAR),
+        (person_points(rng, (rng.uniform(-15, -4), rng.uniform(-8, 8)), 80), PEDESTRIAN),
+        (rng.normal((rng.uniform(-20, 20), 15.0, -1.0, 0.5), (0.5, 0.5, 0.4, 0.1), (150, 4)), BACKGROUND),
+    ]
+    for k, (pts, label) in enumerate(objects):
+        ground = ground_points(rng, pts[:, :2].mean(0), 1.5, 40)
+        parts += [pts, ground]
+        labels += [np.full(len(pts), label), np.full(len(ground), BACKGROUND)]
+        instance += [np.full(len(pts) + len(ground), k)]
+    far = ground_points(rng, np.zeros(2), 40, 500)
+    parts.append(far)
+    labels.append(np.full(len(far), BACKGROUND))
+    instance.append(np.full(len(far), -1))
+    return Frame(
+        name=name,
+        points=np.concatenate(parts).astype(np.float32),
+        labels=np.concatenate(labels).astype(np.uint8),
+        instance=np.concatenate(instance).astype(np.int32),
+    )
+
+
+def instance_proposer(frame):
+    """Stand-in for stage 1: one proposal per instance id."""
+    return [np.flatnonzero(frame.instance == k) for k in np.unique(frame.instance) if k >= 0]
+
+
+# --------------------------------------------------------------------------------------------- samples
+
+
+def test_build_samples_cache_and_background_discard(tmp_path):
+    rng = np.random.default_rng(0)
+    frames = [constructed_frame(rng, f"f{i}") for i in range(6)]
+    everything = build_samples(frames, background_keep=1.0, proposer=instance_proposer, progress=False)
+    assert len(everything) == 18
+    assert everything.proposal_class().tolist() == [CAR, PEDESTRIAN, BACKGROUND] * 6
+    assert np.array_equal(everything.labels[: everything.offsets[1]], frames[0].labels[everything.point_index[:340]])
+    none_bg = build_samples(frames, background_keep=0.0, proposer=instance_proposer, progress=False)
+    assert len(none_bg) == 12 and BACKGROUND not in none_bg.proposal_class()
+
+    def source(specs):
+        return iter(frames)
+
+    kwargs = {"frames": source, "background_keep": 1.0, "seed": 0, "keep_frame_labels": True}
+    first, path = cached_samples(["constructed:a"], tmp_path, proposer=instance_proposer, progress=False, **kwargs)
+    assert path.is_file() and first.frame_labels is not None and len(first.frame_labels) == sum(
+        len(f.points) for f in frames
+    )
+
+    def no_frames(specs):
+        raise AssertionError("the cache should have been used")
+
+    again, _ = cached_samples(["constructed:a"], tmp_path, proposer=instance_proposer, progress=False,
+                              **{**kwargs, "frames": no_frames})
+    assert np.array_equal(again.points, first.points) and again.frame_names == first.frame_names
+    assert isinstance(SampleSet.load(path), SampleSet)
+
+
+def test_training_batch_shapes_views_and_labels():
+    rng = np.random.default_rng(1)
+    samples = build_samples([constructed_frame(rng)], proposer=instance_proposer, progress=False)
+    config = make_config("lite")
+    xyz, feat, labels = training_batch(samples, np.array([0, 1, 2]), config, np.random.default_rng(0), True)
+    assert xyz.shape == (3, config.num_points, 3) and feat.shape == (3, config.num_points, 2)
+    assert labels.shape == (3, config.num_points) and set(np.unique(labels[1])) <= {BACKGROUND, PEDESTRIAN}
+    assert np.all(xyz >= 0) and CAR in labels[0]
+    fixed_a = training_batch(samples, np.array([0]), config, np.random.default_rng(5), False)[0]
+    fixed_b = training_batch(samples, np.array([0]), config, np.random.default_rng(5), False)[0]
+    assert np.array_equal(fixed_a, fixed_b)
+
+
+# ----------------------------------------------------------------------------------------------- overfit
+
+
+def test_lite_model_learns_to_separate_two_shapes():
+    torch.manual_seed(0)
+    rng = np.random.default_rng(2)
+    frames = [constructed_frame(rng, f"f{i}") for i in range(4)]
+    samples = build_samples(frames, proposer=instance_proposer, progress=False)
+    ids = np.flatnonzero(samples.proposal_class() != BACKGROUND)
+    config = make_config("lite")
+    model = PointNet2Seg(config)
+    optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
+    batch_rng = np.random.default_rng(3)
+    for _ in range(60):  # the BN running statistics need a few dozen steps to settle
+        xyz, feat, labels = training_batch(samples, ids, config, batch_rng, augment=True)
+        loss = cross_entropy(model(torch.from_numpy(xyz), torch.from_numpy(feat)), torch.from_numpy(labels))
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    model.eval()
+    xyz, feat, labels = training_batch(samples, ids, config, np.random.default_rng(4), augment=True)
+    with torch.no_grad():
+        pred = model(torch.from_numpy(xyz), torch.from_numpy(feat)).argmax(-1).numpy()
+    fg = labels != BACKGROUND
+    assert (pred[fg] == labels[fg]).mean() > 0.9, "car and pedestrian points not separated"
+    assert (pred == labels).mean() > 0.8
+
+
+# -------------------------------------------------------------------------------------------- pass3d_train
+
+
+def test_train_smoke_writes_loadable_checkpoints_and_resumes(tmp_path, capsys):
+    rng = np.random.default_rng(5)
+    frames = {"constructed:train": [constructed_frame(rng, f"t{i}") for i in range(5)],
+              "constructed:val": [constructed_frame(rng, f"v{i}") for i in range(2)]}
+
+    def source(specs):
+        for spec in specs:
+            yield from frames[spec]
+
+    out = tmp_path / "run"
+    argv = ["--data", "constructed:train", "--val-data", "constructed:val", "--config", "lite", "--epochs", "2",
+            "--out", str(out), "--batch-size", "4", "--max-steps", "2", "--loss", "focal", "--quiet", "--seed", "3"]
+    assert train.run(train.build_parser().parse_args(argv), proposer=instance_proposer, frame_source=source) == 0
+    for name in ("last.pt", "best.pt", "history.json"):
+        assert (out / name).is_file()
+    assert len(list(out.glob("samples_*.npz"))) == 2
+    _model, checkpoint = load_model(out / "best.pt")
+    assert checkpoint["config"]["name"] == "lite" and checkpoint["classes"][1] == "car"
+    assert checkpoint["data"]["train"] == ["constructed:train"] and checkpoint["command"]
+    assert checkpoint["train_args"]["loss"] == "focal" and checkpoint["epoch"] in (0, 1)
+    assert 0.0 <= checkpoint["val"]["per_class"]["background"]["iou"] <= 1.0
+    segmenter = Segmenter(out / "best.pt")
+    frame = frames["constructed:val"][0]
+    result = segmenter.segment(frame.points, instance_proposer(frame))
+    assert result.labels.shape == (len(frame.points),)
+    history = json.loads((out / "history.json").read_text())
+    assert [h["epoch"] for h in history] == [0, 1]
+    assert "val IoU %" in capsys.readouterr().out
+
+    argv_more = [a if a != "2" or i != argv.index("--epochs") + 1 else "3" for i, a in enumerate(argv)]
+    assert train.run(train.build_parser().parse_args([*argv_more, "--resume"]), proposer=instance_proposer,
+                     frame_source=source) == 0
+    history = json.loads((out / "history.json").read_text())
+    assert [h["epoch"] for h in history] == [0, 1, 2]
+    assert "resumed from" in capsys.readouterr().out
+    last = torch.load(out / "last.pt", weights_only=True)
+    assert last["epoch"] == 2 and "optimizer" in last
+
+
+def test_samples_from_synthetic_scan_with_real_stage1():
+    pytest.importorskip("pass3d_ros.core.stage1")
+    pytest.importorskip("pass3d_ros.synthetic.dataset")
+    from pass3d_ros.data.spec import open_datasets
+
+    frames = list(open_datasets(["synthetic:frames=1,seed=7"]))
+    samples = build_samples(frames, background_keep=1.0, keep_frame_labels=True, progress=False)
+    assert len(samples) > 0 and samples.frame_labels is not None
+    assert np.array_equal(samples.labels, frames[0].labels[samples.point_index])
+    assert np.array_equal(samples.points, frames[0].points[samples.point_index])
+    config = make_config("lite")
+    xyz, feat, labels = training_batch(samples, np.arange(min(8, len(samples))), config, np.random.default_rng(0), True)
+    assert feat.shape == (len(xyz), config.num_points, 2)
+    assert xyz.shape[1:] == (config.num_points, 3) and np.all(xyz >= 0) and labels.max() < NUM_CLASSES
+
+
+def test_unlabelled_frames_and_bad_specs_fail_clearly(tmp_path, capsys):
+    from pass3d_ros.data.spec import DatasetError
+
+    frame = Frame(name="nolabels", points=np.zeros((10, 4), np.float32))
+    with pytest.raises(DatasetError, match="nolabels: no per-point labels"):
+        build_samples([frame], proposer=instance_proposer, progress=False)
+    assert train.main(["--data", "nosuchformat:x", "--out", str(tmp_path), "--quiet"]) == 2
+    assert "unknown format 'nosuchformat'" in capsys.readouterr().err
