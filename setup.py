@@ -28,7 +28,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/launch", glob("launch_configs/*.launch.py") + glob("launch_configs/*.launch.yaml")),
-        (f"share/{PACKAGE}/config", glob("launch_configs/*.yaml") + glob("launch_configs/*.rviz")),
+        (f"share/{PACKAGE}/config", ["launch_configs/pass3d_params.yaml", "launch_configs/pass3d.rviz"]),
     ],
     install_requires=["setuptools", "numpy", "rosbags", "numba", "tqdm"],
     zip_safe=True,

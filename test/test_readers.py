@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
+from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, IGNORE, PEDESTRIAN
 from pass3d_ros.data import kitti_object, kitti_raw, semantickitti, squeezeseg
 from pass3d_ros.data.frame import Box3D, Frame
-from pass3d_ros.data.kitti_io import label_points_in_boxes, natural_key, read_bin
+from pass3d_ros.data.kitti_io import ignore_outside_front_view, label_points_in_boxes, natural_key, read_bin
 from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset
 
 RNG_SEED = 7
@@ -58,6 +58,14 @@ def test_bin_with_wrong_size_names_the_file(tmp_path: Path) -> None:
         read_bin(bad)
 
 
+def test_outside_the_front_view_labels_are_unknown() -> None:
+    xyz = np.array([[10.0, 0.0, 0.0], [10.0, 9.0, 0.0], [10.0, 11.0, 0.0], [-10.0, 0.0, 0.0], [0.0, -5.0, 0.0]])
+    labels = np.array([CAR, PEDESTRIAN, CAR, CYCLIST, BACKGROUND], dtype=np.uint8)
+    out = ignore_outside_front_view(xyz, labels)
+    assert out.tolist() == [CAR, PEDESTRIAN, IGNORE, IGNORE, IGNORE]
+    assert labels.tolist() == [CAR, PEDESTRIAN, CAR, CYCLIST, BACKGROUND], "input must not be modified"
+
+
 def test_label_points_in_boxes_ignores_background_boxes() -> None:
     xyz = np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [9.0, 9.0, 9.0]])
     boxes = [Box3D(np.zeros(3), np.ones(3), 0.0, label=CAR, instance=4),
@@ -92,7 +100,7 @@ def test_kitti_object_write_read_round_trip(tmp_path: Path) -> None:
     assert [f.stamp_ns for f in read] == [0, 100_000_000]
     for original, back in zip(frames, read, strict=True):
         np.testing.assert_array_equal(back.points, original.points)
-        np.testing.assert_array_equal(back.labels, original.labels)
+        np.testing.assert_array_equal(back.labels, ignore_outside_front_view(original.points, original.labels))
         np.testing.assert_array_equal(back.instance, original.instance)
         assert len(back.boxes) == len(original.boxes)
         for a, b in zip(original.boxes, back.boxes, strict=True):
@@ -101,8 +109,9 @@ def test_kitti_object_write_read_round_trip(tmp_path: Path) -> None:
             assert _angle_diff(a.yaw, b.yaw) < 1e-9
             assert (b.label, b.instance) == (a.label, a.instance)
             assert b.kind == (a.kind or "Cyclist")
-    counts = np.bincount(read[0].labels, minlength=4)
-    assert np.all(counts[1:] > 50), counts
+    counts = np.bincount(read[0].labels[read[0].labels != IGNORE], minlength=4)
+    assert np.all(counts[1:3] > 50), counts  # car and pedestrian in front; the cyclist behind is not annotated
+    assert counts[CYCLIST] == 0 and np.sum(read[0].labels == IGNORE) > 0
 
 
 def test_kitti_object_writer_uses_class_name_when_kind_disagrees(tmp_path: Path) -> None:
@@ -264,8 +273,9 @@ def test_kitti_raw_tracklets_labels_and_stamps(tmp_path: Path) -> None:
     assert f0.stamp_ns == base * 10**9 + 964389445
     assert f1.stamp_ns - f0.stamp_ns == 100_000_001
     np.testing.assert_array_equal(f0.points, RAW_POINTS)
-    assert f0.labels.tolist() == [CAR, 0, CAR, 0, 0, 0]
-    assert f1.labels.tolist() == [0, 0, 0, CAR, 0, PEDESTRIAN]
+    # point 4 (inside the van) lies behind the sensor, outside the annotated front view: its label is unknown
+    assert f0.labels.tolist() == [CAR, 0, CAR, 0, IGNORE, 0]
+    assert f1.labels.tolist() == [0, 0, 0, CAR, IGNORE, PEDESTRIAN]
     assert f1.instance.tolist() == [-1, -1, -1, 0, -1, 2]
     assert [(b.kind, b.label, b.instance) for b in f0.boxes] == [("Car", CAR, 0), ("Van", BACKGROUND, 1)]
     np.testing.assert_allclose(f0.boxes[0].center, [10.0, 0.0, -0.95])
@@ -455,7 +465,7 @@ def test_real_kitti_object_frames(kitti_dev: Path) -> None:
     for frame in frames:
         raw = np.fromfile(root / "velodyne" / f"{frame.name}.bin", dtype=np.float32).reshape(-1, 4)
         np.testing.assert_array_equal(frame.points, raw)
-        counts = np.bincount(frame.labels, minlength=4)
+        counts = np.bincount(frame.labels[frame.labels != IGNORE], minlength=4)
         expected = _independent_object_counts(root, frame.name, raw)
         print(frame.name, "reader", counts.tolist(), "camera-frame check", expected.tolist())
         # Box3D has no roll/pitch: the calibration's ~0.5 degree tilt may move a few edge points

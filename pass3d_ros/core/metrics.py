@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pass3d_ros.classes import BACKGROUND, CLASS_NAMES, FOREGROUND, NUM_CLASSES
+from pass3d_ros.classes import BACKGROUND, CLASS_NAMES, FOREGROUND, IGNORE, NUM_CLASSES
 
 if TYPE_CHECKING:
     from pass3d_ros.core.stage1 import Stage1Result
@@ -32,11 +32,13 @@ class ConfusionAccumulator:
         self.matrix = np.zeros((num_classes, num_classes), dtype=np.int64)
 
     def update(self, truth: np.ndarray, prediction: np.ndarray) -> None:
-        """Add one frame's labels (same length, ids in 0..num_classes-1)."""
+        """Add one frame's labels (same length, ids in 0..num_classes-1; truth IGNORE points are left out)."""
         truth = np.asarray(truth, dtype=np.int64)
         prediction = np.asarray(prediction, dtype=np.int64)
         if truth.shape != prediction.shape:
             raise ValueError(f"truth {truth.shape} and prediction {prediction.shape} differ in shape")
+        known = truth != IGNORE
+        truth, prediction = truth[known], prediction[known]
         k = self.num_classes
         for name, arr in (("truth", truth), ("prediction", prediction)):
             if arr.size and (arr.min() < 0 or arr.max() >= k):

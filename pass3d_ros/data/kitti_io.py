@@ -8,10 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from pass3d_ros.classes import BACKGROUND
+from pass3d_ros.classes import BACKGROUND, IGNORE
 from pass3d_ros.data.frame import Box3D
 from pass3d_ros.data.spec import DatasetError
 
+# KITTI annotates objects only where the front camera sees; SqueezeSeg and PASS3D score the front 90 degrees.
+FRONT_VIEW_HALF_ANGLE_DEG = 45.0
 FRAME_PERIOD_NS = 100_000_000  # 10 Hz: the stamp of frame k when a dataset stores no time
 POINT_BYTES = 16  # x, y, z, reflectance as float32
 
@@ -73,3 +75,12 @@ def label_points_in_boxes(xyz: np.ndarray, boxes: Iterable[Box3D]) -> tuple[np.n
         labels[inside] = box.label
         instance[inside] = box.instance
     return labels, instance
+
+
+def ignore_outside_front_view(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Labels with points outside the front 90 degrees set to IGNORE: KITTI boxes exist only in the camera view,
+    so a car behind the sensor is unannotated, not background (SqueezeSeg's and the paper's protocol)."""
+    azimuth = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
+    labels = labels.copy()
+    labels[np.abs(azimuth) > FRONT_VIEW_HALF_ANGLE_DEG] = IGNORE
+    return labels

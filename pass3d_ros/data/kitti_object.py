@@ -26,6 +26,7 @@ from pass3d_ros.data.frame import Box3D, Frame
 from pass3d_ros.data.kitti_io import (
     FRAME_PERIOD_NS,
     frame_index,
+    ignore_outside_front_view,
     label_points_in_boxes,
     read_bin,
     require_dir,
@@ -125,6 +126,7 @@ def _frames(root: Path, bins: list[Path]) -> Iterator[Frame]:
             raise DatasetError(f"{calib_path}: calibration missing for label file {label_path.name}")
         boxes = read_label_file(label_path, parse_calib(calib_path))
         labels, instance = label_points_in_boxes(points[:, :3], boxes)
+        labels = ignore_outside_front_view(points, labels)
         yield Frame(name=name, points=points, stamp_ns=stamp, labels=labels, instance=instance, boxes=boxes)
 
 

@@ -31,6 +31,7 @@ from pass3d_ros.data.frame import Box3D, Frame
 from pass3d_ros.data.kitti_io import (
     FRAME_PERIOD_NS,
     frame_index,
+    ignore_outside_front_view,
     label_points_in_boxes,
     read_bin,
     require_dir,
@@ -121,6 +122,7 @@ def _frames(drive: Path, bins: list[Path], stamps: list[int] | None,
             continue
         frame_boxes = boxes.get(index, [])
         labels, instance = label_points_in_boxes(points[:, :3], frame_boxes)
+        labels = ignore_outside_front_view(points, labels)
         yield Frame(name=name, points=points, stamp_ns=stamp, labels=labels, instance=instance,
                     boxes=list(frame_boxes))
 

@@ -35,6 +35,7 @@ def render_bev(points: np.ndarray, labels: np.ndarray, extent_m: float = 40.0, p
     inside = (col >= 0) & (col < pixels) & (row >= 0) & (row < pixels)
     image = np.full((pixels, pixels, 3), 16, dtype=np.uint8)
     labels = np.asarray(labels, dtype=np.intp)
+    labels = np.where(labels < len(CLASS_COLORS_RGB), labels, BACKGROUND)
     order = np.argsort(labels[inside] != BACKGROUND, kind="stable")  # foreground drawn last, on top
     r, c, lab = row[inside][order], col[inside][order], labels[inside][order]
     colors = CLASS_COLORS_RGB[lab].copy()

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pass3d_ros.classes import BACKGROUND, NUM_CLASSES
+from pass3d_ros.classes import BACKGROUND, IGNORE, NUM_CLASSES
 from pass3d_ros.core import canonical
 from pass3d_ros.core.pointnet2 import ModelConfig
 from pass3d_ros.core.segmentation import prepare_proposals
@@ -155,6 +155,8 @@ def build_samples(
             if len(member) == 0:
                 continue
             member_labels = frame_label[member]
+            if np.any(member_labels == IGNORE):  # partly outside the annotated view: its labels are not known
+                continue
             if not np.any(member_labels != BACKGROUND) and rng.random() >= background_keep:
                 continue
             points.append(frame.points[member])
