@@ -6,6 +6,10 @@ import os
 from pathlib import Path
 
 import pytest
+import torch
+
+from pass3d_ros.core import pointnet2
+from pass3d_ros.core.segmentation import make_checkpoint
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -26,3 +30,21 @@ def kitti_dev() -> Path:
     if root is None:
         pytest.skip("real KITTI frames absent: set PASS3D_KITTI_DEV or place them in ../shared/data/kitti_dev")
     return root
+
+
+@pytest.fixture(scope="module")
+def lite_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An untrained `lite` checkpoint: real network code, arbitrary but fixed weights."""
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("weights") / "lite_untrained.pt"
+    torch.save(make_checkpoint(pointnet2.PointNet2Seg(pointnet2.make_config("lite"))), path)
+    return path
+
+
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """One intra-op thread in every test: on a shared 2-core machine two spinning OpenMP threads stall each other."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

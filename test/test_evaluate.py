@@ -10,15 +10,12 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-import torch
 
 pytest.importorskip("rclpy")
 
 from pass3d_ros.bench import live as bench_live
 from pass3d_ros.classes import CLASS_NAMES, FOREGROUND, NUM_CLASSES
-from pass3d_ros.core import pointnet2
 from pass3d_ros.core.metrics import SegmentationMetrics
-from pass3d_ros.core.segmentation import make_checkpoint
 from pass3d_ros.data.bag import iter_raw, read_bag, select_topic
 from pass3d_ros.ros.live_eval import LiveFrame, LiveResult, cdr_stamp_ns, run_live, with_stamp
 from pass3d_ros.synthetic.dataset import generate_frame
@@ -27,15 +24,6 @@ from pass3d_ros.tools.kitti2bag import convert
 
 SPEC = "synthetic:frames=2,seed=1"
 METRIC_KEYS = {"precision", "recall", "iou", "points"}
-
-
-@pytest.fixture(scope="module")
-def lite_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """An untrained `lite` checkpoint: real network code, arbitrary but fixed weights."""
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("weights") / "lite_untrained.pt"
-    torch.save(make_checkpoint(pointnet2.PointNet2Seg(pointnet2.make_config("lite"))), path)
-    return path
 
 
 @pytest.fixture(scope="module")

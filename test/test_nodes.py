@@ -28,8 +28,7 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
 from pass3d_ros.classes import BACKGROUND, NUM_CLASSES, packed_rgb  # noqa: E402
-from pass3d_ros.core import pointnet2  # noqa: E402
-from pass3d_ros.core.segmentation import load_classifier, make_checkpoint  # noqa: E402
+from pass3d_ros.core.segmentation import load_classifier  # noqa: E402
 from pass3d_ros.core.size_rules import SizeRuleClassifier  # noqa: E402
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose  # noqa: E402
 from pass3d_ros.data.bag import read_bag  # noqa: E402
@@ -124,15 +123,6 @@ def frame() -> Frame:
     scan = generate_frame(seed=5, index=0)
     assert np.count_nonzero(scan.labels) > 1000
     return scan
-
-
-@pytest.fixture(scope="module")
-def lite_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """An untrained `lite` checkpoint: real network code, arbitrary but fixed weights."""
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("weights") / "lite_untrained.pt"
-    torch.save(make_checkpoint(pointnet2.PointNet2Seg(pointnet2.make_config("lite"))), path)
-    return path
 
 
 @pytest.fixture(scope="module")

@@ -16,15 +16,6 @@ from pass3d_ros.tools import train
 from pass3d_ros.training.losses import class_alpha, cross_entropy, focal_loss, make_loss
 from pass3d_ros.training.samples import SampleSet, build_samples, cached_samples, training_batch
 
-
-@pytest.fixture(autouse=True)
-def one_torch_thread():
-    """One intra-op thread: on a shared 2-core machine two spinning OpenMP threads can stall each other."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
 # ------------------------------------------------------------------------------------------------ losses
 
 

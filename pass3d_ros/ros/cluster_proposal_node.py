@@ -7,9 +7,6 @@ import time
 from typing import Any
 
 import numpy as np
-import rclpy
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
@@ -21,6 +18,7 @@ from pass3d_ros.ros.latest_frame import LatestFrameWorker
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.pointcloud2 import PointCloud2Error, decode_xyzi, encode
 from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
+from pass3d_ros.ros.run import run_nodes
 
 STAGE1_PREFIX = "stage1."
 LOG_PERIOD_S = 5.0
@@ -128,21 +126,7 @@ class ClusterProposalNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     """`ros2 run pass3d_ros cluster_proposal_node [--ros-args ...]`."""
-    rclpy.init(args=argv if argv is not None else sys.argv)
-    node = None
-    try:
-        node = ClusterProposalNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ValueError, ParameterException) as exc:
-        print(f"cluster_proposal_node: {exc}", file=sys.stderr)
-        return 2
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_nodes("cluster_proposal_node", [ClusterProposalNode], argv)
 
 
 if __name__ == "__main__":

@@ -7,10 +7,7 @@ import time
 from typing import Any
 
 import numpy as np
-import rclpy
 import torch
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
@@ -26,6 +23,7 @@ from pass3d_ros.ros.latest_frame import LatestFrameWorker
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.pointcloud2 import PointCloud2Error, decode, encode, to_xyzi
 from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
+from pass3d_ros.ros.run import run_nodes
 from pass3d_ros.weights import default_weights
 
 LOG_PERIOD_S = 5.0
@@ -179,21 +177,7 @@ class SegmentationNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     """`ros2 run pass3d_ros segmentation_node [--ros-args ...]`."""
-    rclpy.init(args=argv if argv is not None else sys.argv)
-    node = None
-    try:
-        node = SegmentationNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ValueError, OSError, ParameterException) as exc:  # missing or incompatible weights, bad parameters
-        print(f"segmentation_node: {exc}", file=sys.stderr)
-        return 2
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_nodes("segmentation_node", [SegmentationNode], argv)
 
 
 if __name__ == "__main__":
