@@ -80,7 +80,8 @@ class ClusterProposalNode(Node):
 
     def _on_set_parameters(self, changed: list[Parameter]) -> Any:
         """Refuse invalid stage-1 values; apply valid ones to the next frame."""
-        fixed = [p.name for p in changed if p.name in ("input_topic", "proposals_topic", "boxes_topic")]
+        start_up_only = ("input_topic", "proposals_topic", "boxes_topic", "input_qos", "output_qos")
+        fixed = [p.name for p in changed if p.name in start_up_only]
         if fixed:
             return params.result(False, f"{', '.join(fixed)} can only be set at start-up")
         config, reason = params.validate_changes(self, Stage1Config, changed, STAGE1_PREFIX)
