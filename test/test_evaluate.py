@@ -206,3 +206,19 @@ def test_benchmark_live_short_run(tmp_path: Path, capsys: pytest.CaptureFixture)
     bad = parser.parse_args(["--classifier", "size_rules", "--weights", "x.pt"])
     assert bench_live.run(bad) == 2
     assert "--weights applies" in capsys.readouterr().err
+
+
+def test_live_scoring_accepts_unknown_labels_from_kitti_layouts(tmp_path: Path) -> None:
+    """KITTI-layout ground truth is unknown (IGNORE) outside the front view; the live path scores around it."""
+    from pass3d_ros.classes import IGNORE
+    from pass3d_ros.data.kitti_object import write_kitti_object_frame
+
+    write_kitti_object_frame(tmp_path / "obj", generate_frame(1, 0))
+    bag = tmp_path / "bag"
+    convert([f"kitti_object:{tmp_path / 'obj'}"], bag, with_labels=True, progress=False, log=lambda _: None)
+    (frame,) = list(read_bag(bag))
+    assert np.any(frame.labels == IGNORE)
+    result = run_live(bag, lockstep=True, node_parameters={"segmentation_node": {"classifier": "size_rules"}})
+    assert (result.frames_in, result.frames_out, result.mismatched) == (1, 1, 0)
+    known = frame.labels != IGNORE
+    assert result.confusion.matrix.sum() == np.count_nonzero(known)

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from pass3d_ros.classes import FOREGROUND, NUM_CLASSES
+from pass3d_ros.classes import FOREGROUND, IGNORE, NUM_CLASSES
 from pass3d_ros.core.metrics import ConfusionAccumulator, format_metrics
 from pass3d_ros.data.bag import TYPESTORE, BagWriter, count_frames, iter_raw, parse_bag_spec, select_topic
 from pass3d_ros.ros.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, finite_mask, header_stamp_ns
@@ -151,8 +151,9 @@ def _input_frame(raw: bytes, msgtype: str) -> tuple[int, int, np.ndarray | None]
     truth = None
     if "label" in (cloud.dtype.names or ()):
         truth = np.ascontiguousarray(cloud["label"][keep], dtype=np.uint8)
-        if truth.size and truth.max() >= NUM_CLASSES:
-            raise LiveEvalError(f"label field holds class ids above {NUM_CLASSES - 1}: not this project's labels")
+        bad = (truth >= NUM_CLASSES) & (truth != IGNORE)
+        if bad.any():
+            raise LiveEvalError(f"label field holds ids other than 0..{NUM_CLASSES - 1} or {IGNORE} (unknown)")
     return header_stamp_ns(msg), int(np.count_nonzero(keep)), truth
 
 
