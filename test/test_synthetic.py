@@ -9,9 +9,12 @@ import pytest
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, IGNORE, PEDESTRIAN
 from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset
+from pass3d_ros.synthetic import parts as pt
 from pass3d_ros.synthetic import raycast as rc
-from pass3d_ros.synthetic import scene as sc
+from pass3d_ros.synthetic.builder import Scene, SceneBuilder
 from pass3d_ros.synthetic.dataset import cast_scene, generate_frame
+from pass3d_ros.synthetic.materials import M_OTHER, M_TIRE, M_WALL
+from pass3d_ros.synthetic.scene import generate_scene
 from pass3d_ros.synthetic.sensor import HDL64E, ray_bundle
 
 SEEDS = [(0, 0), (1, 3), (2, 5)]
@@ -174,18 +177,18 @@ def test_kitti_object_round_trip(frames, tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ ray caster
-def _flat_scene(parts_at: list[tuple[list[sc.Part], float, float, float]]) -> sc.Scene:
+def _flat_scene(parts_at: list[tuple[list[pt.Part], float, float, float]]) -> Scene:
     """A flat road (no slope, bumps, crown or curbs in reach) with the given objects at (u, v, yaw)."""
     gp = np.zeros(rc.N_GROUND_PARAMS)
     gp[rc.G_COS], gp[rc.G_W], gp[rc.G_S], gp[rc.G_Z0] = 1.0, 500.0, 1.0, -1.73
     gp[rc.G_ZMIN], gp[rc.G_ZMAX] = -1.74, -1.72
-    b = sc.SceneBuilder(gp, np.zeros((0, 4)), np.zeros((0, 4)))
+    b = SceneBuilder(gp, np.zeros((0, 4)), np.zeros((0, 4)))
     for parts, u, v, yaw in parts_at:
         assert b.place(parts, u, v, yaw)
     return b.build(np.zeros(0), np.zeros((0, 4)), 0.3, 0.4, 0.4)
 
 
-def _cast(scene: sc.Scene, dirs: np.ndarray, origin_z: float = 0.0):
+def _cast(scene: Scene, dirs: np.ndarray, origin_z: float = 0.0):
     dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
     origins = np.zeros_like(dirs)
     origins[:, 2] = origin_z
@@ -193,8 +196,8 @@ def _cast(scene: sc.Scene, dirs: np.ndarray, origin_z: float = 0.0):
 
 
 def test_ray_hits_are_exact_and_first():
-    wall = [sc.box([0, 0, 1.0], [0.5, 2.0, 3.0], sc.M_WALL, 0.5)]
-    ball = [sc.ellipsoid([0, 0, 1.73], [0.5, 0.5, 0.5], sc.M_OTHER, 0.5)]
+    wall = [pt.box([0, 0, 1.0], [0.5, 2.0, 3.0], M_WALL, 0.5)]
+    ball = [pt.ellipsoid([0, 0, 1.73], [0.5, 0.5, 0.5], M_OTHER, 0.5)]
     scene = _flat_scene([(wall, 20.0, 0.0, 0.0), (ball, 10.0, 0.0, 0.0)])
     t, _, hit, normal, region = _cast(scene, np.array([[1.0, 0.0, 0.0], [1.0, 0.1, 0.0], [1.0, 0.0, -0.2]]))
     assert t[0] == pytest.approx(9.5, abs=1e-9)  # the ball hides the wall behind it
@@ -206,7 +209,7 @@ def test_ray_hits_are_exact_and_first():
 
 
 def test_tube_wheel_lets_rays_through_its_hole():
-    wheel = [sc.disc([0, 0, 1.73], [1, 0, 0], 0.5, 0.03, sc.M_TIRE, 0.1, inner=0.45)]
+    wheel = [pt.disc([0, 0, 1.73], [1, 0, 0], 0.5, 0.03, M_TIRE, 0.1, inner=0.45)]
     scene = _flat_scene([(wheel, 5.0, 0.0, 0.0)])
     t, _, hit, _, _ = _cast(scene, np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.475 / 4.97]]))
     assert hit[0] == rc.NO_HIT  # through the hub: sky
@@ -217,7 +220,7 @@ def test_curb_face_is_hit_and_labelled_sidewalk():
     gp = np.zeros(rc.N_GROUND_PARAMS)
     gp[rc.G_COS], gp[rc.G_W], gp[rc.G_S], gp[rc.G_CURB], gp[rc.G_Z0] = 1.0, 4.0, 3.0, 0.15, -1.73
     gp[rc.G_ZMIN], gp[rc.G_ZMAX] = -1.74, -1.5
-    scene = sc.SceneBuilder(gp, np.zeros((0, 4)), np.zeros((0, 4))).build(np.zeros(0), np.zeros((0, 4)), 0.3, 0.4, 0.4)
+    scene = SceneBuilder(gp, np.zeros((0, 4)), np.zeros((0, 4))).build(np.zeros(0), np.zeros((0, 4)), 0.3, 0.4, 0.4)
     slope = 1.65 / 4.0  # reaches z = -1.65 (inside the 0.15 m curb) exactly at the curb line y = 4
     t, _, hit, normal, region = _cast(scene, np.array([[0.0, 1.0, -slope]]))
     assert hit[0] == rc.GROUND_HIT and region[0] == rc.SIDEWALK
@@ -227,7 +230,7 @@ def test_curb_face_is_hit_and_labelled_sidewalk():
 
 def test_azimuth_culling_matches_brute_force():
     rng = np.random.default_rng(np.random.SeedSequence([11, 0]))
-    scene = sc.generate_scene(rng)
+    scene = generate_scene(rng)
     origins, dirs, _ = ray_bundle(HDL64E(), rng)
     pick = np.arange(0, len(dirs), 9)
     origins, dirs = origins[pick], dirs[pick]

@@ -19,7 +19,9 @@ from pass3d_ros.classes import BACKGROUND
 from pass3d_ros.data.frame import Box3D, Frame
 from pass3d_ros.data.spec import DatasetError
 from pass3d_ros.synthetic import raycast as rc
-from pass3d_ros.synthetic import scene as sc
+from pass3d_ros.synthetic.builder import Scene, SceneObject
+from pass3d_ros.synthetic.materials import M_CABIN, M_FENCE, POROUS_MATERIALS
+from pass3d_ros.synthetic.scene import generate_scene
 from pass3d_ros.synthetic.sensor import (
     HDL64E,
     measured_intensity,
@@ -50,7 +52,7 @@ class Scan:
     boxes: list[Box3D]
 
 
-def _object_spheres(scene: sc.Scene) -> tuple[np.ndarray, np.ndarray]:
+def _object_spheres(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """Bounding sphere (centre, radius) of every object, from its primitives' world-axis extents."""
     rt = np.transpose(scene.prot, (0, 2, 1))  # columns: primitive axes in world coordinates
     half = scene.psize[:, :3]
@@ -66,7 +68,7 @@ def _object_spheres(scene: sc.Scene) -> tuple[np.ndarray, np.ndarray]:
     return 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1) + 1e-6
 
 
-def cast_scene(scene: sc.Scene, origins: np.ndarray, dirs: np.ndarray, max_range: float) -> tuple[np.ndarray, ...]:
+def cast_scene(scene: Scene, origins: np.ndarray, dirs: np.ndarray, max_range: float) -> tuple[np.ndarray, ...]:
     """First hits of the rays in the scene: (t, t_exit, hit, normal, region), see raycast.cast_rays."""
     center, radius = _object_spheres(scene)
     bin_start, bin_items = rc.azimuth_bins(center, radius)
@@ -76,7 +78,7 @@ def cast_scene(scene: sc.Scene, origins: np.ndarray, dirs: np.ndarray, max_range
                         scene.pcenter, scene.psize, first, count, center, radius, bin_start, bin_items)
 
 
-def _surface(scene: sc.Scene, hit: np.ndarray, region: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _surface(scene: Scene, hit: np.ndarray, region: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(material, reflectivity) of every hit; ground materials from the region and the lane markings."""
     on_prim = hit >= 0
     prim = np.where(on_prim, hit, 0)
@@ -97,7 +99,7 @@ def _surface(scene: sc.Scene, hit: np.ndarray, region: np.ndarray, xyz: np.ndarr
     return material, rho
 
 
-def simulate_scan(scene: sc.Scene, rng: np.random.Generator, sensor: HDL64E = DEFAULT_SENSOR) -> Scan:
+def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAULT_SENSOR) -> Scan:
     """Cast one revolution into `scene` and turn the hits into noisy, labelled points in firing order."""
     origins, dirs, ring = ray_bundle(sensor, rng)
     t, t_exit, hit, normal, region = cast_scene(scene, origins, dirs, sensor.max_range_m)
@@ -109,15 +111,15 @@ def simulate_scan(scene: sc.Scene, rng: np.random.Generator, sensor: HDL64E = DE
     xyz = origins + t_hit[:, None] * dirs
     material, rho = _surface(scene, hit, region, xyz)
     cos_inc = np.abs(np.einsum("ij,ij->i", normal, dirs))
-    foliage = np.isin(material, sc.POROUS_MATERIALS)
+    foliage = np.isin(material, POROUS_MATERIALS)
     t_hit = np.where(foliage, t_hit + np.minimum(depth, np.maximum(t_exit - t_hit, 0.0)), t_hit)
     cos_inc = np.where(foliage, 0.2 + 0.8 * u_glass, cos_inc)
     cos_inc = np.where(region == rc.TERRAIN, 0.3 + 0.7 * cos_inc, cos_inc)  # grass is rough: never quite grazing
-    glass = (material == sc.M_CABIN) & (np.abs(normal[:, 2]) < 0.6)
+    glass = (material == M_CABIN) & (np.abs(normal[:, 2]) < 0.6)
     snr = signal_to_noise(sensor, rho + 0.05, cos_inc, t_hit)
     keep = has_hit & (u_keep < return_probability(sensor, snr, t_hit))
     keep &= ~(glass & (u_glass < GLASS_DROPOUT))
-    keep &= ~((material == sc.M_FENCE) & (u_glass < FENCE_DROPOUT))
+    keep &= ~((material == M_FENCE) & (u_glass < FENCE_DROPOUT))
     idx = np.flatnonzero(keep)
     sigma = sensor.range_noise_m
     t_noisy = t_hit[idx] + np.clip(noise_r[idx] * sigma, -3 * sigma, 3 * sigma)
@@ -128,7 +130,7 @@ def simulate_scan(scene: sc.Scene, rng: np.random.Generator, sensor: HDL64E = DE
     return _label(scene, points, ring[idx], hit[idx])
 
 
-def _label(scene: sc.Scene, points: np.ndarray, ring: np.ndarray, hit: np.ndarray) -> Scan:
+def _label(scene: Scene, points: np.ndarray, ring: np.ndarray, hit: np.ndarray) -> Scan:
     """Exact labels, ground, instances and boxes for the kept points (hit: primitive index or GROUND_HIT)."""
     ground = hit == rc.GROUND_HIT
     obj = np.where(ground, -1, scene.pobject[np.where(ground, 0, hit)])
@@ -150,7 +152,7 @@ def _label(scene: sc.Scene, points: np.ndarray, ring: np.ndarray, hit: np.ndarra
     return Scan(points, ring.astype(np.uint16), labels, ground, instance, boxes)
 
 
-def _fit_box(o: sc.SceneObject, xyz: np.ndarray, instance: int) -> Box3D:
+def _fit_box(o: SceneObject, xyz: np.ndarray, instance: int) -> Box3D:
     """The object's box (its shape's extent, on the ground), grown where needed to hold all its noisy points."""
     c, s = np.cos(o.yaw), np.sin(o.yaw)
     d = xyz.astype(np.float64) - np.array([o.x, o.y, o.z])
@@ -184,7 +186,7 @@ def generate_frame(seed: int, index: int, sensor: HDL64E = DEFAULT_SENSOR) -> Fr
         raise ValueError(f"seed and index must not be negative, got seed={seed}, index={index}")
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
     for _ in range(MAX_ATTEMPTS):
-        scan = simulate_scan(sc.generate_scene(rng), rng, sensor)
+        scan = simulate_scan(generate_scene(rng), rng, sensor)
         if rings_recoverable(scan.points, scan.ring, sensor.n_lasers):
             break
     return Frame(name=f"{index:06d}", points=scan.points, stamp_ns=index * FRAME_PERIOD_NS, ring=scan.ring,

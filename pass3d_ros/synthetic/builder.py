@@ -1,0 +1,215 @@
+"""The scene container the ray caster takes, and the builder that places objects in it without collisions.
+
+Objects arrive as parts in their own frame and are set on the ground at a pose; foreground objects keep a
+clearance from everything else, so their boxes hold no foreign points, while still standing close to each
+other, to walls and under trees (the hard cases PASS3D names).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pass3d_ros.classes import BACKGROUND
+from pass3d_ros.synthetic import raycast as rc
+from pass3d_ros.synthetic.parts import Part, part_extent, rot_z
+from pass3d_ros.synthetic.sensor import MOUNT_HEIGHT_M
+
+FOREGROUND_GAP_M = 0.25  # clearance between a foreground object's footprint and anything else (> 2 x noise bound)
+# The ego car (a VW Passat under the sensor) as a footprint nothing may overlap: cx, cy, hx, hy, yaw, z range.
+EGO_FOOTPRINT = (-0.3, 0.0, 2.45, 0.95, 0.0, -MOUNT_HEIGHT_M, 0.0, 1.0, 0.0)
+
+
+@dataclass
+class SceneObject:
+    """A placed object: pose, class, primitive range and extents in its own frame."""
+
+    label: int
+    kind: str
+    x: float
+    y: float
+    z: float
+    yaw: float
+    first: int = 0
+    count: int = 0
+    local_min: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    local_max: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def boxed(self) -> bool:
+        """Whether the object gets a box (cars, vans, trucks, pedestrians, cyclists)."""
+        return bool(self.kind)
+
+
+@dataclass
+class Scene:
+    """Everything the ray caster and the labeller need: ground parameters, primitives, objects."""
+
+    ground: np.ndarray
+    bumps: np.ndarray
+    waves: np.ndarray
+    ptype: np.ndarray
+    prot: np.ndarray
+    pcenter: np.ndarray
+    psize: np.ndarray
+    pmaterial: np.ndarray
+    prho: np.ndarray
+    pobject: np.ndarray
+    objects: list[SceneObject]
+    lane_lines: np.ndarray  # v of painted lines on the road
+    dark_patches: np.ndarray  # (K, 4) u0, u1, v0, v1 of dark asphalt repairs on the road
+    road_rho: float
+    walk_rho: float
+    terrain_rho: float
+
+    def ground_at(self, xy: np.ndarray) -> np.ndarray:
+        """Ground height under sensor-frame points (N x 2)."""
+        return rc.ground_height_at(self.ground, self.bumps, self.waves, np.ascontiguousarray(xy, dtype=np.float64))
+
+    def to_road(self, xy: np.ndarray) -> np.ndarray:
+        """Road coordinates (u along, v across) of sensor-frame points (N x 2)."""
+        c, s = self.ground[rc.G_COS], self.ground[rc.G_SIN]
+        u = c * xy[:, 0] + s * xy[:, 1]
+        v = -s * xy[:, 0] + c * xy[:, 1] + self.ground[rc.G_VEGO]
+        return np.stack([u, v], axis=1)
+
+
+class _Footprints:
+    """Placed footprints (oriented rectangles with a z range) and the overlap test new objects must pass."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple[float, ...]] = []
+        self._array = np.zeros((0, 9))
+
+    def _arr(self) -> np.ndarray:
+        if len(self._array) != len(self.rows):
+            self._array = np.array(self.rows, dtype=np.float64).reshape(-1, 9)
+        return self._array
+
+    def free(self, rects: list[tuple[float, ...]]) -> bool:
+        """True when none of `rects` (cx, cy, hx, hy, yaw, zlo, zhi, fg, veg) overlaps a placed one."""
+        arr = self._arr()
+        if len(arr) == 0:
+            return True
+        for cx, cy, hx, hy, yaw, zlo, zhi, fg, veg in rects:
+            gap = np.where((arr[:, 7] > 0) | (fg > 0), FOREGROUND_GAP_M, 0.0)
+            check = ~((arr[:, 8] > 0) & (veg > 0))
+            zgap = np.where((arr[:, 7] > 0) | (fg > 0), 0.1, 0.0)
+            z_overlap = (arr[:, 5] < zhi + zgap) & (zlo < arr[:, 6] + zgap)
+            cand = check & z_overlap
+            if not cand.any():
+                continue
+            if _obb_overlap(np.array([cx, cy, hx, hy, yaw]), arr[cand, :5], gap[cand]).any():
+                return False
+        return True
+
+    def add(self, rects: list[tuple[float, ...]]) -> None:
+        """Record rectangles of a placed object."""
+        self.rows.extend(rects)
+
+
+def _obb_overlap(a: np.ndarray, b: np.ndarray, gap: np.ndarray) -> np.ndarray:
+    """Separating-axis test of rectangle `a` against rectangles `b` (cx, cy, hx, hy, yaw), each grown by gap/2."""
+    ca, sa = math.cos(a[4]), math.sin(a[4])
+    cb, sb = np.cos(b[:, 4]), np.sin(b[:, 4])
+    d = b[:, :2] - a[:2]
+    n = len(b)
+    axes = [(np.full(n, ca), np.full(n, sa)), (np.full(n, -sa), np.full(n, ca)), (cb, sb), (-sb, cb)]
+    ha, hb = a[2:4] + gap[:, None] / 2, b[:, 2:4] + gap[:, None] / 2
+    separated = np.zeros(len(b), dtype=bool)
+    for ax, ay in axes:
+        dist = np.abs(d[:, 0] * ax + d[:, 1] * ay)
+        ra = ha[:, 0] * np.abs(ca * ax + sa * ay) + ha[:, 1] * np.abs(-sa * ax + ca * ay)
+        rb = hb[:, 0] * np.abs(cb * ax + sb * ay) + hb[:, 1] * np.abs(-sb * ax + cb * ay)
+        separated |= dist > ra + rb
+    return ~separated
+
+
+class SceneBuilder:
+    """Collects objects and their primitives, placing each object on the ground and refusing collisions."""
+
+    def __init__(self, ground: np.ndarray, bumps: np.ndarray, waves: np.ndarray) -> None:
+        self.ground, self.bumps, self.waves = ground, bumps, waves
+        self.parts: list[tuple[Part, int]] = []
+        self.objects: list[SceneObject] = []
+        self.footprints = _Footprints()
+        self.footprints.add([EGO_FOOTPRINT])
+        c, s, v_ego = ground[rc.G_COS], ground[rc.G_SIN], ground[rc.G_VEGO]
+        self._road_to_world = (c, s, v_ego)
+
+    def world_xy(self, u: float, v: float) -> tuple[float, float]:
+        """Sensor-frame (x, y) of road coordinates (u, v)."""
+        c, s, v_ego = self._road_to_world
+        return c * u - s * (v - v_ego), s * u + c * (v - v_ego)
+
+    def road_yaw(self) -> float:
+        """Heading of the road's u axis in the sensor frame."""
+        return math.atan2(self.ground[rc.G_SIN], self.ground[rc.G_COS])
+
+    def ground_z(self, x: float, y: float) -> float:
+        """Ground height under a sensor-frame point."""
+        return float(rc.ground_height_at(self.ground, self.bumps, self.waves, np.array([[x, y]]))[0])
+
+    def place(self, parts: list[Part], u: float, v: float, yaw_road: float, label: int = BACKGROUND,
+              kind: str = "", footprint: list[tuple[float, ...]] | None = None, veg: bool = False,
+              z_offset: float = 0.0) -> bool:
+        """Put `parts` at road coordinates (u, v), heading `yaw_road` relative to the road, unless it collides.
+
+        The footprint defaults to the parts' extent; `footprint` rows are (cx, cy, hx, hy, zlo, zhi) in the
+        object frame, for objects whose extent is a poor footprint (trees).
+        """
+        x, y = self.world_xy(u, v)
+        yaw = self.road_yaw() + yaw_road
+        lo = np.full(3, np.inf)
+        hi = np.full(3, -np.inf)
+        for p in parts:
+            ext = part_extent(p)
+            lo = np.minimum(lo, p.center - ext)
+            hi = np.maximum(hi, p.center + ext)
+        fg = 1.0 if label != BACKGROUND else 0.0
+        if footprint is None:
+            footprint = [(0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (hi[0] - lo[0]), 0.5 * (hi[1] - lo[1]),
+                          lo[2], hi[2])]
+        c, s = math.cos(yaw), math.sin(yaw)
+        z = self.ground_z(x, y) + z_offset
+        rects = [(x + c * fx - s * fy, y + s * fx + c * fy, hx, hy, yaw, z + zlo, z + zhi, fg, 1.0 if veg else 0.0)
+                 for fx, fy, hx, hy, zlo, zhi in footprint]
+        if not self.footprints.free(rects):
+            return False
+        self.footprints.add(rects)
+        index = len(self.objects)
+        self.objects.append(SceneObject(label, kind, x, y, z, yaw, local_min=lo, local_max=hi))
+        self.parts.extend((p, index) for p in parts)
+        return True
+
+    def build(self, lane_lines: np.ndarray, dark_patches: np.ndarray, road_rho: float, walk_rho: float,
+              terrain_rho: float) -> Scene:
+        """Freeze into the arrays the ray caster takes (primitives grouped by object)."""
+        order = sorted(range(len(self.parts)), key=lambda i: self.parts[i][1])
+        n = len(order)
+        ptype = np.zeros(n, dtype=np.int32)
+        prot = np.zeros((n, 3, 3))
+        pcenter = np.zeros((n, 3))
+        psize = np.zeros((n, 6))
+        pmaterial = np.zeros(n, dtype=np.int16)
+        prho = np.zeros(n)
+        pobject = np.zeros(n, dtype=np.int32)
+        for row, i in enumerate(order):
+            part, obj_index = self.parts[i]
+            obj = self.objects[obj_index]
+            r = rot_z(obj.yaw)
+            ptype[row] = part.ptype
+            prot[row] = part.rot @ r.T
+            pcenter[row] = r @ part.center + np.array([obj.x, obj.y, obj.z])
+            psize[row] = part.size
+            pmaterial[row] = part.material
+            prho[row] = part.rho
+            pobject[row] = obj_index
+        counts = np.bincount(pobject, minlength=len(self.objects))
+        firsts = np.cumsum(counts) - counts
+        for obj, first, count in zip(self.objects, firsts, counts, strict=True):
+            obj.first, obj.count = int(first), int(count)
+        return Scene(self.ground, self.bumps, self.waves, ptype, prot, pcenter, psize, pmaterial, prho, pobject,
+                     self.objects, lane_lines, dark_patches, road_rho, walk_rho, terrain_rho)
