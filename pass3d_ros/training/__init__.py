@@ -1,1 +1,1 @@
-"""Stage-2 training: samples from stage-1 proposals of labelled scans, and the losses."""
+"""Stage-2 training: samples from stage-1 proposals of labelled scans, the losses, validation, the trainer."""

@@ -1,0 +1,293 @@
+"""The stage-2 training loop: samples, model, optional resume, then per epoch train, validate, save.
+
+`Trainer.run` reads as the list of its steps; each step is one private method. A run writes into its
+output folder the sample caches, `last.pt` (with optimizer and scheduler state, for resuming), `best.pt`
+(the highest validation mean IoU over car, pedestrian and cyclist; without validation data, the lowest
+training loss) and `history.json`.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from pass3d_ros.core.pointnet2 import ModelConfig, PointNet2Seg, count_parameters, make_config
+from pass3d_ros.core.segmentation import make_checkpoint
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.training.losses import make_loss
+from pass3d_ros.training.samples import Proposer, SampleSet, cached_samples, training_batch
+from pass3d_ros.training.validation import format_scores, validate
+
+FrameSource = Callable[[list[str]], Iterable[Frame]]
+
+
+class TrainingError(RuntimeError):
+    """A run that cannot go on: no proposals to train on, or a checkpoint to resume from that does not fit."""
+
+
+@dataclass(kw_only=True)
+class TrainOptions:
+    """Settings of one run. The fields are pass3d_train's flags (same names, same defaults), and every
+    checkpoint stores them as `train_args`, so a run can be traced back to its settings."""
+
+    data: list[str]  # training data specs, FORMAT:PATH
+    val_data: list[str] = field(default_factory=list)  # validation data specs; none: best = lowest loss
+    config: str = "lite"  # model configuration name
+    epochs: int = 40
+    out: Path  # output folder: checkpoints, sample caches, history
+    device: str = "cpu"
+    resume: bool = False  # continue from OUT/last.pt
+    loss: str = "ce"  # "ce" or "focal"
+    focal_alpha: float = 0.25
+    focal_gamma: float = 2.0
+    no_augment: bool = False  # train on the inference view only (no 8 views)
+    no_n_feature: bool = False  # point-count feature n set to 0
+    n_mode: str = "log"
+    seed: int = 0
+    batch_size: int = 32  # proposals per batch
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    background_keep: float = 0.3  # share of background proposals kept
+    max_steps: int = 0  # cap on batches per epoch (0: all)
+    threads: int = 0  # torch CPU threads (0: torch default)
+    rebuild_cache: bool = False  # rerun stage 1 even if a sample cache exists
+    quiet: bool = False  # no progress bars
+
+    def record(self) -> dict:
+        """The options as a checkpoint stores them: plain values, paths as strings."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        return {k: (str(v) if isinstance(v, Path) else v) for k, v in values.items()}
+
+
+@dataclass
+class TrainResult:
+    """What a finished run leaves: one record per epoch (loss, seconds, validation scores), the best score
+    and the two checkpoint files."""
+
+    history: list[dict]
+    best_score: float
+    last_path: Path
+    best_path: Path
+
+
+class Trainer:
+    """One training run of the stage-2 network. `proposer` and `frame_source` replace stage 1 and the dataset
+    readers (tests, constructed data); `command` is the command line a checkpoint records (default sys.argv)."""
+
+    config: ModelConfig
+    train_set: SampleSet
+    val_set: SampleSet | None
+    model: PointNet2Seg
+    optimizer: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LRScheduler
+    loss_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+    def __init__(
+        self,
+        options: TrainOptions,
+        proposer: Proposer | None = None,
+        frame_source: FrameSource | None = None,
+        command: Sequence[str] | None = None,
+    ) -> None:
+        self.options = options
+        self.proposer = proposer
+        self.frame_source = frame_source
+        self.command = list(sys.argv if command is None else command)
+        self.out = Path(options.out)
+        self.last_path, self.best_path = self.out / "last.pt", self.out / "best.pt"
+        self.progress = not options.quiet
+        self.start_epoch, self.best_score, self.history = 0, -1.0, []
+        self.data_info: dict = {}
+
+    def run(self) -> TrainResult:
+        """Train as the options say; raises TrainingError when there is nothing to train on or the
+        checkpoint to resume from has another model configuration."""
+        self._prepare()
+        self._load_samples()
+        self._build_model()
+        self._resume()
+        self._describe_model()
+        for epoch in range(self.start_epoch, self.options.epochs):
+            record = self._train_epoch(epoch)
+            score = self._validate(record)
+            improved = self._keep_record(record, score)
+            self._save_checkpoints(record, improved)
+        print(f"checkpoints: {self.last_path}, {self.best_path} (best score {self.best_score:.4f})")
+        return TrainResult(self.history, self.best_score, self.last_path, self.best_path)
+
+    # ------------------------------------------------------------------------------------------ steps
+
+    def _prepare(self) -> None:
+        """Threads, output folder, the seed, and the model configuration (a bad name fails before stage 1)."""
+        o = self.options
+        if o.threads:
+            torch.set_num_threads(o.threads)
+        self.out.mkdir(parents=True, exist_ok=True)
+        torch.manual_seed(o.seed)
+        self.config = make_config(o.config)
+        self.config.n_feature = not o.no_n_feature
+        self.config.n_mode = o.n_mode
+
+    def _load_samples(self) -> None:
+        """Training (background partly discarded) and validation samples, from the caches or stage 1."""
+        o = self.options
+        common = {
+            "frames": self.frame_source or _default_frames,
+            "seed": o.seed,
+            "proposer": self.proposer,
+            "rebuild": o.rebuild_cache,
+        }
+        self.train_set, train_cache = cached_samples(
+            o.data, self.out, background_keep=o.background_keep, keep_frame_labels=False, progress=self.progress,
+            total=self._frame_total(o.data), **common
+        )
+        if len(self.train_set) == 0:
+            raise TrainingError(f"no proposals in {', '.join(o.data)}")
+        self.val_set = None
+        if o.val_data:
+            self.val_set, _ = cached_samples(
+                o.val_data, self.out, background_keep=1.0, keep_frame_labels=True, progress=self.progress,
+                total=self._frame_total(o.val_data), **common
+            )
+        print(f"train samples: {self.train_set.describe()} (cache {train_cache.name})")
+        if self.val_set is not None:
+            print(f"val samples: {self.val_set.describe()}")
+        self.data_info = {
+            "train": list(o.data),
+            "val": list(o.val_data),
+            "train_samples": self.train_set.describe(),
+            "val_samples": self.val_set.describe() if self.val_set is not None else None,
+            "background_keep": o.background_keep,
+        }
+
+    def _build_model(self) -> None:
+        """The network, Adam with a cosine learning-rate schedule over the epochs, and the loss."""
+        o = self.options
+        self.model = PointNet2Seg(self.config).to(o.device)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=o.lr, weight_decay=o.weight_decay)
+        self.scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
+            self.optimizer, T_max=max(o.epochs, 1), eta_min=o.lr / 100
+        )
+        self.loss_fn = make_loss(o.loss, alpha=o.focal_alpha, gamma=o.focal_gamma)
+
+    def _resume(self) -> None:
+        """With `resume`, continue from last.pt: weights, optimizer, scheduler, epoch, best score, history."""
+        if not (self.options.resume and self.last_path.is_file()):
+            return
+        state = torch.load(self.last_path, map_location="cpu", weights_only=True)
+        if state["config"] != self.config.to_dict():
+            raise TrainingError(f"{self.last_path} was trained with another config; not resuming")
+        self.model.load_state_dict(state["state_dict"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.scheduler.load_state_dict(state["scheduler"])
+        self.start_epoch, self.best_score = state["epoch"] + 1, state["best_score"]
+        self.history = list(state["history"])
+        print(f"resumed from {self.last_path} at epoch {self.start_epoch}")
+
+    def _describe_model(self) -> None:
+        """Log the network's size, once the weights (fresh or resumed) are in place."""
+        print(
+            f"model {self.config.name}: {count_parameters(self.model)} parameters, "
+            f"{self.config.num_points} points per sample"
+        )
+
+    def _train_epoch(self, epoch: int) -> dict:
+        """One pass over the shuffled training samples (seeded per epoch), then a scheduler step; the
+        epoch's record: mean loss and seconds."""
+        o = self.options
+        rng = np.random.default_rng([o.seed, epoch])
+        torch.manual_seed(o.seed * 100_003 + epoch)
+        self.model.train()
+        batch_size = max(1, o.batch_size)
+        order = rng.permutation(len(self.train_set))
+        steps = -(-len(order) // batch_size)
+        if o.max_steps:
+            steps = min(steps, o.max_steps)
+        losses = []
+        bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{o.epochs}", unit="batch", disable=not self.progress)
+        started = time.perf_counter()
+        for step in bar:
+            losses.append(self._train_step(order[step * batch_size : (step + 1) * batch_size], rng))
+            bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}", refresh=False)
+        self.scheduler.step()
+        return {"epoch": epoch, "train_loss": float(np.mean(losses)), "seconds": time.perf_counter() - started}
+
+    def _train_step(self, ids: np.ndarray, rng: np.random.Generator) -> float:
+        """One optimizer step on the proposals `ids` (a random view each unless no_augment); the batch loss."""
+        o = self.options
+        xyz, feat, labels = training_batch(self.train_set, ids, self.config, rng, augment=not o.no_augment)
+        logits = self.model(torch.from_numpy(xyz).to(o.device), torch.from_numpy(feat).to(o.device))
+        loss = self.loss_fn(logits, torch.from_numpy(labels.astype(np.int64)).to(o.device))
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        return loss.item()
+
+    def _validate(self, record: dict) -> float:
+        """Score the epoch and log it: the validation mean IoU (NaN when undefined), or without validation
+        data minus the training loss. The validation scores go into `record`."""
+        line = f"epoch {record['epoch'] + 1}: loss {record['train_loss']:.4f}"
+        if self.val_set is None:
+            print(line)
+            return -record["train_loss"]
+        scores = validate(self.model, self.val_set, self.options.device, self.progress)
+        record["val"] = scores
+        print(f"{line}; val {format_scores(scores)}")
+        return scores["mean_iou"] if scores["mean_iou"] is not None else float("nan")
+
+    def _keep_record(self, record: dict, score: float) -> bool:
+        """Append the epoch to the history; whether its score beats the best so far (then it is the best)."""
+        self.history.append(record)
+        improved = not np.isnan(score) and score > self.best_score
+        if improved:
+            self.best_score = float(score)
+        return improved
+
+    def _save_checkpoints(self, record: dict, improved: bool) -> None:
+        """Write best.pt (when improved, or when missing), last.pt with optimizer and scheduler, history.json."""
+        info = {
+            "data": self.data_info,
+            "command": self.command,
+            "train_args": self.options.record(),
+            "epoch": record["epoch"],
+            "val": record.get("val"),
+            "best_score": self.best_score,
+            "history": self.history,
+        }
+        checkpoint = make_checkpoint(self.model, **info)
+        if improved or not self.best_path.is_file():
+            torch.save(checkpoint, self.best_path)
+        torch.save(
+            {**checkpoint, "optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict()},
+            self.last_path,
+        )
+        with open(self.out / "history.json", "w") as fh:
+            json.dump(self.history, fh, indent=1)
+
+    def _frame_total(self, specs: list[str]) -> int | None:
+        """Frame count for the progress bar; unknown with a custom frame source."""
+        return None if self.frame_source else _total_frames(specs)
+
+
+def _default_frames(specs: list[str]) -> Iterable[Frame]:
+    from pass3d_ros.data.spec import open_datasets
+
+    return open_datasets(specs)
+
+
+def _total_frames(specs: list[str]) -> int | None:
+    from pass3d_ros.data.spec import count_frames
+
+    try:
+        counts = [count_frames(s) for s in specs]
+    except Exception:
+        return None
+    return None if any(c is None for c in counts) else sum(counts)
