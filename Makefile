@@ -4,8 +4,9 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.setup-stamp
 # numba compiles the stage-1 loops and the scan simulator; tqdm draws progress bars (see README).
-RUNTIME_DEPS := 'ros-jazzy-rclpy[fastrtps]==7.1.6' ros-jazzy-common-interfaces==5.3.6 'rosbags>=0.10' numpy numba tqdm pyyaml
-TEST_DEPS := pytest pytest-timeout ruff
+RUNTIME_DEPS := 'ros-jazzy-rclpy[fastrtps]==7.1.6' ros-jazzy-common-interfaces==5.3.6 'rosbags>=0.10' numpy numba tqdm
+# pyyaml: the tests read the parameter YAML and bag metadata.
+TEST_DEPS := pytest pytest-timeout ruff pyyaml
 
 .PHONY: setup demo test lint bench clean
 

@@ -15,10 +15,11 @@ import pytest
 import yaml
 from rosbags.rosbag2 import Reader
 
+import pass3d_ros.data.bag_convert as bag_convert
 import pass3d_ros.tools.kitti2bag as kitti2bag
 from pass3d_ros.data.bag import TYPESTORE, BagError, BagWriter, read_bag
 from pass3d_ros.data.spec import DatasetError, open_dataset
-from pass3d_ros.ros.pointcloud2 import POINTCLOUD2_TYPE, decode, encode, header_stamp_ns
+from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, decode, encode, header_stamp_ns
 
 SEMANTIC_OF = np.array([99, 10, 30, 31], dtype=np.uint32)  # background, car, person, bicyclist
 
@@ -70,7 +71,7 @@ def test_convert_and_read_back(tmp_path: Path, storage: str, version: int) -> No
         got = np.stack([cloud[name] for name in ("x", "y", "z", "intensity")], axis=1)
         assert got.tobytes() == original.tobytes(), f"frame {k} not bit-identical"
         assert np.array_equal(cloud["label"], expected_labels(seq, k))
-        assert bag_time == header_stamp_ns(msg) == kitti2bag.SYNTHETIC_START_NS + k * kitti2bag.FRAME_GAP_NS
+        assert bag_time == header_stamp_ns(msg) == bag_convert.SYNTHETIC_START_NS + k * bag_convert.FRAME_GAP_NS
     frames = list(open_dataset(f"bag:{out}"))
     assert [f.name for f in frames] == ["000000", "000001", "000002", "000003"]
     assert frames[2].points.tobytes() == np.fromfile(seq / "velodyne" / "000002.bin", "<f4").tobytes()
@@ -80,7 +81,7 @@ def test_convert_and_read_back(tmp_path: Path, storage: str, version: int) -> No
 def test_labels_only_on_request_and_required(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     seq = write_sequence(tmp_path, frames=2, labels=False)
     out = tmp_path / "bag"
-    kitti2bag.convert([f"semantickitti:{seq}"], out, progress=False, log=lambda _: None)
+    bag_convert.convert([f"semantickitti:{seq}"], out, progress=False, log=lambda _: None)
     assert decode(read_messages(out)[0][2]).dtype.names == ("x", "y", "z", "intensity")
     assert kitti2bag.main([f"--data=semantickitti:{seq}", f"--out={tmp_path / 'b2'}", "--with-labels",
                            "--no-progress"]) == 2
@@ -96,9 +97,9 @@ def test_ring_and_absolute_stamps_are_kept(tmp_path: Path, monkeypatch: pytest.M
     stamps = [1_317_000_000_123_456_789 + k * 103_000_000 for k in range(3)]
     frames = [Frame(name=f"f{k}", points=rng.random((50, 4), dtype=np.float32), stamp_ns=stamps[k],
                     ring=rng.integers(0, 64, 50).astype(np.uint16)) for k in range(3)]
-    monkeypatch.setattr(kitti2bag, "open_dataset", lambda spec: iter(frames))
-    monkeypatch.setattr(kitti2bag, "count_frames", lambda spec: 3)
-    stats = kitti2bag.convert(["kitti_raw:fake"], tmp_path / "b", progress=False, log=lambda _: None)
+    monkeypatch.setattr(bag_convert, "open_dataset", lambda spec: iter(frames))
+    monkeypatch.setattr(bag_convert, "count_frames", lambda spec: 3)
+    stats = bag_convert.convert(["kitti_raw:fake"], tmp_path / "b", progress=False, log=lambda _: None)
     assert stats.synthesized == () and stats.first_stamp_ns == stamps[0]
     back = list(read_bag(str(tmp_path / "b")))
     assert [f.stamp_ns for f in back] == stamps
@@ -123,7 +124,7 @@ def test_interrupt_leaves_no_bag(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     seq = write_sequence(tmp_path, frames=4)
     out = tmp_path / "bag"
     calls = []
-    real_encode = kitti2bag.encode
+    real_encode = bag_convert.encode
 
     def interrupting_encode(*args, **kwargs):
         calls.append(1)
@@ -134,7 +135,7 @@ def test_interrupt_leaves_no_bag(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
             raise KeyboardInterrupt
         return real_encode(*args, **kwargs)
 
-    monkeypatch.setattr(kitti2bag, "encode", interrupting_encode)
+    monkeypatch.setattr(bag_convert, "encode", interrupting_encode)
     assert kitti2bag.main([f"--data=semantickitti:{seq}", f"--out={out}", "--no-progress"]) == 130
     assert len(calls) == 3
     assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]
@@ -174,7 +175,7 @@ def test_bag_topic_selection(tmp_path: Path) -> None:
 def test_real_frames_round_trip(kitti_dev: Path, tmp_path: Path) -> None:
     specs = [f"semantickitti:{kitti_dev}/semantickitti/sequences/00", f"kitti_object:{kitti_dev}/object/training"]
     out = tmp_path / "real"
-    stats = kitti2bag.convert(specs, out, with_labels=True, progress=False, log=lambda _: None)
+    stats = bag_convert.convert(specs, out, with_labels=True, progress=False, log=lambda _: None)
     originals = [frame for spec in specs for frame in open_dataset(spec)]
     assert stats.frames == len(originals) > 0 and stats.out_of_order == 0
     back = list(open_dataset(f"bag:{out}"))
@@ -191,7 +192,7 @@ def test_real_frames_round_trip(kitti_dev: Path, tmp_path: Path) -> None:
 @pytest.fixture
 def ros():
     """A private rclpy context on a per-process domain, with a real executor spinning in a thread."""
-    rclpy = pytest.importorskip("rclpy")
+    import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
 
@@ -220,7 +221,7 @@ def ros():
 def small_bag(tmp_path: Path, frames: int = 8) -> Path:
     seq = write_sequence(tmp_path, frames=frames)
     out = tmp_path / "small"
-    kitti2bag.convert([f"semantickitti:{seq}"], out, with_labels=True, progress=False, log=lambda _: None)
+    bag_convert.convert([f"semantickitti:{seq}"], out, with_labels=True, progress=False, log=lambda _: None)
     return out
 
 
@@ -273,7 +274,7 @@ def test_replay_loop_until_stopped(ros, tmp_path: Path) -> None:
 
     stats = replay(bag, make_node("looper"), rate=0.0, loop=True, stop=stop, on_publish=on_publish, linger=0.0)
     assert stats.published == 10 and stats.passes == 2
-    assert seen[:4] == seen[4:8] == [kitti2bag.SYNTHETIC_START_NS + k * kitti2bag.FRAME_GAP_NS for k in range(4)]
+    assert seen[:4] == seen[4:8] == [bag_convert.SYNTHETIC_START_NS + k * bag_convert.FRAME_GAP_NS for k in range(4)]
 
 
 def test_record_round_trip_from_replay(ros, tmp_path: Path) -> None:

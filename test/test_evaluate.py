@@ -11,16 +11,17 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-pytest.importorskip("rclpy")
-
 from pass3d_ros.bench import live as bench_live
 from pass3d_ros.classes import CLASS_NAMES, FOREGROUND, NUM_CLASSES
+from pass3d_ros.core import stage2
 from pass3d_ros.core.metrics import SegmentationMetrics
 from pass3d_ros.data.bag import iter_raw, read_bag, select_topic
-from pass3d_ros.ros.live_eval import LiveFrame, LiveResult, cdr_stamp_ns, run_live, with_stamp
+from pass3d_ros.data.bag_convert import convert
+from pass3d_ros.evaluation.live import LiveFrame, LiveResult, cdr_stamp_ns, run_live, with_stamp
 from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.tools import evaluate
-from pass3d_ros.tools.kitti2bag import convert
+
+pytestmark = pytest.mark.ros
 
 SPEC = "synthetic:frames=2,seed=1"
 METRIC_KEYS = {"precision", "recall", "iou", "points"}
@@ -110,7 +111,7 @@ def test_user_errors_exit_2(labelled_bag: Path, tmp_path: Path, capsys: pytest.C
     def missing() -> Path:
         raise FileNotFoundError("shipped stage-2 weights missing: /x/pass3d_lite.pt (train them with pass3d_train)")
 
-    monkeypatch.setattr(evaluate, "default_weights", missing)
+    monkeypatch.setattr(stage2, "default_weights", missing)
     for extra in ([], ["--live"]):
         assert evaluate.main(["--data", SPEC, *extra]) == 2
         err = capsys.readouterr().err

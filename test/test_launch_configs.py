@@ -12,6 +12,7 @@ import yaml
 
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.ros import cluster_proposal_node, segmentation_node
+from pass3d_ros.tools import params_yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / "launch_configs"
@@ -26,11 +27,11 @@ def console_scripts() -> set[str]:
 
 def declared_parameters() -> dict[str, set[str]]:
     """Parameter names each node declares, flattened with dots as ROS does."""
-    stage1 = {f"stage1.{f.name}" for f in dataclasses.fields(Stage1Config)}
-    return {
-        "cluster_proposal_node": set(cluster_proposal_node.NODE_PARAMETERS) | stage1,
-        "segmentation_node": set(segmentation_node.NODE_PARAMETERS),
-    }
+    declared = {}
+    for spec in params_yaml.NODES:
+        configs = {prefix + f.name for prefix, config in spec.configs.items() for f in dataclasses.fields(config)}
+        declared[spec.node_name] = set(spec.table) | configs
+    return declared
 
 
 def flatten(tree: dict, prefix: str = "") -> dict[str, object]:
@@ -46,7 +47,7 @@ def flatten(tree: dict, prefix: str = "") -> dict[str, object]:
 
 def test_every_executable_is_declared() -> None:
     scripts = console_scripts()
-    assert {"cluster_proposal_node", "segmentation_node", "pass3d_pipeline"} <= scripts
+    assert {"cluster_proposal_node", "segmentation_node", "pass3d_pipeline", "pass3d_params_yaml"} <= scripts
     launch_yaml = yaml.safe_load((LAUNCH / "pass3d.launch.yaml").read_text())
     yaml_nodes = [entry["node"] for entry in launch_yaml["launch"] if "node" in entry]
     ours = [n["exec"] for n in yaml_nodes if n["pkg"] == "pass3d_ros"]
@@ -71,6 +72,21 @@ def test_parameter_yaml_names_only_declared_parameters_with_valid_values() -> No
     stage1 = data["cluster_proposal_node"]["ros__parameters"]["stage1"]
     config = Stage1Config.from_mapping(stage1)
     assert config == Stage1Config(), "the YAML must carry the paper's defaults"
+
+
+def test_parameter_yaml_is_generated_from_the_code() -> None:
+    assert PARAMS_FILE.read_text() == params_yaml.render(), "run pass3d_params_yaml --out " + str(PARAMS_FILE)
+    assert set(declared_parameters()["cluster_proposal_node"]) >= {"stage1.th_ring", "stage1.fit_stride"}
+    values = flatten(yaml.safe_load(params_yaml.render())["segmentation_node"]["ros__parameters"])
+    assert values == {name: entry[0] for name, entry in segmentation_node.NODE_PARAMETERS.items()}
+
+
+def test_params_yaml_tool_writes_the_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "params.yaml"
+    assert params_yaml.main(["--out", str(out)]) == 0
+    assert out.read_text() == params_yaml.render()
+    assert params_yaml.main([]) == 0
+    assert capsys.readouterr().out == params_yaml.render()
 
 
 def test_launch_files_set_only_declared_parameters() -> None:
@@ -113,6 +129,7 @@ def test_a_real_node_loads_the_parameter_file() -> None:
         node = cluster_proposal_node.ClusterProposalNode(context=context)
         try:
             assert node.get_parameter("stage1.th_ring").value == 0.5
+            assert node.get_parameter("stage1.fit_stride").value == Stage1Config().fit_stride
             assert node.config == Stage1Config()
         finally:
             node.destroy_node()

@@ -16,31 +16,32 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rclpy
 import torch
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from sensor_msgs.msg import PointCloud2
+from visualization_msgs.msg import Marker, MarkerArray
 
-rclpy = pytest.importorskip("rclpy")
+from pass3d_ros.classes import BACKGROUND, NUM_CLASSES, packed_rgb
+from pass3d_ros.core.size_rules import SizeRuleClassifier
+from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
+from pass3d_ros.core.stage2 import load_classifier
+from pass3d_ros.data.bag import read_bag
+from pass3d_ros.data.bag_convert import convert, frame_cloud
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.evaluation.live import run_live
+from pass3d_ros.evaluation.report import score
+from pass3d_ros.msgs.pointcloud2 import decode, encode, header_stamp_ns
+from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+from pass3d_ros.ros.qos import qos_profile
+from pass3d_ros.ros.segmentation_node import SegmentationNode
+from pass3d_ros.synthetic.dataset import generate_frame
+from pass3d_ros.weights import DEFAULT_WEIGHTS_NAME, WEIGHTS_DIR
 
-from rclpy.context import Context  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
-from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
-from sensor_msgs.msg import PointCloud2  # noqa: E402
-from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
-
-from pass3d_ros.classes import BACKGROUND, NUM_CLASSES, packed_rgb  # noqa: E402
-from pass3d_ros.core.segmentation import load_classifier  # noqa: E402
-from pass3d_ros.core.size_rules import SizeRuleClassifier  # noqa: E402
-from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose  # noqa: E402
-from pass3d_ros.data.bag import read_bag  # noqa: E402
-from pass3d_ros.data.frame import Frame  # noqa: E402
-from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode  # noqa: E402
-from pass3d_ros.ros.live_eval import run_live, score  # noqa: E402
-from pass3d_ros.ros.pointcloud2 import decode, encode, header_stamp_ns  # noqa: E402
-from pass3d_ros.ros.qos import qos_profile  # noqa: E402
-from pass3d_ros.ros.segmentation_node import SegmentationNode  # noqa: E402
-from pass3d_ros.synthetic.dataset import generate_frame  # noqa: E402
-from pass3d_ros.tools.kitti2bag import convert, frame_cloud  # noqa: E402
-from pass3d_ros.weights import DEFAULT_WEIGHTS_NAME, WEIGHTS_DIR  # noqa: E402
+pytestmark = pytest.mark.ros
 
 STAMP0 = 1_700_000_000_123_456_789
 WAIT_S = 30.0

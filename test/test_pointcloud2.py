@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from pass3d_ros.ros.pointcloud2 import (
+from pass3d_ros.msgs.pointcloud2 import (
     DATATYPES,
     PointCloud2Error,
     columns_to_cloud,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from pass3d_ros.core import pointnet2
+from pass3d_ros.core import pointnet2, stage2
 from pass3d_ros.core.segmentation import Segmenter, make_checkpoint
 from pass3d_ros.core.size_rules import SizeRuleClassifier
 from pass3d_ros.core.stage1 import proposal_members, propose
@@ -145,7 +145,7 @@ def test_refusals_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
 
 def test_default_weights_missing_is_a_clear_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
-    monkeypatch.setattr(segment, "default_weights", lambda: (_ for _ in ()).throw(
+    monkeypatch.setattr(stage2, "default_weights", lambda: (_ for _ in ()).throw(
         FileNotFoundError("shipped stage-2 weights missing: /x/pass3d_lite.pt")))
     assert segment.main([f"--data={SPEC}", f"--out={tmp_path / 'o'}", "--no-progress"]) == 2
     err = capsys.readouterr().err

@@ -5,9 +5,10 @@ from __future__ import annotations
 import pytest
 
 from pass3d_ros.classes import CLASS_NAMES
-from pass3d_ros.core.segmentation import Segmenter, load_classifier
+from pass3d_ros.core.segmentation import Segmenter
 from pass3d_ros.core.stage1 import Stage1Config
-from pass3d_ros.tools.evaluate import evaluate_full, iter_frames
+from pass3d_ros.core.stage2 import load_classifier
+from pass3d_ros.evaluation.offline import evaluate_full, iter_frames
 from pass3d_ros.weights import default_weights
 
 # Seeds 1, 2, 11 and 12 trained and validated the shipped weights; 99 is unseen.

@@ -13,6 +13,7 @@ from pass3d_ros.data.frame import Box3D
 
 SENSOR_HEIGHT = 1.73
 ELEVATIONS = np.deg2rad(np.linspace(2.0, -24.8, 64))  # ring 0 on top, as KITTI's firing order
+RUNS = Stage1Config(th_ring=0.5, th_prop=1.0)  # the paper's Th_ring and Th_prop, which the run tests rely on
 
 
 @dataclass
@@ -140,6 +141,15 @@ def test_ground_ignores_a_pit_and_reflections_below_the_road():
     assert abs(fit.planes[1, 3] - SENSOR_HEIGHT) < 0.05
 
 
+def test_fit_stride_only_thins_the_plane_fits():
+    """Every point or every 4th in the fits: the same ground, the final test reads every point either way."""
+    points, _, _ = raycast([car_at(12.0, -4.0)])
+    every = ground.fit_ground(points, Stage1Config(fit_stride=1))
+    thinned = ground.fit_ground(points, Stage1Config(fit_stride=4))
+    assert np.count_nonzero(every.ground != thinned.ground) < 1e-3 * len(points)
+    assert np.allclose(every.planes, thinned.planes, atol=0.01)
+
+
 def test_smallest_eigenvector_matches_numpy():
     rng = np.random.default_rng(2)
     for _ in range(50):
@@ -162,7 +172,7 @@ def _arc(radius: float, z: float, y_from: float, y_to: float, step: float = 0.05
 def test_runs_split_at_th_ring(gap: float, clusters: int):
     """One ring crosses two objects: a 0.3 m gap is inside Th_ring = 0.5 (one run), 0.8 m is not."""
     pts = np.concatenate([_arc(10.0, 0.0, -1.0, 0.0), _arc(10.0, 0.0, gap, gap + 1.0)]).astype(np.float32)
-    label, n = scanline.cluster_scanlines(pts, np.zeros(len(pts), np.uint16), np.ones(len(pts), bool), 0.5, 1.0)
+    label, n = scanline.cluster_scanlines(pts, np.zeros(len(pts), np.uint16), np.ones(len(pts), bool), RUNS)
     assert n == clusters
     assert len(np.unique(label)) == clusters
 
@@ -175,7 +185,7 @@ def test_previous_ring_joins_runs_within_th_prop(gap: float, clusters: int):
     lower = np.concatenate([_arc(10.0, -0.1, -1.0, 0.0), _arc(10.0, -0.1, gap, gap + 1.0)])
     pts = np.concatenate([upper, lower]).astype(np.float32)
     rings = np.repeat([0, 1], [len(upper), len(lower)]).astype(np.uint16)
-    _, n = scanline.cluster_scanlines(pts, rings, np.ones(len(pts), bool), 0.5, 1.0)
+    _, n = scanline.cluster_scanlines(pts, rings, np.ones(len(pts), bool), RUNS)
     assert n == clusters
 
 
@@ -186,12 +196,12 @@ def test_runs_merge_labels_smallest_wins_and_ring_closes():
     bottom = _arc(10.0, -0.1, -1.5, 1.5)
     pts = np.concatenate([left, right, bottom]).astype(np.float32)
     rings = np.repeat([0, 0, 1], [len(left), len(right), len(bottom)]).astype(np.uint16)
-    label, n = scanline.cluster_scanlines(pts, rings, np.ones(len(pts), bool), 0.5, 1.0)
+    label, n = scanline.cluster_scanlines(pts, rings, np.ones(len(pts), bool), RUNS)
     assert n == 1 and np.all(label == 0)
     az = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
     circle = np.column_stack([5 * np.cos(az), 5 * np.sin(az), np.zeros(400), np.zeros(400)]).astype(np.float32)
     circle[150:170, :2] *= 3.0  # a break: without closing at the wrap the circle would be two runs
-    label, n = scanline.cluster_scanlines(circle, np.zeros(400, np.uint16), np.ones(400, bool), 0.5, 1.0)
+    label, n = scanline.cluster_scanlines(circle, np.zeros(400, np.uint16), np.ones(400, bool), RUNS)
     assert label[0] == label[-1] == label[100] and n == 2
 
 
@@ -199,7 +209,7 @@ def test_clustering_uses_only_the_given_points():
     pts = _arc(10.0, 0.0, -1.0, 1.0).astype(np.float32)
     use = np.zeros(len(pts), bool)
     use[:10] = True
-    label, n = scanline.cluster_scanlines(pts, np.zeros(len(pts), np.uint16), use, 0.5, 1.0)
+    label, n = scanline.cluster_scanlines(pts, np.zeros(len(pts), np.uint16), use, RUNS)
     assert n == 1 and np.all(label[:10] == 0) and np.all(label[10:] == -1)
 
 
@@ -347,7 +357,8 @@ def test_config_checks_and_mapping():
     paper = (defaults.n_seg, defaults.n_iter, defaults.n_lpr, defaults.th_seeds, defaults.th_dist,
              defaults.th_ring, defaults.th_prop, defaults.enlarge)
     assert paper == (3, 3, 20, 0.4, 0.3, 0.5, 1.0, (0.1, 0.1, 0.4))
-    assert defaults.gates() == refinement.Gates()
+    with pytest.raises(ValueError, match="fit_stride"):
+        Stage1Config(fit_stride=0)
 
 
 def test_warm_up_and_synthetic_scan_run():

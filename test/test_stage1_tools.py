@@ -13,6 +13,8 @@ from pass3d_ros.bench import stage1 as bench
 from pass3d_ros.core.metrics import ConfusionAccumulator, Stage1Metrics
 from pass3d_ros.core.stage1 import Stage1Config, propose, synthetic_scan
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.evaluation.offline import evaluate_stage1
+from pass3d_ros.evaluation.report import format_stage1
 from pass3d_ros.tools import evaluate
 
 TIMINGS = {"ring": 0.1, "ground": 0.2, "clustering": 0.3, "refinement": 0.4, "total": 1.0}
@@ -65,12 +67,12 @@ def test_evaluate_stage1_on_constructed_frames():
     labels = np.zeros(len(pts), np.uint8)
     labels[result.cluster_id >= 0] = 1
     frames = iter([("mem", Frame("f0", pts, labels=labels, ground=result.ground))])
-    summary = evaluate.evaluate_stage1(frames, Stage1Config())
+    summary = evaluate_stage1(frames, Stage1Config())
     st = summary["stage1"]
     assert summary["frames"] == 1 and st["foreground_recall"] == 1.0
     assert st["ground"] == {"precision": 1.0, "recall": 1.0}
     assert summary["per_frame"][0]["ring_source"] == "azimuth_wrap"
-    assert "foreground recall" in evaluate.format_stage1(summary, per_frame=True)
+    assert "foreground recall" in format_stage1(summary, per_frame=True)
 
 
 def test_evaluate_cli_errors(capsys):

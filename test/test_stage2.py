@@ -21,13 +21,13 @@ from pass3d_ros.core.pointnet2 import (
 from pass3d_ros.core.segmentation import (
     CheckpointError,
     Segmenter,
-    load_classifier,
     make_checkpoint,
     predict_probabilities,
     prepare_proposals,
     scatter_predictions,
 )
 from pass3d_ros.core.size_rules import SizeRuleClassifier
+from pass3d_ros.core.stage2 import load_classifier
 
 
 def box_points(size, yaw, centre, count, rng, zmin=-1.7):

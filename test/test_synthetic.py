@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, IGNORE, PEDESTRIAN
+from pass3d_ros.data.kitti_object import read_kitti_object, write_kitti_object_frame
+from pass3d_ros.data.semantickitti import read_semantickitti, write_semantickitti_frame
 from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset
 from pass3d_ros.synthetic import parts as pt
 from pass3d_ros.synthetic import raycast as rc
@@ -146,10 +148,9 @@ def test_synthetic_spec_reader():
 
 
 def test_semantickitti_round_trip(frames, tmp_path):
-    mod = pytest.importorskip("pass3d_ros.data.semantickitti")
     frame = frames[1]
-    mod.write_semantickitti_frame(tmp_path, frame)
-    (back,) = list(mod.read_semantickitti(tmp_path))
+    write_semantickitti_frame(tmp_path, frame)
+    (back,) = list(read_semantickitti(tmp_path))
     assert back.points.tobytes() == frame.points.tobytes()
     np.testing.assert_array_equal(back.labels, frame.labels)
     np.testing.assert_array_equal(back.ground, frame.ground)
@@ -157,10 +158,9 @@ def test_semantickitti_round_trip(frames, tmp_path):
 
 
 def test_kitti_object_round_trip(frames, tmp_path):
-    mod = pytest.importorskip("pass3d_ros.data.kitti_object")
     frame = frames[2]
-    mod.write_kitti_object_frame(tmp_path, frame)
-    (back,) = list(mod.read_kitti_object(tmp_path))
+    write_kitti_object_frame(tmp_path, frame)
+    (back,) = list(read_kitti_object(tmp_path))
     assert back.points.tobytes() == frame.points.tobytes()
     assert [b.kind for b in back.boxes] == [b.kind for b in frame.boxes]
     for a, b in zip(back.boxes, frame.boxes, strict=True):

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from pass3d_ros.ros.pointcloud2 import columns_to_cloud, decode, decode_xyzi, encode
+from pass3d_ros.msgs.pointcloud2 import columns_to_cloud, decode, decode_xyzi, encode
 
 
 def sample_cloud(points: int, seed: int = 0) -> np.ndarray:

@@ -5,7 +5,7 @@
 
 Sustain test: N synthetic HDL-64E frames (about 120k points each) are written to a temporary bag and
 played back to back, stamps shifted each pass, for about --seconds (default 60) at 10 Hz x --rate through
-cluster_proposal_node and segmentation_node running in this process (pass3d_ros.ros.live_eval.run_live,
+cluster_proposal_node and segmentation_node running in this process (pass3d_ros.evaluation.live.run_live,
 free-running: a node that is still busy drops the stale frame and counts it). Printed: frames in / out,
 dropped, output rate, latency median / p95, per-stage medians, each node's counters.
 --soak: the same for --seconds (default 600), watching this process's resident memory (VmRSS from
@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from pass3d_ros.ros.live_eval import LiveResult
+    from pass3d_ros.evaluation.live import LiveResult
 
 SENSOR_HZ = 10.0
 TARGET_LATENCY_MS = 100.0
@@ -196,20 +196,21 @@ def _line(stats: dict | None) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the replay and print what it measured; 2 on bad options or weights."""
-    from pass3d_ros.tools.evaluate import EvaluationError, resolve_classifier
+    from pass3d_ros.core.stage2 import resolve_weights
 
     seconds = args.seconds if args.seconds is not None else (SOAK_SECONDS if args.soak else SUSTAIN_SECONDS)
     try:
         if args.frames < 1 or seconds <= 0 or args.rate <= 0 or args.threads < 1:
-            raise EvaluationError("--frames, --seconds, --rate and --threads must be positive")
-        kind, weights = resolve_classifier(args.classifier, args.weights)
-    except EvaluationError as exc:
+            raise ValueError("--frames, --seconds, --rate and --threads must be positive")
+        kind, weights = resolve_weights(args.classifier, args.weights)
+    except ValueError as exc:
         print(f"pass3d_benchmark live: error: {exc}", file=sys.stderr)
         return 2
     import torch
 
-    from pass3d_ros.ros.live_eval import run_live, score
-    from pass3d_ros.tools.kitti2bag import convert
+    from pass3d_ros.data.bag_convert import convert
+    from pass3d_ros.evaluation.live import run_live
+    from pass3d_ros.evaluation.report import score
 
     torch.set_num_threads(args.threads)
     warmup = args.warmup if args.warmup < seconds else seconds / 4.0

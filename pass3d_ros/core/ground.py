@@ -1,17 +1,18 @@
 """Ground plane fitting (Zermas et al., ICRA 2017), as PASS3D's stage 1 uses it.
 
-The scan is split into `n_seg` segments of equal length along x (the direction of travel). In each, the
-mean height of the `n_lpr` lowest points (the lowest point representative, LPR) sets the seed height;
-points within `th_seeds` above it seed a plane, fitted as the smallest eigenvector of their covariance
-(normal turned upwards). Points with |distance| < `th_dist` from the plane are ground (two-sided); the plane
-is fitted `n_iter` times in all, each time from the ground of the previous fit.
+Every parameter comes from `Stage1Config`. The scan is split into `n_seg` segments of equal length along x
+(the direction of travel). In each, the mean height of the `n_lpr` lowest points (the lowest point
+representative, LPR) sets the seed height; points within `th_seeds` above it seed a plane, fitted as the
+smallest eigenvector of their covariance (normal turned upwards). Points with |distance| < `th_dist` from
+the plane are ground (two-sided); the plane is fitted `n_iter` times in all, each time from the ground of the
+previous fit.
 
 Robustness the paper leaves open, needed on full 360-degree KITTI scans: points more than
 `below_ground_margin` under the expected road (-sensor_height) never seed; only points within a lateral band
-|y| < `seed_band` seed and fit (terrain falling away 30 m to the side is not the road); sparse height bins
-below the road (a pit, stray returns) cannot set the LPR; an outer segment whose plane is degenerate, too
+|y| < `ground_seed_band` seed and fit (terrain falling away 30 m to the side is not the road); sparse height
+bins below the road (a pit, stray returns) cannot set the LPR; an outer segment whose plane is degenerate, too
 steep, or steps away from its inner neighbour at their shared edge takes the neighbour's plane. The LPR and
-the fits read every `fit_stride`-th point (the same planes at a quarter of the cost); the final ground test
+the fits read every `fit_stride`-th point (the same planes at a fraction of the cost); the final ground test
 reads every point.
 """
 
@@ -21,6 +22,8 @@ from typing import NamedTuple
 
 import numba as nb
 import numpy as np
+
+from pass3d_ros.core.config import Stage1Config
 
 
 class GroundFit(NamedTuple):
@@ -247,49 +250,27 @@ def _ground_kernel(pts: np.ndarray, edges: np.ndarray, n_lpr: int, n_iter: int, 
     return ground, planes
 
 
-def fit_ground(
-    points: np.ndarray,
-    n_seg: int = 3,
-    n_iter: int = 3,
-    n_lpr: int = 20,
-    th_seeds: float = 0.4,
-    th_dist: float = 0.3,
-    sensor_height: float = 1.73,
-    below_ground_margin: float = 1.0,
-    max_slope_deg: float = 25.0,
-    x_extent: float = 80.0,
-    seed_band: float = 20.0,
-    lpr_outlier_share: float = 0.05,
-    max_step: float = 0.5,
-    fit_stride: int = 4,
-) -> GroundFit:
-    """Ground mask and planes of a scan (N x >=3, sensor frame, z up); see the module docstring.
+def fit_ground(points: np.ndarray, config: Stage1Config | None = None) -> GroundFit:
+    """Ground mask and planes of a scan (N x >=3, sensor frame, z up) under `config` (default: Stage1Config());
+    see the module docstring.
 
-    Segments span x in [-x_extent, x_extent] (points beyond fall into the end segments); a plane steeper than
-    `max_slope_deg` or stepping more than `max_step` at its inner edge takes its inner neighbour's plane (the
-    centre segment's falls back to a horizontal plane at its LPR).
+    Segments span x in [-ground_x_extent, ground_x_extent] (points beyond fall into the end segments); a plane
+    steeper than `ground_max_slope_deg` or stepping more than `ground_max_step` at its inner edge takes its inner
+    neighbour's plane (the centre segment's falls back to a horizontal plane at its LPR).
     """
+    cfg = config or Stage1Config()
     pts = np.ascontiguousarray(points, dtype=np.float32)
-    n_seg = max(int(n_seg), 1)
-    width = 2.0 * x_extent / n_seg
-    edges = -x_extent + width * np.arange(n_seg + 1)
+    n_seg = int(cfg.n_seg)
+    width = 2.0 * cfg.ground_x_extent / n_seg
+    edges = -cfg.ground_x_extent + width * np.arange(n_seg + 1)
     if len(pts) == 0:
-        return GroundFit(np.zeros(0, dtype=bool), np.tile([0.0, 0.0, 1.0, sensor_height], (n_seg, 1)), edges)
+        return GroundFit(np.zeros(0, dtype=bool), np.tile([0.0, 0.0, 1.0, cfg.sensor_height], (n_seg, 1)), edges)
     ground, planes = _ground_kernel(
-        pts, edges, max(int(n_lpr), 1),
-        max(int(n_iter), 1), th_seeds, th_dist, -(sensor_height + below_ground_margin),
-        float(np.cos(np.deg2rad(max_slope_deg))), seed_band, lpr_outlier_share, max_step, max(int(fit_stride), 1),
+        pts, edges, int(cfg.n_lpr), int(cfg.n_iter), cfg.th_seeds, cfg.th_dist,
+        -(cfg.sensor_height + cfg.below_ground_margin), float(np.cos(np.deg2rad(cfg.ground_max_slope_deg))),
+        cfg.ground_seed_band, cfg.ground_lpr_outlier_share, cfg.ground_max_step, int(cfg.fit_stride),
     )
     return GroundFit(ground, planes, edges)
-
-
-def height_above_ground(points: np.ndarray, fit: GroundFit) -> np.ndarray:
-    """Signed distance of each point to its segment's ground plane (positive above)."""
-    n_seg = len(fit.planes)
-    width = fit.segment_edges[1] - fit.segment_edges[0]
-    seg = np.clip(((points[:, 0] - fit.segment_edges[0]) // width).astype(np.int64), 0, n_seg - 1)
-    p = fit.planes[seg]
-    return p[:, 0] * points[:, 0] + p[:, 1] * points[:, 1] + p[:, 2] * points[:, 2] + p[:, 3]
 
 
 def warm_up() -> None:

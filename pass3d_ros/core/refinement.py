@@ -13,29 +13,11 @@ in the ground band.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numba as nb
 import numpy as np
 
+from pass3d_ros.core.config import Stage1Config
 from pass3d_ros.data.frame import Box3D
-
-
-@dataclass(frozen=True)
-class Gates:
-    """What a cluster must look like to become a proposal (metres; counts in points)."""
-
-    num_near: float = 30.0  # point count required up to `num_ref_range` ...
-    num_ref_range: float = 20.0  # ... and num_near * num_ref_range / range beyond it ...
-    num_floor: int = 5  # ... but never fewer than this
-    max_length: float = 7.0  # long side of the footprint (a car is up to ~5.5 m; clutter and mirrors add)
-    max_width: float = 3.5  # short side of the footprint
-    max_height: float = 3.0  # z extent (cars, riders and pedestrians stay under ~2.2 m)
-    max_bottom: float = 1.5  # lowest point above the ground plane (occluded objects show only their top)
-    min_top: float = 0.9  # highest point above the ground plane (a child, a car's roof seen from afar)
-    max_top: float = 2.3  # highest point above the ground plane (road users stay under ~2 m; trees do not)
-    min_extent: float = 0.2  # largest of length and height must reach this (no specks)
-    max_range: float = 70.0  # horizontal distance of the cluster centre (farther objects have a few points)
 
 
 @nb.njit(cache=True)
@@ -243,27 +225,30 @@ def select_proposals(
     n_clusters: int,
     planes: np.ndarray,
     segment_edges: np.ndarray,
-    gates: Gates,
+    config: Stage1Config,
 ) -> tuple[list[Box3D], np.ndarray]:
-    """Boxes of the clusters that pass the gates, and those clusters' ids (index = proposal id)."""
+    """Boxes of the clusters that pass the config's gates (th_num_*, max_*, min_*), and those clusters' ids
+    (index = proposal id)."""
     if n_clusters == 0:
         return [], np.zeros(0, dtype=np.int64)
     count, sums, lo, hi, bottom, top = _cluster_stats(points, label, n_clusters, planes, segment_edges)
     centre = sums / np.maximum(count, 1)[:, None]
     rng = np.hypot(centre[:, 0], centre[:, 1])
-    need = np.maximum(gates.num_floor, gates.num_near * gates.num_ref_range / np.maximum(rng, gates.num_ref_range))
+    need = np.maximum(
+        config.th_num_floor, config.th_num_near * config.th_num_range / np.maximum(rng, config.th_num_range)
+    )
     extent = hi - lo
-    ok = (count >= need) & (rng <= gates.max_range) & (extent[:, 2] <= gates.max_height)
-    ok &= (bottom <= gates.max_bottom) & (top >= gates.min_top) & (top <= gates.max_top)
+    ok = (count >= need) & (rng <= config.max_range) & (extent[:, 2] <= config.max_height)
+    ok &= (bottom <= config.max_bottom) & (top >= config.min_top) & (top <= config.max_top)
     # The footprint rectangle's diagonal bounds the x-y extent: clusters too long for any rectangle go now.
-    ok &= np.maximum(extent[:, 0], extent[:, 1]) <= np.hypot(gates.max_length, gates.max_width)
+    ok &= np.maximum(extent[:, 0], extent[:, 1]) <= np.hypot(config.max_length, config.max_width)
     candidates = np.flatnonzero(ok)
     if len(candidates) == 0:
         return [], candidates
     rects = _cluster_rects(points, label, candidates)
     z_extent = extent[candidates, 2]
-    keep = (rects[:, 2] <= gates.max_length) & (rects[:, 3] <= gates.max_width)
-    keep &= np.maximum(rects[:, 2], z_extent) >= gates.min_extent
+    keep = (rects[:, 2] <= config.max_length) & (rects[:, 3] <= config.max_width)
+    keep &= np.maximum(rects[:, 2], z_extent) >= config.min_extent
     kept = candidates[keep]
     boxes = []
     for (cx, cy, length, width, yaw), c in zip(rects[keep], kept, strict=True):
@@ -366,11 +351,12 @@ def enlarged_membership(
     label: np.ndarray,
     kept: np.ndarray,
     boxes: list[Box3D],
-    margin: tuple[float, float, float] = (0.1, 0.1, 0.4),
+    margin: tuple[float, float, float],
     cell: float = 2.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(cluster_id, cluster_id2) per point: its own kept cluster's proposal first, then the enlarged boxes it
-    falls in (lowest id first); -1 where there is none. `margin` is added on each side, as in Box3D.contains."""
+    falls in (lowest id first); -1 where there is none. `margin` (Stage1Config.enlarge) is added on each side, as
+    in Box3D.contains."""
     label = np.ascontiguousarray(label, dtype=np.int32)
     own_of = np.full(max(int(label.max()) + 1, 1) if len(label) else 1, -1, dtype=np.int32)
     own_of[kept] = np.arange(len(kept), dtype=np.int32)
@@ -385,5 +371,6 @@ def warm_up() -> None:
     pts[:, 2] = [-1.0, -1.0, -1.0, -1.0, 0.0, 0.0, 0.0, 0.0]
     label = np.zeros(8, dtype=np.int32)
     planes = np.array([[0.0, 0.0, 1.0, 1.73]])
-    boxes, kept = select_proposals(pts, label, 1, planes, np.array([-80.0, 80.0]), Gates(num_floor=1, num_near=1))
-    enlarged_membership(pts, label, kept, boxes)
+    config = Stage1Config(th_num_floor=1, th_num_near=1.0)
+    boxes, kept = select_proposals(pts, label, 1, planes, np.array([-80.0, 80.0]), config)
+    enlarged_membership(pts, label, kept, boxes, config.enlarge)

@@ -10,8 +10,8 @@ sweeping azimuth upwards. Three boundary rules are tried and the better one that
 * ``azimuth_jump``: a new ring starts where the azimuth steps backwards by a large angle: scans whose rings
   are frontal arcs that do not contain the start angle (a crop of a scan cut behind the sensor).
 
-Validation: the ring count is at most ``n_rings`` (a few lasers may return nothing) and not far below it,
-and the mean elevation falls ring by ring. Among valid candidates the one with the smallest elevation
+Validation: the ring count is at most Stage1Config's ``n_rings`` (a few lasers may return nothing) and not far
+below it, and the mean elevation falls ring by ring. Among valid candidates the one with the smallest elevation
 spread inside rings wins. If none is valid, rings come from binning the elevation angle
 (``elevation_bins``), which is approximate for lasers whose spacing is not uniform.
 """
@@ -22,6 +22,8 @@ from typing import NamedTuple
 
 import numba as nb
 import numpy as np
+
+from pass3d_ros.core.config import Stage1Config
 
 RING_SOURCES: tuple[str, ...] = ("field", "azimuth_wrap", "azimuth_jump", "elevation_bins")
 
@@ -132,19 +134,22 @@ def elevation_bins(elev: np.ndarray, n_rings: int) -> np.ndarray:
 
 def recover_rings(
     points: np.ndarray,
-    n_rings: int = 64,
+    config: Stage1Config | None = None,
+    *,
     min_jump_deg: float = 45.0,
     min_ring_points: int = 8,
     missing_tolerance: int = 4,
     min_range: float = 4.0,
 ) -> Rings:
-    """Ring index per point of a scan in firing order (see the module docstring for the rules).
+    """Ring index per point of a scan in firing order (see the module docstring for the rules); the ring count
+    to expect is `config.n_rings` (default: Stage1Config()).
 
     `min_jump_deg`: backward azimuth step that starts a ring in the ``azimuth_jump`` rule;
     `min_ring_points`: boundaries closer than this many points are noise; `missing_tolerance`: how many
     lasers may be absent; `min_range`: points nearer than this are left out of validation statistics
     (lasers sit off the sensor origin, so close points have distorted elevations).
     """
+    n_rings = (config or Stage1Config()).n_rings
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if len(pts) == 0:
         return Rings(np.zeros(0, dtype=np.uint16), "azimuth_wrap")
@@ -165,14 +170,14 @@ def recover_rings(
     return Rings(best[1], best[2])
 
 
-def rings_for(points: np.ndarray, ring: np.ndarray | None, n_rings: int = 64) -> Rings:
-    """The given ring field when there is one (checked for length), else the recovered rings."""
+def rings_for(points: np.ndarray, ring: np.ndarray | None, config: Stage1Config | None = None) -> Rings:
+    """The given ring field when there is one (checked for length), else the rings recovered under `config`."""
     if ring is not None:
         ring = np.asarray(ring)
         if len(ring) != len(points):
             raise ValueError(f"ring field has {len(ring)} entries for {len(points)} points")
         return Rings(ring.astype(np.uint16, copy=False), "field")
-    return recover_rings(points, n_rings=n_rings)
+    return recover_rings(points, config)
 
 
 def warm_up() -> None:
@@ -182,4 +187,4 @@ def warm_up() -> None:
     pts[:, 0] = 10.0 * np.cos(az)
     pts[:, 1] = 10.0 * np.sin(az)
     pts[:, 2] = np.where(np.arange(64) < 32, 0.0, -1.0)
-    recover_rings(pts, n_rings=2, min_ring_points=2)
+    recover_rings(pts, Stage1Config(n_rings=2), min_ring_points=2)

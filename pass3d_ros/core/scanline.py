@@ -1,4 +1,5 @@
-"""Scan-line-run clustering (Zermas et al., ICRA 2017) of the non-ground points of a scan.
+"""Scan-line-run clustering (Zermas et al., ICRA 2017) of the non-ground points of a scan; the thresholds are
+Stage1Config's.
 
 Within a ring, in azimuth order, consecutive points closer than `th_ring` form a run; a ring that closes on
 itself (its last point near its first) joins its last run to its first. A run takes the label of the nearest
@@ -15,6 +16,8 @@ from __future__ import annotations
 
 import numba as nb
 import numpy as np
+
+from pass3d_ros.core.config import Stage1Config
 
 
 @nb.njit(cache=True, inline="always")
@@ -242,21 +245,18 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
 
 
 def cluster_scanlines(
-    points: np.ndarray,
-    ring: np.ndarray,
-    use: np.ndarray,
-    th_ring: float = 0.5,
-    th_prop: float = 1.0,
-    n_prev_rings: int = 2,
+    points: np.ndarray, ring: np.ndarray, use: np.ndarray, config: Stage1Config | None = None
 ) -> tuple[np.ndarray, int]:
-    """Cluster id per point ((N,) int32, -1 where `use` is False) and the cluster count; see the module docstring."""
+    """Cluster id per point ((N,) int32, -1 where `use` is False) and the cluster count, with `th_ring`, `th_prop`
+    and `n_prev_rings` from `config` (default: Stage1Config()); see the module docstring."""
+    cfg = config or Stage1Config()
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if len(pts) == 0 or not np.any(use):
         return np.full(len(pts), -1, dtype=np.int32), 0
     ring = np.ascontiguousarray(ring, dtype=np.uint16)
     n_rings = int(ring.max()) + 1
-    return _cluster_kernel(pts, ring, np.ascontiguousarray(use, dtype=np.bool_), n_rings, float(th_ring),
-                           float(th_prop), max(int(n_prev_rings), 1))
+    return _cluster_kernel(pts, ring, np.ascontiguousarray(use, dtype=np.bool_), n_rings, float(cfg.th_ring),
+                           float(cfg.th_prop), int(cfg.n_prev_rings))
 
 
 def warm_up() -> None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple, Protocol
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -27,6 +27,8 @@ CHECKPOINT_FORMAT = "pass3d_stage2"
 CHECKPOINT_VERSION = 1
 # Query points are decoded in blocks of this many points of one proposal (padding wastes < one block each).
 BLOCK = 128
+# Proposals run per frame at most (the nearest to the sensor); the rest count as no proposal.
+DEFAULT_MAX_PROPOSALS = 64
 
 
 class CheckpointError(ValueError):
@@ -39,14 +41,6 @@ class SegmentResult(NamedTuple):
     labels: np.ndarray
     confidence: np.ndarray
     proposal_class: np.ndarray
-
-
-class Classifier(Protocol):
-    """What the evaluation and the ROS node need from a stage-2 classifier."""
-
-    def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult: ...
-
-    def warm_up(self) -> None: ...
 
 
 @dataclass
@@ -243,7 +237,11 @@ class Segmenter:
     """Stage-2 network classifier loaded from a checkpoint file or dict."""
 
     def __init__(
-        self, weights: str | os.PathLike | dict, device: str = "cpu", max_proposals: int = 64, fuse: bool = True
+        self,
+        weights: str | os.PathLike | dict,
+        device: str = "cpu",
+        max_proposals: int = DEFAULT_MAX_PROPOSALS,
+        fuse: bool = True,
     ) -> None:
         model, checkpoint = load_model(weights)
         self.device = torch.device(device)
@@ -277,16 +275,3 @@ class Segmenter:
         person = rng.uniform([-8, 3, -1.7, 0], [-7, 4, 0, 1], (60, 4))
         pts = np.concatenate([car, person]).astype(np.float32)
         self.segment(pts, [np.arange(600), np.arange(600, 660)])
-
-
-def load_classifier(kind: str, weights: str | os.PathLike | dict | None = None, device: str = "cpu") -> Classifier:
-    """'network' (needs weights) or 'size_rules' (geometry only)."""
-    if kind == "network":
-        if weights is None:
-            raise ValueError("the network classifier needs weights (a stage-2 checkpoint)")
-        return Segmenter(weights, device=device)
-    if kind == "size_rules":
-        from pass3d_ros.core.size_rules import SizeRuleClassifier
-
-        return SizeRuleClassifier()
-    raise ValueError(f"unknown classifier {kind!r}: choose network or size_rules")

@@ -14,7 +14,12 @@ import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.core import canonical
-from pass3d_ros.core.segmentation import SegmentResult, scatter_predictions
+from pass3d_ros.core.segmentation import (
+    DEFAULT_MAX_PROPOSALS,
+    SegmentResult,
+    nearest_first,
+    scatter_predictions,
+)
 
 
 @dataclass
@@ -54,8 +59,9 @@ class SizeRules:
 class SizeRuleClassifier:
     """Stage-2 classifier with the network's segment() shape, deciding by box size alone."""
 
-    def __init__(self, rules: SizeRules | None = None) -> None:
+    def __init__(self, rules: SizeRules | None = None, max_proposals: int = DEFAULT_MAX_PROPOSALS) -> None:
         self.rules = rules or SizeRules()
+        self.max_proposals = max_proposals
 
     def upper_points(self, points: np.ndarray, member: np.ndarray) -> np.ndarray:
         """The members above the lowest `ground_margin` of the proposal (all of them if fewer than 3 remain)."""
@@ -64,10 +70,11 @@ class SizeRuleClassifier:
         return upper if len(upper) >= 3 else member
 
     def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult:
-        """Labels (N,) uint8, confidences (N,) float32 and the class of each proposal (-1 when empty)."""
+        """Labels (N,) uint8, confidences (N,) float32 and the class of each proposal (-1 when empty or beyond the
+        nearest `max_proposals`)."""
         points = np.asarray(points, dtype=np.float32)
         proposal_class = np.full(len(members), -1, dtype=np.int16)
-        chosen = [i for i, m in enumerate(members) if len(m) > 0]
+        chosen = nearest_first(points, members, self.max_proposals).tolist()
         if not chosen:
             return SegmentResult(*scatter_predictions(len(points), np.zeros(0, np.int64), np.zeros(0), np.zeros(0)),
                                  proposal_class)

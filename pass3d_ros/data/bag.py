@@ -26,7 +26,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import DatasetError
-from pass3d_ros.ros.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, header_stamp_ns, to_xyzi
+from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, header_stamp_ns, to_xyzi
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 STORAGES: dict[str, StoragePlugin] = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}

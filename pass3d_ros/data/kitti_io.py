@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -84,3 +84,17 @@ def ignore_outside_front_view(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray
     labels = labels.copy()
     labels[np.abs(azimuth) > FRONT_VIEW_HALF_ANGLE_DEG] = IGNORE
     return labels
+
+
+def read_stamp_lines(path: Path, parse: Callable[[str], int]) -> list[int]:
+    """One stamp (ns) per non-empty line of a KITTI time file; DatasetError naming the file and line on a bad one
+    (`parse` raises ValueError with what is wrong)."""
+    stamps = []
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            stamps.append(parse(line))
+        except ValueError as exc:
+            raise DatasetError(f"{path}:{number}: {exc}") from exc
+    return stamps

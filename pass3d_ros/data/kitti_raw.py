@@ -34,6 +34,7 @@ from pass3d_ros.data.kitti_io import (
     ignore_outside_front_view,
     label_points_in_boxes,
     read_bin,
+    read_stamp_lines,
     require_dir,
     sorted_files,
 )
@@ -56,15 +57,7 @@ def parse_timestamp_ns(text: str) -> int:
 
 def read_timestamps(path: Path) -> list[int]:
     """All stamps of a timestamps.txt, in ns; DatasetError naming the file and line on a bad entry."""
-    stamps = []
-    for number, line in enumerate(path.read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            stamps.append(parse_timestamp_ns(line))
-        except ValueError as exc:
-            raise DatasetError(f"{path}:{number}: {exc}") from exc
-    return stamps
+    return read_stamp_lines(path, parse_timestamp_ns)
 
 
 def _child_float(node: ET.Element, tag: str, path: Path) -> float:

@@ -24,7 +24,15 @@ import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.kitti_io import FRAME_PERIOD_NS, frame_index, read_bin, require_dir, sorted_files, write_bin
+from pass3d_ros.data.kitti_io import (
+    FRAME_PERIOD_NS,
+    frame_index,
+    read_bin,
+    read_stamp_lines,
+    require_dir,
+    sorted_files,
+    write_bin,
+)
 from pass3d_ros.data.spec import DatasetError
 
 SEMANTIC_TO_LABEL: dict[int, int] = {10: CAR, 252: CAR, 30: PEDESTRIAN, 254: PEDESTRIAN, 31: CYCLIST, 253: CYCLIST}
@@ -63,17 +71,16 @@ def encode_labels(labels: np.ndarray, ground: np.ndarray | None, instance: np.nd
     return semantic | (upper.astype(np.uint32) << 16)
 
 
+def _seconds_to_ns(line: str) -> int:
+    try:
+        return int((Decimal(line.strip()) * 1_000_000_000).to_integral_value())
+    except InvalidOperation:
+        raise ValueError(f"not a time in seconds: {line.strip()!r}") from None
+
+
 def read_times(path: Path) -> list[int]:
     """Stamps in ns from a times.txt of seconds, converted through decimal so no digit is lost."""
-    stamps = []
-    for number, line in enumerate(path.read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            stamps.append(int((Decimal(line.strip()) * 1_000_000_000).to_integral_value()))
-        except InvalidOperation as exc:
-            raise DatasetError(f"{path}:{number}: not a time in seconds: {line.strip()!r}") from exc
-    return stamps
+    return read_stamp_lines(path, _seconds_to_ns)
 
 
 def read_label_file(path: Path, n_points: int) -> np.ndarray:

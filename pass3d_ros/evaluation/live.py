@@ -1,10 +1,11 @@
 """Live-path evaluation: a bag's clouds through both real nodes in one process, outputs matched by header stamp.
 
-`run_live` starts ClusterProposalNode and SegmentationNode on a SingleThreadedExecutor in a private rclpy
-context (its own DDS domain, so a real robot on the default domain never sees the test traffic), publishes
-the bag's PointCloud2 CDR bytes unchanged on the cluster node's input topic and listens to the labeled
-output (and, for per-stage times, to the proposals in between). Ground truth comes from the bag's `label`
-field. `score` turns a LiveResult into the nested dict `pass3d_evaluate` writes as JSON.
+`run_live` (its steps in `LiveHarness`) starts ClusterProposalNode and SegmentationNode on a
+SingleThreadedExecutor in a private rclpy context (its own DDS domain, so a real robot on the default domain
+never sees the test traffic), publishes the bag's PointCloud2 CDR bytes unchanged on the cluster node's input
+topic and listens to the labeled output (and, for per-stage times, to the proposals in between). Ground truth
+comes from the bag's `label` field. `pass3d_ros.evaluation.report.score` turns a LiveResult into the dict
+`pass3d_evaluate` writes as JSON.
 
 Timing: latency = publish wall time -> receipt of /pass3d/labeled; stage1_ms = publish -> receipt of
 /pass3d/proposals; stage2_ms = that receipt -> receipt of /pass3d/labeled. Each includes the DDS hop of
@@ -18,16 +19,16 @@ import struct
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from pass3d_ros.classes import FOREGROUND, IGNORE, NUM_CLASSES
-from pass3d_ros.core.metrics import ConfusionAccumulator, format_metrics
+from pass3d_ros.classes import IGNORE, NUM_CLASSES
+from pass3d_ros.core.metrics import ConfusionAccumulator
 from pass3d_ros.data.bag import TYPESTORE, BagWriter, count_frames, iter_raw, parse_bag_spec, select_topic
-from pass3d_ros.ros.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, finite_mask, header_stamp_ns
+from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, finite_mask, header_stamp_ns
 
 NODE_NAMES: tuple[str, ...] = ("cluster_proposal_node", "segmentation_node")
 DISCOVERY_TIMEOUT_S = 15.0
@@ -282,103 +283,140 @@ class _Session:
             self.cond.notify_all()
 
 
-def run_live(
-    bag: str | Path,
-    *,
-    lockstep: bool = True,
-    rate: float = 1.0,
-    node_parameters: Mapping[str, Mapping[str, Any]] | None = None,
-    record_out: Path | None = None,
-    timeout_s: float = 30.0,
-    keep_labels: bool = True,
-    stage_timing: bool = True,
-    domain_id: int | None = None,
-    force: bool = False,
-    log_level: str | None = None,
-    progress: bool = False,
-    repeat: int = 1,
-) -> LiveResult:
+@dataclass
+class LiveOptions:
+    """How a live run plays its bag (see `run_live`)."""
+
+    lockstep: bool = True
+    rate: float = 1.0
+    node_parameters: Mapping[str, Mapping[str, Any]] | None = None
+    record_out: Path | None = None
+    timeout_s: float = 30.0
+    keep_labels: bool = True
+    stage_timing: bool = True
+    domain_id: int | None = None
+    force: bool = False
+    log_level: str | None = None
+    progress: bool = False
+    repeat: int = 1
+
+    def check(self) -> None:
+        """Refuse values that cannot run (ValueError naming the option)."""
+        if self.rate < 0:
+            raise ValueError(f"rate must be >= 0, got {self.rate}")
+        if self.timeout_s <= 0:
+            raise ValueError(f"timeout_s must be > 0, got {self.timeout_s}")
+        if self.repeat < 1:
+            raise ValueError(f"repeat must be >= 1, got {self.repeat}")
+        if self.log_level is not None and self.log_level.lower() not in LOG_LEVELS:
+            raise ValueError(f"log_level must be one of {', '.join(LOG_LEVELS)}, got {self.log_level!r}")
+
+
+LOG_LEVELS: dict[str, str] = {"debug": "DEBUG", "info": "INFO", "warn": "WARN", "warning": "WARN", "error": "ERROR"}
+
+
+def run_live(bag: str | Path, options: LiveOptions | None = None, **fields: Any) -> LiveResult:
     """Play `bag` (`PATH` or `PATH#/topic`) through both live nodes and collect what comes out.
 
-    lockstep: publish the next frame only once the previous one's labeled output arrived or `timeout_s`
-    passed (counted in `timeouts`). Otherwise publish at `rate` x the recorded pace (0: as fast as
-    possible) and wait at most `timeout_s` after the last publish for the outputs. `node_parameters` =
-    {"cluster_proposal_node": {...}, "segmentation_node": {...}}; unknown nodes or parameters are a
-    ValueError, bad weights the node's own error. `record_out`: the received labeled messages as an MCAP
-    bag (`force` replaces an existing one). keep_labels=False keeps per-frame records without label
-    arrays (long soaks: the confusion matrix still accumulates). `domain_id` defaults to a random one in
-    100..200. `log_level` (debug, info, warn, error) sets both nodes' loggers for the rest of the process.
-    `repeat` plays the bag that many times back to back (long runs from a short bag), every pass shifted
-    in stamp and time by the bag's span plus one frame spacing so stamps keep increasing.
+    Options (a LiveOptions, or its fields as keywords): lockstep publishes the next frame only once the
+    previous one's labeled output arrived or `timeout_s` passed (counted in `timeouts`); otherwise publish
+    at `rate` x the recorded pace (0: as fast as possible) and wait at most `timeout_s` after the last
+    publish for the outputs. `node_parameters` = {"cluster_proposal_node": {...}, "segmentation_node": {...}};
+    unknown nodes or parameters are a ValueError, bad weights the node's own error. `record_out`: the
+    received labeled messages as an MCAP bag (`force` replaces an existing one). keep_labels=False keeps
+    per-frame records without label arrays (long soaks: the confusion matrix still accumulates).
+    `domain_id` defaults to a random one in 100..200. `log_level` (debug, info, warn, error) sets both
+    nodes' loggers for the rest of the process. `repeat` plays the bag that many times back to back (long
+    runs from a short bag), every pass shifted in stamp and time by the bag's span plus one frame spacing
+    so stamps keep increasing.
     """
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.logging import LoggingSeverity, set_logger_level
-    from sensor_msgs.msg import PointCloud2
-    from tqdm import tqdm
-
-    from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
-    from pass3d_ros.ros.qos import qos_profile
-    from pass3d_ros.ros.segmentation_node import SegmentationNode
-
-    if rate < 0:
-        raise ValueError(f"rate must be >= 0, got {rate}")
-    if timeout_s <= 0:
-        raise ValueError(f"timeout_s must be > 0, got {timeout_s}")
-    if repeat < 1:
-        raise ValueError(f"repeat must be >= 1, got {repeat}")
-    path, topic = parse_bag_spec(bag)
-    topic = select_topic(path, topic)
-    overrides = _overrides(node_parameters)
-    if log_level is not None:
-        levels = {"debug": "DEBUG", "info": "INFO", "warn": "WARN", "warning": "WARN", "error": "ERROR"}
-        if log_level.lower() not in levels:
-            raise ValueError(f"log_level must be one of {', '.join(levels)}, got {log_level!r}")
-        severity = LoggingSeverity[levels[log_level.lower()]]
-        for name in NODE_NAMES:
-            set_logger_level(name, severity)
-
-    result = LiveResult(lockstep=lockstep, rate=rate, record_out=Path(record_out) if record_out else None)
-    writer = BagWriter(record_out, force=force) if record_out is not None else None
-    context = Context()
-    rclpy.init(args=[], context=context, domain_id=random.randint(100, 200) if domain_id is None else domain_id)
-    # Callbacks only hand frames to the nodes' worker threads. rclpy 7.1.6's MultiThreadedExecutor stalls on
-    # long runs (ros2/rclpy#1452), so a single-threaded executor is both enough and reliable.
-    executor = SingleThreadedExecutor(context=context)
-    nodes: list[Any] = []
-    spinner: threading.Thread | None = None
+    options = LiveOptions(**fields) if options is None else replace(options, **fields)
+    harness = LiveHarness(bag, options)
     try:
-        cluster = _make_node(ClusterProposalNode, context, overrides[NODE_NAMES[0]], nodes)
-        segmenter = _make_node(SegmentationNode, context, overrides[NODE_NAMES[1]], nodes)
-        probe = rclpy.create_node(f"pass3d_live_eval_{random.getrandbits(32):08x}", context=context)
-        nodes.append(probe)
-        labeled_topic = segmenter.get_parameter("labeled_topic").value
-        if writer is not None:
-            writer.open()
-        session = _Session(result, keep_labels, writer, labeled_topic)
-        output_qos = qos_profile(segmenter.get_parameter("output_qos").value, depth=50)
-        labeled_sub = probe.create_subscription(PointCloud2, labeled_topic, session.on_labeled, output_qos, raw=True)
-        if stage_timing:
+        harness.start()
+        harness.play()
+        harness.drain()
+    except BaseException:
+        harness.stop(complete=False)
+        raise
+    harness.stop(complete=True)
+    return harness.result
+
+
+class LiveHarness:
+    """One live run in steps: `start` (private context, both nodes, discovery), `play` (publish the bag),
+    `drain` (wait for the last outputs, read the node counters), `stop` (tear down, close the recording)."""
+
+    def __init__(self, bag: str | Path, options: LiveOptions) -> None:
+        options.check()
+        self.options = options
+        self.bag = bag
+        self.path, topic = parse_bag_spec(bag)
+        self.topic = select_topic(self.path, topic)
+        self.overrides = _overrides(options.node_parameters)
+        self.result = LiveResult(lockstep=options.lockstep, rate=options.rate,
+                                 record_out=Path(options.record_out) if options.record_out else None)
+        self.writer = BagWriter(options.record_out, force=options.force) if options.record_out is not None else None
+        self.nodes: list[Any] = []
+        self.context: Any = None
+        self.executor: Any = None
+        self.spinner: threading.Thread | None = None
+        self.session: _Session | None = None
+        self.started = 0.0
+
+    def start(self) -> None:
+        """Both nodes and a probe node on a single-threaded executor in a private context, all discovered."""
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.logging import LoggingSeverity, set_logger_level
+        from sensor_msgs.msg import PointCloud2
+
+        from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+        from pass3d_ros.ros.qos import qos_profile
+        from pass3d_ros.ros.segmentation_node import SegmentationNode
+
+        options = self.options
+        if options.log_level is not None:
+            for name in NODE_NAMES:
+                set_logger_level(name, LoggingSeverity[LOG_LEVELS[options.log_level.lower()]])
+        self.context = Context()
+        domain_id = random.randint(100, 200) if options.domain_id is None else options.domain_id
+        rclpy.init(args=[], context=self.context, domain_id=domain_id)
+        # Callbacks only hand frames to the nodes' worker threads. rclpy 7.1.6's MultiThreadedExecutor stalls on
+        # long runs (ros2/rclpy#1452), so a single-threaded executor is both enough and reliable.
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.cluster = _make_node(ClusterProposalNode, self.context, self.overrides[NODE_NAMES[0]], self.nodes)
+        self.segmenter = _make_node(SegmentationNode, self.context, self.overrides[NODE_NAMES[1]], self.nodes)
+        probe = rclpy.create_node(f"pass3d_live_eval_{random.getrandbits(32):08x}", context=self.context)
+        self.nodes.append(probe)
+        labeled_topic = self.segmenter.get_parameter("labeled_topic").value
+        if self.writer is not None:
+            self.writer.open()
+        self.session = _Session(self.result, options.keep_labels, self.writer, labeled_topic)
+        output_qos = qos_profile(self.segmenter.get_parameter("output_qos").value, depth=50)
+        labeled_sub = probe.create_subscription(PointCloud2, labeled_topic, self.session.on_labeled, output_qos,
+                                                raw=True)
+        if options.stage_timing:
             probe.create_subscription(
                 PointCloud2,
-                cluster.get_parameter("proposals_topic").value,
-                session.on_proposals,
-                qos_profile(cluster.get_parameter("output_qos").value, depth=50),
+                self.cluster.get_parameter("proposals_topic").value,
+                self.session.on_proposals,
+                qos_profile(self.cluster.get_parameter("output_qos").value, depth=50),
                 raw=True,
             )
-        publisher = probe.create_publisher(PointCloud2, cluster.get_parameter("input_topic").value,
-                                           qos_profile("reliable", depth=10))
-        for node in nodes:
-            executor.add_node(node)
-        spinner = threading.Thread(target=executor.spin, name="pass3d-live-eval", daemon=True)
-        spinner.start()
+        self.publisher = probe.create_publisher(PointCloud2, self.cluster.get_parameter("input_topic").value,
+                                                qos_profile("reliable", depth=10))
+        for node in self.nodes:
+            self.executor.add_node(node)
+        self.spinner = threading.Thread(target=self.executor.spin, name="pass3d-live-eval", daemon=True)
+        self.spinner.start()
 
         def connected() -> bool:
             return (
-                publisher.get_subscription_count() >= 1
-                and cluster.proposals_pub.get_subscription_count() >= 1 + int(stage_timing)
-                and segmenter.labeled_pub.get_subscription_count() >= 1
+                self.publisher.get_subscription_count() >= 1
+                and self.cluster.proposals_pub.get_subscription_count() >= 1 + int(options.stage_timing)
+                and self.segmenter.labeled_pub.get_subscription_count() >= 1
                 and labeled_sub.get_publisher_count() >= 1
             )
 
@@ -386,16 +424,23 @@ def run_live(
             raise LiveEvalError(f"the nodes and the evaluator did not discover each other in {DISCOVERY_TIMEOUT_S} s")
         time.sleep(SETTLE_S)
 
-        started = time.perf_counter()
-        total = count_frames(bag)
-        bar = tqdm(total=None if total is None else total * repeat, unit="frame", desc="live", disable=not progress)
+    def play(self) -> None:
+        """Publish every usable message of the bag (paced, or in lockstep with the outputs)."""
+        from tqdm import tqdm
+
+        options, result, session = self.options, self.result, self.session
+        assert session is not None, "start() first"
+        self.started = time.perf_counter()
+        total = count_frames(self.bag)
+        bar = tqdm(total=None if total is None else total * options.repeat, unit="frame", desc="live",
+                   disable=not options.progress)
         pace_start, first_bag_ns, last_stamp = None, 0, None
-        for index, msgtype, bag_ns, raw in _replay(path, topic, repeat):
+        for index, msgtype, bag_ns, raw in _replay(self.path, self.topic, options.repeat):
             bar.update(1)
             try:
                 stamp, points, truth = _input_frame(raw, msgtype)
             except LiveEvalError as exc:
-                raise LiveEvalError(f"{path}#{topic}: message {index}: {exc}") from None
+                raise LiveEvalError(f"{self.path}#{self.topic}: message {index}: {exc}") from None
             except (PointCloud2Error, ValueError, IndexError, struct.error):
                 result.skipped += 1  # the node would skip it too: nothing to wait for
                 continue
@@ -403,10 +448,10 @@ def run_live(
                 result.skipped += 1
                 continue
             last_stamp = stamp
-            if not lockstep and rate > 0:
+            if not options.lockstep and options.rate > 0:
                 if pace_start is None:
                     pace_start, first_bag_ns = time.perf_counter(), bag_ns
-                delay = pace_start + (bag_ns - first_bag_ns) / 1e9 / rate - time.perf_counter()
+                delay = pace_start + (bag_ns - first_bag_ns) / 1e9 / options.rate - time.perf_counter()
                 if delay > 0:
                     time.sleep(delay)
             entry = _Pending(index, points, truth)
@@ -416,109 +461,56 @@ def run_live(
                 session.pending[stamp] = entry
                 result.frames_in += 1
                 entry.published = time.perf_counter()
-            publisher.publish(bytes(raw))
-            if lockstep:
+            self.publisher.publish(bytes(raw))
+            if options.lockstep:
                 with session.cond:
                     arrived = session.cond.wait_for(
-                        lambda s=stamp: s not in session.pending or session.error is not None, timeout_s
+                        lambda s=stamp: s not in session.pending or session.error is not None, options.timeout_s
                     )
                     if not arrived:
                         result.timeouts += 1
         bar.close()
+
+    def drain(self) -> None:
+        """Wait until every pending output came back or the nodes fell quiet; then take the node counters."""
+        session, timeout_s = self.session, self.options.timeout_s
+        assert session is not None, "start() first"
+
+        def idle() -> bool:
+            return self.cluster.worker.idle() and self.segmenter.worker.idle()
 
         def finished() -> bool:
             with session.cond:
                 if not session.pending or session.error is not None:
                     return True
                 quiet = time.perf_counter() - session.last_output >= QUIET_S
-            return quiet and cluster.worker.idle() and segmenter.worker.idle()
+            return quiet and idle()
 
         _wait(finished, timeout_s)
-        result.wall_s = time.perf_counter() - started
-        _wait(lambda: cluster.worker.idle() and segmenter.worker.idle(), timeout_s)  # counters final
+        self.result.wall_s = time.perf_counter() - self.started
+        _wait(idle, timeout_s)  # counters final
         if session.error is not None:
             raise session.error
-        result.node_counters = {
-            NODE_NAMES[0]: asdict(cluster.worker.counters),
-            NODE_NAMES[1]: asdict(segmenter.worker.counters),
+        self.result.node_counters = {
+            NODE_NAMES[0]: asdict(self.cluster.worker.counters),
+            NODE_NAMES[1]: asdict(self.segmenter.worker.counters),
         }
-    except BaseException:
-        _stop(executor, nodes, context, spinner)
-        if writer is not None:
-            writer.abort()
-        raise
-    _stop(executor, nodes, context, spinner)  # no callback writes any more: the recording can be closed
-    if writer is not None:
-        writer.close()
-    return result
 
+    def stop(self, complete: bool) -> None:
+        """Stop spinning, destroy the nodes (their workers join), shut the context down; then close the
+        recording (`complete`) or abort it, so an unfinished run leaves no bag that looks complete."""
+        import rclpy
 
-def _stop(executor: Any, nodes: list[Any], context: Any, spinner: threading.Thread | None) -> None:
-    """Stop spinning, destroy the nodes (their workers join) and shut the private context down."""
-    import rclpy
-
-    executor.shutdown()
-    if spinner is not None:
-        spinner.join(timeout=5)
-    for node in reversed(nodes):
-        node.destroy_node()
-    rclpy.try_shutdown(context=context)
-
-
-def _stats(values: list[float]) -> dict[str, float] | None:
-    if not values:
-        return None
-    v = np.asarray(values, dtype=np.float64)
-    return {"median": float(np.median(v)), "mean": float(v.mean()), "p95": float(np.percentile(v, 95)),
-            "max": float(v.max())}
-
-
-def score(result: LiveResult) -> dict:
-    """Per-class precision / recall / IoU and mean IoU (foreground classes) plus the `live` counters and times."""
-    summary = result.confusion.summary(FOREGROUND)
-    has_truth = result.labeled_frames > 0
-    stage1 = [f.stage1_ms for f in result.frames if f.stage1_ms is not None]
-    stage2 = [f.stage2_ms for f in result.frames if f.stage2_ms is not None]
-    return {
-        "frames": result.labeled_frames,
-        "per_class": summary["per_class"] if has_truth else None,
-        "mean_iou": summary["mean_iou"] if has_truth else None,
-        "live": {
-            "lockstep": result.lockstep,
-            "rate": result.rate,
-            "frames_in": result.frames_in,
-            "frames_out": result.frames_out,
-            "dropped": result.dropped,
-            "mismatched": result.mismatched,
-            "timeouts": result.timeouts,
-            "skipped": result.skipped,
-            "unmatched_outputs": result.unmatched_outputs,
-            "wall_s": result.wall_s,
-            "output_hz": result.frames_out / result.wall_s if result.wall_s > 0 else None,
-            "latency_ms": _stats(result.latency_ms),
-            "stage_ms": {"stage1": _stats(stage1), "stage2": _stats(stage2)},
-            "nodes": result.node_counters,
-        },
-    }
-
-
-def _ms(stats: dict | None) -> str:
-    return "n/a" if stats is None else f"median {stats['median']:.1f} ms, p95 {stats['p95']:.1f} ms"
-
-
-def format_report(scores: dict) -> str:
-    """A plain-text table of a `score` dict: per-class P / R / IoU (%), mean IoU, live counters and times."""
-    if scores.get("per_class"):
-        lines = format_metrics(scores["per_class"], scores["mean_iou"])
-    else:
-        lines = ["no ground-truth labels: no segmentation metrics"]
-    live = scores["live"]
-    mode = "lockstep" if live["lockstep"] else f"rate x{live['rate']:g}"
-    lines.append(
-        f"live ({mode}): {live['frames_in']} in, {live['frames_out']} out, {live['dropped']} dropped, "
-        f"{live['mismatched']} mismatched, {live['timeouts']} timeouts, {live['skipped']} skipped"
-    )
-    lines.append(f"latency publish -> /pass3d/labeled: {_ms(live['latency_ms'])}")
-    lines.append(f"stage 1 (publish -> /pass3d/proposals): {_ms(live['stage_ms']['stage1'])}")
-    lines.append(f"stage 2 (/pass3d/proposals -> /pass3d/labeled): {_ms(live['stage_ms']['stage2'])}")
-    return "\n".join(lines)
+        if self.executor is not None:
+            self.executor.shutdown()
+        if self.spinner is not None:
+            self.spinner.join(timeout=5)
+        for node in reversed(self.nodes):
+            node.destroy_node()
+        if self.context is not None:
+            rclpy.try_shutdown(context=self.context)
+        if self.writer is not None:
+            if complete:
+                self.writer.close()
+            else:
+                self.writer.abort()

@@ -7,21 +7,19 @@ import time
 from typing import Any
 
 import numpy as np
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, propose, warm_up
+from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
 from pass3d_ros.ros import params
-from pass3d_ros.ros.latest_frame import LatestFrameWorker
 from pass3d_ros.ros.markers import boxes_to_markers
-from pass3d_ros.ros.pointcloud2 import PointCloud2Error, decode_xyzi, encode
-from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
+from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
+from pass3d_ros.ros.qos import QOS_NAMES
 from pass3d_ros.ros.run import run_nodes
 
 STAGE1_PREFIX = "stage1."
-LOG_PERIOD_S = 5.0
 
 NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "input_topic": ("/velodyne_points", "PointCloud2 topic of the LiDAR driver", None),
@@ -33,6 +31,7 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "use_ring_field": (True, "use the cloud's ring field when present, else recover rings from azimuth", None),
     "publish_boxes": (True, "publish the proposal boxes MarkerArray", None),
 }
+PARAMETERS = params.NodeParameters("cluster_proposal_node", NODE_PARAMETERS, {STAGE1_PREFIX: Stage1Config})
 
 
 def proposals_cloud(points: np.ndarray, result: Stage1Result) -> dict[str, np.ndarray]:
@@ -49,17 +48,11 @@ def proposals_cloud(points: np.ndarray, result: Stage1Result) -> dict[str, np.nd
     }
 
 
-class ClusterProposalNode(Node):
+class ClusterProposalNode(PointCloudNode):
     """Subscribes a scan, runs ground plane fitting, scan-line-run clustering and proposal refinement."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("cluster_proposal_node", **kwargs)
-        for name, (default, description, value_range) in NODE_PARAMETERS.items():
-            self.declare_parameter(name, default, params.describe(description, value_range, default))
-        params.declare_config(self, Stage1Config(), STAGE1_PREFIX)
-        for name in ("input_qos", "output_qos"):
-            if self.get_parameter(name).value not in QOS_NAMES:
-                raise ValueError(f"parameter {name} must be one of {QOS_NAMES}")
+        super().__init__(PARAMETERS, **kwargs)
         self.config = params.read_config(self, Stage1Config, STAGE1_PREFIX)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -67,16 +60,9 @@ class ClusterProposalNode(Node):
         warm_up()
         self.get_logger().info(f"stage 1 ready (numba warm-up {1e3 * (time.perf_counter() - started):.0f} ms)")
 
-        output_qos = qos_profile(self.get_parameter("output_qos").value)
-        self.proposals_pub = self.create_publisher(PointCloud2, self.get_parameter("proposals_topic").value, output_qos)
-        self.boxes_pub = self.create_publisher(MarkerArray, self.get_parameter("boxes_topic").value, output_qos)
-        self.worker: LatestFrameWorker[PointCloud2] = LatestFrameWorker(self._process, self._on_error, "stage1")
-        self.subscription = self.create_subscription(
-            PointCloud2,
-            self.get_parameter("input_topic").value,
-            self.worker.submit,
-            qos_profile(self.get_parameter("input_qos").value),
-        )
+        self.proposals_pub = self.output_publisher(PointCloud2, "proposals_topic")
+        self.boxes_pub = self.output_publisher(MarkerArray, "boxes_topic")
+        self.start_worker(self._process, "stage1")
 
     def _on_set_parameters(self, changed: list[Parameter]) -> Any:
         """Refuse invalid stage-1 values; apply valid ones to the next frame."""
@@ -116,13 +102,6 @@ class ClusterProposalNode(Node):
             f"node {1e3 * (time.perf_counter() - received):.1f} ms, dropped {self.worker.counters.dropped}",
             throttle_duration_sec=LOG_PERIOD_S,
         )
-
-    def _on_error(self, exc: BaseException) -> None:
-        self.get_logger().error(f"frame failed: {type(exc).__name__}: {exc}", throttle_duration_sec=LOG_PERIOD_S)
-
-    def destroy_node(self) -> None:
-        self.worker.stop()
-        super().destroy_node()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,8 +1,12 @@
-"""Declare ROS parameters from a config dataclass and validate run-time changes against it."""
+"""Declare ROS parameters from a node's table and config dataclasses, validate run-time changes against them,
+and write them out as a `--params-file` YAML (so defaults are written once, in the code)."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
+import math
+from collections.abc import Mapping, Sequence
 from typing import Any, TypeVar
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
@@ -10,6 +14,26 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 C = TypeVar("C")
+
+# name -> (default, description, allowed closed range or None)
+ParameterTable = Mapping[str, tuple[Any, str, tuple[float, float] | None]]
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeParameters:
+    """Everything one node declares: its name, its own parameter table, and config dataclasses whose fields
+    become parameters under a prefix ("stage1." gives stage1.th_ring, a nested `stage1:` key in YAML)."""
+
+    node_name: str
+    table: ParameterTable
+    configs: Mapping[str, type] = dataclasses.field(default_factory=dict)
+
+    def declare(self, node: Node) -> None:
+        """Declare the table's parameters, then each config's fields at their defaults."""
+        for name, (default, description, value_range) in self.table.items():
+            node.declare_parameter(name, default, describe(description, value_range, default))
+        for prefix, config_type in self.configs.items():
+            declare_config(node, config_type(), prefix)
 
 
 def describe(description: str, value_range: tuple[float, float] | None, default: Any) -> ParameterDescriptor:
@@ -69,3 +93,46 @@ def validate_changes(
 def result(ok: bool, reason: str = "") -> SetParametersResult:
     """A SetParametersResult with a reason on refusal."""
     return SetParametersResult(successful=ok, reason=reason)
+
+
+def _yaml_scalar(value: Any) -> str:
+    """One default as a YAML flow value that ROS reads back with the same type (floats keep a '.')."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"cannot write the non-finite default {value} to a parameter file")
+        text = repr(value)
+        if "." not in text:
+            mantissa, _, exponent = text.partition("e")
+            text = f"{mantissa}.0" + (f"e{exponent}" if exponent else "")
+        return text
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_yaml_scalar(v) for v in value) + "]"
+    raise TypeError(f"no YAML form for a parameter default of type {type(value).__name__}")
+
+
+def _yaml_entry(depth: int, name: str, value: Any, description: str) -> str:
+    """`name: value  # description`, indented two spaces per level."""
+    return f"{'  ' * depth}{name}: {_yaml_scalar(value)}  # {' '.join(description.split())}"
+
+
+def params_yaml(nodes: Sequence[NodeParameters], header: str = "") -> str:
+    """A `--params-file` YAML with every parameter of `nodes` at its default, commented with its description;
+    `header` lines become leading comments. A config prefix ("stage1.") becomes one nested key."""
+    lines = [f"# {line}".rstrip() for line in header.splitlines()]
+    for spec in nodes:
+        lines += [f"{spec.node_name}:", "  ros__parameters:"]
+        for name, (default, description, _) in spec.table.items():
+            lines.append(_yaml_entry(2, name, default, description))
+        for prefix, config_type in spec.configs.items():
+            lines.append(f"    {prefix.removesuffix('.')}:")
+            defaults = config_type()
+            for field in dataclasses.fields(config_type):
+                description = field.metadata.get("description", field.name)
+                lines.append(_yaml_entry(3, field.name, getattr(defaults, field.name), description))
+    return "\n".join(lines) + "\n"

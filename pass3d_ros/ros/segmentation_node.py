@@ -8,25 +8,23 @@ from typing import Any
 
 import numpy as np
 import torch
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.classes import BACKGROUND, packed_rgb
 from pass3d_ros.core.canonical import fit_box_members
-from pass3d_ros.core.segmentation import Classifier, SegmentResult, load_classifier
+from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult
 from pass3d_ros.core.stage1 import proposal_members
+from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, load_classifier, resolve_weights
 from pass3d_ros.data.frame import Box3D
+from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode, to_xyzi
 from pass3d_ros.ros import params
-from pass3d_ros.ros.latest_frame import LatestFrameWorker
 from pass3d_ros.ros.markers import boxes_to_markers
-from pass3d_ros.ros.pointcloud2 import PointCloud2Error, decode, encode, to_xyzi
-from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
+from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
+from pass3d_ros.ros.qos import QOS_NAMES
 from pass3d_ros.ros.run import run_nodes
-from pass3d_ros.weights import default_weights
 
-LOG_PERIOD_S = 5.0
 REQUIRED_FIELDS = ("cluster_id",)
 
 NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
@@ -35,13 +33,14 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "objects_topic": ("/pass3d/objects", "output: MarkerArray, one box and text per labeled proposal", None),
     "input_qos": ("reliable", f"QoS of the input subscription: {' or '.join(QOS_NAMES)}", None),
     "output_qos": ("reliable", f"QoS of the outputs: {' or '.join(QOS_NAMES)}", None),
-    "classifier": ("network", "network (PointNet++) or size_rules (geometric baseline)", None),
+    "classifier": (DEFAULT_CLASSIFIER, f"{' or '.join(CLASSIFIERS)}: the PointNet++ or the geometric baseline", None),
     "weights": ("", "stage-2 checkpoint; empty = the weights shipped with the package", None),
     "device": ("cpu", "torch device: cpu or cuda", None),
     "threads": (1, "torch CPU threads for stage 2; 0 = torch's default (1 is fastest on a busy 2-core CPU)", (0, 64)),
-    "max_proposals": (64, "at most this many proposals per frame, nearest first", (1, 1024)),
+    "max_proposals": (DEFAULT_MAX_PROPOSALS, "at most this many proposals per frame, nearest first", (1, 1024)),
     "min_confidence": (0.0, "points predicted below this confidence are labeled background", (0.0, 1.0)),
 }
+PARAMETERS = params.NodeParameters("segmentation_node", NODE_PARAMETERS)
 
 
 def labeled_cloud(cloud: np.ndarray, points: np.ndarray, result: SegmentResult, min_confidence: float) -> dict:
@@ -91,41 +90,27 @@ def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:
     return proposal_members(first, second)
 
 
-class SegmentationNode(Node):
+class SegmentationNode(PointCloudNode):
     """Runs the stage-2 classifier on every proposal of a frame in one batched pass."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("segmentation_node", **kwargs)
-        for name, (default, description, value_range) in NODE_PARAMETERS.items():
-            self.declare_parameter(name, default, params.describe(description, value_range, default))
-        for name in ("input_qos", "output_qos"):
-            if self.get_parameter(name).value not in QOS_NAMES:
-                raise ValueError(f"parameter {name} must be one of {QOS_NAMES}")
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        super().__init__(PARAMETERS, **kwargs)
         self.classifier = self._load_classifier()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
 
-        output_qos = qos_profile(self.get_parameter("output_qos").value)
-        self.labeled_pub = self.create_publisher(PointCloud2, self.get_parameter("labeled_topic").value, output_qos)
-        self.objects_pub = self.create_publisher(MarkerArray, self.get_parameter("objects_topic").value, output_qos)
-        self.worker: LatestFrameWorker[PointCloud2] = LatestFrameWorker(self._process, self._on_error, "stage2")
-        self.subscription = self.create_subscription(
-            PointCloud2,
-            self.get_parameter("input_topic").value,
-            self.worker.submit,
-            qos_profile(self.get_parameter("input_qos").value),
-        )
+        self.labeled_pub = self.output_publisher(PointCloud2, "labeled_topic")
+        self.objects_pub = self.output_publisher(MarkerArray, "objects_topic")
+        self.start_worker(self._process, "stage2")
 
     def _load_classifier(self) -> Classifier:
         """Load and warm up the classifier; missing or incompatible weights end start-up with the reason."""
-        kind = self.get_parameter("classifier").value
-        weights = self.get_parameter("weights").value or (str(default_weights()) if kind == "network" else None)
+        kind, weights = resolve_weights(self.get_parameter("classifier").value, self.get_parameter("weights").value)
         threads = self.get_parameter("threads").value
         if threads > 0:
             torch.set_num_threads(threads)
         started = time.perf_counter()
-        classifier = load_classifier(kind, weights, device=self.get_parameter("device").value)
-        if hasattr(classifier, "max_proposals"):
-            classifier.max_proposals = self.get_parameter("max_proposals").value
+        classifier = load_classifier(kind, weights, device=self.get_parameter("device").value,
+                                     max_proposals=self.get_parameter("max_proposals").value)
         classifier.warm_up()
         took = 1e3 * (time.perf_counter() - started)
         self.get_logger().info(f"stage 2 ready: {kind} {weights or ''} (load + warm-up {took:.0f} ms)")
@@ -138,7 +123,7 @@ class SegmentationNode(Node):
         if fixed:
             return params.result(False, f"{', '.join(fixed)} can only be set at start-up")
         for p in changed:
-            if p.name == "max_proposals" and hasattr(self, "classifier") and hasattr(self.classifier, "max_proposals"):
+            if p.name == "max_proposals":
                 self.classifier.max_proposals = int(p.value)
         return params.result(True)
 
@@ -166,13 +151,6 @@ class SegmentationNode(Node):
             f"stage2 {1e3 * (time.perf_counter() - received):.1f} ms, dropped {self.worker.counters.dropped}",
             throttle_duration_sec=LOG_PERIOD_S,
         )
-
-    def _on_error(self, exc: BaseException) -> None:
-        self.get_logger().error(f"frame failed: {type(exc).__name__}: {exc}", throttle_duration_sec=LOG_PERIOD_S)
-
-    def destroy_node(self) -> None:
-        self.worker.stop()
-        super().destroy_node()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import signal
 import sys
 import time
 from pathlib import Path
@@ -29,8 +28,9 @@ import numpy as np
 from pass3d_ros.core.metrics import Stage1Metrics
 from pass3d_ros.core.stage1 import propose
 from pass3d_ros.data.bag import read_bag
-from pass3d_ros.tools.bev import render_bev, write_png
-from pass3d_ros.tools.kitti2bag import convert
+from pass3d_ros.data.bag_convert import convert
+from pass3d_ros.evaluation.bev import render_bev, write_png
+from pass3d_ros.tools.cli import USER_ERRORS, run_tool
 from pass3d_ros.weights import DEFAULT_WEIGHTS_NAME, WEIGHTS_DIR
 
 MARKER = ".pass3d_demo"
@@ -112,7 +112,8 @@ def draw_frames(input_bag: Path, labeled_bag: Path, out: Path, count: int = BEV_
 
 def run(args: argparse.Namespace) -> int:
     """The demo itself; returns the exit status."""
-    from pass3d_ros.ros.live_eval import format_report, run_live, score
+    from pass3d_ros.evaluation.live import run_live
+    from pass3d_ros.evaluation.report import format_report, score
 
     started = time.perf_counter()
     if args.frames < 1:
@@ -189,25 +190,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _interrupt(signum: int, _frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: 0 done, 1 frames lost on the way, 2 user error, 130 interrupted."""
+    """Entry point: 0 done, 1 frames lost on the way, 2 user error, 130 / 143 interrupted."""
     args = build_parser().parse_args(argv)
-    previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        return run(args)
-    except (DemoError, ValueError, OSError) as exc:
-        print(f"demo: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("demo: interrupted", file=sys.stderr)
-        return 130
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+    return run_tool("demo", lambda: run(args), errors=(DemoError, *USER_ERRORS))
 
 
 if __name__ == "__main__":

@@ -26,12 +26,11 @@ from typing import Any
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
-from rosbags.rosbag2 import WriterError
 
 from pass3d_ros.data.bag import STORAGES, TYPESTORE, VERSIONS, BagError, BagWriter, iter_raw, select_topic
-from pass3d_ros.data.spec import DatasetError
-from pass3d_ros.ros.pointcloud2 import POINTCLOUD2_TYPE, stamp_to_ns
+from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, stamp_to_ns
 from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
+from pass3d_ros.tools.cli import run_tool
 
 
 def ros_message_class(msgtype: str) -> type:
@@ -386,13 +385,8 @@ def _replay(args: argparse.Namespace, node: Any) -> int:
     return 0
 
 
-def _interrupt(signum: int, _frame: object) -> None:
-    """SIGINT and SIGTERM both mean Ctrl-C (also where a background shell ignores SIGINT)."""
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point: exit 0 on success, 2 on a user error, 130 when interrupted."""
+    """Console entry point: exit 0 on success, 2 on a user error, 130 / 143 when interrupted."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.record:
@@ -404,25 +398,20 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--count and --duration must be positive")
     elif not args.bag:
         parser.error("give a BAG to replay or --record TOPIC --out BAG")
-    previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    return run_tool("pass3d_replay", lambda: _run(args))
+
+
+def _run(args: argparse.Namespace) -> int:
     rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("pass3d_replay")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
         return _record(args, node, executor) if args.record else _replay(args, node)
-    except (DatasetError, BagError, ValueError, OSError, WriterError) as exc:
-        print(f"pass3d_replay: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("pass3d_replay: interrupted", file=sys.stderr)
-        return 130
     finally:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 if __name__ == "__main__":

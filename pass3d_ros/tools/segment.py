@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -34,14 +33,13 @@ from tqdm import tqdm
 
 from pass3d_ros.classes import NUM_CLASSES
 from pass3d_ros.core.metrics import ConfusionAccumulator, format_metrics
-from pass3d_ros.core.segmentation import Classifier, load_classifier
 from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.core.stage2 import CLASSIFIERS, Classifier, load_classifier, resolve_weights
 from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset, parse_spec
-from pass3d_ros.tools.bev import render_bev, write_png
-from pass3d_ros.weights import default_weights
+from pass3d_ros.evaluation.bev import render_bev, write_png
+from pass3d_ros.tools.cli import run_tool
 
 SEMANTIC_KITTI_IDS: np.ndarray = np.array([0, 10, 30, 31], dtype=np.uint32)  # by class id: bg, car, ped, cyc
-CLASSIFIERS: tuple[str, ...] = ("network", "size_rules")
 
 
 class SegmentError(ValueError):
@@ -75,23 +73,6 @@ def check_out_dir(out: Path, force: bool) -> None:
         raise SegmentError(f"{out} exists and is not a folder")
     if out.is_dir() and any(out.iterdir()) and not force:
         raise SegmentError(f"{out} is not empty; pass --force to write into it")
-
-
-def resolve_classifier(kind: str | None, weights: str | Path | None) -> tuple[str, str | None]:
-    """(kind, weights path or None): network by default, with the shipped weights unless `weights` is given."""
-    kind = kind or "network"
-    if kind not in CLASSIFIERS:
-        raise SegmentError(f"unknown classifier {kind!r}: choose {' or '.join(CLASSIFIERS)}")
-    if kind == "size_rules":
-        if weights:
-            raise SegmentError("--weights applies to the network classifier, not size_rules")
-        return kind, None
-    if weights:
-        return kind, str(weights)
-    try:
-        return kind, str(default_weights())
-    except FileNotFoundError as exc:
-        raise SegmentError(f"{exc}; pass --weights W or --classifier size_rules") from None
 
 
 def _safe_name(name: str) -> str:
@@ -209,41 +190,31 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _interrupt(signum: int, _frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None, log: Callable[[str], None] = print) -> int:
-    """Console entry point: exit 0 on success, 2 on a user error, 130 when interrupted."""
+    """Console entry point: exit 0 on success, 2 on a user error, 130 / 143 when interrupted."""
     args = build_parser().parse_args(argv)
-    previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
-    out = Path(args.out)
-    try:
-        for spec in args.data:
-            parse_spec(spec)
-        check_out_dir(out, args.force)
-        kind, weights = resolve_classifier(args.classifier, args.weights)
-        if args.threads is not None:
-            if args.threads < 1:
-                raise SegmentError(f"--threads must be >= 1, got {args.threads}")
-            import torch
+    return run_tool("pass3d_segment", lambda: _run(args, log),
+                    interrupted=f"interrupted; frames written so far stay in {args.out}")
 
-            torch.set_num_threads(args.threads)
-        classifier = load_classifier(kind, weights, device=args.device)
-        started = time.perf_counter()
-        stats = segment(args.data, out, classifier=classifier, png=not args.no_png, force=True,
-                        progress=not args.no_progress)
-        report = summary(stats, args.data, kind, weights)
-        (out / "summary.json").write_text(json.dumps(report, indent=2) + "\n")
-    except (SegmentError, DatasetError, ValueError, OSError) as exc:
-        print(f"pass3d_segment: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"pass3d_segment: interrupted; frames written so far stay in {out}", file=sys.stderr)
-        return 130
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+
+def _run(args: argparse.Namespace, log: Callable[[str], None]) -> int:
+    out = Path(args.out)
+    for spec in args.data:
+        parse_spec(spec)
+    check_out_dir(out, args.force)
+    kind, weights = resolve_weights(args.classifier, args.weights)
+    if args.threads is not None:
+        if args.threads < 1:
+            raise SegmentError(f"--threads must be >= 1, got {args.threads}")
+        import torch
+
+        torch.set_num_threads(args.threads)
+    classifier = load_classifier(kind, weights, device=args.device)
+    started = time.perf_counter()
+    stats = segment(args.data, out, classifier=classifier, png=not args.no_png, force=True,
+                    progress=not args.no_progress)
+    report = summary(stats, args.data, kind, weights)
+    (out / "summary.json").write_text(json.dumps(report, indent=2) + "\n")
     took = time.perf_counter() - started
     stage1, stage2 = report["ms_per_frame"]["stage1"], report["ms_per_frame"]["stage2"]
     log(f"segmented {stats.frames} frames ({stats.points} points) in {took:.1f} s with {kind}"

@@ -14,6 +14,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from pass3d_ros.data.spec import DatasetError, open_dataset, parse_spec
+from pass3d_ros.tools.cli import run_tool
 
 WRITERS: dict[str, str] = {
     "semantickitti": "pass3d_ros.data.semantickitti:write_semantickitti_frame",
@@ -101,11 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--out DIR is required (or --report)")
     if args.report and args.out is not None:
         parser.error("--report writes nothing: drop --out")
-    try:
-        return report(args) if args.report else generate(args)
-    except DatasetError as exc:
-        print(f"pass3d_simulate: error: {exc}", file=sys.stderr)
-        return 2
+    return run_tool("pass3d_simulate", lambda: report(args) if args.report else generate(args))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,102 @@
+"""Stage 1 parameters in one dataclass: the single place where each default, description and allowed range is
+written. Each step of stage 1 (ring, ground, scanline, refinement) reads its values from it, and the ROS layer
+declares one parameter per field.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+
+def _param(default: Any, description: str, lo: float, hi: float) -> Any:
+    """A config field whose metadata carries its description and allowed closed range (ROS parameters)."""
+    return field(default=default, metadata={"description": description, "range": (lo, hi)})
+
+
+@dataclass
+class Stage1Config:
+    """Stage 1 parameters (metres, counts). The paper's values: n_seg .. th_prop and the enlargement; the
+    rest is what the paper leaves open, chosen on KITTI (see each field's description)."""
+
+    # Ground plane fitting (Zermas et al.; PASS3D's values).
+    n_seg: int = _param(3, "ground: segments along x", 1, 64)
+    n_iter: int = _param(3, "ground: plane fits per segment", 1, 20)
+    n_lpr: int = _param(20, "ground: lowest points whose mean height (the LPR) sets the seed height", 1, 1000)
+    th_seeds: float = _param(0.4, "ground: seeds lie less than this above the LPR (m)", 0.01, 5.0)
+    th_dist: float = _param(0.3, "ground: |distance to plane| below this is ground (m, two-sided)", 0.01, 2.0)
+    # Scan-line-run clustering (Zermas et al.; PASS3D's values).
+    th_ring: float = _param(0.5, "clustering: consecutive ring points closer than this form a run (m)", 0.01, 5.0)
+    th_prop: float = _param(1.0, "clustering: a run takes the label of a previous-ring point this close (m)", 0.01, 5.0)
+    n_prev_rings: int = _param(2, "clustering: rings searched back when the previous one has no match", 1, 8)
+    # Proposal refinement: point count needed, about 30 near the sensor and falling as 1/range.
+    th_num_near: float = _param(30.0, "refinement: points a cluster needs up to th_num_range", 1.0, 1e4)
+    th_num_range: float = _param(
+        20.0, "refinement: beyond this range (m) a cluster needs th_num_near * th_num_range / range points", 0.1, 200.0
+    )
+    th_num_floor: int = _param(5, "refinement: a cluster never needs fewer points than this", 1, 1000)
+    # Size gates: what an (occluded) car, pedestrian or cyclist can look like. A car is up to ~5.5 m long
+    # (clutter and mirrors add); cars, riders and pedestrians stay under ~2.2 m, trees do not; occluded objects
+    # show only their top, so the bottom may sit well above the ground.
+    max_length: float = _param(7.0, "refinement: longest footprint side (m)", 0.1, 100.0)
+    max_width: float = _param(3.5, "refinement: longest short footprint side (m)", 0.1, 100.0)
+    max_height: float = _param(3.0, "refinement: largest z extent (m)", 0.1, 100.0)
+    max_bottom: float = _param(
+        1.5, "refinement: lowest point at most this above the ground plane (m; a person behind a car)", -5.0, 10.0
+    )
+    min_top: float = _param(0.9, "refinement: highest point at least this above the ground plane (m)", -5.0, 10.0)
+    max_top: float = _param(2.3, "refinement: highest point at most this above the ground plane (m)", 0.0, 20.0)
+    min_extent: float = _param(0.2, "refinement: the larger of length and height reaches this (m)", 0.0, 10.0)
+    max_range: float = _param(70.0, "refinement: largest horizontal range of a cluster centre (m)", 1.0, 500.0)
+    # Enlargement of kept boxes, added on each side (paper: 0.1, 0.1, 0.4 m).
+    enlarge: tuple[float, float, float] = _param(
+        (0.1, 0.1, 0.4), "refinement: kept boxes grow by this on each side in x, y, z (m)", 0.0, 5.0
+    )
+    # Sensor and robustness details the paper leaves open.
+    n_rings: int = _param(64, "rings: lasers of the sensor (HDL-64E); ring recovery checks for this many", 1, 256)
+    sensor_height: float = _param(1.73, "ground: sensor height above the road (m, KITTI)", 0.0, 10.0)
+    below_ground_margin: float = _param(1.0, "ground: points lower than sensor_height + this never seed (m)", 0.0, 10.0)
+    ground_x_extent: float = _param(80.0, "ground: segments split x in [-extent, extent] evenly (m)", 1.0, 500.0)
+    ground_seed_band: float = _param(20.0, "ground: only points with |y| below this seed and fit planes (m)", 0.5, 1e3)
+    ground_lpr_outlier_share: float = _param(
+        0.05, "ground: 0.1 m height bins holding less than this share of the fullest cannot set the LPR", 0.0, 1.0
+    )
+    ground_max_step: float = _param(
+        0.5, "ground: an outer plane stepping more than this at its inner edge takes its neighbour's (m)", 0.0, 10.0
+    )
+    ground_max_slope_deg: float = _param(25.0, "ground: a steeper plane is rejected (degrees)", 0.0, 90.0)
+    fit_stride: int = _param(
+        4, "ground: the LPR and the plane fits read every fit_stride-th point (the final ground test reads all)", 1, 64
+    )
+
+    def __post_init__(self) -> None:
+        self.enlarge = tuple(float(v) for v in self.enlarge)
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ValueError naming every parameter outside its allowed range."""
+        problems = []
+        if len(self.enlarge) != 3:
+            problems.append(f"enlarge needs 3 values (x, y, z), got {len(self.enlarge)}")
+        for f in fields(self):
+            lo, hi = f.metadata["range"]
+            values = getattr(self, f.name)
+            for v in values if isinstance(values, tuple) else (values,):
+                if not lo <= v <= hi:
+                    problems.append(f"{f.name}={v} outside [{lo}, {hi}]")
+        if problems:
+            raise ValueError("Stage1Config: " + "; ".join(problems))
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any]) -> Stage1Config:
+        """Config from a dict (YAML, ROS parameters); unknown keys are an error, not silently ignored."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"Stage1Config: unknown parameter(s) {', '.join(unknown)}")
+        return cls(**dict(values))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict of all parameters (for logs and JSON)."""
+        return asdict(self)

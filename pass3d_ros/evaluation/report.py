@@ -1,0 +1,145 @@
+"""Reports of an evaluation: the summary dict of a live run (`score`) and plain-text tables of the stage-1,
+full-pipeline and live summaries that `pass3d_evaluate`, the demo and the benchmarks print."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from pass3d_ros.classes import FOREGROUND
+from pass3d_ros.core.metrics import format_metrics
+from pass3d_ros.core.stage1 import STEPS
+from pass3d_ros.evaluation.live import LiveResult
+
+
+def _stats(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    v = np.asarray(values, dtype=np.float64)
+    return {"median": float(np.median(v)), "mean": float(v.mean()), "p95": float(np.percentile(v, 95)),
+            "max": float(v.max())}
+
+
+def score(result: LiveResult) -> dict:
+    """Per-class precision / recall / IoU and mean IoU (foreground classes) plus the `live` counters and times."""
+    summary = result.confusion.summary(FOREGROUND)
+    has_truth = result.labeled_frames > 0
+    stage1 = [f.stage1_ms for f in result.frames if f.stage1_ms is not None]
+    stage2 = [f.stage2_ms for f in result.frames if f.stage2_ms is not None]
+    return {
+        "frames": result.labeled_frames,
+        "per_class": summary["per_class"] if has_truth else None,
+        "mean_iou": summary["mean_iou"] if has_truth else None,
+        "live": {
+            "lockstep": result.lockstep,
+            "rate": result.rate,
+            "frames_in": result.frames_in,
+            "frames_out": result.frames_out,
+            "dropped": result.dropped,
+            "mismatched": result.mismatched,
+            "timeouts": result.timeouts,
+            "skipped": result.skipped,
+            "unmatched_outputs": result.unmatched_outputs,
+            "wall_s": result.wall_s,
+            "output_hz": result.frames_out / result.wall_s if result.wall_s > 0 else None,
+            "latency_ms": _stats(result.latency_ms),
+            "stage_ms": {"stage1": _stats(stage1), "stage2": _stats(stage2)},
+            "nodes": result.node_counters,
+        },
+    }
+
+
+def _ms(stats: dict | None) -> str:
+    return "n/a" if stats is None else f"median {stats['median']:.1f} ms, p95 {stats['p95']:.1f} ms"
+
+
+def format_report(scores: dict) -> str:
+    """A plain-text table of a `score` dict: per-class P / R / IoU (%), mean IoU, live counters and times."""
+    if scores.get("per_class"):
+        lines = format_metrics(scores["per_class"], scores["mean_iou"])
+    else:
+        lines = ["no ground-truth labels: no segmentation metrics"]
+    live = scores["live"]
+    mode = "lockstep" if live["lockstep"] else f"rate x{live['rate']:g}"
+    lines.append(
+        f"live ({mode}): {live['frames_in']} in, {live['frames_out']} out, {live['dropped']} dropped, "
+        f"{live['mismatched']} mismatched, {live['timeouts']} timeouts, {live['skipped']} skipped"
+    )
+    lines.append(f"latency publish -> /pass3d/labeled: {_ms(live['latency_ms'])}")
+    lines.append(f"stage 1 (publish -> /pass3d/proposals): {_ms(live['stage_ms']['stage1'])}")
+    lines.append(f"stage 2 (/pass3d/proposals -> /pass3d/labeled): {_ms(live['stage_ms']['stage2'])}")
+    return "\n".join(lines)
+
+
+def _fmt(value: float | None, digits: int = 3) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def format_stage1(summary: dict, per_frame: bool = False) -> str:
+    """Human-readable table of a stage 1 summary."""
+    s = summary["stage1"]
+    lines = [f"stage 1 over {summary['frames']} frame(s)"]
+    rows = [
+        ("foreground recall", _fmt(s["foreground_recall"]) + f"  ({s['foreground_points']} points)"),
+        *[(f"  {name} recall", _fmt(value)) for name, value in s["class_recall"].items()],
+        ("proposals / frame", f"median {_fmt(s['proposals_per_frame']['median'], 1)}, "
+                              f"mean {_fmt(s['proposals_per_frame']['mean'], 1)}"),
+        ("ms / frame", f"median {_fmt(s['ms_per_frame']['median'], 2)}, mean {_fmt(s['ms_per_frame']['mean'], 2)}"),
+        *[(f"  {step} ms (median)", _fmt(s["ms_per_step"].get(step), 2)) for step in STEPS if step != "total"],
+        ("ground precision", _fmt(s["ground"]["precision"]) + f"  ({s['ground_frames']} frame(s) with ground truth)"),
+        ("ground recall", _fmt(s["ground"]["recall"])),
+    ]
+    width = max(len(name) for name, _ in rows)
+    lines += [f"  {name:<{width}}  {value}" for name, value in rows]
+    if per_frame:
+        lines.append("")
+        lines.append(f"  {'frame':<48} {'points':>7} {'props':>5} {'ms':>6} {'fg rec':>6} {'gnd P':>6} {'gnd R':>6}")
+        for row in summary["per_frame"]:
+            lines.append(
+                f"  {row['frame'][-48:]:<48} {row['points']:>7} {row['proposals']:>5} {row['ms']:>6.2f} "
+                f"{_fmt(row.get('foreground_recall')):>6} {_fmt(row.get('ground_precision')):>6} "
+                f"{_fmt(row.get('ground_recall')):>6}"
+            )
+    return "\n".join(lines)
+
+
+def _classifier_line(summary: dict) -> str:
+    c = summary["classifier"]
+    what = "size_rules (geometric baseline)" if c["kind"] == "size_rules" else f"network, weights {c['weights']}"
+    return f"classifier: {what}; device {c['device']}, torch threads {c['threads']}"
+
+
+def _stage_ms_line(ms: dict) -> str:
+    return (f"ms / frame (median): stage 1 {_fmt(ms['stage1'], 1)}, stage 2 {_fmt(ms['stage2'], 1)}, "
+            f"total {_fmt(ms['total'], 1)}")
+
+
+def format_full(summary: dict, per_frame: bool = False) -> str:
+    """Human-readable table of a full-pipeline summary: per-class metrics, stage times, stage-1 recap."""
+    s1 = summary["stage1"]
+    lines = [f"full pipeline over {summary['frames']} frame(s)", _classifier_line(summary)]
+    lines += format_metrics(summary["classes"], summary["mean_iou"])
+    lines.append(_stage_ms_line(summary["ms_per_frame"]))
+    lines.append(f"stage 1: foreground recall {_fmt(s1['foreground_recall'])}, proposals / frame median "
+                 f"{_fmt(s1['proposals_per_frame']['median'], 1)}")
+    if per_frame:
+        lines.append("")
+        lines.append(f"  {'frame':<48} {'points':>7} {'props':>5} {'s1 ms':>7} {'s2 ms':>7} {'mIoU':>6}")
+        for row in summary["per_frame"]:
+            lines.append(f"  {row['frame'][-48:]:<48} {row['points']:>7} {row['proposals']:>5} "
+                         f"{row['stage1_ms']:>7.1f} {row['stage2_ms']:>7.1f} {_fmt(row['mean_iou']):>6}")
+    return "\n".join(lines)
+
+
+def format_live(summary: dict, per_frame: bool = False) -> str:
+    """Human-readable report of a live summary (per-class metrics, counters, latency, stage times)."""
+    report = format_report({"per_class": summary["classes"], "mean_iou": summary["mean_iou"], "live": summary["live"]})
+    lines = [f"live pipeline over {summary['frames']} scored frame(s)", _classifier_line(summary), report,
+             _stage_ms_line(summary["ms_per_frame"])]
+    if summary["record_out"]:
+        lines.append(f"recorded /pass3d/labeled -> {summary['record_out']}")
+    return "\n".join(lines)
+
+
+PRINTERS: dict[str, Callable[..., str]] = {"stage1": format_stage1, "full": format_full, "live": format_live}
