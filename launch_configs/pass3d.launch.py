@@ -1,6 +1,7 @@
 """Launch both PASS3D nodes (and optionally rviz2) in a real ROS 2 Jazzy install.
 
     ros2 launch pass3d_ros pass3d.launch.py input_topic:=/velodyne_points rviz:=true
+    ros2 launch pass3d_ros pass3d.launch.py namespace:=car1 use_sim_time:=true   # a bag played with --clock
 """
 
 from launch import LaunchDescription
@@ -14,6 +15,7 @@ from launch_ros.substitutions import FindPackageShare
 def generate_launch_description() -> LaunchDescription:
     config_dir = PathJoinSubstitution([FindPackageShare("pass3d_ros"), "config"])
     params_file = LaunchConfiguration("params_file")
+    sim_time = {"use_sim_time": LaunchConfiguration("use_sim_time")}
     return LaunchDescription(
         [
             DeclareLaunchArgument(
@@ -24,25 +26,30 @@ def generate_launch_description() -> LaunchDescription:
             DeclareLaunchArgument("input_topic", default_value="/velodyne_points", description="LiDAR topic"),
             DeclareLaunchArgument("weights", default_value="", description="stage-2 checkpoint; empty = shipped"),
             DeclareLaunchArgument("rviz", default_value="false", description="also start rviz2"),
+            DeclareLaunchArgument("namespace", default_value="", description="namespace of both nodes"),
+            DeclareLaunchArgument("use_sim_time", default_value="false", description="follow /clock (bag replay)"),
             Node(
                 package="pass3d_ros",
                 executable="cluster_proposal_node",
                 name="cluster_proposal_node",
+                namespace=LaunchConfiguration("namespace"),
                 output="screen",
-                parameters=[params_file, {"input_topic": LaunchConfiguration("input_topic")}],
+                parameters=[params_file, {"input_topic": LaunchConfiguration("input_topic")}, sim_time],
             ),
             Node(
                 package="pass3d_ros",
                 executable="segmentation_node",
                 name="segmentation_node",
+                namespace=LaunchConfiguration("namespace"),
                 output="screen",
-                parameters=[params_file, {"weights": LaunchConfiguration("weights")}],
+                parameters=[params_file, {"weights": LaunchConfiguration("weights")}, sim_time],
             ),
             Node(
                 package="rviz2",
                 executable="rviz2",
                 name="rviz2",
                 arguments=["-d", PathJoinSubstitution([config_dir, "pass3d.rviz"])],
+                parameters=[sim_time],
                 condition=IfCondition(LaunchConfiguration("rviz")),
             ),
         ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -62,7 +63,7 @@ def test_every_executable_is_declared() -> None:
 
 
 def test_parameter_yaml_names_only_declared_parameters_with_valid_values() -> None:
-    data = yaml.safe_load(PARAMS_FILE.read_text())
+    data = {key.removeprefix("/**/"): body for key, body in yaml.safe_load(PARAMS_FILE.read_text()).items()}
     declared = declared_parameters()
     assert set(data) == set(declared)
     for node_name, body in data.items():
@@ -77,7 +78,7 @@ def test_parameter_yaml_names_only_declared_parameters_with_valid_values() -> No
 def test_parameter_yaml_is_generated_from_the_code() -> None:
     assert PARAMS_FILE.read_text() == params_yaml.render(), "run pass3d_params_yaml --out " + str(PARAMS_FILE)
     assert set(declared_parameters()["cluster_proposal_node"]) >= {"stage1.th_ring", "stage1.fit_stride"}
-    values = flatten(yaml.safe_load(params_yaml.render())["segmentation_node"]["ros__parameters"])
+    values = flatten(yaml.safe_load(params_yaml.render())["/**/segmentation_node"]["ros__parameters"])
     assert values == {name: entry[0] for name, entry in segmentation_node.NODE_PARAMETERS.items()}
 
 
@@ -89,8 +90,12 @@ def test_params_yaml_tool_writes_the_file(tmp_path: Path, capsys: pytest.Capture
     assert capsys.readouterr().out == params_yaml.render()
 
 
+# Every rclpy node declares use_sim_time itself.
+BUILTIN_PARAMETERS = {"use_sim_time"}
+
+
 def test_launch_files_set_only_declared_parameters() -> None:
-    declared = declared_parameters()
+    declared = {name: names | BUILTIN_PARAMETERS for name, names in declared_parameters().items()}
     launch_yaml = yaml.safe_load((LAUNCH / "pass3d.launch.yaml").read_text())
     for entry in launch_yaml["launch"]:
         node = entry.get("node")
@@ -103,6 +108,7 @@ def test_launch_files_set_only_declared_parameters() -> None:
         kw = {k.arg: k.value for k in call.keywords}
         if kw["package"].value != "pass3d_ros":
             continue
+        assert "namespace" in kw, "both nodes follow the launch file's namespace argument"
         for item in kw["parameters"].elts:
             if isinstance(item, ast.Dict):
                 assert {k.value for k in item.keys} <= declared[kw["name"].value]
@@ -119,18 +125,28 @@ def test_rviz_config_shows_the_nodes_topics() -> None:
     assert displays["Proposals"]["Topic"]["Value"] == cluster_proposal_node.NODE_PARAMETERS["boxes_topic"][0]
 
 
-def test_a_real_node_loads_the_parameter_file() -> None:
-    rclpy = pytest.importorskip("rclpy")
+@pytest.mark.ros
+@pytest.mark.parametrize("namespace", [None, "/car1"])
+def test_a_real_node_loads_the_parameter_file(tmp_path: Path, namespace: str | None) -> None:
+    """The shipped YAML reaches a real node, also under a namespace (the file keys nodes as /**/NAME)."""
+    import rclpy
     from rclpy.context import Context
 
+    shipped = PARAMS_FILE.read_text()
+    changed = shipped.replace("th_ring: 0.5", "th_ring: 0.45", 1)
+    assert changed != shipped, "the shipped file should hold th_ring: 0.5"
+    params = tmp_path / "params.yaml"
+    params.write_text(changed)
+    args = ["--ros-args", "--params-file", str(params)] + (["-r", f"__ns:={namespace}"] if namespace else [])
     context = Context()
-    rclpy.init(args=["--ros-args", "--params-file", str(PARAMS_FILE)], context=context, domain_id=87)
+    rclpy.init(args=args, context=context, domain_id=87)
     try:
         node = cluster_proposal_node.ClusterProposalNode(context=context)
         try:
-            assert node.get_parameter("stage1.th_ring").value == 0.5
+            assert node.get_namespace() == (namespace or "/")
+            assert node.get_parameter("stage1.th_ring").value == 0.45
             assert node.get_parameter("stage1.fit_stride").value == Stage1Config().fit_stride
-            assert node.config == Stage1Config()
+            assert node.config == replace(Stage1Config(), th_ring=0.45)
         finally:
             node.destroy_node()
     finally:

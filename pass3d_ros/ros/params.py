@@ -123,10 +123,11 @@ def _yaml_entry(depth: int, name: str, value: Any, description: str) -> str:
 
 def params_yaml(nodes: Sequence[NodeParameters], header: str = "") -> str:
     """A `--params-file` YAML with every parameter of `nodes` at its default, commented with its description;
-    `header` lines become leading comments. A config prefix ("stage1.") becomes one nested key."""
+    `header` lines become leading comments. A config prefix ("stage1.") becomes one nested key. Nodes are keyed
+    `/**/NAME`, so the file applies in any namespace (`-r __ns:=/car1`, a launch file's `namespace`)."""
     lines = [f"# {line}".rstrip() for line in header.splitlines()]
     for spec in nodes:
-        lines += [f"{spec.node_name}:", "  ros__parameters:"]
+        lines += [f"/**/{spec.node_name}:", "  ros__parameters:"]
         for name, (default, description, _) in spec.table.items():
             lines.append(_yaml_entry(2, name, default, description))
         for prefix, config_type in spec.configs.items():
