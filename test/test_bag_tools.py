@@ -382,3 +382,16 @@ def test_record_cli_subprocess(ros, tmp_path: Path) -> None:
     for _, bag_time, msg in messages:
         assert bag_time == header_stamp_ns(msg) and decode(msg).tobytes() == sent[bag_time]
     assert yaml.safe_load((out / "metadata.yaml").read_text())["rosbag2_bagfile_information"]["version"] == 8
+
+
+def test_bag_without_pointcloud2_lists_what_it_has(tmp_path: Path) -> None:
+    """A bag whose only topic has another type names that topic and its type, not just `none`."""
+    out = tmp_path / "strings"
+    string = TYPESTORE.types["std_msgs/msg/String"]
+    with BagWriter(out) as writer:
+        writer.write("/chatter", string(data="hello"), 5)
+    with pytest.raises(DatasetError, match=r"no sensor_msgs/msg/PointCloud2 topic; the bag has "
+                                           r"/chatter \(std_msgs/msg/String\)"):
+        read_bag(str(out))
+    with pytest.raises(DatasetError, match=r"topic '/velodyne_points'; the bag has /chatter \(std_msgs/msg/String\)"):
+        read_bag(f"{out}#/velodyne_points")

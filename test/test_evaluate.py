@@ -122,7 +122,8 @@ def test_user_errors_exit_2(labelled_bag: Path, tmp_path: Path, capsys: pytest.C
     garbage = tmp_path / "garbage.pt"
     garbage.write_bytes(b"not a checkpoint")
     assert evaluate.main(["--data", "synthetic:frames=1,seed=0", "--weights", str(garbage), "--no-progress"]) == 2
-    assert "not a readable" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "not a pass3d checkpoint" in err and "weights_only" not in err
 
     unlabelled = tmp_path / "unlabelled"
     convert(["synthetic:frames=1,seed=2"], unlabelled, progress=False, log=lambda _: None)

@@ -291,7 +291,7 @@ def test_big_endian_input_array_encodes_native() -> None:
 # ---- fuzzing: every corrupted message decodes to what its bytes say, or raises PointCloud2Error ----
 
 EXTRA_NAMES = ["intensity", "ring", "t", "label", "extra", "i"]
-SCALAR = {"x", "y", "z", "ring", "intensity", "i", "reflectance"}
+SCALAR = {"x", "y", "z", "ring", "intensity", "i", "reflectance", "cluster_id", "cluster_id2", "label"}
 
 
 def random_message(rng: np.random.Generator):

@@ -491,3 +491,30 @@ def test_real_semantickitti_frames(kitti_dev: Path) -> None:
         assert counts[CYCLIST] == np.isin(semantic, [31, 253]).sum()
         np.testing.assert_array_equal(frame.ground, np.isin(semantic, [40, 44, 48, 49, 60, 72]))
         np.testing.assert_array_equal(frame.instance >= 0, (raw >> 16) > 0)
+
+
+def test_empty_bin_is_skipped_with_one_warning_in_every_kitti_reader(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A 0-byte velodyne file is no 0-point frame: each KITTI reader names it on stderr once and skips it."""
+    rng = np.random.default_rng(3)
+    seq, obj = tmp_path / "seq", tmp_path / "object"
+    for k in range(3):
+        frame = Frame(name=f"{k:06d}", points=_scan(50, rng), labels=np.zeros(50, np.uint8))
+        semantickitti.write_semantickitti_frame(seq, frame)
+        kitti_object.write_kitti_object_frame(obj, frame)
+    drive = _write_drive(tmp_path / "raw")
+    empties = {
+        "semantickitti": (seq, seq / "velodyne" / "000001.bin", ["000000", "000002"]),
+        "kitti_object": (obj, obj / "velodyne" / "000001.bin", ["000000", "000002"]),
+        "kitti_raw": (drive, drive / "velodyne_points" / "data" / "0000000000.bin", ["2011_09_26_0001_0000000001"]),
+    }
+    for fmt, (root, empty, names) in empties.items():
+        empty.write_bytes(b"")
+        capsys.readouterr()
+        frames = list(open_dataset(f"{fmt}:{root}"))
+        assert [f.name for f in frames] == names, fmt
+        assert all(len(f.points) > 0 for f in frames)
+        lines = capsys.readouterr().err.splitlines()
+        assert len(lines) == 1 and str(empty) in lines[0] and "skipped" in lines[0], (fmt, lines)
+        assert count_frames(f"{fmt}:{root}") == len(names), fmt

@@ -292,3 +292,45 @@ def test_unlabelled_frames_and_bad_specs_fail_clearly(tmp_path, capsys):
         build_samples([frame], proposer=instance_proposer, progress=False)
     assert train.main(["--data", "nosuchformat:x", "--out", str(tmp_path), "--quiet"]) == 2
     assert "unknown format 'nosuchformat'" in capsys.readouterr().err
+
+
+def test_resume_without_a_checkpoint_is_an_error(tmp_path, capsys):
+    """--resume with no OUT/last.pt stops before any work (exit 2, naming the file), never trains from scratch."""
+    out = tmp_path / "run"
+    assert train.main(["--data", "constructed:train", "--out", str(out), "--resume", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(out / "last.pt") in err and "Traceback" not in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(("stop_at", "expected"), [(0, "before any checkpoint was written"), (1, "(epoch 1)")])
+def test_ctrl_c_names_the_last_checkpoint(tmp_path, capsys, monkeypatch, stop_at, expected):
+    """Ctrl-C during training: exit 130 and one line naming the last checkpoint written (or that none was)."""
+    import functools
+
+    rng = np.random.default_rng(2)
+    frames = [constructed_frame(rng, f"t{i}") for i in range(3)]
+    monkeypatch.setattr(train, "Trainer", functools.partial(Trainer, proposer=instance_proposer,
+                                                            frame_source=lambda specs: iter(frames)))
+    real_epoch = Trainer._train_epoch
+
+    def interrupted_epoch(self, epoch):
+        if epoch == stop_at:
+            raise KeyboardInterrupt
+        return real_epoch(self, epoch)
+
+    monkeypatch.setattr(Trainer, "_train_epoch", interrupted_epoch)
+    out = tmp_path / "run"
+    argv = ["--data", "constructed:train", "--epochs", "3", "--out", str(out), "--batch-size", "4",
+            "--max-steps", "1", "--quiet", "--threads", "1"]
+    threads = torch.get_num_threads()
+    try:
+        assert train.main(argv) == 130
+    finally:
+        torch.set_num_threads(threads)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("pass3d_train: interrupted") and expected in err, err
+    assert (str(out / "last.pt") in err) == (stop_at > 0)
+    assert not [p for p in out.iterdir() if ".partial-" in p.name]
+    if stop_at:
+        assert torch.load(out / "last.pt", weights_only=True)["epoch"] == stop_at - 1

@@ -35,6 +35,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
+
 if TYPE_CHECKING:
     from pass3d_ros.evaluation.live import LiveResult
 
@@ -184,7 +186,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="memory reference taken this long after start (default 30; a quarter of a shorter run)")
     parser.add_argument("--classifier", choices=("network", "size_rules"), help="stage-2 classifier (default network)")
     parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
-    parser.add_argument("--threads", type=int, default=1, metavar="N", help="torch CPU threads (default 1)")
+    parser.add_argument("--threads", type=int, default=DEFAULT_THREADS, metavar="N",
+                        help=f"CPU threads: torch, OpenMP, OpenBLAS (default {DEFAULT_THREADS})")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the numbers as JSON here")
 
 
@@ -206,13 +209,11 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"pass3d_benchmark live: error: {exc}", file=sys.stderr)
         return 2
-    import torch
-
     from pass3d_ros.data.bag_convert import convert
     from pass3d_ros.evaluation.live import run_live
     from pass3d_ros.evaluation.report import score
 
-    torch.set_num_threads(args.threads)
+    limit_threads(args.threads)
     warmup = args.warmup if args.warmup < seconds else seconds / 4.0
     bag_seconds = args.frames / SENSOR_HZ / args.rate
     repeat = max(1, math.ceil(seconds / bag_seconds))

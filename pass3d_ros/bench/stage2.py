@@ -16,6 +16,7 @@ from pass3d_ros.core.segmentation import (
     predict_probabilities,
     prepare_proposals,
 )
+from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 
 # (length, width, height) of the constructed proposals: car, pedestrian, cyclist, background clutter.
 _SHAPES = np.array([[4.2, 1.7, 1.6], [0.7, 0.6, 1.8], [1.8, 0.7, 1.7], [2.5, 1.5, 2.5]])
@@ -52,7 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--proposals", type=int, default=30, help="proposals per constructed frame (cap with --data)")
     parser.add_argument("--max-points", type=int, default=2000, help="largest proposal (points)")
     parser.add_argument("--repeats", type=int, default=15, help="timed frames (after 2 warm-up frames)")
-    parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    parser.add_argument("--threads", type=int, default=DEFAULT_THREADS,
+                        help=f"CPU threads: torch, OpenMP, OpenBLAS (default {DEFAULT_THREADS})")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--seed", type=int, default=0)
 
@@ -79,7 +81,7 @@ def _frames(args: argparse.Namespace) -> list[tuple[np.ndarray, list[np.ndarray]
 
 def run(args: argparse.Namespace) -> int:
     """Time Segmenter.segment and print medians (wall and process CPU time; the latter sums the threads)."""
-    torch.set_num_threads(args.threads)
+    limits = limit_threads(args.threads)
     torch.manual_seed(args.seed)
     cap = max(args.proposals, 1)
     weights = args.weights or make_checkpoint(PointNet2Seg(make_config(args.config)))
@@ -107,16 +109,20 @@ def run(args: argparse.Namespace) -> int:
         prep.append(t1 - t0)
         net.append(time.perf_counter() - t1)
     per_frame = _median_ms(total)
+    cores = sum(cpu) / sum(total)
     mean_proposals = float(np.mean(proposals))
     print(
         f"stage2 config={config.name} points/sample={config.num_points} params={params} device={args.device} "
         f"threads={args.threads} proposals/frame={mean_proposals:.1f} member points/frame={np.mean(member_points):.0f}"
         f" frames={len(frames)} source={args.data or 'constructed'}"
     )
+    print(f"  {limits.describe()}")
     print(
         f"  ms per frame (median of {args.repeats}): {per_frame:.1f}   ms per cluster: "
         f"{per_frame / max(mean_proposals, 1):.2f}   process CPU ms per frame: {_median_ms(cpu):.1f}"
     )
+    print(f"  CPU / wall over the timed frames: {sum(cpu) * 1e3:.0f} / {sum(total) * 1e3:.0f} ms = {cores:.2f} cores "
+          f"busy (--threads {args.threads})")
     print(
         f"  canonical+sampling {_median_ms(prep):.1f} ms, network {_median_ms(net):.1f} ms, "
         f"fastest..slowest frame {min(total) * 1e3:.1f}..{max(total) * 1e3:.1f} ms"

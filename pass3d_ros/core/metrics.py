@@ -73,7 +73,8 @@ class ConfusionAccumulator:
 
 class Stage1Metrics:
     """Stage 1 over frames: foreground recall (share of ground-truth car / pedestrian / cyclist points inside
-    a kept proposal, pooled over points), proposals per frame, time per frame and step, ground P / R."""
+    a kept proposal, pooled over points), proposals per frame, time per frame and step, ground P / R (over the
+    frames whose ground truth marks some ground: a truth without any ground point is no ground truth)."""
 
     def __init__(self) -> None:
         self.frames = 0
@@ -109,8 +110,8 @@ class Stage1Metrics:
             fg = list(FOREGROUND)
             row["fg_points"] = int(total[fg].sum())
             row["foreground_recall"] = _ratio(hit[fg].sum(), total[fg].sum())
-        if ground_truth is not None:
-            truth = np.asarray(ground_truth, dtype=bool)
+        truth = None if ground_truth is None else np.asarray(ground_truth, dtype=bool)
+        if truth is not None and truth.any():  # a frame without any ground point has no ground truth to score
             pred = np.asarray(ground, dtype=bool)
             tp = int(np.count_nonzero(truth & pred))
             fp = int(np.count_nonzero(pred & ~truth))

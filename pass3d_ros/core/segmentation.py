@@ -183,7 +183,9 @@ def make_checkpoint(model: PointNet2Seg, **info: Any) -> dict:
     }
 
 
-def _read_checkpoint(source: str | os.PathLike | dict) -> tuple[dict, str]:
+def read_checkpoint(source: str | os.PathLike | dict) -> tuple[dict, str]:
+    """The stored dict and a name for messages; CheckpointError for a missing or unreadable file. Only plain
+    tensors and containers are loaded (`weights_only`): anything else is not a pass3d checkpoint."""
     if isinstance(source, dict):
         return source, "checkpoint dict"
     path = Path(source)
@@ -192,14 +194,14 @@ def _read_checkpoint(source: str | os.PathLike | dict) -> tuple[dict, str]:
         raise CheckpointError(f"{where}: no such checkpoint file")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise CheckpointError(f"{where}: not a readable PyTorch checkpoint ({type(exc).__name__}: {exc})") from exc
+    except Exception:
+        raise CheckpointError(f"not a pass3d checkpoint: {where}") from None
     return data, where
 
 
 def load_model(source: str | os.PathLike | dict) -> tuple[PointNet2Seg, dict]:
     """The model (eval mode, on CPU) and the checkpoint dict; CheckpointError on any problem."""
-    data, where = _read_checkpoint(source)
+    data, where = read_checkpoint(source)
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         keys = sorted(data)[:8] if isinstance(data, dict) else type(data).__name__
         raise CheckpointError(f"{where}: not a pass3d stage-2 checkpoint (format tag missing; found {keys})")

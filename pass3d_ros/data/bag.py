@@ -6,15 +6,19 @@ order and NaNs; intensity comes from `intensity` / `i` / `reflectance` as stored
 labels (`label` field) when present, stamp from the header, name = message index (6 digits).
 
 Writing: `BagWriter` builds the bag in a hidden sibling folder (`.NAME.partial-XXXX`) and renames it into
-place only when complete, so an interrupted or failed write leaves nothing that looks like a bag.
+place only when complete, so an interrupted or failed write leaves nothing that looks like a bag. A build
+folder whose writer is gone (killed with SIGKILL, power loss) is removed by the next write of the same bag.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import shutil
+import sys
 import tempfile
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -31,6 +35,8 @@ from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, deco
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 STORAGES: dict[str, StoragePlugin] = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 VERSIONS: tuple[int, ...] = (9, 8)  # 9: Jazzy's format; 8: what Humble reads
+OWNER_FILE = ".owner"  # in a build folder: the id of the process writing it
+OWNERLESS_GRACE_S = 60.0  # a build folder without an owner file is taken as stale only after this long
 
 
 class BagError(ValueError):
@@ -56,6 +62,15 @@ def _open_reader(path: Path) -> Reader:
     return reader
 
 
+def topic_types(path: Path) -> dict[str, str]:
+    """Topic -> message type of every topic in the bag."""
+    reader = _open_reader(path)
+    try:
+        return {conn.topic: conn.msgtype for conn in reader.connections}
+    finally:
+        reader.close()
+
+
 def topics_of_type(path: Path, msgtype: str = POINTCLOUD2_TYPE) -> dict[str, int]:
     """Topic -> message count of the bag's topics of `msgtype`."""
     reader = _open_reader(path)
@@ -69,15 +84,24 @@ def topics_of_type(path: Path, msgtype: str = POINTCLOUD2_TYPE) -> dict[str, int
         reader.close()
 
 
+def _bag_contents(path: Path) -> str:
+    """What the bag holds, for an error message: `topic (type), ...` or `no topics`."""
+    types = topic_types(path)
+    return ", ".join(f"{topic} ({types[topic]})" for topic in sorted(types)) or "no topics"
+
+
 def select_topic(path: Path, topic: str | None, msgtype: str = POINTCLOUD2_TYPE) -> str:
-    """`topic` if the bag has it with `msgtype`, else the bag's only topic of that type; DatasetError otherwise."""
+    """`topic` if the bag has it with `msgtype`, else the bag's only topic of that type; DatasetError otherwise
+    (listing what the bag has: every topic and its type when none fits)."""
     counts = topics_of_type(path, msgtype)
     if topic is not None:
         if topic not in counts:
-            raise DatasetError(f"{path}: no {msgtype} topic {topic!r}; {msgtype} topics: {sorted(counts) or 'none'}")
+            raise DatasetError(f"{path}: no {msgtype} topic {topic!r}; the bag has {_bag_contents(path)}")
         return topic
+    if not counts:
+        raise DatasetError(f"{path}: no {msgtype} topic; the bag has {_bag_contents(path)}")
     if len(counts) != 1:
-        listing = ", ".join(sorted(counts)) or "none"
+        listing = ", ".join(sorted(counts))
         raise DatasetError(f"{path}: {len(counts)} {msgtype} topics ({listing}); choose one with bag:PATH#/topic")
     return next(iter(counts))
 
@@ -136,8 +160,10 @@ class BagWriter:
     In a `with`, any exception (Ctrl-C included) removes everything written.
     """
 
-    def __init__(self, out: str | Path, *, storage: str = "mcap", version: int = 9, force: bool = False) -> None:
+    def __init__(self, out: str | Path, *, storage: str = "mcap", version: int = 9, force: bool = False,
+                 log: Callable[[str], None] | None = None) -> None:
         self.out = Path(out)
+        self.log = log if log is not None else _to_stderr
         if storage not in STORAGES:
             raise BagError(f"unknown storage {storage!r}, expected one of {', '.join(STORAGES)}")
         if version not in VERSIONS:
@@ -161,8 +187,10 @@ class BagWriter:
     def open(self) -> BagWriter:
         """Create the hidden build folder and open the rosbags writer in it."""
         self.out.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.partial-", dir=self.out.parent))
+        self._remove_stale_partials()
+        self._tmp = Path(tempfile.mkdtemp(prefix=self._partial_prefix, dir=self.out.parent))
         try:
+            (self._tmp / OWNER_FILE).write_text(f"{os.getpid()}\n")
             plugin = STORAGES[self.storage]
             self._writer = Writer(self._tmp / self.out.name, version=self.version, storage_plugin=plugin)
             self._writer.open()
@@ -170,6 +198,21 @@ class BagWriter:
             self.abort()
             raise
         return self
+
+    @property
+    def _partial_prefix(self) -> str:
+        return f".{self.out.name}.partial-"
+
+    def _remove_stale_partials(self) -> None:
+        """Delete build folders of this bag left by a writer that no longer runs; say so in one line."""
+        stale = [p for p in self.out.parent.iterdir()
+                 if p.name.startswith(self._partial_prefix) and p.is_dir() and not p.is_symlink() and _is_stale(p)]
+        for path in stale:
+            shutil.rmtree(path, ignore_errors=True)
+        if stale:
+            names = ", ".join(sorted(p.name for p in stale))
+            self.log(f"note: removed {len(stale)} unfinished build folder(s) of {self.out} left by an earlier "
+                     f"interrupted run: {names}")
 
     def write_raw(self, topic: str, msgtype: str, stamp_ns: int, data: bytes | memoryview) -> None:
         """Append one CDR-serialized message at bag time `stamp_ns`."""
@@ -236,3 +279,28 @@ class BagWriter:
             self.close()
         else:
             self.abort()
+
+
+def _to_stderr(text: str) -> None:
+    print(text, file=sys.stderr)
+
+
+def _is_stale(partial: Path) -> bool:
+    """Whether the writer of a build folder is gone: its recorded process is dead, or it has no owner file
+    and is older than the grace period (a writer between creating the folder and recording itself)."""
+    try:
+        pid = int((partial / OWNER_FILE).read_text().strip())
+    except (OSError, ValueError):
+        try:
+            return time.time() - partial.stat().st_mtime > OWNERLESS_GRACE_S
+        except OSError:
+            return False
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    return False

@@ -76,7 +76,7 @@ def convert(
     total = None if None in counts else sum(c for c in counts if c is not None)
     stats = ConvertStats()
     synthesized: list[str] = []
-    writer = BagWriter(out, storage=storage, version=version, force=force)
+    writer = BagWriter(out, storage=storage, version=version, force=force, log=log)
     with writer, tqdm(total=total, unit="frame", desc=Path(out).name, disable=not progress) as bar:
         for spec in parsed:
             offset: int | None = None

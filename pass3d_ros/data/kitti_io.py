@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import sys
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -55,6 +56,21 @@ def read_bin(path: Path) -> np.ndarray:
     if size % POINT_BYTES:
         raise DatasetError(f"{path}: size {size} bytes is not a multiple of {POINT_BYTES} (x, y, z, i float32)")
     return np.fromfile(path, dtype="<f4").reshape(-1, 4)
+
+
+def read_frame_bin(path: Path) -> np.ndarray | None:
+    """Points of a velodyne .bin as `read_bin`, or None (after a one-line warning on stderr naming the file) when
+    it is empty: the readers skip such a frame rather than yield a scan without points."""
+    points = read_bin(path)
+    if len(points) == 0:
+        print(f"warning: {path}: empty point file (0 bytes), frame skipped", file=sys.stderr)
+        return None
+    return points
+
+
+def count_point_files(directory: Path) -> int:
+    """Number of non-empty .bin files in `directory` (the frames a reader yields)."""
+    return sum(1 for p in sorted_files(directory, ".bin") if p.stat().st_size > 0)
 
 
 def write_bin(path: Path, points: np.ndarray) -> None:

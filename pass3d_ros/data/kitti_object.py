@@ -25,10 +25,11 @@ from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.data.frame import Box3D, Frame
 from pass3d_ros.data.kitti_io import (
     FRAME_PERIOD_NS,
+    count_point_files,
     frame_index,
     ignore_outside_front_view,
     label_points_in_boxes,
-    read_bin,
+    read_frame_bin,
     require_dir,
     sorted_files,
     write_bin,
@@ -115,7 +116,9 @@ def read_label_file(path: Path, velo_to_cam: np.ndarray) -> list[Box3D]:
 def _frames(root: Path, bins: list[Path]) -> Iterator[Frame]:
     for position, bin_path in enumerate(bins):
         name = bin_path.stem
-        points = read_bin(bin_path)
+        points = read_frame_bin(bin_path)
+        if points is None:
+            continue
         stamp = frame_index(name, position) * FRAME_PERIOD_NS
         label_path = root / "label_2" / f"{name}.txt"
         if not label_path.is_file():
@@ -140,7 +143,7 @@ def read_kitti_object(path: str | Path) -> Iterator[Frame]:
 def count_frames(path: str | Path) -> int | None:
     """Number of velodyne scans, or None when the folder is missing."""
     velodyne = Path(path) / "velodyne"
-    return len(sorted_files(velodyne, ".bin")) if velodyne.is_dir() else None
+    return count_point_files(velodyne) if velodyne.is_dir() else None
 
 
 def _kitti_type(box: Box3D) -> str:

@@ -30,10 +30,11 @@ from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.data.frame import Box3D, Frame
 from pass3d_ros.data.kitti_io import (
     FRAME_PERIOD_NS,
+    count_point_files,
     frame_index,
     ignore_outside_front_view,
     label_points_in_boxes,
-    read_bin,
+    read_frame_bin,
     read_stamp_lines,
     require_dir,
     sorted_files,
@@ -108,7 +109,9 @@ def _frames(drive: Path, bins: list[Path], stamps: list[int] | None,
             stamp = stamps[index]
         else:
             raise DatasetError(f"{drive / 'velodyne_points' / 'timestamps.txt'}: no line for frame {index}")
-        points = read_bin(bin_path)
+        points = read_frame_bin(bin_path)
+        if points is None:
+            continue
         name = _frame_name(drive, bin_path.stem)
         if boxes is None:
             yield Frame(name=name, points=points, stamp_ns=stamp)
@@ -134,4 +137,4 @@ def read_kitti_raw(path: str | Path) -> Iterator[Frame]:
 def count_frames(path: str | Path) -> int | None:
     """Number of velodyne scans of the drive, or None when the folder is missing."""
     data = Path(path) / "velodyne_points" / "data"
-    return len(sorted_files(data, ".bin")) if data.is_dir() else None
+    return count_point_files(data) if data.is_dir() else None

@@ -26,8 +26,9 @@ from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.kitti_io import (
     FRAME_PERIOD_NS,
+    count_point_files,
     frame_index,
-    read_bin,
+    read_frame_bin,
     read_stamp_lines,
     require_dir,
     sorted_files,
@@ -102,7 +103,9 @@ def _frames(seq: Path, bins: list[Path], stamps: list[int] | None) -> Iterator[F
             stamp = stamps[index]
         else:
             raise DatasetError(f"{seq / 'times.txt'}: no line for frame {index}")
-        points = read_bin(bin_path)
+        points = read_frame_bin(bin_path)
+        if points is None:
+            continue
         label_path = labels_dir / f"{name}.label"
         if not label_path.is_file():
             yield Frame(name=name, points=points, stamp_ns=stamp)
@@ -123,7 +126,7 @@ def read_semantickitti(path: str | Path) -> Iterator[Frame]:
 def count_frames(path: str | Path) -> int | None:
     """Number of velodyne scans of the sequence, or None when the folder is missing."""
     velodyne = Path(path) / "velodyne"
-    return len(sorted_files(velodyne, ".bin")) if velodyne.is_dir() else None
+    return count_point_files(velodyne) if velodyne.is_dir() else None
 
 
 def write_semantickitti_frame(seq_dir: Path, frame: Frame) -> None:

@@ -34,6 +34,35 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
 PARAMETERS = params.NodeParameters("cluster_proposal_node", NODE_PARAMETERS, {STAGE1_PREFIX: Stage1Config})
 
 
+MAX_COORDINATE_M = 1e4
+INTENSITY_TOLERANCE = 1e-3
+
+
+def plausible_points(points: np.ndarray) -> np.ndarray:
+    """True for points whose x, y, z are finite and within MAX_COORDINATE_M: no LiDAR return is farther."""
+    with np.errstate(invalid="ignore"):
+        return (np.abs(points[:, :3]) <= MAX_COORDINATE_M).all(axis=1)
+
+
+def intensity_problem(intensity: np.ndarray) -> str:
+    """Why intensities cannot be the 0..1 the core expects ("" when they can): out of range or not numbers."""
+    if not np.isfinite(intensity).all():
+        return f"{np.count_nonzero(~np.isfinite(intensity))} values are not finite"
+    lo, hi = float(intensity.min()), float(intensity.max())
+    if lo < -INTENSITY_TOLERANCE or hi > 1.0 + INTENSITY_TOLERANCE:
+        return f"values {lo:.4g}..{hi:.4g}"
+    return ""
+
+
+def unit_intensity(intensity: np.ndarray) -> np.ndarray:
+    """Best guess at 0..1 intensities: a 0..255 range divided by 255, a wider one by its maximum, then clipped."""
+    values = np.nan_to_num(intensity, nan=0.0, posinf=0.0, neginf=0.0)
+    hi = float(values.max()) if len(values) else 0.0
+    if hi > 1.0 + INTENSITY_TOLERANCE:
+        values = values / (255.0 if hi <= 255.0 else hi)
+    return np.clip(values, 0.0, 1.0).astype(np.float32)
+
+
 def proposals_cloud(points: np.ndarray, result: Stage1Result) -> dict[str, np.ndarray]:
     """The columns of /pass3d/proposals: everything the segmentation node needs, point order kept."""
     return {
@@ -84,14 +113,33 @@ class ClusterProposalNode(PointCloudNode):
         except PointCloud2Error as exc:
             self.get_logger().warning(f"skipping malformed PointCloud2: {exc}", throttle_duration_sec=LOG_PERIOD_S)
             return
-        if len(scan.points) == 0:
+        points = scan.points
+        ring = scan.ring if self.get_parameter("use_ring_field").value else None
+        keep = plausible_points(points)
+        if not keep.all():
+            self.get_logger().warning(
+                f"x/y/z: dropping {np.count_nonzero(~keep)} points with non-finite or absurd coordinates "
+                f"(expected finite, |value| <= {MAX_COORDINATE_M:g} m)", throttle_duration_sec=LOG_PERIOD_S)
+            points = points[keep]
+            ring = None if ring is None else ring[keep]
+        if len(points) == 0:
             self.get_logger().warning("skipping empty PointCloud2", throttle_duration_sec=LOG_PERIOD_S)
             return
-        points = scan.points
         scale = self.get_parameter("intensity_scale").value
         if scale != 1.0:
             points[:, 3] *= scale
-        ring = scan.ring if self.get_parameter("use_ring_field").value else None
+        problem = intensity_problem(points[:, 3])
+        if problem:
+            self.get_logger().warning(
+                f"intensity: {problem} after intensity_scale {scale:g}, expected 0..1 (a 0..255 driver needs "
+                "intensity_scale 1/255); rescaled into 0..1 for this frame", throttle_duration_sec=LOG_PERIOD_S)
+            points[:, 3] = unit_intensity(points[:, 3])
+        if ring is not None and ring.max() >= self.config.n_rings:
+            self.get_logger().warning(
+                f"ring: values up to {int(ring.max())}, expected 0..{self.config.n_rings - 1} (stage1.n_rings "
+                f"{self.config.n_rings}); rings recovered from the points for this frame",
+                throttle_duration_sec=LOG_PERIOD_S)
+            ring = None
         result = propose(points, ring, self.config)
         self.proposals_pub.publish(encode(proposals_cloud(points, result), header=msg.header))
         if self.get_parameter("publish_boxes").value:

@@ -52,11 +52,12 @@ class LatestFrameWorker(Generic[T]):
             return not self._has_pending and not self._busy
 
     def stop(self, timeout: float = 5.0) -> None:
-        """Finish the item in hand, drop what is pending, and join the thread."""
+        """Finish the item in hand, drop what is pending, and join the thread (unless called from it)."""
         with self._cond:
             self._stopping = True
             self._cond.notify()
-        self._thread.join(timeout)
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout)
 
     def _run(self) -> None:
         while True:

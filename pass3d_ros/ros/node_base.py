@@ -49,10 +49,20 @@ class PointCloudNode(Node):
         )
 
     def _on_error(self, exc: BaseException) -> None:
-        """A frame that raised: one throttled error line, and the node goes on with the next frame."""
+        """A frame that raised: one throttled error line, and the node goes on with the next frame.
+
+        Once the context is shut down (Ctrl-C under load) a failed publish is no error: the worker just stops.
+        """
+        if not self.context.ok():
+            self.worker.stop()
+            return
         self.get_logger().error(f"frame failed: {type(exc).__name__}: {exc}", throttle_duration_sec=LOG_PERIOD_S)
+
+    def stop_worker(self) -> None:
+        """Finish the frame in hand and stop the worker, before the executor and the context go."""
+        self.worker.stop()
 
     def destroy_node(self) -> None:
         """Stop the worker thread before the node goes."""
-        self.worker.stop()
+        self.stop_worker()
         super().destroy_node()

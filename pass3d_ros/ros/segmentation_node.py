@@ -7,7 +7,6 @@ import time
 from typing import Any
 
 import numpy as np
-import torch
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
@@ -17,6 +16,7 @@ from pass3d_ros.core.canonical import fit_box_members
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult
 from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, load_classifier, resolve_weights
+from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.frame import Box3D
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode, to_xyzi
 from pass3d_ros.ros import params
@@ -26,6 +26,7 @@ from pass3d_ros.ros.qos import QOS_NAMES
 from pass3d_ros.ros.run import run_nodes
 
 REQUIRED_FIELDS = ("cluster_id",)
+ID_FIELDS = ("cluster_id", "cluster_id2")
 
 NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "input_topic": ("/pass3d/proposals", "proposals cloud from cluster_proposal_node", None),
@@ -36,7 +37,8 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "classifier": (DEFAULT_CLASSIFIER, f"{' or '.join(CLASSIFIERS)}: the PointNet++ or the geometric baseline", None),
     "weights": ("", "stage-2 checkpoint; empty = the weights shipped with the package", None),
     "device": ("cpu", "torch device: cpu or cuda", None),
-    "threads": (1, "torch CPU threads for stage 2; 0 = torch's default (1 is fastest on a busy 2-core CPU)", (0, 64)),
+    "threads": (DEFAULT_THREADS, "CPU threads of the process (torch, OpenMP, numpy's OpenBLAS); 0 = the libraries' "
+                "defaults (1 is fastest on a busy 2-core CPU)", (0, 64)),
     "max_proposals": (DEFAULT_MAX_PROPOSALS, "at most this many proposals per frame, nearest first", (1, 1024)),
     "min_confidence": (0.0, "points predicted below this confidence are labeled background", (0.0, 1.0)),
 }
@@ -82,12 +84,45 @@ def object_boxes(points: np.ndarray, members: list[np.ndarray], result: SegmentR
     return boxes, [int(result.proposal_class[i]) for i in chosen]
 
 
-def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:
-    """Point indices of each proposal from the per-point cluster_id (and cluster_id2 when present)."""
+def proposal_ids(cloud: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cluster_id and cluster_id2 columns as int64, checked to be integers in -1..N-1 (N points).
+
+    Anything else is a malformed message (PointCloud2Error naming the field): work must follow the number of
+    points, never the id values a sender chose.
+    """
     names = cloud.dtype.names or ()
-    first = cloud["cluster_id"].astype(np.int32)
-    second = cloud["cluster_id2"].astype(np.int32) if "cluster_id2" in names else np.full_like(first, -1)
-    return proposal_members(first, second)
+    n = len(cloud)
+    ids = []
+    for name in ID_FIELDS:
+        if name not in names:
+            ids.append(np.full(n, -1, np.int64))
+            continue
+        column = cloud[name]
+        if column.dtype.kind not in "iu":
+            raise PointCloud2Error(f"field {name!r} has dtype {column.dtype}, expected an integer type (INT8..UINT32)")
+        values = column.astype(np.int64)
+        if n and (values.min() < -1 or values.max() >= n):
+            raise PointCloud2Error(
+                f"field {name!r} holds ids {values.min()}..{values.max()}, expected -1 (none) or 0..{n - 1} "
+                f"(below the {n} points of the cloud)"
+            )
+        ids.append(values)
+    return ids[0], ids[1]
+
+
+def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:
+    """Point indices of each proposal from the per-point cluster_id (and cluster_id2 when present).
+
+    Ids are renumbered densely in ascending order (unchanged for stage 1's 0..K-1), so the number of proposals is
+    the number of distinct ids, never the largest one.
+    """
+    first, second = proposal_ids(cloud)
+    present = np.unique(np.concatenate([first, second]))
+    present = present[present >= 0]
+    if len(present) and present[-1] != len(present) - 1:
+        first = np.where(first >= 0, np.searchsorted(present, first), -1)
+        second = np.where(second >= 0, np.searchsorted(present, second), -1)
+    return proposal_members(first, second, n_proposals=len(present))
 
 
 class SegmentationNode(PointCloudNode):
@@ -107,7 +142,7 @@ class SegmentationNode(PointCloudNode):
         kind, weights = resolve_weights(self.get_parameter("classifier").value, self.get_parameter("weights").value)
         threads = self.get_parameter("threads").value
         if threads > 0:
-            torch.set_num_threads(threads)
+            self.get_logger().info(limit_threads(threads).describe())
         started = time.perf_counter()
         classifier = load_classifier(kind, weights, device=self.get_parameter("device").value,
                                      max_proposals=self.get_parameter("max_proposals").value)
@@ -135,11 +170,14 @@ class SegmentationNode(PointCloudNode):
             missing = [name for name in REQUIRED_FIELDS if name not in (cloud.dtype.names or ())]
             if missing:
                 raise PointCloud2Error(f"no {', '.join(missing)} field: is this a /pass3d/proposals cloud?")
+            members = members_from_cloud(cloud)
             points = to_xyzi(cloud, with_ring=False).points
         except PointCloud2Error as exc:
             self.get_logger().warning(f"skipping malformed proposals cloud: {exc}", throttle_duration_sec=LOG_PERIOD_S)
             return
-        members = members_from_cloud(cloud)
+        if len(points) == 0:
+            self.get_logger().warning("skipping empty proposals cloud", throttle_duration_sec=LOG_PERIOD_S)
+            return
         result = self.classifier.segment(points, members)
         columns = labeled_cloud(cloud, points, result, self.get_parameter("min_confidence").value)
         self.labeled_pub.publish(encode(columns, header=msg.header))

@@ -6,9 +6,11 @@ A tool's `main` parses its arguments and hands the work to `run_tool`; nothing h
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from types import FrameType
 
 from rosbags.rosbag2 import ReaderError, WriterError
@@ -24,11 +26,19 @@ EXIT_USAGE = 2
 EXIT_SIGINT = 130
 EXIT_SIGTERM = 143
 
+
+
+class OutputError(ValueError):
+    """An output path that cannot be created or written; found before the work starts."""
+
+
 # The project's error types, plus what a bad path or value raises: each is the user's to fix, not a bug.
 USER_ERRORS: tuple[type[BaseException], ...] = (
     DatasetError, BagError, PointCloud2Error, CheckpointError, ClassifierError, ReaderError, WriterError,
     ValueError, OSError,
 )
+
+_received: list[int] = []  # exit statuses of the signals caught while `work` runs
 
 
 class Interrupted(KeyboardInterrupt):
@@ -40,7 +50,41 @@ class Interrupted(KeyboardInterrupt):
 
 
 def _raise_interrupted(signum: int, _frame: FrameType | None) -> None:
-    raise Interrupted(EXIT_SIGTERM if signum == signal.SIGTERM else EXIT_SIGINT)
+    status = EXIT_SIGTERM if signum == signal.SIGTERM else EXIT_SIGINT
+    _received.append(status)
+    raise Interrupted(status)
+
+
+def _interrupt_status(exc: BaseException) -> int | None:
+    """The exit status when `exc` is, wraps or follows a Ctrl-C / SIGTERM (e.g. the SystemError a numba-compiled
+    call turns a KeyboardInterrupt into); None for an ordinary exception."""
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return link.status if isinstance(link, Interrupted) else EXIT_SIGINT
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return _received[-1] if _received else None
+
+
+def check_writable(path: str | Path, *, folder: bool, what: str = "output") -> None:
+    """OutputError unless `path` (a folder when `folder`, else a file) can be created or written; call it before
+    the work starts, so a long run never ends unable to save its result."""
+    path = Path(path)
+    if path.exists() and folder != path.is_dir():
+        raise OutputError(f"{path}: cannot write {what}, it exists and is not a {'folder' if folder else 'file'}")
+    if path.exists() and not os.access(path, os.W_OK | (os.X_OK if folder else 0)):
+        raise OutputError(f"{path}: {what} is not writable (permission denied)")
+    if path.exists():
+        return
+    ancestor = path.absolute().parent
+    while not (ancestor.exists() or ancestor == ancestor.parent):
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise OutputError(f"{path}: cannot create {what}, {ancestor} is not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise OutputError(f"{path}: cannot create {what}, {ancestor} is not writable (permission denied)")
 
 
 def run_tool(
@@ -48,15 +92,17 @@ def run_tool(
     work: Callable[[], int],
     *,
     cleanup: Callable[[], None] | None = None,
-    interrupted: str = "interrupted",
+    interrupted: str | Callable[[], str] = "interrupted",
     errors: tuple[type[BaseException], ...] = USER_ERRORS,
 ) -> int:
     """Run `work` with the shared signal handling and exit-status mapping; returns the exit status.
 
     A user error prints `prog: error: MESSAGE` and gives 2; Ctrl-C gives 130 and SIGTERM 143 with
-    `prog: INTERRUPTED`. `cleanup` runs after an error or an interruption (never after success), so an
-    unfinished output never looks complete. Other exceptions are bugs and keep their traceback.
+    `prog: INTERRUPTED` (a callable is asked for the text then). `cleanup` runs after an error or an
+    interruption (never after success), so an unfinished output never looks complete. Any exception raised
+    once a signal came counts as that interruption; other exceptions are bugs and keep their traceback.
     """
+    _received.clear()
     previous = {sig: signal.signal(sig, _raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         try:
@@ -68,9 +114,12 @@ def run_tool(
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
-    except KeyboardInterrupt as exc:
-        print(f"{prog}: {interrupted}", file=sys.stderr)
-        return exc.status if isinstance(exc, Interrupted) else EXIT_SIGINT
-    except errors as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+    except BaseException as exc:
+        status = _interrupt_status(exc)
+        if status is not None:
+            print(f"{prog}: {interrupted() if callable(interrupted) else interrupted}", file=sys.stderr)
+            return status
+        if isinstance(exc, errors):
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        raise

@@ -57,14 +57,13 @@ import sys
 from pathlib import Path
 
 from pass3d_ros.core.stage2 import CLASSIFIERS, load_classifier, resolve_weights
+from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.spec import DatasetError, parse_spec
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
 from pass3d_ros.evaluation.offline import evaluate_full, evaluate_stage1, iter_frames, parse_params
 from pass3d_ros.evaluation.report import PRINTERS
-from pass3d_ros.tools.cli import run_tool
-
-DEFAULT_THREADS = 1
+from pass3d_ros.tools.cli import check_writable, run_tool
 
 
 class EvaluationError(ValueError):
@@ -131,9 +130,7 @@ def run(args: argparse.Namespace) -> tuple[str, dict, int]:
     if mode == "stage1":
         return mode, evaluate_stage1(frames, config), 0
     kind, weights = resolve_weights(args.classifier, args.weights)
-    import torch
-
-    torch.set_num_threads(args.threads)
+    limit_threads(args.threads)
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
     if mode == "full":
         classifier = load_classifier(kind, weights, device=args.device)
@@ -157,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    if args.json:
+        check_writable(args.json, folder=False, what="--json file")
     try:
         mode, summary, status = run(args)
     except ModuleNotFoundError as exc:

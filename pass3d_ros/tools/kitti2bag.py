@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from pass3d_ros.data.bag import STORAGES, VERSIONS
 from pass3d_ros.data.bag_convert import convert
-from pass3d_ros.tools.cli import run_tool
+from pass3d_ros.tools.cli import check_writable, run_tool
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,6 +38,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _convert(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    check_writable(out.parent if out.exists() or out.is_symlink() else out, folder=True, what="--out bag")
     stats = convert(
         args.data,
         args.out,

@@ -35,6 +35,7 @@ from pass3d_ros.classes import NUM_CLASSES
 from pass3d_ros.core.metrics import ConfusionAccumulator, format_metrics
 from pass3d_ros.core.stage1 import proposal_members, propose
 from pass3d_ros.core.stage2 import CLASSIFIERS, Classifier, load_classifier, resolve_weights
+from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset, parse_spec
 from pass3d_ros.evaluation.bev import render_bev, write_png
 from pass3d_ros.tools.cli import run_tool
@@ -182,8 +183,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--classifier", choices=CLASSIFIERS, help="stage-2 classifier (default network)")
     parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
     parser.add_argument("--device", default="cpu", help="torch device for the network (default cpu)")
-    parser.add_argument("--threads", type=int, metavar="N",
-                        help="torch CPU threads (default: torch's choice; 1 is often faster on a busy machine)")
+    parser.add_argument("--threads", type=int, default=DEFAULT_THREADS, metavar="N",
+                        help=f"CPU threads: torch, OpenMP, OpenBLAS (default {DEFAULT_THREADS})")
     parser.add_argument("--no-png", action="store_true", help="skip the bird's-eye-view PNGs")
     parser.add_argument("--force", action="store_true", help="write into a non-empty --out")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -203,12 +204,9 @@ def _run(args: argparse.Namespace, log: Callable[[str], None]) -> int:
         parse_spec(spec)
     check_out_dir(out, args.force)
     kind, weights = resolve_weights(args.classifier, args.weights)
-    if args.threads is not None:
-        if args.threads < 1:
-            raise SegmentError(f"--threads must be >= 1, got {args.threads}")
-        import torch
-
-        torch.set_num_threads(args.threads)
+    if args.threads < 1:
+        raise SegmentError(f"--threads must be >= 1, got {args.threads}")
+    limit_threads(args.threads)
     classifier = load_classifier(kind, weights, device=args.device)
     started = time.perf_counter()
     stats = segment(args.data, out, classifier=classifier, png=not args.no_png, force=True,

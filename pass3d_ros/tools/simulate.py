@@ -14,7 +14,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from pass3d_ros.data.spec import DatasetError, open_dataset, parse_spec
-from pass3d_ros.tools.cli import run_tool
+from pass3d_ros.tools.cli import check_writable, run_tool
 
 WRITERS: dict[str, str] = {
     "semantickitti": "pass3d_ros.data.semantickitti:write_semantickitti_frame",
@@ -51,8 +51,7 @@ def generate(args: argparse.Namespace) -> int:
     from pass3d_ros.synthetic.dataset import generate_frame
 
     out: Path = args.out
-    if out.exists() and not out.is_dir():
-        raise DatasetError(f"{out}: exists and is not a folder")
+    check_writable(out, folder=True, what="--out folder")
     if out.is_dir() and any(out.iterdir()) and not args.force:
         raise DatasetError(f"{out}: folder is not empty (use --force to write into it)")
     out.mkdir(parents=True, exist_ok=True)

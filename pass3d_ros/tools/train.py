@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from pass3d_ros.data.spec import DatasetError
+from pass3d_ros.tools.cli import check_writable, run_tool
 from pass3d_ros.training.samples import Proposer
 from pass3d_ros.training.trainer import FrameSource, Trainer, TrainingError, TrainOptions
 
@@ -49,22 +49,33 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace, proposer: Proposer | None = None, frame_source: FrameSource | None = None) -> int:
     """Train as the arguments say; `proposer` and `frame_source` replace stage 1 and the dataset readers."""
+    return _train(Trainer(TrainOptions(**vars(args)), proposer, frame_source, command=sys.argv))
+
+
+def _train(trainer: Trainer) -> int:
+    """Run `trainer` once its output folder is known to be writable; exit 1 when it cannot go on."""
+    check_writable(trainer.out, folder=True, what="--out folder")
     try:
-        Trainer(TrainOptions(**vars(args)), proposer, frame_source, command=sys.argv).run()
+        trainer.run()
     except TrainingError as exc:
         print(f"pass3d_train: {exc}", file=sys.stderr)
         return 1
     return 0
 
 
+def _interrupted(trainer: Trainer) -> str:
+    """The one line after Ctrl-C: which checkpoint this run wrote last, or that it wrote none."""
+    if trainer.saved_epoch is None:
+        return "interrupted before any checkpoint was written"
+    return f"interrupted; last checkpoint written: {trainer.last_path} (epoch {trainer.saved_epoch})"
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the pass3d_train console script; unusable data ends it with the reason, exit code 2."""
+    """Entry point of the pass3d_train console script: 0 done, 1 nothing to train on, 2 unusable data, output
+    or checkpoint, 130 / 143 interrupted."""
     args = build_parser().parse_args(argv)
-    try:
-        return run(args)
-    except DatasetError as exc:
-        print(f"pass3d_train: {exc}", file=sys.stderr)
-        return 2
+    trainer = Trainer(TrainOptions(**vars(args)), command=sys.argv)
+    return run_tool("pass3d_train", lambda: _train(trainer), interrupted=lambda: _interrupted(trainer))
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ training loss) and `history.json`.
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -20,7 +21,7 @@ import torch
 from tqdm import tqdm
 
 from pass3d_ros.core.pointnet2 import ModelConfig, PointNet2Seg, count_parameters, make_config
-from pass3d_ros.core.segmentation import make_checkpoint
+from pass3d_ros.core.segmentation import CheckpointError, make_checkpoint, read_checkpoint
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.training.losses import make_loss
 from pass3d_ros.training.samples import Proposer, SampleSet, cached_samples, training_batch
@@ -106,10 +107,12 @@ class Trainer:
         self.progress = not options.quiet
         self.start_epoch, self.best_score, self.history = 0, -1.0, []
         self.data_info: dict = {}
+        self.saved_epoch: int | None = None  # the last epoch this run wrote into last.pt (1-based)
 
     def run(self) -> TrainResult:
         """Train as the options say; raises TrainingError when there is nothing to train on or the
-        checkpoint to resume from has another model configuration."""
+        checkpoint to resume from has another model configuration, CheckpointError when it is missing."""
+        self._check_resume()
         self._prepare()
         self._load_samples()
         self._build_model()
@@ -124,6 +127,11 @@ class Trainer:
         return TrainResult(self.history, self.best_score, self.last_path, self.best_path)
 
     # ------------------------------------------------------------------------------------------ steps
+
+    def _check_resume(self) -> None:
+        """With `resume`, the checkpoint must be there before any work starts."""
+        if self.options.resume and not self.last_path.is_file():
+            raise CheckpointError(f"{self.last_path}: no checkpoint to resume from (--resume)")
 
     def _prepare(self) -> None:
         """Threads, output folder, the seed, and the model configuration (a bad name fails before stage 1)."""
@@ -180,9 +188,11 @@ class Trainer:
 
     def _resume(self) -> None:
         """With `resume`, continue from last.pt: weights, optimizer, scheduler, epoch, best score, history."""
-        if not (self.options.resume and self.last_path.is_file()):
+        if not self.options.resume:
             return
-        state = torch.load(self.last_path, map_location="cpu", weights_only=True)
+        state, _ = read_checkpoint(self.last_path)
+        if not isinstance(state, dict) or not {"config", "optimizer", "scheduler", "epoch"} <= state.keys():
+            raise CheckpointError(f"{self.last_path}: not a pass3d training checkpoint (last.pt); cannot resume")
         if state["config"] != self.config.to_dict():
             raise TrainingError(f"{self.last_path} was trained with another config; not resuming")
         self.model.load_state_dict(state["state_dict"])
@@ -264,17 +274,26 @@ class Trainer:
         }
         checkpoint = make_checkpoint(self.model, **info)
         if improved or not self.best_path.is_file():
-            torch.save(checkpoint, self.best_path)
-        torch.save(
-            {**checkpoint, "optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict()},
-            self.last_path,
-        )
-        with open(self.out / "history.json", "w") as fh:
-            json.dump(self.history, fh, indent=1)
+            _save_atomically(self.best_path, lambda path: torch.save(checkpoint, path))
+        state = {**checkpoint, "optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict()}
+        _save_atomically(self.last_path, lambda path: torch.save(state, path))
+        self.saved_epoch = record["epoch"] + 1
+        text = json.dumps(self.history, indent=1)
+        _save_atomically(self.out / "history.json", lambda path: path.write_text(text))
 
     def _frame_total(self, specs: list[str]) -> int | None:
         """Frame count for the progress bar; unknown with a custom frame source."""
         return None if self.frame_source else _total_frames(specs)
+
+
+def _save_atomically(path: Path, write: Callable[[Path], object]) -> None:
+    """Write `path` through a hidden sibling renamed into place, so an interruption never leaves half a file."""
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def _default_frames(specs: list[str]) -> Iterable[Frame]:
