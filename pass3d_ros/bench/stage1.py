@@ -1,7 +1,10 @@
 """Stage 1 speed: per-step medians over repeated runs, and pypatchworkpp ground removal side by side.
 
-`pass3d_benchmark stage1 [--data FORMAT:PATH ...] [--repeat R] [--limit N] [--json PATH]`. Without --data
-it times a built-in synthetic scan. pypatchworkpp (Patchwork++) is an optional peer, not a dependency:
+`pass3d_benchmark stage1 [--data FORMAT:PATH ...] [--repeat R] [--limit N] [--order ORDER] [--json PATH]`.
+Without --data it times a built-in synthetic scan. `--order column|shuffled|all` also times the same scans
+reordered column by column (one azimuth step, all lasers) or shuffled, and reports each order's median and its
+ratio to the firing order measured in the same run, the ring source, and whether the proposals agree.
+pypatchworkpp (Patchwork++) is an optional peer, not a dependency:
 when it is importable its ground estimation runs on the same frames, and the time ratio is printed.
 """
 
@@ -21,6 +24,32 @@ from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import DatasetError, open_dataset, parse_spec
 
 PATCHWORK_HINT = "pip install pypatchworkpp"
+REORDERINGS: tuple[str, ...] = ("column", "shuffled")
+COLUMN_DEG = 0.17  # azimuth step of a column in the column-major reordering (about an HDL-64E's)
+
+
+def reorder(points: np.ndarray, ring: np.ndarray, how: str, seed: int = 0) -> np.ndarray:
+    """Permutation of a scan (rings known) into `how` order: "column" (azimuth column by column, all rings of
+    one column top-down), "shuffled" (random), "firing" (identity)."""
+    if how == "firing":
+        return np.arange(len(points))
+    if how == "shuffled":
+        return np.random.default_rng(seed).permutation(len(points))
+    if how == "column":
+        az = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2.0 * np.pi)
+        column = np.floor(az / np.deg2rad(COLUMN_DEG)).astype(np.int64)
+        return np.lexsort((ring, column))
+    raise ValueError(f"unknown order {how!r}")
+
+
+def same_partition(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two per-point cluster labelings (-1 = none) are the same up to a permutation of labels."""
+    a = np.asarray(a, dtype=np.int64)
+    b = np.asarray(b, dtype=np.int64)
+    if a.shape != b.shape or not np.array_equal(a < 0, b < 0):
+        return False
+    pairs = np.unique(np.stack([a[a >= 0], b[b >= 0]]), axis=1)
+    return len(np.unique(pairs[0])) == pairs.shape[1] == len(np.unique(pairs[1]))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,6 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeat", type=int, default=20, metavar="R", help="runs per frame (default 20)")
     parser.add_argument("--limit", type=int, default=10, metavar="N", help="at most N frames per spec (default 10)")
     parser.add_argument("--no-patchwork", action="store_true", help="skip the pypatchworkpp comparison")
+    parser.add_argument("--order", choices=("firing", *REORDERINGS, "all"), default="firing",
+                        help="point order(s) to time besides firing order (default: firing only)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the numbers as JSON here")
 
 
@@ -61,6 +92,35 @@ def time_stage1(frames: list[Frame], repeat: int, config: Stage1Config) -> dict[
             for step in STEPS:
                 times[step].append(result.timings_ms[step])
     return times
+
+
+def time_orders(frames: list[Frame], repeat: int, config: Stage1Config, orders: tuple[str, ...]) -> dict:
+    """Median total ms of stage 1 on the frames in firing order and reordered, measured in one run (frames
+    interleaved), with each order's ratio to firing order, ring sources and proposal agreement; printed."""
+    times: dict[str, list[float]] = {how: [] for how in ("firing", *orders)}
+    sources: dict[str, set[str]] = {how: set() for how in times}
+    agree = {how: 0 for how in times}
+    for frame in frames:
+        base = propose(frame.points, frame.ring, config)
+        for how in times:
+            order = reorder(frame.points, base.ring, how)
+            pts = np.ascontiguousarray(frame.points[order])
+            ring = None if frame.ring is None else frame.ring[order]
+            result = propose(pts, ring, config)
+            agree[how] += same_partition(result.cluster_id, base.cluster_id[order])
+            sources[how].add(result.ring_source)
+            for _ in range(repeat):
+                times[how].append(propose(pts, ring, config).timings_ms["total"])
+    firing = statistics.median(times["firing"])
+    report = {}
+    print(f"point order ({len(frames)} frame(s), median total ms, ratio to firing order in this run):")
+    for how, values in times.items():
+        median = statistics.median(values)
+        report[how] = {"ms_median": median, "ratio": median / firing, "ring_sources": sorted(sources[how]),
+                       "same_proposals": agree[how], "frames": len(frames)}
+        print(f"  {how:<9} {median:8.3f} ms  x{median / firing:5.2f}  rings: {', '.join(sorted(sources[how]))}"
+              f"  same proposals: {agree[how]}/{len(frames)}")
+    return report
 
 
 def time_patchwork(frames: list[Frame], repeat: int, sensor_height: float) -> list[float] | None:
@@ -117,6 +177,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"  stage 1 ground step is {pw / max(medians['ground'], 1e-9):.1f}x faster; "
                   f"all of stage 1 takes {medians['total'] / pw:.2f}x Patchwork++'s ground time")
             report["patchwork_ms_median"] = pw
+    if args.order != "firing":
+        report["orders"] = time_orders(frames, args.repeat, config, REORDERINGS if args.order == "all" else
+                                       (args.order,))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(report, indent=2) + "\n")

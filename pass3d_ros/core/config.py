@@ -9,10 +9,17 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+from pass3d_ros.core.lasers import SENSORS
+
 
 def _param(default: Any, description: str, lo: float, hi: float) -> Any:
     """A config field whose metadata carries its description and allowed closed range (ROS parameters)."""
     return field(default=default, metadata={"description": description, "range": (lo, hi)})
+
+
+def _choice(default: str, description: str, choices: tuple[str, ...]) -> Any:
+    """A string config field whose metadata carries its description and allowed values (no range)."""
+    return field(default=default, metadata={"description": description, "range": None, "choices": choices})
 
 
 @dataclass
@@ -55,6 +62,10 @@ class Stage1Config:
     )
     # Sensor and robustness details the paper leaves open.
     n_rings: int = _param(64, "rings: lasers of the sensor (HDL-64E); ring recovery checks for this many", 1, 256)
+    sensor: str = _choice(
+        "auto", "rings: laser table when points have no ring field (" + ", ".join(SENSORS) + "); auto: from the scan",
+        SENSORS,
+    )
     sensor_height: float = _param(1.73, "ground: sensor height above the road (m, KITTI)", 0.0, 10.0)
     below_ground_margin: float = _param(1.0, "ground: points lower than sensor_height + this never seed (m)", 0.0, 10.0)
     ground_x_extent: float = _param(80.0, "ground: segments split x in [-extent, extent] evenly (m)", 1.0, 500.0)
@@ -80,6 +91,10 @@ class Stage1Config:
         if len(self.enlarge) != 3:
             problems.append(f"enlarge needs 3 values (x, y, z), got {len(self.enlarge)}")
         for f in fields(self):
+            if "choices" in f.metadata:
+                if getattr(self, f.name) not in f.metadata["choices"]:
+                    problems.append(f"{f.name}={getattr(self, f.name)!r} not one of {', '.join(f.metadata['choices'])}")
+                continue
             lo, hi = f.metadata["range"]
             values = getattr(self, f.name)
             for v in values if isinstance(values, tuple) else (values,):

@@ -1,0 +1,60 @@
+"""Laser elevation tables of common spinning LiDARs, ring 0 the highest laser (KITTI's order).
+
+Angles are in degrees from the sensor's horizontal plane, as the makers' manuals and driver calibration files
+give them, sorted from the top laser down. A value marked approximate is a spec-sheet spread, not a per-unit
+calibration; ring recovery refits every laser's line to the scan itself (pass3d_ros.core.ring), so the table only
+has to tell how many lasers there are and roughly where.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Velodyne VLP-16 user manual (63-9243), table 9-1: -15..+15 degrees in 2 degree steps.
+_VLP16 = tuple(np.arange(15.0, -15.5, -2.0))
+# Velodyne HDL-32E user manual (63-9113), laser angles: -30.67..+10.67 degrees in 1.333 degree steps.
+_HDL32E = tuple(np.round(10.67 - 4.0 / 3.0 * np.arange(32), 3))
+# Velodyne VLP-32C user manual (63-9325), table 9-2 (non-uniform: dense around the horizon).
+_VLP32C = (
+    15.0, 10.333, 7.0, 4.667, 3.333, 2.333, 1.667, 1.333, 1.0, 0.667, 0.333, 0.0, -0.333, -0.667, -1.0, -1.333,
+    -1.667, -2.0, -2.333, -2.667, -3.0, -3.333, -3.667, -4.0, -4.667, -5.333, -6.148, -7.254, -8.843, -11.31,
+    -15.639, -25.0,
+)
+# Velodyne HDL-64E S2 (KITTI's sensor): upper block +2.0..-8.33 degrees in 1/3 degree steps, lower block
+# -8.83..-24.33 degrees in 1/2 degree steps, per the S2 manual. Approximate: each unit's calibration differs by up
+# to a few tenths of a degree (KITTI's fitted lines run +1.9..-25.0).
+_HDL64E = tuple(np.round(np.concatenate([2.0 - np.arange(32) / 3.0, -8.83 - 0.5 * np.arange(32)]), 3))
+# Ouster OS1 gen2 data sheets, "uniform" beam configuration: beams spread evenly. Approximate: OS1-64 over
+# +-16.6 degrees (33.2 total); OS1-128 (Rev6) over +-22.5 degrees (45 total).
+_OS1_64 = tuple(np.round(np.linspace(16.6, -16.6, 64), 3))
+_OS1_128 = tuple(np.round(np.linspace(22.5, -22.5, 128), 3))
+# Hesai Pandar64 angle correction file (HesaiLidar_General_ROS, Pandar64 default calibration), elevation column;
+# +15..-25 degrees, 0.167 degree steps between +2 and -6. Approximate: per-unit calibrations differ slightly.
+_PANDAR64 = (
+    14.882, 11.032, 8.059, 5.057, 3.04, 2.028, 1.86, 1.688, 1.522, 1.351, 1.184, 1.013, 0.846, 0.675, 0.508, 0.337,
+    0.169, 0.0, -0.169, -0.337, -0.508, -0.675, -0.845, -1.013, -1.184, -1.351, -1.522, -1.688, -1.86, -2.028,
+    -2.198, -2.365, -2.536, -2.7, -2.873, -3.04, -3.21, -3.375, -3.548, -3.712, -3.884, -4.05, -4.221, -4.385,
+    -4.558, -4.72, -4.892, -5.057, -5.229, -5.391, -5.565, -5.726, -5.898, -6.061, -7.063, -8.059, -9.06, -9.885,
+    -11.032, -12.006, -12.974, -13.93, -18.889, -24.897,
+)
+
+LASER_TABLES: dict[str, tuple[float, ...]] = {
+    "hdl64e": _HDL64E,
+    "hdl32e": _HDL32E,
+    "vlp16": _VLP16,
+    "vlp32c": _VLP32C,
+    "os1-64": _OS1_64,
+    "os1-128": _OS1_128,
+    "pandar64": _PANDAR64,
+}
+SENSORS: tuple[str, ...] = ("auto", *LASER_TABLES)
+STANDARD_RING_COUNTS: tuple[int, ...] = (16, 32, 64, 128)
+
+
+def laser_elevations(sensor: str) -> np.ndarray:
+    """Elevation angles (radians, descending: ring 0 on top) of a named sensor's lasers."""
+    try:
+        table = LASER_TABLES[sensor]
+    except KeyError:
+        raise ValueError(f"unknown sensor {sensor!r}; known: {', '.join(LASER_TABLES)}") from None
+    return np.deg2rad(np.asarray(table, dtype=np.float64))

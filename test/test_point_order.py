@@ -1,0 +1,98 @@
+"""Stage 1 under other point orders and sensors: firing-order fast path, camera crops, laser tables, line
+recovery of a 32-laser scan, the reported fallback, and the benchmark's reordering helpers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pass3d_ros.bench.stage1 import reorder, same_partition
+from pass3d_ros.core import lasers, ring
+from pass3d_ros.core.stage1 import Stage1Config, propose, synthetic_scan
+
+
+def kitti_scan(root: Path) -> np.ndarray:
+    """The first real KITTI object frame of the kitti_dev fixture."""
+    return np.fromfile(root / "object" / "training" / "velodyne" / "000000.bin", dtype=np.float32).reshape(-1, 4)
+
+
+def test_laser_tables_descend_and_have_their_laser_counts():
+    counts = {"hdl64e": 64, "hdl32e": 32, "vlp16": 16, "vlp32c": 32, "os1-64": 64, "os1-128": 128, "pandar64": 64}
+    for name, count in counts.items():
+        elev = lasers.laser_elevations(name)
+        assert len(elev) == count and np.all(np.diff(elev) < 0.0)
+    with pytest.raises(ValueError, match="unknown sensor"):
+        lasers.laser_elevations("hdl128")
+    with pytest.raises(ValueError, match="sensor"):
+        Stage1Config(sensor="hdl128")
+
+
+def test_same_partition_ignores_label_names():
+    assert same_partition(np.array([0, 0, 1, -1]), np.array([5, 5, 2, -1]))
+    assert not same_partition(np.array([0, 0, 1, -1]), np.array([5, 2, 2, -1]))
+    assert not same_partition(np.array([0, 0, 1, -1]), np.array([0, 0, 1, 1]))
+
+
+def test_reorder_column_major_lists_each_column_top_down():
+    pts = synthetic_scan(n_rings=8, points_per_ring=90)
+    rings = np.repeat(np.arange(8), 90)
+    order = reorder(pts, rings, "column")
+    assert sorted(order.tolist()) == list(range(len(pts)))
+    assert np.array_equal(rings[order][:8], np.arange(8))
+
+
+def test_firing_order_path_unchanged_and_reported():
+    pts = synthetic_scan(points_per_ring=900)
+    result = propose(pts)
+    assert result.ring_source == "azimuth_wrap"
+    assert np.array_equal(result.ring, np.repeat(np.arange(64), 900))
+
+
+def test_fallback_is_reported_when_rings_cannot_be_recovered():
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(-20.0, 20.0, size=(5000, 4)).astype(np.float32)
+    result = ring.recover_rings(pts)
+    assert result.source == "elevation_bins"
+    assert propose(pts).ring_source == "elevation_bins"
+
+
+def test_laser_table_gives_the_table_ring_count():
+    pts = synthetic_scan(points_per_ring=900)[np.repeat(np.arange(64), 900) % 2 == 0]
+    result = ring.recover_rings(pts, Stage1Config(sensor="hdl32e"))
+    assert result.source == "laser_table" and result.n_rings == 32
+    assert result.ring.max() <= 31
+
+
+def test_every_other_ring_scan_shuffled_recovers_32_rings():
+    """A 32-laser scan (every other ring of a synthetic HDL-64E frame), shuffled: 32 lines, rings in order."""
+    full = synthetic_scan(points_per_ring=900)
+    truth = np.repeat(np.arange(64), 900)
+    keep = truth % 2 == 0
+    pts, truth = full[keep], truth[keep] // 2
+    perm = np.random.default_rng(0).permutation(len(pts))
+    result = ring.recover_rings(pts[perm])
+    assert result.source == "elevation_lines" and result.n_rings == 32
+    assert np.mean(result.ring == truth[perm]) > 0.99
+
+
+def test_real_camera_crop_keeps_the_full_scans_rings(kitti_dev):
+    pts = kitti_scan(kitti_dev)
+    full = ring.recover_rings(pts)
+    az = np.degrees(np.arctan2(pts[:, 1], pts[:, 0]))
+    crop = (pts[:, 0] > 0.0) & (np.abs(az) < 45.0)
+    cropped = ring.recover_rings(pts[crop])
+    assert cropped.source in ring.FIRING_ORDER_SOURCES
+    for k in range(64):
+        assert np.array_equal(cropped.ring[full.ring[crop] == k], np.full(np.sum(full.ring[crop] == k), k))
+
+
+def test_real_scan_reordered_is_not_silently_wrong(kitti_dev):
+    """Column-major and shuffled real scans never pass for firing order: their ring source says how rings were
+    found."""
+    pts = kitti_scan(kitti_dev)
+    base = propose(pts)
+    for how in ("column", "shuffled"):
+        result = propose(np.ascontiguousarray(pts[reorder(pts, base.ring, how)]))
+        assert result.ring_source in ("elevation_lines", "elevation_bins")
