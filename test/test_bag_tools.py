@@ -67,10 +67,10 @@ def test_convert_and_read_back(tmp_path: Path, storage: str, version: int) -> No
         original = np.fromfile(seq / "velodyne" / f"{k:06d}.bin", dtype="<f4").reshape(-1, 4)
         cloud = decode(msg)
         assert topic == "/scan" and msg.header.frame_id == "velodyne"
-        assert cloud.dtype.names == ("x", "y", "z", "intensity", "label")
+        assert cloud.dtype.names == ("x", "y", "z", "intensity", "label_gt")
         got = np.stack([cloud[name] for name in ("x", "y", "z", "intensity")], axis=1)
         assert got.tobytes() == original.tobytes(), f"frame {k} not bit-identical"
-        assert np.array_equal(cloud["label"], expected_labels(seq, k))
+        assert np.array_equal(cloud["label_gt"], expected_labels(seq, k))
         assert bag_time == header_stamp_ns(msg) == bag_convert.SYNTHETIC_START_NS + k * bag_convert.FRAME_GAP_NS
     frames = list(open_dataset(f"bag:{out}"))
     assert [f.name for f in frames] == ["000000", "000001", "000002", "000003"]
@@ -395,3 +395,110 @@ def test_bag_without_pointcloud2_lists_what_it_has(tmp_path: Path) -> None:
         read_bag(str(out))
     with pytest.raises(DatasetError, match=r"topic '/velodyne_points'; the bag has /chatter \(std_msgs/msg/String\)"):
         read_bag(f"{out}#/velodyne_points")
+
+
+# ---- ground truth in `label_gt`: an output bag is never scored against its own predictions ----
+
+def output_like_bag(tmp_path: Path, legacy_truth: bool = False) -> tuple[Path, np.ndarray]:
+    """A bag shaped like /pass3d/labeled (label, confidence, rgb, cluster_id); with `legacy_truth` an input bag
+    with only a `label` field. Returns (bag, the label column)."""
+    rng = np.random.default_rng(3)
+    n = 400
+    labels = rng.integers(0, 4, n).astype(np.uint8)
+    cloud = {"x": rng.normal(0, 10, n).astype(np.float32), "y": rng.normal(0, 10, n).astype(np.float32),
+             "z": rng.normal(0, 1, n).astype(np.float32), "intensity": rng.random(n, dtype=np.float32),
+             "label": labels}
+    if not legacy_truth:
+        cloud |= {"cluster_id": np.full(n, -1, np.int32), "confidence": np.ones(n, np.float32),
+                  "rgb": np.zeros(n, np.float32)}
+    out = tmp_path / ("legacy" if legacy_truth else "output")
+    with BagWriter(out) as writer:
+        for k in range(2):
+            stamp = bag_convert.SYNTHETIC_START_NS + k * bag_convert.FRAME_GAP_NS
+            writer.write("/pass3d/labeled", encode(cloud, stamp_ns=stamp, typestore=TYPESTORE), stamp)
+    return out, labels
+
+
+def test_output_bag_has_no_ground_truth(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bag, labels = output_like_bag(tmp_path)
+    frames = list(read_bag(str(bag)))
+    assert [f.labels for f in frames] == [None, None], "an output's `label` is a prediction, not ground truth"
+    err = capsys.readouterr().err
+    assert err.count("warning:") == 1 and "label_gt" in err and "prediction" in err
+    predicted = list(read_bag(str(bag), labels="predicted"))
+    assert all(np.array_equal(f.labels, labels) for f in predicted)
+    legacy, legacy_labels = output_like_bag(tmp_path, legacy_truth=True)
+    assert np.array_equal(next(read_bag(str(legacy))).labels, legacy_labels), "a legacy input bag keeps `label`"
+    assert capsys.readouterr().err == ""
+    with pytest.raises(ValueError, match="labels must be"):
+        read_bag(str(bag), labels="both")
+
+
+def test_evaluate_refuses_to_score_an_output_bag_against_itself(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    import pass3d_ros.tools.evaluate as evaluate
+
+    bag, _ = output_like_bag(tmp_path)
+    code = evaluate.main(["--data", f"bag:{bag}", "--classifier", "size_rules", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2, "scoring predictions against themselves would report 100 % IoU"
+    assert "no point labels" in err and "label_gt" in err
+
+
+def test_label_gt_beside_an_output_label_is_the_truth(tmp_path: Path) -> None:
+    from pass3d_ros.data.bag import truth_field
+    from pass3d_ros.evaluation.live import LiveEvalError, _input_frame
+
+    n = 50
+    truth, predicted = np.full(n, 2, np.uint8), np.ones(n, np.uint8)
+    cloud = {"x": np.arange(n, dtype=np.float32), "y": np.zeros(n, np.float32), "z": np.zeros(n, np.float32),
+             "label": predicted, "label_gt": truth, "confidence": np.ones(n, np.float32)}
+    out = tmp_path / "both"
+    with BagWriter(out) as writer:
+        writer.write("/c", encode(cloud, stamp_ns=9, typestore=TYPESTORE), 9)
+    assert np.array_equal(next(read_bag(str(out))).labels, truth)
+    assert np.array_equal(next(read_bag(str(out), labels="predicted")).labels, predicted)
+    assert truth_field(("x", "label")) == "label" and truth_field(("x", "label", "rgb")) is None
+    assert truth_field(("x", "label", "rgb", "label_gt")) == "label_gt" and truth_field(("x",)) is None
+    raw = TYPESTORE.serialize_cdr(encode(cloud, stamp_ns=9, typestore=TYPESTORE), POINTCLOUD2_TYPE)
+    assert np.array_equal(_input_frame(raw, POINTCLOUD2_TYPE)[2], truth)
+    del cloud["label_gt"]
+    raw = TYPESTORE.serialize_cdr(encode(cloud, stamp_ns=9, typestore=TYPESTORE), POINTCLOUD2_TYPE)
+    with pytest.raises(LiveEvalError, match="prediction, not ground truth"):
+        _input_frame(raw, POINTCLOUD2_TYPE)
+
+
+def test_label_gt_must_be_one_per_point() -> None:
+    from types import SimpleNamespace
+
+    from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, fields_dtype
+
+    fields = [SimpleNamespace(name=name, offset=4 * k, datatype=7, count=1) for k, name in enumerate("xyz")]
+    fields.append(SimpleNamespace(name="label_gt", offset=12, datatype=2, count=2))
+    with pytest.raises(PointCloud2Error, match="'label_gt': count 2 not supported"):
+        fields_dtype(fields, 16)
+
+
+# ---- progress bars only on a terminal ----
+
+def test_no_progress_bar_when_stderr_is_not_a_terminal(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    seq = write_sequence(tmp_path, frames=2)
+    assert kitti2bag.main([f"--data=semantickitti:{seq}", f"--out={tmp_path / 'bag'}"]) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err and "frame/s" not in err and "it/s" not in err, f"a bar was drawn into a pipe: {err!r}"
+
+
+def test_show_progress_follows_the_terminal_and_no_progress() -> None:
+    import io
+
+    from pass3d_ros.tools.cli import show_progress
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    closed = io.StringIO()
+    closed.close()
+    assert show_progress(stream=Terminal()) is True
+    assert show_progress(True, stream=Terminal()) is False, "--no-progress wins"
+    assert show_progress(stream=io.StringIO()) is False and show_progress(stream=closed) is False

@@ -24,7 +24,7 @@ from pass3d_ros.tools import evaluate
 pytestmark = pytest.mark.ros
 
 SPEC = "synthetic:frames=2,seed=1"
-METRIC_KEYS = {"precision", "recall", "iou", "points"}
+METRIC_KEYS = {"precision", "recall", "iou", "points", "interval"}
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +74,10 @@ def test_segmentation_metrics_pool_frames() -> None:
     metrics.update("b", np.array([1, 3]), np.array([1, 1]), 4.0, 30.0, total_ms=50.0)
     summary = metrics.summary()
     assert summary["frames"] == 2
-    assert summary["classes"]["car"] == {"precision": 2 / 3, "recall": 2 / 3, "iou": 0.5, "points": 3}
+    car = summary["classes"]["car"]
+    assert {k: v for k, v in car.items() if k != "interval"} == {"precision": 2 / 3, "recall": 2 / 3, "iou": 0.5,
+                                                                 "points": 3}
+    assert car["interval"]["low"] <= car["iou"] <= car["interval"]["high"] and car["interval"]["level"] == 0.9
     assert summary["classes"]["cyclist"]["iou"] == 0.0 and summary["classes"]["pedestrian"]["iou"] == 1.0
     assert summary["mean_iou"] == pytest.approx(0.5)
     assert summary["ms_per_frame"] == {"stage1": 3.0, "stage2": 20.0, "total": 31.0}

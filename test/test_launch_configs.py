@@ -151,3 +151,17 @@ def test_a_real_node_loads_the_parameter_file(tmp_path: Path, namespace: str | N
             node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+def test_fastdds_profile_fits_a_large_cloud_in_shared_memory() -> None:
+    """The shipped Fast DDS profile parses and its shared-memory segment holds a 120k-point cloud (~2 MB) with room:
+    the default 512 KB segment is what made best-effort readers lose frames between processes."""
+    import xml.etree.ElementTree as ET
+
+    ns = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
+    root = ET.parse(LAUNCH / "fastdds_large_clouds.xml").getroot()
+    shm = [t for t in root.iterfind(".//f:transport_descriptor", ns) if t.findtext("f:type", namespaces=ns) == "SHM"]
+    assert len(shm) == 1 and int(shm[0].findtext("f:segment_size", namespaces=ns)) >= 8 * 120_000 * 16
+    used = {t.text for t in root.iterfind(".//f:userTransports/f:transport_id", ns)}
+    assert shm[0].findtext("f:transport_id", namespaces=ns) in used
+    assert root.findtext(".//f:useBuiltinTransports", namespaces=ns) == "false"

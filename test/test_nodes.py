@@ -322,7 +322,7 @@ def test_bag_through_live_nodes_lockstep(small_bag: Path, tmp_path: Path) -> Non
     counters = result.node_counters
     assert counters["cluster_proposal_node"]["processed"] == counters["segmentation_node"]["processed"] == 3
 
-    recorded = list(read_bag(record))
+    recorded = list(read_bag(record, labels="predicted"))
     assert [f.stamp_ns for f in recorded] == [f.stamp_ns for f in frames]
     for rec, got in zip(recorded, result.frames, strict=True):
         np.testing.assert_array_equal(rec.labels, got.predicted)

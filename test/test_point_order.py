@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pass3d_ros.bench.stage1 import reorder, same_partition
-from pass3d_ros.core import lasers, ring
+from pass3d_ros.core import lasers, ring, scanline
 from pass3d_ros.core.stage1 import Stage1Config, propose, synthetic_scan
 
 
@@ -96,3 +96,100 @@ def test_real_scan_reordered_is_not_silently_wrong(kitti_dev):
     for how in ("column", "shuffled"):
         result = propose(np.ascontiguousarray(pts[reorder(pts, base.ring, how)]))
         assert result.ring_source in ("elevation_lines", "elevation_bins")
+
+
+def _proposals_in_every_order(pts: np.ndarray) -> dict[str, tuple]:
+    """Stage 1 of one scan in firing, column-major and shuffled order, results put back in firing order."""
+    base = propose(pts)
+    out = {}
+    for how in ("firing", "column", "shuffled"):
+        order = reorder(pts, base.ring, how)
+        result = propose(np.ascontiguousarray(pts[order]))
+        back = np.empty(len(pts), dtype=np.int64)
+        back[order] = np.arange(len(pts))
+        out[how] = (result, result.cluster_id[back], result.ring[back], result.ground[back])
+    return out
+
+
+def test_synthetic_scan_gives_the_same_proposals_in_any_order():
+    pts = synthetic_scan(points_per_ring=900)
+    runs = _proposals_in_every_order(pts)
+    firing = runs["firing"]
+    for how in ("column", "shuffled"):
+        result, cluster_id, rings, ground = runs[how]
+        assert result.ring_source == "elevation_lines"
+        assert np.array_equal(rings, firing[2])
+        assert np.array_equal(ground, firing[3])
+        assert same_partition(cluster_id, firing[1]) and result.n_proposals == firing[0].n_proposals
+
+
+def test_real_scan_gives_the_same_proposals_in_any_order(kitti_dev):
+    """A real KITTI frame reordered: rings recovered from its laser lines (nearly all as in firing order), then the
+    canonical order makes the ground fit and clustering read the points as in firing order."""
+    runs = _proposals_in_every_order(kitti_scan(kitti_dev))
+    firing = runs["firing"]
+    for how in ("column", "shuffled"):
+        result, cluster_id, rings, ground = runs[how]
+        assert result.ring_source == "elevation_lines" and result.n_proposals == firing[0].n_proposals
+        assert np.mean(rings == firing[2]) > 0.99
+        assert np.mean(ground != firing[3]) < 1e-3
+        assert np.mean((cluster_id >= 0) != (firing[1] >= 0)) < 1e-3
+
+
+def test_two_shuffles_give_exactly_the_same_result():
+    """The canonical order, the line search sample and the ground fit's sample depend on the points only."""
+    pts = synthetic_scan(points_per_ring=900)
+    base = propose(pts)
+    results, labels = [], []
+    for seed in (1, 2):
+        order = reorder(pts, base.ring, "shuffled", seed=seed)
+        result = propose(np.ascontiguousarray(pts[order]))
+        back = np.empty(len(pts), dtype=np.int64)
+        back[order] = np.arange(len(pts))
+        results.append(result)
+        labels.append((result.cluster_id[back], result.ring[back], result.ground[back]))
+    assert np.array_equal(labels[0][1], labels[1][1]) and np.array_equal(labels[0][2], labels[1][2])
+    assert same_partition(labels[0][0], labels[1][0])
+    assert np.array_equal(results[0].ground_planes, results[1].ground_planes)
+
+
+def test_canonical_order_lists_rings_then_azimuth():
+    pts = synthetic_scan(n_rings=8, points_per_ring=90)
+    rings = np.repeat(np.arange(8), 90).astype(np.uint16)
+    perm = np.random.default_rng(3).permutation(len(pts))
+    order = scanline.canonical_order(pts[perm], rings[perm])
+    assert np.array_equal(np.sort(order), np.arange(len(pts)))
+    assert np.array_equal(perm[order], np.arange(len(pts)))
+
+
+def test_ring_field_in_any_order_gives_the_same_proposals():
+    """A ring field whose points are not ring after ring (a driver's firing blocks) is read in canonical order."""
+    pts = synthetic_scan(points_per_ring=900)
+    rings = np.repeat(np.arange(64), 900).astype(np.uint16)
+    base = propose(pts, rings)
+    order = reorder(pts, rings, "column")
+    result = propose(np.ascontiguousarray(pts[order]), rings[order])
+    assert result.ring_source == "field"
+    assert same_partition(result.cluster_id, base.cluster_id[order])
+    assert np.array_equal(result.ground, base.ground[order])
+
+
+@pytest.mark.parametrize("speed", [0.5, 1.0])
+def test_motion_corrected_scan_recovers_its_rings(speed):
+    """A scan corrected for the car's motion (origin moving `speed` metres per revolution along x, zero facing
+    forward), shuffled: the motion is found and the rings come back exactly."""
+    pts = synthetic_scan(points_per_ring=900)
+    truth = np.repeat(np.arange(64), 900)
+    pts[:, 0] += speed * np.arctan2(pts[:, 1], pts[:, 0]) / (2.0 * np.pi)
+    perm = np.random.default_rng(0).permutation(len(pts))
+    result = ring.recover_rings(pts[perm])
+    assert result.source == "elevation_lines_moving" and result.n_rings == 64
+    assert np.array_equal(result.ring, truth[perm])
+    vx, vy = ring.estimate_motion(ring.search_sample(pts))
+    assert abs(vx - speed) < 0.05 and abs(vy) < 0.05
+
+
+def test_ring_sources_are_listed():
+    assert set(ring.FIRING_ORDER_SOURCES) <= set(ring.RING_SOURCES)
+    for source in ("laser_table_moving", "elevation_lines_moving", "elevation_bins"):
+        assert source in ring.RING_SOURCES

@@ -267,3 +267,94 @@ def test_cli_writes_refuses_non_empty_and_reports(tmp_path, capsys):
     assert "points/ring median" in report and "semantickitti:seq" in report
     with pytest.raises(SystemExit):
         main(["--frames", "1"])
+
+
+# ------------------------------------------------------------------------------------------------ street clutter
+CLUTTER_MODELS = {"bollard", "post", "short_pole", "bin", "trunk", "parked_bicycle", "parked_motorbike", "bench",
+                  "utility_box", "wall_fragment", "hedge_fragment", "bike_rack", "mailbox"}
+
+
+def _front_proposal_shares(frame) -> tuple[int, int, int]:
+    """(front-view proposals, background-only ones, mixed ones: >= 10% foreground and >= 10% background)."""
+    from pass3d_ros.core.stage1 import proposal_members, propose
+
+    res = propose(frame.points, frame.ring)
+    n = bg_only = mixed = 0
+    for box, idx in zip(res.boxes, proposal_members(res.cluster_id, res.cluster_id2, res.n_proposals), strict=True):
+        if abs(math.atan2(box.center[1], box.center[0])) > math.pi / 4:
+            continue
+        fg = np.mean(frame.labels[idx[~res.ground[idx]]] != BACKGROUND) if (~res.ground[idx]).any() else 0.0
+        n, bg_only, mixed = n + 1, bg_only + (fg == 0), mixed + (0.1 <= fg <= 0.9)
+    return n, bg_only, mixed
+
+
+def test_street_clutter_kinds_appear_and_fill_front_view_proposals():
+    models = set()
+    for seed in range(6):
+        models |= {o.model for o in generate_scene(np.random.default_rng(seed)).objects}
+    assert models >= CLUTTER_MODELS
+    shares = np.array([_front_proposal_shares(generate_frame(5, index)) for index in range(12)])
+    n, bg_only, mixed = shares.sum(axis=0)
+    # Real front views hold many background proposals (64% in the issue's count; 62.5% on the six dev frames).
+    # Without the street clutter the synthetic share was 39-45% (synthetic:frames=30,seed=5); with it 56-62% over
+    # 30-60 frames, 61% on these 12. The floor sits between, with room for the scatter of 12 frames.
+    assert bg_only / n > 0.5
+    assert mixed > 0  # lapsed clearance: some proposals hold foreground and background together
+
+
+# ------------------------------------------------------------------------------------------------ object models
+def _model_extents(fn, n: int, seed: int) -> np.ndarray:
+    """(n, 3) extents L x W x H of n draws of an object model."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        parts = fn(rng)
+        lo = np.min([p.center - pt.part_extent(p) for p in parts], axis=0)
+        hi = np.max([p.center + pt.part_extent(p) for p in parts], axis=0)
+        out.append(hi - lo)
+    return np.array(out)
+
+
+def test_vehicle_models_follow_kitti_class_boundaries():
+    from pass3d_ros.synthetic.objects.vehicles import car_parts, truck_parts, van_parts
+
+    cars, vans, trucks = (_model_extents(fn, 1500, 3) for fn in (car_parts, van_parts, truck_parts))
+    # KITTI means (Frustum-PointNets): Car 3.88 x 1.63 x 1.53, Van 5.07 x 1.90 x 2.21, Truck 10.14 x 2.59 x 3.25.
+    assert 3.6 <= cars[:, 0].mean() <= 4.3 and 1.55 <= cars[:, 1].mean() <= 1.75 and 1.45 <= cars[:, 2].mean() <= 1.62
+    assert cars[:, 0].std() > 0.3 and cars[:, 2].std() > 0.1
+    # Car and Van overlap in height as annotators draw them: tall SUVs / minivans are cars, small vans are vans.
+    assert 0.02 < np.mean(cars[:, 2] > 1.9) < 0.15
+    assert np.mean(vans[:, 2] < 1.95) > 0.1
+    assert 4.7 <= vans[:, 0].mean() <= 5.4 and 2.0 <= vans[:, 2].mean() <= 2.4
+    assert 8.5 <= trucks[:, 0].mean() <= 11.5 and trucks[:, 2].min() > 2.5
+
+
+def test_people_models_have_kitti_sizes():
+    from pass3d_ros.synthetic.objects.people import cyclist_parts, pedestrian_parts
+
+    peds, cyclists = _model_extents(pedestrian_parts, 1500, 4), _model_extents(cyclist_parts, 800, 5)
+    # KITTI Pedestrian 0.84 x 0.66 x 1.76 (stride and arm swing in the box), Cyclist 1.76 x 0.60 x 1.74.
+    assert 1.6 <= peds[:, 2].mean() <= 1.85 and peds[:, 2].min() < 1.4  # children too
+    assert peds[:, 0].mean() > 0.5 and 0.55 <= peds[:, 1].mean() <= 0.85
+    assert 1.6 <= cyclists[:, 0].mean() <= 1.9 and 1.6 <= cyclists[:, 2].mean() <= 1.85
+
+
+def test_scene_objects_labelled_by_kitti_rules():
+    cars, vans, models = [], [], {}
+    for index in range(16):
+        scene = generate_scene(np.random.default_rng(np.random.SeedSequence([77, index])))
+        for o in scene.objects:
+            size = o.local_max - o.local_min
+            if o.kind == "Car":
+                cars.append(size)
+            elif o.kind == "Van":
+                vans.append(size)
+            models.setdefault(o.model, set()).add((o.label, o.kind))
+    cars, vans = np.array(cars), np.array(vans)
+    assert 3.6 <= cars[:, 0].mean() <= 4.3
+    assert (cars[:, 2] > 1.9).any() and (vans[:, 2] < 1.95).any()
+    # Seated people (KITTI Person_sitting), pushed bicycles and strollers are background and get no box.
+    for model in ("person_sitting", "pushed_bicycle", "stroller"):
+        assert models.get(model, {(BACKGROUND, "")}) == {(BACKGROUND, "")}
+    assert "person_sitting" in models
+    assert models["Pedestrian"] == {(PEDESTRIAN, "Pedestrian")} and models["Cyclist"] == {(CYCLIST, "Cyclist")}

@@ -1,6 +1,7 @@
 """Live-path throughput and memory: a synthetic drive replayed at 10 Hz x rate through both live nodes.
 
-`pass3d_benchmark live [--frames N] [--rate R] [--seconds S] [--soak] [--warmup S]
+`pass3d_benchmark live [--frames N] [--hz F | --rate R] [--seconds S] [--soak] [--warmup S] [--load N]
+                       [--layout one-process|in-memory|two-process] [--input-qos sensor|reliable]
                        [--classifier network|size_rules] [--weights W] [--threads N] [--seed K] [--json PATH]`
 
 Sustain test: N synthetic HDL-64E frames (about 120k points each) are written to a temporary bag and
@@ -15,6 +16,15 @@ after the warm-up. The memory figures are printed on every run; only --soak chan
 Runs of two minutes or more also print one row per minute of input: frames in / out, median latency,
 and how busy the CPUs were, in all and by this process (other work on a shared machine slows the nodes).
 
+Conditions: --hz sets the input rate (default 10; --rate R is the same as --hz 10R, R x the bag's pace);
+--load N starts N processes that each keep one CPU busy for the whole run (a reproducible busy robot) and
+stops them at the end; --layout picks where the nodes run (see pass3d_ros.evaluation.live: `one-process` with
+a PointCloud2 between the nodes, `in-memory` hand-off, `two-process` with the nodes in a child `pass3d_pipeline`);
+--input-qos sets the cluster node's input QoS (the replayer publishes reliable; `sensor` = best effort).
+Printed beside the live figures: each node's step medians from its /diagnostics counters (where the time
+goes: slot wait, decode, compute, encode, publish), and the offline compute time (stage 1 + stage 2 on the
+same frames, in this process, under the same load, before and after the live run) with the ratio live latency / compute.
+
 Everything shares the machine: the replaying evaluator (decoding inputs and outputs to match them) runs
 in this process beside both nodes, so on a small machine it takes CPU time the nodes would otherwise get.
 The target is the paper's: keep up with a 10 Hz sensor with at most 100 ms latency.
@@ -26,6 +36,7 @@ import argparse
 import json
 import math
 import os
+import subprocess
 import sys
 import tempfile
 import threading
@@ -170,6 +181,66 @@ def window_rows(result: LiveResult, sampler: RssSampler, input_hz: float, window
     return rows
 
 
+class CpuLoad:
+    """N child processes that each spin one CPU (`while True: pass`) until the context ends."""
+
+    def __init__(self, count: int) -> None:
+        self.count = count
+        self.children: list[subprocess.Popen] = []
+
+    def __enter__(self) -> CpuLoad:
+        for _ in range(self.count):
+            self.children.append(subprocess.Popen([sys.executable, "-c", "while True: pass"]))
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for child in self.children:
+            child.terminate()
+        for child in self.children:
+            try:
+                child.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                child.kill()
+                child.wait()
+
+
+def offline_compute_ms(bag: Path, kind: str, weights: str | None, limit: int) -> dict | None:
+    """Median / p95 ms of stage 1 + stage 2 (the nodes' compute, no codec, no ROS) over the bag's frames,
+    each run twice (the first pass warms caches), at most `limit` frames."""
+    from pass3d_ros.core.stage1 import proposal_members, propose, warm_up
+    from pass3d_ros.core.stage2 import load_classifier
+    from pass3d_ros.data.spec import open_dataset
+
+    warm_up()
+    classifier = load_classifier(kind, weights)
+    classifier.warm_up()
+    frames = [f for _, f in zip(range(limit), open_dataset(f"bag:{bag}"), strict=False)]
+    times, stage1 = [], []
+    for _ in range(2):
+        for frame in frames:
+            started = time.perf_counter()
+            result = propose(frame.points, frame.ring)
+            middle = time.perf_counter()
+            classifier.segment(frame.points, proposal_members(result.cluster_id, result.cluster_id2,
+                                                              n_proposals=len(result.boxes)))
+            times.append(1e3 * (time.perf_counter() - started))
+            stage1.append(1e3 * (middle - started))
+    if not times:
+        return None
+    half = times[len(times) // 2:]
+    return {"median": float(np.median(half)), "p95": float(np.percentile(half, 95)),
+            "stage1_median": float(np.median(stage1[len(stage1) // 2:])), "frames": len(frames)}
+
+
+def bracket(before: dict | None, after: dict | None) -> dict | None:
+    """Offline compute measured before and after the live run: the means of their figures, and both medians
+    (other work on the machine may change between them)."""
+    if before is None or after is None:
+        return before or after
+    merged = {key: (before[key] + after[key]) / 2.0 for key in ("median", "p95", "stage1_median")}
+    return {**merged, "frames": before["frames"], "median_before": before["median"], "median_after": after["median"]}
+
+
 def _pct(value: float | None) -> str:
     return "  n/a" if value is None else f"{value:5.0f}"
 
@@ -179,6 +250,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=10, metavar="N", help="synthetic frames in the bag (default 10)")
     parser.add_argument("--seed", type=int, default=7, help="synthetic scene seed (default 7)")
     parser.add_argument("--rate", type=float, default=1.0, metavar="R", help="play at 10 Hz x R (default 1)")
+    parser.add_argument("--hz", type=float, metavar="F", help="input rate in Hz (overrides --rate; default 10)")
+    parser.add_argument("--load", type=int, default=0, metavar="N",
+                        help="N competing processes, each spinning one CPU during the run (default 0)")
+    parser.add_argument("--layout", choices=("one-process", "in-memory", "two-process"), default="in-memory",
+                        help="where the nodes run (default in-memory: the pass3d_pipeline layout)")
+    parser.add_argument("--input-qos", choices=("sensor", "reliable"),
+                        help="the cluster node's input QoS (default: its parameter default, sensor)")
     parser.add_argument("--seconds", type=float, metavar="S",
                         help=f"replay length (default {SUSTAIN_SECONDS:.0f}; {SOAK_SECONDS:.0f} with --soak)")
     parser.add_argument("--soak", action="store_true", help="long run watching resident memory")
@@ -203,14 +281,16 @@ def run(args: argparse.Namespace) -> int:
 
     seconds = args.seconds if args.seconds is not None else (SOAK_SECONDS if args.soak else SUSTAIN_SECONDS)
     try:
-        if args.frames < 1 or seconds <= 0 or args.rate <= 0 or args.threads < 1:
-            raise ValueError("--frames, --seconds, --rate and --threads must be positive")
+        if args.hz is not None:
+            args.rate = args.hz / SENSOR_HZ
+        if args.frames < 1 or seconds <= 0 or args.rate <= 0 or args.threads < 1 or args.load < 0:
+            raise ValueError("--frames, --seconds, --rate, --hz and --threads must be positive, --load >= 0")
         kind, weights = resolve_weights(args.classifier, args.weights)
     except ValueError as exc:
         print(f"pass3d_benchmark live: error: {exc}", file=sys.stderr)
         return 2
     from pass3d_ros.data.bag_convert import convert
-    from pass3d_ros.evaluation.live import run_live
+    from pass3d_ros.evaluation.live import LiveEvalError, run_live
     from pass3d_ros.evaluation.report import score
 
     limit_threads(args.threads)
@@ -219,26 +299,36 @@ def run(args: argparse.Namespace) -> int:
     repeat = max(1, math.ceil(seconds / bag_seconds))
     spec = f"synthetic:frames={args.frames},seed={args.seed}"
     print(f"classifier {kind}{f' ({weights})' if weights else ''}, torch threads {args.threads}, "
-          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
+          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}, layout {args.layout}, "
+          f"competing CPU hogs {args.load}", flush=True)
+    cluster_parameters = {"input_qos": args.input_qos} if args.input_qos else {}
     with tempfile.TemporaryDirectory(prefix="pass3d_bench_live_") as workdir:
         bag = Path(workdir) / "drive"
         convert([spec], bag, progress=False, log=lambda _: None)
         print(f"{spec} -> {repeat} pass(es) = {repeat * args.frames} frames at {SENSOR_HZ * args.rate:g} Hz "
               f"(~{repeat * bag_seconds:.0f} s)", flush=True)
-        cpu_before, own_before, wall_before = cpu_times(), time.process_time(), time.perf_counter()
         try:
-            with RssSampler() as sampler:
-                result = run_live(
-                    bag, lockstep=False, rate=args.rate, keep_labels=False, repeat=repeat, timeout_s=30.0,
-                    node_parameters={"segmentation_node": {"classifier": kind, "weights": weights or ""}},
-                    log_level="warn",
-                )
+            with CpuLoad(args.load):
+                before = offline_compute_ms(bag, kind, weights, limit=args.frames)
+                cpu_before, own_before, wall_before = cpu_times(), time.process_time(), time.perf_counter()
+                with RssSampler() as sampler:
+                    result = run_live(
+                        bag, lockstep=False, rate=args.rate, keep_labels=False, repeat=repeat, timeout_s=30.0,
+                        node_parameters={"segmentation_node": {"classifier": kind, "weights": weights or ""},
+                                         "cluster_proposal_node": cluster_parameters},
+                        log_level="warn", layout=args.layout,
+                    )
+                cpu_after, own_after, wall_after = cpu_times(), time.process_time(), time.perf_counter()
+                compute = bracket(before, offline_compute_ms(bag, kind, weights, limit=args.frames))
         except ValueError as exc:
             print(f"pass3d_benchmark live: error: {exc}", file=sys.stderr)
             return 2
-    cpu = cpu_share(cpu_before, cpu_times())
+        except LiveEvalError as exc:
+            print(f"pass3d_benchmark live: {exc}", file=sys.stderr)
+            return 1
+    cpu = cpu_share(cpu_before, cpu_after)
     if cpu is not None:
-        own = (time.process_time() - own_before) / ((time.perf_counter() - wall_before) * (os.cpu_count() or 1))
+        own = (own_after - own_before) / ((wall_after - wall_before) * (os.cpu_count() or 1))
         cpu["this_process_pct"] = 100.0 * own
     scores = score(result)
     live = scores["live"]
@@ -246,6 +336,7 @@ def run(args: argparse.Namespace) -> int:
     latency = live["latency_ms"]
     met = (live["output_hz"] or 0.0) >= 0.95 * SENSOR_HZ * args.rate and result.dropped == 0 and \
         latency is not None and latency["median"] <= TARGET_LATENCY_MS
+    ratio = latency["median"] / compute["median"] if compute and latency else None
     print(f"frames in {result.frames_in}, out {result.frames_out}, dropped {result.dropped} "
           f"({100.0 * result.dropped / max(result.frames_in, 1):.1f} %), in {live['wall_s']:.1f} s")
     print(f"output rate {live['output_hz'] or 0.0:.2f} Hz (input {SENSOR_HZ * args.rate:g} Hz)")
@@ -254,6 +345,20 @@ def run(args: argparse.Namespace) -> int:
     print(f"stage 2 (/pass3d/proposals -> /pass3d/labeled): {_line(live['stage_ms']['stage2'])}")
     for node, counters in live["nodes"].items():
         print(f"{node}: " + ", ".join(f"{k} {v}" for k, v in counters.items()))
+    for node, stats in result.node_stats.items():
+        steps = ", ".join(f"{k[:-7]} {v:.1f}" for k, v in stats.items() if k.endswith("_p50_ms") and v is not None
+                          and not k.startswith("latency"))
+        gaps = f"input gaps {stats.get('input_gaps') or 0:.0f} ({stats.get('frames_missed_upstream') or 0:.0f} frames)"
+        print(f"{node} step medians ms: {steps or 'n/a'}; {gaps}")
+    if compute is not None:
+        print(f"offline compute (stage 1 + stage 2, same frames, same load, before / after the live run): "
+              f"median {compute.get('median_before', compute['median']):.1f} / "
+              f"{compute.get('median_after', compute['median']):.1f}, mean {compute['median']:.1f} ms "
+              f"(stage 1 {compute['stage1_median']:.1f}), p95 {compute['p95']:.1f} ms; live median latency / "
+              f"compute = {'n/a' if ratio is None else f'{ratio:.2f}'}")
+        bound = min(SENSOR_HZ * args.rate, 1e3 / compute["median"])
+        print(f"output rate / what the offline compute allows ({bound:.2f} Hz) = "
+              f"{(live['output_hz'] or 0) / bound:.2f}")
     if memory["available"] and memory["after_warmup_mib"] is not None:
         print(f"resident memory (medians over {MEMORY_SPAN_S:.0f} s): {memory['after_warmup_mib']:.1f} MiB after "
               f"{warmup:.0f} s, {memory['end_mib']:.1f} MiB at the end ({memory['growth_pct']:+.2f} % over "
@@ -278,7 +383,11 @@ def run(args: argparse.Namespace) -> int:
           + ("met" if met else "NOT met"))
     if args.json:
         report = {"classifier": {"kind": kind, "weights": weights, "threads": args.threads}, "data": spec,
-                  "repeat": repeat, "seconds": seconds, "rate": args.rate, "live": live, "memory": memory, "cpu": cpu,
+                  "repeat": repeat, "seconds": seconds, "rate": args.rate, "hz": SENSOR_HZ * args.rate,
+                  "layout": args.layout, "load": args.load, "input_qos": args.input_qos,
+                  "node_stats": result.node_stats, "offline_compute_ms": compute, "latency_to_compute": ratio,
+                  "compute_bound_hz": min(SENSOR_HZ * args.rate, 1e3 / compute["median"]) if compute else None,
+                  "live": live, "memory": memory, "cpu": cpu,
                   "rss_samples": [[round(t, 2), round(m, 2)] for t, m in sampler.samples],
                   "windows": windows,
                   "target_met": met}

@@ -2,6 +2,15 @@
 pipeline's per-stage times; plus the one table printer of per-class metrics every tool shares.
 
 All accumulate over frames and summarise into plain dicts (JSON-ready; a metric without data is None).
+
+Uncertainty: the confusion accumulator keeps each frame's own (small, k x k) matrix, so `bootstrap_iou` can
+give a frame bootstrap interval for every class IoU and the mean IoU: frames are drawn with replacement
+(`BOOTSTRAP_RESAMPLES` times, seed `BOOTSTRAP_SEED`, so the same frames give the same interval), the drawn
+frames' matrices are summed, and the IoUs of those sums give the percentile interval at `BOOTSTRAP_LEVEL`.
+A class whose IoU is undefined in a resample (no ground-truth and no predicted point of it in the drawn
+frames), and a resample without any ground-truth point of the mean's classes, is left out of that
+interval and counted as "skipped"; an interval with no usable resample has low = high = None. With one
+frame every resample is that frame: the interval is degenerate (low = high = the point estimate) and says so.
 """
 
 from __future__ import annotations
@@ -17,8 +26,60 @@ if TYPE_CHECKING:
     from pass3d_ros.core.stage1 import Stage1Result
 
 
+BOOTSTRAP_RESAMPLES = 1000
+BOOTSTRAP_LEVEL = 0.9
+BOOTSTRAP_SEED = 0
+BOOTSTRAP_METHOD = "frame bootstrap"
+
+
 def _ratio(num: float, den: float) -> float | None:
     return float(num) / float(den) if den > 0 else None
+
+
+def _interval(values: np.ndarray, frames: int, resamples: int, level: float) -> dict:
+    """Percentile interval of the finite `values` (one per resample), JSON-ready."""
+    ok = values[np.isfinite(values)]
+    tail = (1.0 - level) / 2.0
+    low, high = (float(q) for q in np.quantile(ok, [tail, 1.0 - tail])) if len(ok) else (None, None)
+    return {"low": low, "high": high, "level": level, "resamples": resamples, "skipped": resamples - len(ok),
+            "method": BOOTSTRAP_METHOD, "frames": frames, "degenerate": frames < 2}
+
+
+def bootstrap_iou(
+    matrices: list[np.ndarray] | np.ndarray,
+    classes: tuple[int, ...] = FOREGROUND,
+    resamples: int = BOOTSTRAP_RESAMPLES,
+    level: float = BOOTSTRAP_LEVEL,
+    seed: int = BOOTSTRAP_SEED,
+) -> dict:
+    """Frame bootstrap of per-frame confusion matrices (F x k x k): {"per_class": [interval per class id],
+    "mean_iou": interval of the mean over `classes` with ground-truth points}; see the module notes.
+    Each interval: {"low", "high", "level", "resamples", "skipped", "method", "frames", "degenerate"}."""
+    stack = np.asarray(matrices, dtype=np.int64)
+    if stack.ndim != 3 or stack.shape[1] != stack.shape[2]:
+        raise ValueError(f"expected F x k x k confusion matrices, got shape {stack.shape}")
+    if not 0.0 < level < 1.0 or resamples < 1:
+        raise ValueError(f"need 0 < level < 1 and resamples >= 1, got {level}, {resamples}")
+    frames, k = stack.shape[0], stack.shape[1]
+    if frames == 0:
+        empty = np.full(resamples, np.nan)
+        return {"per_class": [_interval(empty, 0, resamples, level) for _ in range(k)],
+                "mean_iou": _interval(empty, 0, resamples, level)}
+    rng = np.random.default_rng(seed)
+    weights = rng.multinomial(frames, np.full(frames, 1.0 / frames), size=resamples)  # times each frame is drawn
+    sums = np.einsum("rf,fij->rij", weights, stack, optimize=True).astype(np.float64)
+    tp = np.diagonal(sums, axis1=1, axis2=2)
+    truth, predicted = sums.sum(axis=2), sums.sum(axis=1)
+    union = truth + predicted - tp
+    with np.errstate(invalid="ignore", divide="ignore"):
+        iou = np.where(union > 0, tp / union, np.nan)
+    chosen = list(classes)
+    present = truth[:, chosen] > 0
+    with np.errstate(invalid="ignore"):
+        mean = np.where(present.any(axis=1),
+                        np.nansum(np.where(present, iou[:, chosen], 0.0), axis=1) / present.sum(axis=1), np.nan)
+    return {"per_class": [_interval(iou[:, c], frames, resamples, level) for c in range(k)],
+            "mean_iou": _interval(mean, frames, resamples, level)}
 
 
 class ConfusionAccumulator:
@@ -30,9 +91,11 @@ class ConfusionAccumulator:
         self.num_classes = num_classes
         self.names = names
         self.matrix = np.zeros((num_classes, num_classes), dtype=np.int64)
+        self.frames: list[np.ndarray] = []  # each update's own matrix, for the frame bootstrap
 
     def update(self, truth: np.ndarray, prediction: np.ndarray) -> None:
-        """Add one frame's labels (same length, ids in 0..num_classes-1; truth IGNORE points are left out)."""
+        """Add one frame's labels (same length, ids in 0..num_classes-1; truth IGNORE points are left out);
+        its own matrix is kept in `frames`."""
         truth = np.asarray(truth, dtype=np.int64)
         prediction = np.asarray(prediction, dtype=np.int64)
         if truth.shape != prediction.shape:
@@ -43,7 +106,9 @@ class ConfusionAccumulator:
         for name, arr in (("truth", truth), ("prediction", prediction)):
             if arr.size and (arr.min() < 0 or arr.max() >= k):
                 raise ValueError(f"{name} has class ids outside 0..{k - 1}")
-        self.matrix += np.bincount(truth * k + prediction, minlength=k * k).reshape(k, k)
+        frame = np.bincount(truth * k + prediction, minlength=k * k).reshape(k, k)
+        self.matrix += frame
+        self.frames.append(frame)
 
     def precision(self) -> list[float | None]:
         """Per class: true positives / predicted positives."""
@@ -69,6 +134,22 @@ class ConfusionAccumulator:
         }
         ious = [iou[c] for c in classes if iou[c] is not None and self.matrix[c].sum() > 0]
         return {"per_class": per_class, "mean_iou": float(np.mean(ious)) if ious else None}
+
+    def intervals(self, classes: tuple[int, ...] = FOREGROUND, resamples: int = BOOTSTRAP_RESAMPLES,
+                  level: float = BOOTSTRAP_LEVEL, seed: int = BOOTSTRAP_SEED) -> dict:
+        """Frame bootstrap intervals over the updates so far: {"per_class": {name: interval}, "mean_iou": interval}."""
+        frames = self.frames or np.zeros((0, self.num_classes, self.num_classes), dtype=np.int64)
+        boot = bootstrap_iou(frames, classes, resamples, level, seed)
+        return {"per_class": dict(zip(self.names, boot["per_class"], strict=True)), "mean_iou": boot["mean_iou"]}
+
+    def summary_with_intervals(self, classes: tuple[int, ...] = FOREGROUND) -> dict:
+        """`summary` with an "interval" in every class row and "mean_iou_interval" beside "mean_iou"."""
+        summary = self.summary(classes)
+        boot = self.intervals(classes)
+        for name, row in summary["per_class"].items():
+            row["interval"] = boot["per_class"][name]
+        summary["mean_iou_interval"] = boot["mean_iou"]
+        return summary
 
 
 class Stage1Metrics:
@@ -202,6 +283,7 @@ class SegmentationMetrics:
         frame = ConfusionAccumulator(self.confusion.num_classes, self.confusion.names)
         frame.update(truth, predicted)
         self.confusion.matrix += frame.matrix
+        self.confusion.frames.append(frame.matrix)
         if total_ms is None and stage1_ms is not None and stage2_ms is not None:
             total_ms = stage1_ms + stage2_ms
         row: dict = {"frame": name, "points": len(truth)}
@@ -217,13 +299,15 @@ class SegmentationMetrics:
         return row
 
     def summary(self) -> dict:
-        """{"frames", "classes": {name: {precision, recall, iou, points}}, "mean_iou" (car, pedestrian,
-        cyclist with ground-truth points), "ms_per_frame": {stage1, stage2, total} (medians)}."""
-        metrics = self.confusion.summary(FOREGROUND)
+        """{"frames", "classes": {name: {precision, recall, iou, points, interval}}, "mean_iou" (car, pedestrian,
+        cyclist with ground-truth points), "mean_iou_interval", "ms_per_frame": {stage1, stage2, total} (medians)};
+        intervals: frame bootstrap, see `bootstrap_iou`."""
+        metrics = self.confusion.summary_with_intervals(FOREGROUND)
         return {
             "frames": self.frames,
             "classes": metrics["per_class"],
             "mean_iou": metrics["mean_iou"],
+            "mean_iou_interval": metrics["mean_iou_interval"],
             "ms_per_frame": {stage: median_or_none(values) for stage, values in self.stage_ms.items()},
         }
 
@@ -232,12 +316,31 @@ def _pct(value: float | None) -> str:
     return "   n/a" if value is None else f"{100 * value:6.1f}"
 
 
-def format_metrics(per_class: dict, mean_iou: float | None) -> list[str]:
-    """Table lines: per-class precision / recall / IoU in %, point counts, and the foreground mean IoU."""
-    lines = [f"{'class':<12}{'prec %':>8}{'recall %':>10}{'IoU %':>8}{'points':>10}"]
+def _span(interval: dict | None) -> str:
+    if interval is None or interval["low"] is None:
+        return "[n/a]"
+    return f"[{100 * interval['low']:.1f}, {100 * interval['high']:.1f}]"
+
+
+def format_metrics(per_class: dict, mean_iou: float | None, mean_interval: dict | None = None) -> list[str]:
+    """Table lines: per-class precision / recall / IoU in %, point counts, and the foreground mean IoU; with the
+    bootstrap interval after each IoU where the rows carry one ("interval") and a line saying how it was made."""
+    boot = any("interval" in per_class[name] for name in CLASS_NAMES) or mean_interval is not None
+    level = next((row["interval"] for row in per_class.values() if row.get("interval")), mean_interval)
+    head = f"{round(100 * level['level'])}% interval" if boot and level else ""
+    lines = [f"{'class':<12}{'prec %':>8}{'recall %':>10}{'IoU %':>8}" + (f"  {head:<16}" if boot else "")
+             + f"{'points':>10}"]
     for name in CLASS_NAMES:
         row = per_class[name]
-        lines.append(f"{name:<12}{_pct(row['precision']):>8}{_pct(row['recall']):>10}{_pct(row['iou']):>8}"
+        span = f"  {_span(row.get('interval')):<16}" if boot else ""
+        lines.append(f"{name:<12}{_pct(row['precision']):>8}{_pct(row['recall']):>10}{_pct(row['iou']):>8}{span}"
                      f"{row['points']:>10}")
-    lines.append(f"mean IoU (car, pedestrian, cyclist): {_pct(mean_iou).strip()} %")
+    mean = f"mean IoU (car, pedestrian, cyclist): {_pct(mean_iou).strip()} %"
+    lines.append(mean + (f" {_span(mean_interval)}" if mean_interval is not None else ""))
+    if boot and level:
+        note = (f"intervals: {level['method']}, {level['resamples']} resamples of {level['frames']} frame(s), "
+                f"percentile, seed {BOOTSTRAP_SEED}")
+        if level["degenerate"]:
+            note += "; degenerate: one frame has no frame-to-frame spread to resample"
+        lines.append(note)
     return lines

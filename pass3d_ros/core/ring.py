@@ -17,11 +17,28 @@ spread inside rings wins.
 
 Any order (``elevation_lines``). Seen from the sensor origin, a laser with elevation angle e mounted h metres above
 the origin (the HDL-64E's two blocks sit about 0.2 and 0.12 m up) returns points with z / r = tan(e) + h / r
-(r: horizontal range): one straight line per laser in the plane (u = 1 / r, t = z / r). A Hough accumulator over
-(intercept, slope) of every few points finds the lines (peaks of its best-slope profile), each point takes the
-nearest line, and each line is refitted to its points by least squares (twice). The lines' count is the ring count
-(valid when close below 16, 32, 64 or 128); ring 0 is the line with the highest elevation. With Stage1Config's
-``sensor`` set to a known model (``laser_table``) the table's lasers seed the lines instead of the peaks.
+(r: horizontal range): one straight line per laser in the plane (u = 1 / r, t = z / r); fitted with the true rings,
+these lines give back all but a few of a real KITTI scan's 120k rings. The search reads a sample of about 20k points
+chosen by a hash of their coordinates, so it finds the same lines whatever the point order:
+
+1. A Hough accumulator over (intercept, slope); each band of intercepts reads the slope row sharpest there (the
+   HDL-64E's blocks differ), and the peaks of that profile seed the lines.
+2. Gaps are evened out against the local spacing (a missed peak is added, a doubled one merged), each point takes
+   the nearest line, and the lines are refitted by least squares; a line whose points span too little range (a
+   ring on flat ground) or whose slope is no laser height takes its neighbours' slope.
+3. A gap that holds a laser's worth of far points gets a line of its own; steps 2-3 repeat until the count
+   settles.
+4. The lines are kept when their count is near 16, 32, 64 or 128 and nearly all far points lie within a quarter
+   gap of their line (`line_quality`); ring 0 is the line with the highest elevation.
+
+Motion-corrected scans (``elevation_lines_moving``). KITTI's odometry / SemanticKITTI scans are corrected for the
+car's motion during the revolution: each return is seen from where the sensor was when it fired, so the near lasers'
+lines smear (by about a laser spacing at 0.8 m per revolution). `estimate_motion` finds the origin motion that
+sharpens the lines most (linear in azimuth, zero facing forward: KITTI's convention) and the search runs on the points
+seen from the moving origin.
+
+With Stage1Config's ``sensor`` set to a known model (``laser_table``, ``laser_table_moving``) the table's lasers
+seed the lines instead of the peaks.
 
 If nothing is valid, rings come from binning the elevation angle (``elevation_bins``), approximate even for
 evenly spaced lasers: the result's ``source`` says so, for the caller to report.
@@ -38,15 +55,28 @@ from pass3d_ros.core.config import Stage1Config
 from pass3d_ros.core.lasers import STANDARD_RING_COUNTS, laser_elevations
 
 RING_SOURCES: tuple[str, ...] = (
-    "field", "azimuth_wrap", "azimuth_jump", "laser_table", "elevation_lines", "elevation_bins"
+    "field", "azimuth_wrap", "azimuth_jump", "laser_table", "laser_table_moving", "elevation_lines",
+    "elevation_lines_moving", "elevation_bins",
 )
 FIRING_ORDER_SOURCES: tuple[str, ...] = ("azimuth_wrap", "azimuth_jump")  # rings read from the point order
 
 _T_MAX = 0.8  # largest |tan(elevation)| the line search covers (about 38.7 degrees)
 _T_BIN = 0.0005  # accumulator bin of tan(elevation), about 0.03 degrees
+_N_BINS = round(2 * _T_MAX / _T_BIN)  # accumulator bins
 _SLOPES = np.round(np.arange(-0.1, 0.3001, 0.01), 4)  # laser heights above the origin searched (m)
-_SEARCH_POINTS = 20000  # points the accumulator reads at most (every k-th point)
+_SEARCH_POINTS = 20000  # points the line search's accumulator reads, about (hash-chosen: the same in any order)
+_FIT_POINTS = 10000  # points the line fits read, about (a hash-chosen part of the search sample)
 _MIN_LINE_RANGE = 2.0  # nearer points are left out of the line search and fits (m)
+_MAX_LINES = 144  # a line search that finds more lines than this has failed
+_FILL_ROUNDS = 4  # rounds of gap filling and refitting at most
+_MIN_QUALITY = 0.97  # line_quality a line set needs
+_HALF_BAND = 120  # accumulator bins either side that choose a band's slope row (0.06 in tan(elevation))
+_MOTION_STEPS = np.round(np.arange(-2.0, 2.01, 0.1), 2)  # origin motions along x per revolution searched (m)
+_MOTION_SLOPES = np.array([0.12, 0.2])  # slope rows the motion search reads
+_MOTION_POINTS = 1000  # sample points the motion search reads, about
+_MOTION_GAIN = 1.2  # a motion is taken when it sharpens the lines by this factor
+_MIN_U_VAR = 1e-4  # a line's points fix its slope when their u = 1 / r varies more than this (variance)
+_BAND_MARGIN = 1.5  # a band reads its own slope row only when that row is this much sharper than the whole scan's
 
 
 class Rings(NamedTuple):
@@ -76,11 +106,14 @@ def _is_start(x0: float, y0: float, x1: float, y1: float, rule: int, min_cos_jum
 
 
 @nb.njit(cache=True)
-def _count_rings(pts: np.ndarray, min_cos_jump: float, min_gap: int) -> np.ndarray:
-    """Rings found by each of the three rules (one pass); starts closer than `min_gap` points are noise."""
+def _count_rings(pts: np.ndarray, min_cos_jump: float, min_gap: int, max_count: int) -> np.ndarray:
+    """Rings found by each of the three rules (one pass); starts closer than `min_gap` points are noise. The pass
+    stops once every rule has found more than `max_count` (none can be the firing order)."""
     count = np.ones(3, dtype=np.int64)
     last = np.zeros(3, dtype=np.int64)
     for i in range(1, pts.shape[0]):
+        if count[0] > max_count and count[1] > max_count and count[2] > max_count:
+            break
         x0 = pts[i - 1, 0]
         y0 = pts[i - 1, 1]
         x1 = pts[i, 0]
@@ -174,50 +207,54 @@ def _line_accumulator(pts: np.ndarray, stride: int, min_range: float, slopes: np
 
 
 @nb.njit(cache=True)
-def _assign_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray, window: int) -> tuple:
-    """Nearest line (a descending) per point, and its |t - a - b u| distance; lines near the binary-search hit of
-    t - mean(b) u are the candidates (`window` either side)."""
+def _assign_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple:
+    """Nearest line (a descending) per point, and its |t - a - b u| distance. A table over t - mean(b) u gives a
+    first line near the point's; from there the search walks up or down while the distance falls (lines do not
+    cross where points lie)."""
     n = pts.shape[0]
     k_lines = a.shape[0]
     ring = np.zeros(n, dtype=np.uint16)
     resid = np.empty(n, dtype=np.float64)
     b_mean = b.mean()
+    key0 = a[k_lines - 1] - 0.1
+    n_cells = int((a[0] + 0.1 - key0) / _T_BIN) + 2
+    first = np.empty(n_cells, dtype=np.int64)  # first line at or below each cell's key
+    k = k_lines - 1
+    for c in range(n_cells):
+        key = key0 + c * _T_BIN
+        while k > 0 and a[k - 1] <= key:
+            k -= 1
+        first[c] = k
     for i in range(n):
         r = max(np.sqrt(pts[i, 0] * pts[i, 0] + pts[i, 1] * pts[i, 1]), 0.1)
         u = 1.0 / r
-        t = pts[i, 2] / r
-        key = t - b_mean * u
-        lo = 0
-        hi = k_lines
-        while lo < hi:
-            mid = (lo + hi) >> 1
-            if a[mid] > key:
-                lo = mid + 1
-            else:
-                hi = mid
-        best = np.inf
-        best_k = 0
-        for k in range(max(0, lo - window), min(k_lines, lo + window + 1)):
-            d = abs(t - a[k] - b[k] * u)
-            if d < best:
-                best = d
-                best_k = k
+        t = pts[i, 2] * u
+        c = int((t - b_mean * u - key0) / _T_BIN)
+        best_k = first[min(max(c, 0), n_cells - 1)]
+        best = abs(t - a[best_k] - b[best_k] * u)
+        while best_k > 0:
+            d = abs(t - a[best_k - 1] - b[best_k - 1] * u)
+            if d >= best:
+                break
+            best = d
+            best_k -= 1
+        while best_k < k_lines - 1:
+            d = abs(t - a[best_k + 1] - b[best_k + 1] * u)
+            if d >= best:
+                break
+            best = d
+            best_k += 1
         ring[i] = best_k
         resid[i] = best
     return ring, resid
 
 
 @nb.njit(cache=True)
-def _refit_lines(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, a: np.ndarray, b: np.ndarray,
-                 tol: np.ndarray, min_range: float) -> None:
-    """Least-squares refit of every line to its points within `tol` of it (beyond `min_range`), in place; a line
-    whose points span too little of u keeps its slope and refits its intercept only."""
-    k_lines = a.shape[0]
-    sn = np.zeros(k_lines)
-    su = np.zeros(k_lines)
-    st = np.zeros(k_lines)
-    suu = np.zeros(k_lines)
-    sut = np.zeros(k_lines)
+def _line_sums(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, tol: np.ndarray, min_range: float,
+               k_lines: int) -> np.ndarray:
+    """Least-squares sums (n, sum u, sum t, sum u^2, sum u t) of every line's points within `tol` of it and beyond
+    `min_range`."""
+    sums = np.zeros((k_lines, 5))
     min_r2 = min_range * min_range
     for i in range(pts.shape[0]):
         k = ring[i]
@@ -227,20 +264,33 @@ def _refit_lines(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, a: np.nda
         r = np.sqrt(r2)
         u = 1.0 / r
         t = pts[i, 2] / r
-        sn[k] += 1.0
-        su[k] += u
-        st[k] += t
-        suu[k] += u * u
-        sut[k] += u * t
-    for k in range(k_lines):
-        if sn[k] < 3.0:
-            continue
-        mu = su[k] / sn[k]
-        mt = st[k] / sn[k]
-        var = suu[k] / sn[k] - mu * mu
-        if var > 1e-4:
-            b[k] = (sut[k] / sn[k] - mu * mt) / var
-        a[k] = mt - b[k] * mu
+        sums[k, 0] += 1.0
+        sums[k, 1] += u
+        sums[k, 2] += t
+        sums[k, 3] += u * u
+        sums[k, 4] += u * t
+    return sums
+
+
+def _refit_lines(sums: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lines refitted from their least-squares sums: a line whose points span enough of u takes its own slope when
+    it is a laser height the search covers (`_SLOPES`), the others the slope interpolated between the fitted lines
+    around it (lasers of one block share their height; a ring on flat ground has one range, or spreads along the
+    ground's own line t = -height u), and every line with points its intercept at that slope."""
+    n = sums[:, 0]
+    has = n >= 3.0
+    safe = np.maximum(n, 1.0)
+    mu, mt = sums[:, 1] / safe, sums[:, 2] / safe
+    var = sums[:, 3] / safe - mu * mu
+    fitted = has & (var > _MIN_U_VAR)
+    own = np.zeros_like(b)
+    own[fitted] = (sums[fitted, 4] / n[fitted] - mu[fitted] * mt[fitted]) / var[fitted]
+    fitted &= (own >= _SLOPES[0]) & (own <= _SLOPES[-1])
+    b = np.where(fitted, own, b)
+    if fitted.any() and not fitted.all():
+        b[~fitted] = np.interp(-a[~fitted], -a[fitted], b[fitted])
+    a = np.where(has, mt - b * mu, a)
+    return a, b
 
 
 def _peaks(profile: np.ndarray, half: int, floor: float) -> np.ndarray:
@@ -253,13 +303,19 @@ def _peaks(profile: np.ndarray, half: int, floor: float) -> np.ndarray:
     return peaks
 
 
-def _accumulate(pts: np.ndarray) -> np.ndarray:
-    """The (slope, intercept) accumulator of the line search, smoothed along the intercept by [1, 2, 1], less
-    the larger of its means 2..3 bins either side: a laser's line is a narrow spike at its slope, smeared votes
-    (ground, walls, wrong slopes) are broad and cancel."""
-    stride = max(1, len(pts) // _SEARCH_POINTS)
-    n_bins = round(2 * _T_MAX / _T_BIN)
-    acc = _line_accumulator(pts, stride, _MIN_LINE_RANGE, _SLOPES, n_bins)
+def search_sample(pts: np.ndarray, size: int = _SEARCH_POINTS) -> np.ndarray:
+    """About `size` of the points (float32, contiguous), chosen by a hash of their x coordinate's bits: the same
+    points whatever the order they come in, and a smaller sample of a sample is part of it."""
+    if len(pts) <= size:
+        return np.ascontiguousarray(pts)
+    bits = np.ascontiguousarray(pts[:, 0]).view(np.uint32) * np.uint32(2654435761)
+    return np.ascontiguousarray(pts[bits < np.uint32(size / len(pts) * 2.0**32)])
+
+
+def _sharpen(acc: np.ndarray) -> np.ndarray:
+    """Accumulator rows smoothed along the intercept by [1, 2, 1], less the larger of their means 2..3 bins either
+    side: a laser's line is a narrow spike at its slope, smeared votes (ground, walls, wrong slopes) are broad and
+    cancel."""
     padded = np.pad(acc, ((0, 0), (4, 4)))
     smooth = 2.0 * acc + padded[:, 3:-5] + padded[:, 5:-3]
     left = 2.0 * (padded[:, 1:-7] + padded[:, 2:-6])
@@ -267,14 +323,116 @@ def _accumulate(pts: np.ndarray) -> np.ndarray:
     return smooth - np.maximum(left, right)
 
 
-def _lines_from_scan(acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Line intercepts (descending) and slopes at the peaks of the accumulator's sharpest slope row (largest sum
-    of squared positive responses): the lasers' common height above the origin. A ring whose points share one
-    range (flat ground) votes a spike into every row, so rows are chosen as a whole, and each line's own slope
-    is left to the refits."""
-    sharpness = (np.maximum(acc, 0.0) ** 2).sum(axis=1)
-    row = int(sharpness.argmax())
-    profile = acc[row]
+def _accumulate(pts: np.ndarray) -> np.ndarray:
+    """The sharpened (slope, intercept) accumulator of the line search over the points (a search sample)."""
+    return _sharpen(_line_accumulator(pts, 1, _MIN_LINE_RANGE, _SLOPES, _N_BINS))
+
+
+@nb.njit(cache=True, inline="always")
+def _revolution_time(x: float, y: float) -> float:
+    """Time within a revolution, -0.5..0.5, of a return at (x, y): 0 facing forward, +-0.5 at the back, linear in
+    azimuth (pseudo-azimuth stands in for it, a few tenths of a degree off)."""
+    s = abs(x) + abs(y)
+    p = y / s if s > 0.0 else 0.0
+    if x >= 0.0:
+        return 0.25 * p
+    return 0.5 - 0.25 * p if y >= 0.0 else -0.5 - 0.25 * p
+
+
+@nb.njit(cache=True)
+def _moved_origin(pts: np.ndarray, vx: float, vy: float) -> np.ndarray:
+    """x, y, z of the points seen from an origin that moves by (vx, vy) over one revolution, linearly in time
+    (`_revolution_time`): KITTI's motion-corrected scans."""
+    out = np.empty((pts.shape[0], 3), dtype=np.float32)
+    for i in range(pts.shape[0]):
+        tau = _revolution_time(pts[i, 0], pts[i, 1])
+        out[i, 0] = pts[i, 0] - vx * tau
+        out[i, 1] = pts[i, 1] - vy * tau
+        out[i, 2] = pts[i, 2]
+    return out
+
+
+@nb.njit(cache=True)
+def _motion_scores(pts: np.ndarray, vxs: np.ndarray, vys: np.ndarray, slopes: np.ndarray) -> np.ndarray:
+    """Line sharpness of the points seen from an origin moving by (vxs[k], vys[k]) per revolution, in slope row
+    slopes[k]: the sum of squared positive votes of a [1, 2, 1]-smoothed intercept histogram less the larger of its
+    means 2..3 bins either side (as `_sharpen`)."""
+    n_bins = _N_BINS
+    hist = np.zeros(n_bins + 8)
+    scores = np.zeros(vxs.shape[0])
+    min_r2 = _MIN_LINE_RANGE * _MIN_LINE_RANGE
+    n = pts.shape[0]
+    tau = np.empty(n)
+    for i in range(n):
+        tau[i] = _revolution_time(pts[i, 0], pts[i, 1])
+    inv_bin = 1.0 / _T_BIN
+    for k in range(vxs.shape[0]):
+        hist[:] = 0.0
+        for i in range(n):
+            x = pts[i, 0] - vxs[k] * tau[i]
+            y = pts[i, 1] - vys[k] * tau[i]
+            r2 = x * x + y * y
+            if r2 < min_r2:
+                continue
+            u = 1.0 / np.sqrt(r2)
+            b = int((pts[i, 2] * u - slopes[k] * u + _T_MAX) * inv_bin)
+            if 0 <= b < n_bins:
+                hist[b + 4] += 1.0
+        total = 0.0
+        for b in range(4, n_bins + 4):
+            if hist[b] == 0.0:
+                continue
+            smooth = 2.0 * hist[b] + hist[b - 1] + hist[b + 1]
+            side = 2.0 * max(hist[b - 3] + hist[b - 2], hist[b + 2] + hist[b + 3])
+            if smooth > side:
+                total += (smooth - side) ** 2
+        scores[k] = total
+    return scores
+
+
+def estimate_motion(sample: np.ndarray) -> tuple[float, float]:
+    """Origin motion over one revolution (x, y metres) that sharpens the laser lines of a motion-corrected scan
+    most, searched on the returns below -0.15 in tan(elevation) (near lasers: motion correction bends their lines
+    most): along x (driving) in a few slope rows, then along y, then finer; (0, 0) unless it sharpens them by
+    `_MOTION_GAIN`."""
+    low = sample[sample[:, 2] < -0.15 * np.hypot(sample[:, 0], sample[:, 1])]
+    low = np.ascontiguousarray(low[::max(1, len(low) // _MOTION_POINTS)])
+    if len(low) < 100:
+        return 0.0, 0.0
+    n_x = len(_MOTION_STEPS)
+    vxs = np.tile(_MOTION_STEPS, len(_MOTION_SLOPES))
+    slopes = np.repeat(_MOTION_SLOPES, n_x)
+    scores = _motion_scores(low, vxs, np.zeros_like(vxs), slopes)
+    k = int(scores.argmax())
+    still = float(scores[int(np.abs(vxs).argmin()) + (k // n_x) * n_x])
+    vx, vy, slope, best = float(vxs[k]), 0.0, float(slopes[k]), float(scores[k])
+    for step in (0.1, 0.02):
+        offsets = step * np.arange(-4, 5)
+        ys = _motion_scores(low, np.full(9, vx), vy + offsets, np.full(9, slope))
+        vy = vy + float(offsets[int(ys.argmax())])
+        xs = _motion_scores(low, vx + 0.5 * offsets, np.full(9, vy), np.full(9, slope))
+        vx, best = vx + 0.5 * float(offsets[int(xs.argmax())]), max(best, float(xs.max()), float(ys.max()))
+    if best < _MOTION_GAIN * still:
+        return 0.0, 0.0
+    return vx, vy
+
+
+def _lines_from_scan(acc: np.ndarray, half_band: int = _HALF_BAND) -> tuple[np.ndarray, np.ndarray]:
+    """Line intercepts (descending) and slopes at the peaks of the accumulator's sharpest slope per elevation band:
+    each intercept bin reads the slope row with the largest sum of squared positive responses within `half_band`
+    bins (a laser block's common height above the origin; the HDL-64E's two blocks differ) when it is clearly
+    sharper there than the row sharpest over the whole scan, else that row. A ring whose points
+    share one range (flat ground) votes a spike into every row, so rows are chosen over a band, and each line's own
+    slope is left to the refits."""
+    positive = np.maximum(acc, 0.0) ** 2
+    cumulative = np.pad(np.cumsum(positive, axis=1), ((0, 0), (half_band + 1, half_band)), mode="edge")
+    cumulative[:, :half_band + 1] = 0.0
+    sharpness = cumulative[:, 2 * half_band + 1:] - cumulative[:, :-2 * half_band - 1]
+    rows = sharpness.argmax(axis=0)
+    overall = int(positive.sum(axis=1).argmax())
+    columns = np.arange(acc.shape[1])
+    rows[sharpness[rows, columns] < _BAND_MARGIN * sharpness[overall]] = overall
+    profile = acc[rows, columns]
     top = np.sort(profile)[-8:].mean() if len(profile) else 0.0
     peaks = _peaks(profile, 2, max(16.0, 0.05 * top))
     while len(peaks) > 2:
@@ -284,7 +442,7 @@ def _lines_from_scan(acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             break
         peaks = np.delete(peaks, k if profile[peaks[k]] < profile[peaks[k + 1]] else k + 1)
     a = (peaks + 0.5) * _T_BIN - _T_MAX
-    return a[::-1].copy(), np.full(len(a), _SLOPES[row])
+    return a[::-1].copy(), _SLOPES[rows[peaks]][::-1].copy()
 
 
 def _lines_from_table(acc: np.ndarray, elevations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -310,21 +468,106 @@ def _lines_from_table(acc: np.ndarray, elevations: np.ndarray) -> tuple[np.ndarr
     return a, b
 
 
+def _even_out(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lines (intercepts descending) with the gaps evened out against the local spacing (median of the 7 nearest
+    gaps): a gap of about n spacings gets n - 1 lines spread through it (a laser whose peak was missed), two lines
+    closer than half a spacing become one (a laser that peaked twice)."""
+    for _ in range(4):
+        if len(a) < 4:
+            return a, b
+        gaps = a[:-1] - a[1:]
+        padded = np.pad(gaps, 3, mode="edge")
+        local = np.median(np.lib.stride_tricks.sliding_window_view(padded, 7), axis=1)
+        close = set(np.flatnonzero(gaps < 0.5 * local).tolist())
+        wide = set(np.flatnonzero(gaps > 1.6 * local).tolist())
+        if not close and not wide:
+            return a, b
+        new_a, new_b = [a[0]], [b[0]]
+        for k in range(len(gaps)):
+            if k in close:
+                new_a[-1] = 0.5 * (new_a[-1] + a[k + 1])
+                new_b[-1] = 0.5 * (new_b[-1] + b[k + 1])
+                continue
+            if k in wide:
+                steps = round(float(gaps[k] / local[k]))
+                for j in range(1, steps):
+                    new_a.append(a[k] - gaps[k] * j / steps)
+                    new_b.append(b[k] + (b[k + 1] - b[k]) * j / steps)
+            new_a.append(a[k + 1])
+            new_b.append(b[k + 1])
+        a, b = np.array(new_a), np.array(new_b)
+    return a, b
+
+
+def _fill_gaps(pts: np.ndarray, a: np.ndarray, b: np.ndarray, min_range: float = 5.0,
+               share: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Lines (intercepts descending) with a line added in every gap that holds a laser's worth of points: points
+    beyond `min_range` (clean elevations) lying more than 0.3 of the gap away from their nearest line, into the gap
+    (or beyond the outermost lines), at least `share` of a typical line's close points. The new line's slope is
+    its neighbours' mean, its intercept the median of those points."""
+    if len(a) < 3:
+        return a, b
+    r = np.hypot(pts[:, 0], pts[:, 1]).astype(np.float64)
+    far = r >= min_range
+    u = 1.0 / r[far]
+    t = pts[far, 2] / r[far]
+    ring, _ = _assign_lines(np.ascontiguousarray(pts[far]), a, b)
+    ring = ring.astype(np.int64)
+    signed = t - a[ring] - b[ring] * u
+    gaps = a[:-1] - a[1:]
+    below = np.r_[gaps, gaps[-1]]  # gap to the next line down, per line
+    above = np.r_[gaps[0], gaps]
+    into_below = signed < -0.3 * below[ring]  # gap index = ring (between line ring and ring + 1)
+    into_above = signed > 0.3 * above[ring]  # gap index = ring - 1
+    close = np.bincount(ring[~(into_below | into_above)], minlength=len(a))
+    need = share * np.median(close)
+    gap_of = np.where(into_below, ring, np.where(into_above, ring - 1, -2))
+    counts = np.bincount(gap_of[gap_of >= -1] + 1, minlength=len(a) + 1)  # gaps -1 (above the top) .. len(a) - 1
+    new_a, new_b = list(a), list(b)
+    for g in np.flatnonzero(counts >= need) - 1:
+        slope = b[0] if g < 0 else b[-1] if g >= len(a) - 1 else 0.5 * (b[g] + b[g + 1])
+        members = gap_of == g
+        new_a.append(float(np.median(t[members] - slope * u[members])))
+        new_b.append(slope)
+    if len(new_a) == len(a):
+        return a, b
+    order = np.argsort(-np.asarray(new_a), kind="stable")
+    return np.asarray(new_a)[order], np.asarray(new_b)[order]
+
+
 def fit_laser_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray, iterations: int = 2) -> tuple:
-    """Ring per point after `iterations` refits of the lines (a: intercepts, descending; b: slopes), and the
-    refitted lines."""
+    """Ring per point after `iterations` refits of the lines (a: intercepts, descending; b: slopes), its distance to
+    its line, and the refitted lines."""
     a = np.ascontiguousarray(a, dtype=np.float64).copy()
     b = np.ascontiguousarray(b, dtype=np.float64).copy()
     for step in range(iterations + 1):
         order = np.argsort(-a, kind="stable")
         a, b = a[order], b[order]
-        ring, resid = _assign_lines(pts, a, b, 6)
+        ring, resid = _assign_lines(pts, a, b)
         if step == iterations:
             break
-        gaps = np.abs(np.diff(a))
-        tol = np.maximum(0.4 * np.minimum(np.r_[gaps, np.inf], np.r_[np.inf, gaps]), _T_BIN)
-        _refit_lines(pts, ring, resid, a, b, np.where(np.isfinite(tol), tol, 0.01), _MIN_LINE_RANGE)
-    return ring, a, b
+        sums = _line_sums(pts, ring, resid, _close_tolerance(a, 0.4), _MIN_LINE_RANGE, len(a))
+        a, b = _refit_lines(sums, a, b)
+    return ring, resid, a, b
+
+
+def _close_tolerance(a: np.ndarray, share: float) -> np.ndarray:
+    """Per line, `share` of the gap to its nearer neighbour (at least one accumulator bin)."""
+    if len(a) < 2:
+        return np.full(len(a), 0.01)
+    gaps = np.abs(np.diff(a))
+    return np.maximum(share * np.minimum(np.r_[gaps, np.inf], np.r_[np.inf, gaps]), _T_BIN)
+
+
+def line_quality(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, a: np.ndarray,
+                 min_range: float = 5.0) -> float:
+    """Share of the points beyond `min_range` (clean elevations) within a quarter gap of their line: about 1 when
+    the lines are the lasers, far lower for lines drawn through a scan that does not fit the model (uniform
+    residuals give about one half)."""
+    far = pts[:, 0] * pts[:, 0] + pts[:, 1] * pts[:, 1] >= min_range * min_range
+    if not far.any():
+        return 0.0
+    return float(np.mean(resid[far] < _close_tolerance(a, 0.25)[ring[far]]))
 
 
 def standard_ring_count(n_found: int) -> int | None:
@@ -336,20 +579,54 @@ def standard_ring_count(n_found: int) -> int | None:
     return None
 
 
+def _search_lines(sample: np.ndarray, acc: np.ndarray, half_band: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Laser lines of a fit sample: the accumulator's peaks (`_lines_from_scan`), evened out, refitted, gaps that
+    hold a laser filled, until the count settles; None unless it is near a standard count and the lines fit the
+    sample (`line_quality`)."""
+    a, b = _even_out(*_lines_from_scan(acc, half_band))
+    if not 2 <= len(a) <= _MAX_LINES:
+        return None
+    _, _, a, b = fit_laser_lines(sample, a, b, 1)
+    for _ in range(_FILL_ROUNDS):
+        n_lines = len(a)
+        a, b = _fill_gaps(sample, *_even_out(a, b))
+        if len(a) > _MAX_LINES:
+            return None
+        _, _, a, b = fit_laser_lines(sample, a, b, 1)
+        a, b = _even_out(a, b)
+        if len(a) == n_lines:
+            break
+    if standard_ring_count(len(a)) is None or not np.all(np.isfinite(a) & np.isfinite(b)):
+        return None
+    ring, resid, a, b = fit_laser_lines(sample, a, b, 1)
+    if line_quality(sample, ring, resid, a) < _MIN_QUALITY:
+        return None
+    return a, b
+
+
 def rings_from_lines(points: np.ndarray, sensor: str = "auto") -> Rings | None:
     """Rings of a scan in any point order, from its laser lines (module docstring): seeded by `sensor`'s laser
-    table, or found in the scan (`sensor` "auto"; None when their count is not near a standard one)."""
+    table, or found in the scan (`sensor` "auto"; None when no line set near a standard count fits the scan). The
+    lines are searched and fitted on a sample of the points that does not depend on their order."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
-    acc = _accumulate(pts)
+    sample = search_sample(pts)
+    vx, vy = estimate_motion(sample)
+    moving = vx != 0.0 or vy != 0.0
+    seen = _moved_origin(sample, vx, vy) if moving else sample
+    acc = _accumulate(seen)
+    seen = search_sample(seen, _FIT_POINTS) if not moving else _moved_origin(search_sample(sample, _FIT_POINTS), vx, vy)
+    suffix = "_moving" if moving else ""
     if sensor != "auto":
         a, b = _lines_from_table(acc, laser_elevations(sensor))
-        ring, a, _ = fit_laser_lines(pts, a, b)
-        return Rings(ring, "laser_table", len(a))
-    a, b = _lines_from_scan(acc)
-    if standard_ring_count(len(a)) is None:
-        return None
-    ring, a, _ = fit_laser_lines(pts, a, b)
-    return Rings(ring, "elevation_lines", len(a))
+        _, _, a, b = fit_laser_lines(seen, a, b)
+        ring, _, a, _ = fit_laser_lines(_moved_origin(pts, vx, vy) if moving else pts, a, b, 0)
+        return Rings(ring, "laser_table" + suffix, len(a))
+    for half_band in (_HALF_BAND, _N_BINS):
+        lines = _search_lines(seen, acc, half_band)
+        if lines is not None:
+            ring, _, a, _ = fit_laser_lines(_moved_origin(pts, vx, vy) if moving else pts, *lines, 0)
+            return Rings(ring, "elevation_lines" + suffix, len(a))
+    return None
 
 
 def recover_rings(
@@ -380,7 +657,7 @@ def recover_rings(
         assert lines is not None
         return lines
     min_cos_jump = float(np.cos(np.deg2rad(min_jump_deg)))
-    counts = _count_rings(pts, min_cos_jump, min_ring_points)
+    counts = _count_rings(pts, min_cos_jump, min_ring_points, n_rings)
     best: tuple[float, np.ndarray, str, int] | None = None
     for rule, source in ((0, "azimuth_wrap"), (1, "azimuth_wrap"), (2, "azimuth_jump")):
         n_found = int(counts[rule])
@@ -418,3 +695,6 @@ def warm_up() -> None:
     pts[:, 2] = np.where(np.arange(64) < 32, 0.0, -1.0)
     recover_rings(pts, Stage1Config(n_rings=2), min_ring_points=2)
     rings_from_lines(pts, "vlp16")
+    rings_from_lines(pts)
+    _motion_scores(pts, np.zeros(1), np.zeros(1), np.zeros(1))
+    _moved_origin(pts, 0.1, 0.0)

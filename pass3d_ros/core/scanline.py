@@ -244,6 +244,83 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
     return labels, n_clusters
 
 
+@nb.njit(cache=True)
+def _canonical_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int) -> np.ndarray:
+    """Permutation listing the points ring by ring, each ring by pseudo-azimuth (a counting sort on the ring, then
+    a bucket sort of each ring that is not already in order)."""
+    n = pts.shape[0]
+    start = np.zeros(n_rings + 1, dtype=np.int64)
+    for i in range(n):
+        start[ring[i] + 1] += 1
+    for r in range(n_rings):
+        start[r + 1] += start[r]
+    idx = np.empty(n, dtype=np.int64)
+    keys = np.empty(n, dtype=np.float64)
+    fill = start[:n_rings].copy()
+    for i in range(n):
+        r = ring[i]
+        idx[fill[r]] = i
+        keys[fill[r]] = _pseudo_azimuth(pts[i, 0], pts[i, 1])
+        fill[r] += 1
+    for r in range(n_rings):
+        lo = start[r]
+        hi = start[r + 1]
+        ordered = True
+        for j in range(lo + 1, hi):
+            if keys[j] < keys[j - 1]:
+                ordered = False
+                break
+        if not ordered:
+            _bucket_sort(keys[lo:hi], idx[lo:hi])
+    return idx
+
+
+@nb.njit(cache=True)
+def _bucket_sort(keys: np.ndarray, idx: np.ndarray) -> None:
+    """Stable sort of (key, index) pairs by key in [0, 4) in place: a counting sort into as many buckets as pairs,
+    then an insertion sort of what is left out of order (a few pairs share a bucket)."""
+    m = keys.shape[0]
+    count = np.zeros(m + 1, dtype=np.int64)
+    bucket = np.empty(m, dtype=np.int64)
+    scale = m / 4.0
+    for j in range(m):
+        b = min(max(int(keys[j] * scale), 0), m - 1)
+        bucket[j] = b
+        count[b + 1] += 1
+    for b in range(m):
+        count[b + 1] += count[b]
+    sorted_keys = np.empty(m, dtype=np.float64)
+    sorted_idx = np.empty(m, dtype=np.int64)
+    for j in range(m):
+        at = count[bucket[j]]
+        sorted_keys[at] = keys[j]
+        sorted_idx[at] = idx[j]
+        count[bucket[j]] = at + 1
+    for j in range(1, m):
+        k = sorted_keys[j]
+        v = sorted_idx[j]
+        i = j - 1
+        while i >= 0 and sorted_keys[i] > k:
+            sorted_keys[i + 1] = sorted_keys[i]
+            sorted_idx[i + 1] = sorted_idx[i]
+            i -= 1
+        sorted_keys[i + 1] = k
+        sorted_idx[i + 1] = v
+    keys[:] = sorted_keys
+    idx[:] = sorted_idx
+
+
+def canonical_order(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """The scan's canonical point order ((N,) int64 permutation): by ring, then by azimuth counter-clockwise from
+    the +x axis (ties keep their input order). Clustering sorts each ring the same way, so a scan in this order
+    clusters like the same scan in firing order."""
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    if len(pts) == 0:
+        return np.zeros(0, dtype=np.int64)
+    ring = np.ascontiguousarray(ring, dtype=np.uint16)
+    return _canonical_kernel(pts, ring, int(ring.max()) + 1)
+
+
 def cluster_scanlines(
     points: np.ndarray, ring: np.ndarray, use: np.ndarray, config: Stage1Config | None = None
 ) -> tuple[np.ndarray, int]:
@@ -268,3 +345,4 @@ def warm_up() -> None:
     pts[32:, 2] = -0.1
     ring = np.repeat(np.arange(2), 32).astype(np.uint16)
     cluster_scanlines(pts, ring, np.ones(64, dtype=bool))
+    canonical_order(pts[::-1], ring)

@@ -65,13 +65,19 @@ class ProposalBatch:
         return out.reshape(len(self.block_proposal), BLOCK, values.shape[1])
 
 
+def uses_intensity(config: ModelConfig) -> bool:
+    """Whether the network sees intensity; a model trained without it (`extra["intensity"]` False) gets 0."""
+    return bool(config.extra.get("intensity", True))
+
+
 def _canonical_input(
-    points: np.ndarray, index: np.ndarray, batch: np.ndarray, boxes: canonical.Boxes, views: np.ndarray, n: np.ndarray
+    points: np.ndarray, index: np.ndarray, batch: np.ndarray, boxes: canonical.Boxes, views: np.ndarray, n: np.ndarray,
+    intensity: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Canonical xyz (K, 3) and features (K, 2) = (intensity in [0, 1], n of the proposal) of points[index]."""
+    """Canonical xyz (K, 3) and features (K, 2) = (intensity in [0, 1] or 0, n of the proposal) of points[index]."""
     local = canonical.to_canonical(points[index, :3], boxes, batch, views).astype(np.float32)
     feat = np.empty((len(index), 2), dtype=np.float32)
-    feat[:, 0] = np.clip(points[index, 3], 0.0, 1.0)
+    feat[:, 0] = np.clip(points[index, 3], 0.0, 1.0) if intensity else 0.0
     feat[:, 1] = n[batch]
     return local, feat
 
@@ -106,10 +112,11 @@ def prepare_proposals(
         gen = rng if rng is not None else canonical.inference_rng(int(size))
         pos[p] = offsets[p] + canonical.sample_indices(int(size), num, gen)
     if not queries:
-        local, feat = _canonical_input(points, index[pos.ravel()], np.repeat(np.arange(count), num), boxes, views, n)
+        local, feat = _canonical_input(points, index[pos.ravel()], np.repeat(np.arange(count), num), boxes, views, n,
+                                       uses_intensity(config))
         return ProposalBatch(local.reshape(count, num, 3), feat.reshape(count, num, 2), index[pos])
     batch = np.repeat(np.arange(count), counts)
-    local, feat = _canonical_input(points, index, batch, boxes, views, n)
+    local, feat = _canonical_input(points, index, batch, boxes, views, n, uses_intensity(config))
     nblocks = -(-counts // BLOCK)
     block_start = np.concatenate([[0], np.cumsum(nblocks)])
     slot = block_start[batch] * BLOCK + (np.arange(len(index)) - offsets[batch])

@@ -1,9 +1,9 @@
 """PASS3D stage 1, accelerated cluster proposal: rings, ground plane fitting, scan-line-run clustering and
 proposal refinement behind one call, `propose`.
 
-Points are N x 4 float32 (x, y, z, intensity) in the sensor frame, in firing order when there is no ring
-field. Every parameter lives in `Stage1Config` (pass3d_ros.core.config, re-exported here), with the paper's
-values where the paper gives one.
+Points are N x 4 float32 (x, y, z, intensity) in the sensor frame, in any order: rings come from the firing
+order, a ring field, or the scan's laser lines (see `_propose_finite`). Every parameter lives in `Stage1Config`
+(pass3d_ros.core.config, re-exported here), with the paper's values where the paper gives one.
 """
 
 from __future__ import annotations
@@ -67,24 +67,50 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
     return part
 
 
+def _in_scan_order(rings: _ring.Rings) -> bool:
+    """Whether the points are already in a scan order that clustering and the ground fit can read as they are: rings
+    read from the firing order, or a ring field that never steps back (ring after ring)."""
+    if rings.source in _ring.FIRING_ORDER_SOURCES:
+        return True
+    return rings.source == "field" and bool(np.all(rings.ring[1:] >= rings.ring[:-1]))
+
+
 def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config) -> Stage1Result:
-    """Stage 1 on float32 points whose coordinates are all finite."""
+    """Stage 1 on float32 points whose coordinates are all finite.
+
+    Points in any other order than a scan order are first put in the canonical order (ring, then azimuth:
+    pass3d_ros.core.scanline.canonical_order), so the ground fit's point sample, the clustering and the proposals do
+    not depend on the order the points came in; the results are mapped back to the input order.
+    """
     t0 = time.perf_counter()
     rings = _ring.rings_for(pts, ring, cfg)
+    order = None if _in_scan_order(rings) else _scanline.canonical_order(pts, rings.ring)
+    work = pts if order is None else pts[order]
+    work_ring = rings.ring if order is None else rings.ring[order]
     t1 = time.perf_counter()
-    fit = _ground.fit_ground(pts, cfg)
+    fit = _ground.fit_ground(work, cfg)
     t2 = time.perf_counter()
-    label, n_clusters = _scanline.cluster_scanlines(pts, rings.ring, ~fit.ground, cfg)
+    label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~fit.ground, cfg)
     t3 = time.perf_counter()
-    boxes, kept = _refinement.select_proposals(pts, label, n_clusters, fit.planes, fit.segment_edges, cfg)
-    cluster_id, cluster_id2 = _refinement.enlarged_membership(pts, label, kept, boxes, cfg.enlarge)
+    boxes, kept = _refinement.select_proposals(work, label, n_clusters, fit.planes, fit.segment_edges, cfg)
+    cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge)
+    ground = fit.ground
+    if order is not None:
+        ground, cluster_id, cluster_id2 = (_to_input_order(v, order) for v in (ground, cluster_id, cluster_id2))
     t4 = time.perf_counter()
     timings = {"ring": t1 - t0, "ground": t2 - t1, "clustering": t3 - t2, "refinement": t4 - t3, "total": t4 - t0}
     return Stage1Result(
-        ring=rings.ring, ground=fit.ground, cluster_id=cluster_id, cluster_id2=cluster_id2, boxes=boxes,
+        ring=rings.ring, ground=ground, cluster_id=cluster_id, cluster_id2=cluster_id2, boxes=boxes,
         timings_ms={k: 1e3 * v for k, v in timings.items()}, ring_source=rings.source, ground_planes=fit.planes,
         n_clusters=n_clusters,
     )
+
+
+def _to_input_order(values: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Per-point values listed in `order` put back in input order."""
+    out = np.empty_like(values)
+    out[order] = values
+    return out
 
 
 def proposal_members(

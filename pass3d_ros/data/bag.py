@@ -2,8 +2,14 @@
 
 Reading: `bag:PATH` yields one Frame per PointCloud2 message of the bag's only PointCloud2 topic;
 `bag:PATH#/topic` picks one when there are several (an error lists them otherwise). Points keep their
-order and NaNs; intensity comes from `intensity` / `i` / `reflectance` as stored (no rescaling), ring and
-labels (`label` field) when present, stamp from the header, name = message index (6 digits).
+order and NaNs; intensity comes from `intensity` / `i` / `reflectance` as stored (no rescaling), ring when
+present, stamp from the header, name = message index (6 digits).
+
+Ground truth lives in its own field, `label_gt` (`pass3d_kitti2bag --with-labels` writes it), because the
+pipeline's output clouds carry their predictions in `label`: scoring an output bag against its own `label`
+would report 100 % IoU. A legacy `label` field counts as ground truth only in a cloud that is not a pass3d
+output (none of `confidence`, `rgb`, `cluster_id`); in an output it is ignored with a warning, unless the
+caller asks for the predictions (`read_bag(PATH, labels="predicted")`).
 
 Writing: `BagWriter` builds the bag in a hidden sibling folder (`.NAME.partial-XXXX`) and renames it into
 place only when complete, so an interrupted or failed write leaves nothing that looks like a bag. A build
@@ -18,10 +24,10 @@ import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from rosbags.interfaces import Connection
@@ -30,13 +36,24 @@ from rosbags.typesys import Stores, get_typestore
 
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import DatasetError
-from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, header_stamp_ns, to_xyzi
+from pass3d_ros.msgs.pointcloud2 import (
+    POINTCLOUD2_TYPE,
+    PointCloud2Error,
+    decode,
+    header_stamp_ns,
+    stamp_to_ns,
+    to_xyzi,
+)
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 STORAGES: dict[str, StoragePlugin] = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 VERSIONS: tuple[int, ...] = (9, 8)  # 9: Jazzy's format; 8: what Humble reads
 OWNER_FILE = ".owner"  # in a build folder: the id of the process writing it
 OWNERLESS_GRACE_S = 60.0  # a build folder without an owner file is taken as stale only after this long
+LABEL_FIELD = "label"  # a pass3d output's predicted class per point (legacy bags: ground truth)
+TRUTH_FIELD = "label_gt"  # ground truth per point in a bag
+OUTPUT_FIELDS: tuple[str, ...] = ("confidence", "rgb", "cluster_id")  # fields only pass3d outputs carry
+LabelSource = Literal["truth", "predicted"]
 
 
 class BagError(ValueError):
@@ -116,32 +133,67 @@ def iter_raw(path: Path, topic: str) -> Iterator[tuple[Connection, int, bytes]]:
         reader.close()
 
 
-def cloud_to_frame(name: str, msg: Any) -> Frame:
-    """A Frame from a PointCloud2 (rclpy or rosbags): points in order, NaNs kept, ring and label when present."""
+def is_output_cloud(names: Collection[str]) -> bool:
+    """Whether a cloud with these field names is a pass3d output (its `label` is a prediction)."""
+    return any(name in names for name in OUTPUT_FIELDS)
+
+
+def truth_field(names: Collection[str]) -> str | None:
+    """The field holding ground truth: `label_gt`, else a legacy `label` of a cloud that is not a pass3d
+    output; None when there is none."""
+    if TRUTH_FIELD in names:
+        return TRUTH_FIELD
+    if LABEL_FIELD in names and not is_output_cloud(names):
+        return LABEL_FIELD
+    return None
+
+
+def message_stamp_ns(msgtype: str, raw: bytes | memoryview) -> int:
+    """The header stamp of a serialized message (a MarkerArray: its first marker's), 0 when there is none."""
+    msg = TYPESTORE.deserialize_cdr(bytes(raw), msgtype)
+    header = getattr(msg, "header", None)
+    if header is None and getattr(msg, "markers", None):
+        header = msg.markers[0].header
+    return stamp_to_ns(header.stamp) if header is not None else 0
+
+
+def cloud_to_frame(name: str, msg: Any, labels: LabelSource = "truth") -> Frame:
+    """A Frame from a PointCloud2 (rclpy or rosbags): points in order, NaNs kept, ring when present; labels
+    from the ground-truth field (`truth`, see `truth_field`) or from an output's `label` (`predicted`)."""
     cloud = decode(msg)
     xyzi = to_xyzi(cloud)
     names = cloud.dtype.names or ()
-    labels = cloud["label"].astype(np.uint8) if "label" in names else None
-    return Frame(name=name, points=xyzi.points, stamp_ns=header_stamp_ns(msg), ring=xyzi.ring, labels=labels)
+    field = truth_field(names) if labels == "truth" else LABEL_FIELD if LABEL_FIELD in names else None
+    values = cloud[field].astype(np.uint8) if field is not None else None
+    return Frame(name=name, points=xyzi.points, stamp_ns=header_stamp_ns(msg), ring=xyzi.ring, labels=values)
 
 
-def read_bag(path: str | Path) -> Iterator[Frame]:
-    """Frames of a bag's PointCloud2 topic (`PATH` or `PATH#/topic`), in bag order."""
+def read_bag(path: str | Path, labels: LabelSource = "truth") -> Iterator[Frame]:
+    """Frames of a bag's PointCloud2 topic (`PATH` or `PATH#/topic`), in bag order; `labels` as in
+    `cloud_to_frame` (an output bag read for truth has none, and says so once on stderr)."""
+    if labels not in ("truth", "predicted"):
+        raise ValueError(f"labels must be 'truth' or 'predicted', got {labels!r}")
     bag, topic = parse_bag_spec(path)
     topic = select_topic(bag, topic)
-    return _frames(bag, topic)
+    return _frames(bag, topic, labels)
 
 
-def _frames(bag: Path, topic: str) -> Iterator[Frame]:
+def _frames(bag: Path, topic: str, labels: LabelSource = "truth") -> Iterator[Frame]:
     for index, (conn, _, raw) in enumerate(iter_raw(bag, topic)):
         try:
             msg = TYPESTORE.deserialize_cdr(raw, conn.msgtype)
         except Exception as exc:  # truncated or foreign CDR surfaces as struct, index or value errors
             raise DatasetError(f"{bag}#{topic}: message {index} does not deserialize: {exc}") from exc
         try:
-            frame = cloud_to_frame(f"{index:06d}", msg)
+            frame = cloud_to_frame(f"{index:06d}", msg, labels)
         except PointCloud2Error as exc:
             raise DatasetError(f"{bag}#{topic}: message {index}: {exc}") from exc
+        if index == 0 and labels == "truth" and frame.labels is None:
+            names = {field.name for field in msg.fields}
+            if LABEL_FIELD in names and is_output_cloud(names):
+                _to_stderr(f"warning: {bag}#{topic} holds pass3d outputs: their `{LABEL_FIELD}` field is the "
+                           f"prediction, not ground truth, so these frames have no labels (ground truth goes in "
+                           f"`{TRUTH_FIELD}`)")
         yield frame
 
 

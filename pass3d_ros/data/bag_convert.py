@@ -2,7 +2,8 @@
 live evaluation.
 
 One message per frame, points in their original order and values: x, y, z, intensity float32, ring uint16
-when the source knows it, label uint8 on request. Header stamp = the frame's stamp. A dataset without absolute
+when the source knows it, the ground truth as `label_gt` uint8 on request (not `label`: that is what the pipeline's
+outputs predict, see pass3d_ros.data.bag). Header stamp = the frame's stamp. A dataset without absolute
 time (its first frame is stamped 0, e.g. KITTI object: frame number x 100 ms) is shifted to start at
 2020-01-01T00:00:00Z, or 100 ms after the previous dataset's last frame, keeping its own spacing. The bag is
 built beside its destination and renamed into place only when complete.
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pass3d_ros.data.bag import TYPESTORE, BagWriter
+from pass3d_ros.data.bag import TRUTH_FIELD, TYPESTORE, BagWriter
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset, parse_spec
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, columns_to_cloud, encode
@@ -39,7 +40,7 @@ class ConvertStats:
 
 
 def frame_cloud(frame: Frame, with_labels: bool = False) -> np.ndarray:
-    """The frame as a structured cloud: x, y, z, intensity float32, ring uint16 if known, label uint8 on request."""
+    """The frame as a structured cloud: x, y, z, intensity float32, ring uint16 if known, label_gt uint8 on request."""
     columns: dict[str, np.ndarray] = {
         "x": frame.points[:, 0],
         "y": frame.points[:, 1],
@@ -51,7 +52,7 @@ def frame_cloud(frame: Frame, with_labels: bool = False) -> np.ndarray:
     if with_labels:
         if frame.labels is None:
             raise DatasetError(f"frame {frame.name}: no point labels, but --with-labels asks for them")
-        columns["label"] = np.asarray(frame.labels, dtype=np.uint8)
+        columns[TRUTH_FIELD] = np.asarray(frame.labels, dtype=np.uint8)
     return columns_to_cloud(columns)
 
 
@@ -77,7 +78,8 @@ def convert(
     stats = ConvertStats()
     synthesized: list[str] = []
     writer = BagWriter(out, storage=storage, version=version, force=force, log=log)
-    with writer, tqdm(total=total, unit="frame", desc=Path(out).name, disable=not progress) as bar:
+    bar = tqdm(total=total, unit="frame", desc=Path(out).name, disable=None if progress else True)  # None: TTY only
+    with writer, bar:
         for spec in parsed:
             offset: int | None = None
             for frame in open_dataset(spec):

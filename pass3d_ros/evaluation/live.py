@@ -4,8 +4,14 @@
 SingleThreadedExecutor in a private rclpy context (its own DDS domain, so a real robot on the default domain
 never sees the test traffic), publishes the bag's PointCloud2 CDR bytes unchanged on the cluster node's input
 topic and listens to the labeled output (and, for per-stage times, to the proposals in between). Ground truth
-comes from the bag's `label` field. `pass3d_ros.evaluation.report.score` turns a LiveResult into the dict
-`pass3d_evaluate` writes as JSON.
+comes from the bag's `label_gt` field (a legacy `label` only in a cloud that is not a pass3d output, see
+`pass3d_ros.data.bag.truth_field`). A recording (`record_out`) holds the labeled clouds and the object markers.
+`pass3d_ros.evaluation.report.score` turns a LiveResult into the dict `pass3d_evaluate` writes as JSON.
+
+Layouts (`layout`): `one-process` (the nodes and the evaluator in this process, PointCloud2 over DDS between the
+nodes), `in-memory` (the same, stage 1 handing its arrays to stage 2: `pass3d_ros.ros.inprocess`), `two-process`
+(the nodes in a child `pass3d_pipeline` process, so input and output cross a process boundary). Per-node counters,
+step times and input gaps come from the nodes' /diagnostics (`node_stats`).
 
 Timing: latency = publish wall time -> receipt of /pass3d/labeled; stage1_ms = publish -> receipt of
 /pass3d/proposals; stage2_ms = that receipt -> receipt of /pass3d/labeled. Each includes the DDS hop of
@@ -14,8 +20,13 @@ its output message, which is what a live consumer sees.
 
 from __future__ import annotations
 
+import os
 import random
+import signal
 import struct
+import subprocess
+import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -27,14 +38,29 @@ import numpy as np
 
 from pass3d_ros.classes import IGNORE, NUM_CLASSES
 from pass3d_ros.core.metrics import ConfusionAccumulator
-from pass3d_ros.data.bag import TYPESTORE, BagWriter, count_frames, iter_raw, parse_bag_spec, select_topic
+from pass3d_ros.data.bag import (
+    LABEL_FIELD,
+    TYPESTORE,
+    BagWriter,
+    count_frames,
+    is_output_cloud,
+    iter_raw,
+    message_stamp_ns,
+    parse_bag_spec,
+    select_topic,
+    truth_field,
+)
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, finite_mask, header_stamp_ns
 
 NODE_NAMES: tuple[str, ...] = ("cluster_proposal_node", "segmentation_node")
+MARKER_ARRAY_TYPE = "visualization_msgs/msg/MarkerArray"
 DISCOVERY_TIMEOUT_S = 15.0
+CHILD_START_S = 60.0  # two-process layout: the node process's start-up, on top of discovery
 SETTLE_S = 0.3  # after matching: the subscriber side of discovery may finish a moment later
 QUIET_S = 1.0  # at the end, both nodes idle and no output for this long: nothing more will come
 FRAME_GAP_NS = 100_000_000  # replay spacing between passes of a one-message bag (10 Hz)
+COUNTER_KEYS = ("received", "processed", "dropped", "failed")
+LAYOUTS: tuple[str, ...] = ("one-process", "in-memory", "two-process")
 
 
 class LiveEvalError(RuntimeError):
@@ -73,6 +99,7 @@ class LiveResult:
     frames: list[LiveFrame] = field(default_factory=list)
     confusion: ConfusionAccumulator = field(default_factory=ConfusionAccumulator)
     node_counters: dict[str, dict[str, int]] = field(default_factory=dict)
+    node_stats: dict[str, dict[str, float | None]] = field(default_factory=dict)  # each node's /diagnostics values
     wall_s: float = 0.0
     record_out: Path | None = None
 
@@ -149,12 +176,17 @@ def _input_frame(raw: bytes, msgtype: str) -> tuple[int, int, np.ndarray | None]
     msg = TYPESTORE.deserialize_cdr(raw, msgtype)
     cloud = decode(msg)
     keep = finite_mask(cloud)
+    names = cloud.dtype.names or ()
+    field = truth_field(names)
+    if field is None and LABEL_FIELD in names and is_output_cloud(names):
+        raise LiveEvalError(f"the cloud is a pass3d output: its `{LABEL_FIELD}` field is a prediction, "
+                            "not ground truth; play the input bag (ground truth in `label_gt`)")
     truth = None
-    if "label" in (cloud.dtype.names or ()):
-        truth = np.ascontiguousarray(cloud["label"][keep], dtype=np.uint8)
+    if field is not None:
+        truth = np.ascontiguousarray(cloud[field][keep], dtype=np.uint8)
         bad = (truth >= NUM_CLASSES) & (truth != IGNORE)
         if bad.any():
-            raise LiveEvalError(f"label field holds ids other than 0..{NUM_CLASSES - 1} or {IGNORE} (unknown)")
+            raise LiveEvalError(f"{field} field holds ids other than 0..{NUM_CLASSES - 1} or {IGNORE} (unknown)")
     return header_stamp_ns(msg), int(np.count_nonzero(keep)), truth
 
 
@@ -214,11 +246,15 @@ def _wait(predicate: Callable[[], bool], timeout: float) -> bool:
 class _Session:
     """Shared state of one run: pending inputs by stamp, matched outputs, the optional recording."""
 
-    def __init__(self, result: LiveResult, keep_labels: bool, writer: BagWriter | None, labeled_topic: str) -> None:
+    def __init__(self, result: LiveResult, keep_labels: bool, writer: BagWriter | None, labeled_topic: str,
+                 objects_topic: str = "") -> None:
         self.result = result
         self.keep_labels = keep_labels
         self.writer = writer
         self.labeled_topic = labeled_topic
+        self.objects_topic = objects_topic
+        self.last_labeled_ns = 0
+        self.objects_written = 0
         self.pending: dict[int, _Pending] = {}
         self.cond = threading.Condition()
         self.last_output = time.perf_counter()
@@ -232,6 +268,20 @@ class _Session:
             if entry is not None and entry.proposals_at is None:
                 entry.proposals_at = now
 
+    def on_objects(self, raw: bytes) -> None:
+        """Record an object MarkerArray at its markers' stamp (the labeled cloud's without markers)."""
+        if self.writer is None:
+            return
+        try:
+            stamp = message_stamp_ns(MARKER_ARRAY_TYPE, raw) or self.last_labeled_ns
+            self.writer.write_raw(self.objects_topic, MARKER_ARRAY_TYPE, stamp, raw)
+            with self.cond:
+                self.objects_written += 1
+        except Exception as exc:  # an executor callback must not die; run_live re-raises it
+            with self.cond:
+                self.error = self.error or exc
+                self.cond.notify_all()
+
     def on_labeled(self, raw: bytes) -> None:
         now = time.perf_counter()
         try:
@@ -243,6 +293,7 @@ class _Session:
 
     def _labeled(self, raw: bytes, now: float) -> None:
         stamp = cdr_stamp_ns(raw)
+        self.last_labeled_ns = stamp
         if self.writer is not None:
             self.writer.write_raw(self.labeled_topic, POINTCLOUD2_TYPE, stamp, raw)
         with self.cond:
@@ -299,9 +350,12 @@ class LiveOptions:
     log_level: str | None = None
     progress: bool = False
     repeat: int = 1
+    layout: str = "one-process"
 
     def check(self) -> None:
         """Refuse values that cannot run (ValueError naming the option)."""
+        if self.layout not in LAYOUTS:
+            raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {self.layout!r}")
         if self.rate < 0:
             raise ValueError(f"rate must be >= 0, got {self.rate}")
         if self.timeout_s <= 0:
@@ -323,8 +377,9 @@ def run_live(bag: str | Path, options: LiveOptions | None = None, **fields: Any)
     at `rate` x the recorded pace (0: as fast as possible) and wait at most `timeout_s` after the last
     publish for the outputs. `node_parameters` = {"cluster_proposal_node": {...}, "segmentation_node": {...}};
     unknown nodes or parameters are a ValueError, bad weights the node's own error. `record_out`: the
-    received labeled messages as an MCAP bag (`force` replaces an existing one). keep_labels=False keeps
-    per-frame records without label arrays (long soaks: the confusion matrix still accumulates).
+    received labeled clouds and object MarkerArrays as an MCAP bag (`force` replaces an existing one).
+    keep_labels=False keeps per-frame records without label arrays (long soaks: the confusion matrix still
+    accumulates).
     `domain_id` defaults to a random one in 100..200. `log_level` (debug, info, warn, error) sets both
     nodes' loggers for the rest of the process. `repeat` plays the bag that many times back to back (long
     runs from a short bag), every pass shifted in stamp and time by the bag's span plus one frame spacing
@@ -363,16 +418,23 @@ class LiveHarness:
         self.spinner: threading.Thread | None = None
         self.session: _Session | None = None
         self.started = 0.0
+        self.child: subprocess.Popen | None = None
+        self.child_dir: tempfile.TemporaryDirectory | None = None
+        self.diagnostics: dict[str, dict[str, float | None]] = {}
 
     def start(self) -> None:
         """Both nodes and a probe node on a single-threaded executor in a private context, all discovered."""
         import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.logging import LoggingSeverity, set_logger_level
         from sensor_msgs.msg import PointCloud2
+        from visualization_msgs.msg import MarkerArray
 
         from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+        from pass3d_ros.ros.diagnostics import DIAGNOSTICS_TOPIC
+        from pass3d_ros.ros.inprocess import in_memory_factories
         from pass3d_ros.ros.qos import qos_profile
         from pass3d_ros.ros.segmentation_node import SegmentationNode
 
@@ -386,18 +448,30 @@ class LiveHarness:
         # Callbacks only hand frames to the nodes' worker threads. rclpy 7.1.6's MultiThreadedExecutor stalls on
         # long runs (ros2/rclpy#1452), so a single-threaded executor is both enough and reliable.
         self.executor = SingleThreadedExecutor(context=self.context)
-        self.cluster = _make_node(ClusterProposalNode, self.context, self.overrides[NODE_NAMES[0]], self.nodes)
-        self.segmenter = _make_node(SegmentationNode, self.context, self.overrides[NODE_NAMES[1]], self.nodes)
+        remote = options.layout == "two-process"
+        stage_timing = options.stage_timing and options.layout == "one-process"  # else it would force an encode
+        if remote:
+            self._start_child(domain_id)
+        else:
+            kinds = in_memory_factories() if options.layout == "in-memory" else [ClusterProposalNode, SegmentationNode]
+            self.cluster = _make_node(kinds[0], self.context, self.overrides[NODE_NAMES[0]], self.nodes)
+            self.segmenter = _make_node(kinds[1], self.context, self.overrides[NODE_NAMES[1]], self.nodes)
         probe = rclpy.create_node(f"pass3d_live_eval_{random.getrandbits(32):08x}", context=self.context)
         self.nodes.append(probe)
-        labeled_topic = self.segmenter.get_parameter("labeled_topic").value
+        labeled_topic = self._topic(1, "labeled_topic")
         if self.writer is not None:
             self.writer.open()
-        self.session = _Session(self.result, options.keep_labels, self.writer, labeled_topic)
-        output_qos = qos_profile(self.segmenter.get_parameter("output_qos").value, depth=50)
+        objects_topic = self._topic(1, "objects_topic")
+        probe.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, 10)
+        self.session = _Session(self.result, options.keep_labels, self.writer, labeled_topic, objects_topic)
+        output_qos = qos_profile(self._topic(1, "output_qos"), depth=50)
         labeled_sub = probe.create_subscription(PointCloud2, labeled_topic, self.session.on_labeled, output_qos,
                                                 raw=True)
-        if options.stage_timing:
+        objects_sub = None
+        if self.writer is not None:  # the recording holds the object markers beside the labeled clouds
+            objects_sub = probe.create_subscription(MarkerArray, objects_topic, self.session.on_objects, output_qos,
+                                                    raw=True)
+        if stage_timing:
             probe.create_subscription(
                 PointCloud2,
                 self.cluster.get_parameter("proposals_topic").value,
@@ -405,7 +479,7 @@ class LiveHarness:
                 qos_profile(self.cluster.get_parameter("output_qos").value, depth=50),
                 raw=True,
             )
-        self.publisher = probe.create_publisher(PointCloud2, self.cluster.get_parameter("input_topic").value,
+        self.publisher = probe.create_publisher(PointCloud2, self._topic(0, "input_topic"),
                                                 qos_profile("reliable", depth=10))
         for node in self.nodes:
             self.executor.add_node(node)
@@ -413,15 +487,23 @@ class LiveHarness:
         self.spinner.start()
 
         def connected() -> bool:
-            return (
-                self.publisher.get_subscription_count() >= 1
-                and self.cluster.proposals_pub.get_subscription_count() >= 1 + int(options.stage_timing)
+            if remote and self.child is not None and self.child.poll() is not None:
+                raise LiveEvalError(f"the node process ended (exit {self.child.returncode}): {self._child_log()}")
+            local = remote or (
+                self.cluster.proposals_pub.get_subscription_count()
+                >= int(options.layout == "one-process") + int(stage_timing)
                 and self.segmenter.labeled_pub.get_subscription_count() >= 1
+            )
+            return (
+                local
+                and self.publisher.get_subscription_count() >= 1
                 and labeled_sub.get_publisher_count() >= 1
+                and (objects_sub is None or objects_sub.get_publisher_count() >= 1)
             )
 
-        if not _wait(connected, DISCOVERY_TIMEOUT_S):
-            raise LiveEvalError(f"the nodes and the evaluator did not discover each other in {DISCOVERY_TIMEOUT_S} s")
+        timeout = DISCOVERY_TIMEOUT_S + (CHILD_START_S if remote else 0.0)  # the child loads torch and weights
+        if not _wait(connected, timeout):
+            raise LiveEvalError(f"the nodes and the evaluator did not discover each other in {timeout:g} s")
         time.sleep(SETTLE_S)
 
     def play(self) -> None:
@@ -433,7 +515,7 @@ class LiveHarness:
         self.started = time.perf_counter()
         total = count_frames(self.bag)
         bar = tqdm(total=None if total is None else total * options.repeat, unit="frame", desc="live",
-                   disable=not options.progress)
+                   disable=None if options.progress else True)  # None: only on a terminal
         pace_start, first_bag_ns, last_stamp = None, 0, None
         for index, msgtype, bag_ns, raw in _replay(self.path, self.topic, options.repeat):
             bar.update(1)
@@ -477,6 +559,8 @@ class LiveHarness:
         assert session is not None, "start() first"
 
         def idle() -> bool:
+            if self.options.layout == "two-process":
+                return True  # the child's workers: "quiet" (no output for QUIET_S) stands for idle
             return self.cluster.worker.idle() and self.segmenter.worker.idle()
 
         def finished() -> bool:
@@ -488,13 +572,68 @@ class LiveHarness:
 
         _wait(finished, timeout_s)
         self.result.wall_s = time.perf_counter() - self.started
+        if self.writer is not None:  # each labeled cloud's markers follow it: record them too
+            _wait(lambda: session.objects_written >= self.result.frames_out, min(timeout_s, QUIET_S))
         _wait(idle, timeout_s)  # counters final
         if session.error is not None:
             raise session.error
+        if self.options.layout == "two-process":  # counters from the child's next /diagnostics
+            from pass3d_ros.ros.diagnostics import DIAGNOSTICS_PERIOD_S
+
+            self.diagnostics.clear()
+            _wait(lambda: all(name in self.diagnostics for name in NODE_NAMES), 3 * DIAGNOSTICS_PERIOD_S)
+            stats = dict(self.diagnostics)
+            self.result.node_counters = {name: {key: int(values[key] or 0) for key in COUNTER_KEYS if key in values}
+                                         for name, values in stats.items()}
+            self.result.node_stats = stats
+            return
         self.result.node_counters = {
             NODE_NAMES[0]: asdict(self.cluster.worker.counters),
             NODE_NAMES[1]: asdict(self.segmenter.worker.counters),
         }
+        self.result.node_stats = {NODE_NAMES[0]: self.cluster.stats.snapshot(),
+                                  NODE_NAMES[1]: self.segmenter.stats.snapshot()}
+
+    def _topic(self, node: int, parameter: str) -> str:
+        """A topic (or QoS) parameter of a local node, or its value for the child process's nodes."""
+        if self.options.layout == "two-process":
+            from pass3d_ros.ros.cluster_proposal_node import NODE_PARAMETERS as CLUSTER
+            from pass3d_ros.ros.segmentation_node import NODE_PARAMETERS as SEGMENTATION
+
+            values = dict(self.options.node_parameters or {}).get(NODE_NAMES[node], {})
+            return str(values.get(parameter, (CLUSTER, SEGMENTATION)[node][parameter][0]))
+        return (self.cluster, self.segmenter)[node].get_parameter(parameter).value
+
+    def _on_diagnostics(self, msg: Any) -> None:
+        from pass3d_ros.ros.diagnostics import status_values
+
+        for status in msg.status:
+            if status.name in NODE_NAMES:
+                self.diagnostics[status.name] = status_values(status)
+
+    def _start_child(self, domain_id: int) -> None:
+        """`pass3d_pipeline` in a child process on this run's DDS domain, with the node parameters as a YAML file."""
+        import yaml
+
+        self.child_dir = tempfile.TemporaryDirectory(prefix="pass3d_live_")
+        folder = Path(self.child_dir.name)
+        params = {name: {"ros__parameters": {p.name: p.value for p in self.overrides[name]}}
+                  for name in NODE_NAMES if self.overrides[name]}
+        args = [sys.executable, "-m", "pass3d_ros.ros.pipeline", "--ros-args"]
+        if params:
+            (folder / "params.yaml").write_text(yaml.safe_dump(params))
+            args += ["--params-file", str(folder / "params.yaml")]
+        if self.options.log_level is not None:
+            args += ["--log-level", self.options.log_level.lower()]
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+        with open(folder / "nodes.log", "wb") as log:
+            self.child = subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT)
+
+    def _child_log(self) -> str:
+        if self.child_dir is None:
+            return ""
+        path = Path(self.child_dir.name) / "nodes.log"
+        return path.read_text(errors="replace")[-2000:] if path.exists() else ""
 
     def stop(self, complete: bool) -> None:
         """Stop spinning, destroy the nodes (their workers join), shut the context down; then close the
@@ -509,6 +648,15 @@ class LiveHarness:
             node.destroy_node()
         if self.context is not None:
             rclpy.try_shutdown(context=self.context)
+        if self.child is not None:
+            self.child.send_signal(signal.SIGINT)
+            try:
+                self.child.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.child.kill()
+                self.child.wait()
+        if self.child_dir is not None:
+            self.child_dir.cleanup()
         if self.writer is not None:
             if complete:
                 self.writer.close()

@@ -24,7 +24,7 @@ def live_bag(specs: list[str], workdir: Path, progress: bool) -> tuple[str, bool
         if first is None:
             raise DatasetError(f"{specs[0]}: no PointCloud2 messages")
         if first.labels is None:
-            raise DatasetError(f"{specs[0]}: no point labels (label field); live evaluation needs labelled data")
+            raise DatasetError(f"{specs[0]}: no point labels (label_gt field); live evaluation needs labelled data")
         return path, False
     out = workdir / "input_bag"
     convert(specs, out, with_labels=True, progress=progress, log=lambda _: None)
@@ -53,6 +53,7 @@ def evaluate_live(specs: list[str], config: Stage1Config, kind: str, weights: st
         "frames": scores["frames"],
         "classes": scores["per_class"],
         "mean_iou": scores["mean_iou"],
+        "mean_iou_interval": scores.get("mean_iou_interval"),
         "ms_per_frame": {"stage1": median_or_none(stage1), "stage2": median_or_none(stage2),
                          "total": median_or_none(result.latency_ms)},
         "bag": None if converted else bag,

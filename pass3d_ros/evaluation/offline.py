@@ -43,7 +43,8 @@ def iter_frames(specs: list[str], limit: int | None, progress: bool) -> Iterator
         total = count_frames(spec)
         if limit is not None:
             total = limit if total is None else min(total, limit)
-        bar = tqdm(total=total, desc=spec, unit="frame", disable=not progress, file=sys.stderr, leave=False)
+        bar = tqdm(total=total, desc=spec, unit="frame", disable=None if progress else True, file=sys.stderr,
+                   leave=False)
         try:
             for index, frame in enumerate(open_dataset(spec)):
                 if limit is not None and index >= limit:

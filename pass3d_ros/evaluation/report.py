@@ -22,8 +22,9 @@ def _stats(values: list[float]) -> dict[str, float] | None:
 
 
 def score(result: LiveResult) -> dict:
-    """Per-class precision / recall / IoU and mean IoU (foreground classes) plus the `live` counters and times."""
-    summary = result.confusion.summary(FOREGROUND)
+    """Per-class precision / recall / IoU (with frame bootstrap intervals) and mean IoU (foreground classes) plus
+    the `live` counters and times."""
+    summary = result.confusion.summary_with_intervals(FOREGROUND)
     has_truth = result.labeled_frames > 0
     stage1 = [f.stage1_ms for f in result.frames if f.stage1_ms is not None]
     stage2 = [f.stage2_ms for f in result.frames if f.stage2_ms is not None]
@@ -31,6 +32,7 @@ def score(result: LiveResult) -> dict:
         "frames": result.labeled_frames,
         "per_class": summary["per_class"] if has_truth else None,
         "mean_iou": summary["mean_iou"] if has_truth else None,
+        "mean_iou_interval": summary["mean_iou_interval"] if has_truth else None,
         "live": {
             "lockstep": result.lockstep,
             "rate": result.rate,
@@ -57,7 +59,7 @@ def _ms(stats: dict | None) -> str:
 def format_report(scores: dict) -> str:
     """A plain-text table of a `score` dict: per-class P / R / IoU (%), mean IoU, live counters and times."""
     if scores.get("per_class"):
-        lines = format_metrics(scores["per_class"], scores["mean_iou"])
+        lines = format_metrics(scores["per_class"], scores["mean_iou"], scores.get("mean_iou_interval"))
     else:
         lines = ["no ground-truth labels: no segmentation metrics"]
     live = scores["live"]
@@ -119,7 +121,7 @@ def format_full(summary: dict, per_frame: bool = False) -> str:
     """Human-readable table of a full-pipeline summary: per-class metrics, stage times, stage-1 recap."""
     s1 = summary["stage1"]
     lines = [f"full pipeline over {summary['frames']} frame(s)", _classifier_line(summary)]
-    lines += format_metrics(summary["classes"], summary["mean_iou"])
+    lines += format_metrics(summary["classes"], summary["mean_iou"], summary.get("mean_iou_interval"))
     lines.append(_stage_ms_line(summary["ms_per_frame"]))
     lines.append(f"stage 1: foreground recall {_fmt(s1['foreground_recall'])}, proposals / frame median "
                  f"{_fmt(s1['proposals_per_frame']['median'], 1)}")
@@ -134,7 +136,8 @@ def format_full(summary: dict, per_frame: bool = False) -> str:
 
 def format_live(summary: dict, per_frame: bool = False) -> str:
     """Human-readable report of a live summary (per-class metrics, counters, latency, stage times)."""
-    report = format_report({"per_class": summary["classes"], "mean_iou": summary["mean_iou"], "live": summary["live"]})
+    report = format_report({"per_class": summary["classes"], "mean_iou": summary["mean_iou"],
+                            "mean_iou_interval": summary.get("mean_iou_interval"), "live": summary["live"]})
     lines = [f"live pipeline over {summary['frames']} scored frame(s)", _classifier_line(summary), report,
              _stage_ms_line(summary["ms_per_frame"])]
     if summary["record_out"]:

@@ -7,7 +7,7 @@ Decoding is a zero-copy `np.frombuffer` view with a dtype built from the message
 Decisions:
 - A field with `count > 1` is supported: it decodes to a subarray column of shape (N, count), and a
   2-D column encodes back to `count`. x, y, z, intensity, ring and the per-point ids and labels this package
-  reads (cluster_id, cluster_id2, label) must have count 1: a wider one is a malformed layout.
+  reads (cluster_id, cluster_id2, label, label_gt) must have count 1: a wider one is a malformed layout.
 - Big-endian messages are supported: the dtype is byteswapped ('>f4'), values read correctly.
   Encoding always writes the machine's byte order.
 - Fields with an empty name are padding and are skipped (PCL writes such fields).
@@ -40,7 +40,7 @@ DATATYPES: dict[int, np.dtype] = {
 _DATATYPE_OF: dict[str, int] = {dt.str[1:]: code for code, dt in DATATYPES.items()}
 
 INTENSITY_NAMES: tuple[str, ...] = ("intensity", "i", "reflectance")
-_SCALAR_FIELDS = ("x", "y", "z", "ring", *INTENSITY_NAMES, "cluster_id", "cluster_id2", "label")
+_SCALAR_FIELDS = ("x", "y", "z", "ring", *INTENSITY_NAMES, "cluster_id", "cluster_id2", "label", "label_gt")
 
 
 class PointCloud2Error(ValueError):

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -32,6 +34,20 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "publish_boxes": (True, "publish the proposal boxes MarkerArray", None),
 }
 PARAMETERS = params.NodeParameters("cluster_proposal_node", NODE_PARAMETERS, {STAGE1_PREFIX: Stage1Config})
+
+
+@dataclass(frozen=True)
+class ProposalFrame:
+    """One frame of stage-1 output in memory: the columns of /pass3d/proposals the segmentation node reads."""
+
+    header: Any  # std_msgs/Header of the input scan (stamp and frame_id)
+    points: np.ndarray  # (N, 4) float32 x, y, z, intensity; all finite
+    ring: np.ndarray | None  # (N,) ring index, or None
+    cluster_id: np.ndarray  # (N,) primary proposal id, -1 = none
+    cluster_id2: np.ndarray  # (N,) secondary proposal id (overlapping enlarged boxes), -1 = none
+
+
+ProposalSink = Callable[[ProposalFrame], None]
 
 
 MAX_COORDINATE_M = 1e4
@@ -78,10 +94,15 @@ def proposals_cloud(points: np.ndarray, result: Stage1Result) -> dict[str, np.nd
 
 
 class ClusterProposalNode(PointCloudNode):
-    """Subscribes a scan, runs ground plane fitting, scan-line-run clustering and proposal refinement."""
+    """Subscribes a scan, runs ground plane fitting, scan-line-run clustering and proposal refinement.
 
-    def __init__(self, **kwargs: Any) -> None:
+    With a `sink` (both nodes in one process) every frame's result goes to it in memory; the proposals cloud
+    and the boxes are then encoded and published only while something subscribes to them.
+    """
+
+    def __init__(self, sink: ProposalSink | None = None, **kwargs: Any) -> None:
         super().__init__(PARAMETERS, **kwargs)
+        self.sink = sink
         self.config = params.read_config(self, Stage1Config, STAGE1_PREFIX)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -108,6 +129,7 @@ class ClusterProposalNode(PointCloudNode):
     def _process(self, msg: PointCloud2) -> None:
         """One frame: decode, propose, publish; a malformed or empty frame is logged and skipped."""
         received = time.perf_counter()
+        clock = self.step_clock()
         try:
             scan = decode_xyzi(msg, skip_nans=True)
         except PointCloud2Error as exc:
@@ -140,10 +162,23 @@ class ClusterProposalNode(PointCloudNode):
                 f"{self.config.n_rings}); rings recovered from the points for this frame",
                 throttle_duration_sec=LOG_PERIOD_S)
             ring = None
+        clock.mark("decode")
         result = propose(points, ring, self.config)
-        self.proposals_pub.publish(encode(proposals_cloud(points, result), header=msg.header))
-        if self.get_parameter("publish_boxes").value:
-            self.boxes_pub.publish(boxes_to_markers(result.boxes, msg.header, "proposals"))
+        clock.mark("compute")
+        if self.sink is not None:
+            self.sink(ProposalFrame(msg.header, points, result.ring, result.cluster_id, result.cluster_id2))
+            clock.mark("sink")
+        if self.sink is None or self.proposals_pub.get_subscription_count() > 0:
+            cloud = encode(proposals_cloud(points, result), header=msg.header)
+            clock.mark("encode")
+            self.proposals_pub.publish(cloud)
+            clock.mark("publish")
+        if self.get_parameter("publish_boxes").value and self.boxes_pub.get_subscription_count() > 0:
+            markers = boxes_to_markers(result.boxes, msg.header, "proposals")
+            clock.mark("encode")
+            self.boxes_pub.publish(markers)
+            clock.mark("publish")
+        self.stats.frame(clock.steps_ms)
         steps = " ".join(f"{k}={v:.1f}" for k, v in result.timings_ms.items())
         self.get_logger().info(
             f"{len(points)} points, {len(result.boxes)} proposals, stage1 ms: {steps}, "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
@@ -33,6 +34,8 @@ class LatestFrameWorker(Generic[T]):
         self._cond = threading.Condition()
         self._stopping = False
         self._busy = False
+        self._submitted = 0.0
+        self.last_wait_s = 0.0  # how long the item in hand waited in the slot (read by `process`)
         self.counters = FrameCounters()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
@@ -44,7 +47,16 @@ class LatestFrameWorker(Generic[T]):
             if self._has_pending:
                 self.counters.dropped += 1
             self._pending, self._has_pending = item, True
+            self._submitted = time.perf_counter()
             self._cond.notify()
+
+    def run_inline(self, item: T) -> None:
+        """Process `item` now, on the caller's thread, counted like a submitted one (no slot, no drop): for a
+        stage fed in memory by the stage before it, so the two never contend for the GIL."""
+        with self._cond:
+            self.counters.received += 1
+        self.last_wait_s = 0.0
+        self._call(item)
 
     def idle(self) -> bool:
         """True when nothing is pending or being processed."""
@@ -67,13 +79,18 @@ class LatestFrameWorker(Generic[T]):
                 if self._stopping:
                     return
                 item, self._pending, self._has_pending = self._pending, None, False
+                self.last_wait_s = time.perf_counter() - self._submitted
                 self._busy = True
             try:
-                self._process(item)  # type: ignore[arg-type]
-                self.counters.processed += 1
-            except Exception as exc:  # a bad frame must never kill the worker
-                self.counters.failed += 1
-                self._on_error(exc)
+                self._call(item)  # type: ignore[arg-type]
             finally:
                 with self._cond:
                     self._busy = False
+
+    def _call(self, item: T) -> None:
+        try:
+            self._process(item)
+            self.counters.processed += 1
+        except Exception as exc:  # a bad frame must never kill the worker
+            self.counters.failed += 1
+            self._on_error(exc)

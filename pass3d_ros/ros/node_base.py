@@ -1,16 +1,19 @@
 """What both PASS3D nodes share: parameters declared from their table, QoS names checked at start-up, one
-latest-frame worker fed by the input subscription, frame errors logged (throttled), the worker stopped on
-destroy."""
+latest-frame worker fed by the input subscription (or in memory by the node before it), counters on
+`/diagnostics` at 1 Hz, frame errors logged (throttled), the worker stopped on destroy."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from sensor_msgs.msg import PointCloud2
 
+from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
+from pass3d_ros.ros.diagnostics import DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, NodeStats, StepClock, to_status
 from pass3d_ros.ros.latest_frame import LatestFrameWorker
 from pass3d_ros.ros.params import NodeParameters
 from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
@@ -32,21 +35,50 @@ class PointCloudNode(Node):
         for name in QOS_PARAMETERS:
             if self.get_parameter(name).value not in QOS_NAMES:
                 raise ValueError(f"parameter {name} must be one of {QOS_NAMES}")
+        self.stats = NodeStats()
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
+        self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
 
     def output_publisher(self, msg_type: type, topic_parameter: str) -> Publisher:
         """A publisher on the topic the parameter `topic_parameter` names, with the `output_qos` profile."""
         qos = qos_profile(self.get_parameter("output_qos").value)
         return self.create_publisher(msg_type, self.get_parameter(topic_parameter).value, qos)
 
-    def start_worker(self, process: Callable[[PointCloud2], None], name: str) -> None:
-        """Subscribe `input_topic` (with `input_qos`) and hand the newest message to `process` on a thread."""
-        self.worker: LatestFrameWorker[PointCloud2] = LatestFrameWorker(process, self._on_error, name)
-        self.subscription = self.create_subscription(
-            PointCloud2,
-            self.get_parameter("input_topic").value,
-            self.worker.submit,
-            qos_profile(self.get_parameter("input_qos").value),
-        )
+    def start_worker(self, process: Callable[[Any], None], name: str, subscribe: bool = True) -> None:
+        """Hand the newest input to `process` on a thread; inputs come from `input_topic` (with `input_qos`),
+        or only through `submit` when `subscribe` is False (an in-memory hand-off in one process)."""
+        self.worker: LatestFrameWorker[Any] = LatestFrameWorker(process, self._on_error, name)
+        self.subscription = None
+        if subscribe:
+            self.subscription = self.create_subscription(
+                PointCloud2,
+                self.get_parameter("input_topic").value,
+                self._on_message,
+                qos_profile(self.get_parameter("input_qos").value),
+            )
+
+    def _on_message(self, msg: PointCloud2) -> None:
+        self.submit(msg, header_stamp_ns(msg))
+
+    def submit(self, item: Any, stamp_ns: int) -> None:
+        """Queue one input (a message, or an in-memory frame): the stamp feeds the gap counter."""
+        self.stats.input(stamp_ns)
+        self.worker.submit(item)
+
+    def step_clock(self) -> StepClock:
+        """A clock for the frame in hand, starting with the time it waited in the worker's slot."""
+        return StepClock(self.worker.last_wait_s)
+
+    def publish_diagnostics(self) -> None:
+        """One DiagnosticArray with this node's status (counters, gaps, latency percentiles, step medians)."""
+        worker = getattr(self, "worker", None)
+        if worker is None:
+            return
+        counters = vars(worker.counters)
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [to_status(self.get_name(), counters, self.stats)]
+        self.diagnostics_pub.publish(msg)
 
     def _on_error(self, exc: BaseException) -> None:
         """A frame that raised: one throttled error line, and the node goes on with the next frame.

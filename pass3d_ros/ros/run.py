@@ -1,7 +1,9 @@
-"""Process entry for the node executables: init, spin on one executor, clean shutdown, exit 2 on bad set-up."""
+"""Process entry for the node executables: usage on -h/--help, init, spin on one executor, clean shutdown,
+exit 2 on bad set-up."""
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Callable, Sequence
 
@@ -12,15 +14,53 @@ from rclpy.node import Node
 
 from pass3d_ros.ros.node_base import PointCloudNode
 
+HELP_FLAGS = ("-h", "--help")
+
+
+def usage(program: str, factories: Sequence[Callable[[], Node]]) -> str:
+    """The -h/--help text: what the executable runs and how ROS arguments reach it."""
+    lines = [f"usage: {program} [-h] [--ros-args ROS_ARGUMENTS ...]", "",
+             "Runs in this process, until Ctrl-C:"]
+    for factory in factories:
+        module = sys.modules.get(getattr(factory, "__module__", ""))
+        name = re.sub(r"(?<!^)(?=[A-Z])", "_", getattr(factory, "__name__", "node")).lower()  # ClassName: class_name
+        summary = ((getattr(module, "__doc__", None) or "").strip().splitlines() or [""])[0]
+        lines.append(f"  {name}: {summary}" if summary else f"  {name}")
+    lines += [
+        "",
+        "Parameters, remappings and logging go after --ros-args (ROS 2 syntax), for example:",
+        f"  {program} --ros-args --params-file launch_configs/pass3d_params.yaml",
+        f"  {program} --ros-args -p input_qos:=reliable -r /velodyne_points:=/points_raw",
+        f"  {program} --ros-args --log-level debug",
+        "Every parameter, with its default, is in launch_configs/pass3d_params.yaml.",
+    ]
+    return "\n".join(lines)
+
+
+def wants_help(args: Sequence[str]) -> bool:
+    """Whether -h/--help comes before any --ros-args (after it, the arguments are ROS's)."""
+    for arg in args:
+        if arg == "--ros-args":
+            return False
+        if arg in HELP_FLAGS:
+            return True
+    return False
+
 
 def run_nodes(program: str, factories: Sequence[Callable[[], Node]], argv: list[str] | None = None) -> int:
     """Create the nodes and spin them until Ctrl-C; missing weights or bad parameters print one line and exit 2.
+
+    -h/--help (before --ros-args) prints `usage` and exits 0 without starting anything.
 
     Ctrl-C shuts the context down at once; a worker whose publish then fails stops quietly (no error line).
     One single-threaded executor is enough: callbacks only hand frames to each node's worker thread, and rclpy
     7.1.6's MultiThreadedExecutor stalls on long runs (ros2/rclpy#1452).
     """
-    rclpy.init(args=argv if argv is not None else sys.argv)
+    args = argv if argv is not None else sys.argv
+    if wants_help(args):
+        print(usage(program, factories))
+        return 0
+    rclpy.init(args=args)
     nodes: list[Node] = []
     executor = SingleThreadedExecutor()
     try:

@@ -18,8 +18,9 @@ from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, load_classifier, resolve_weights
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.frame import Box3D
-from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode, to_xyzi
+from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode, header_stamp_ns, to_xyzi
 from pass3d_ros.ros import params
+from pass3d_ros.ros.cluster_proposal_node import ProposalFrame
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
 from pass3d_ros.ros.qos import QOS_NAMES
@@ -45,21 +46,21 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
 PARAMETERS = params.NodeParameters("segmentation_node", NODE_PARAMETERS)
 
 
-def labeled_cloud(cloud: np.ndarray, points: np.ndarray, result: SegmentResult, min_confidence: float) -> dict:
+def labeled_cloud(frame: ProposalFrame, result: SegmentResult, min_confidence: float) -> dict:
     """The columns of /pass3d/labeled: input geometry and ids plus label, confidence and rgb."""
     labels = result.labels.astype(np.uint8)
     if min_confidence > 0.0:
         labels = np.where(result.confidence >= min_confidence, labels, BACKGROUND).astype(np.uint8)
-    names = cloud.dtype.names or ()
+    points = frame.points
     columns = {
         "x": points[:, 0],
         "y": points[:, 1],
         "z": points[:, 2],
         "intensity": points[:, 3],
     }
-    if "ring" in names:
-        columns["ring"] = cloud["ring"].astype(np.uint16)
-    columns["cluster_id"] = cloud["cluster_id"].astype(np.int32)
+    if frame.ring is not None:
+        columns["ring"] = frame.ring.astype(np.uint16, copy=False)
+    columns["cluster_id"] = frame.cluster_id.astype(np.int32, copy=False)
     columns["label"] = labels
     columns["confidence"] = result.confidence.astype(np.float32)
     columns["rgb"] = packed_rgb(labels)
@@ -110,13 +111,29 @@ def proposal_ids(cloud: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ids[0], ids[1]
 
 
+def proposal_frame(msg: PointCloud2) -> ProposalFrame:
+    """A /pass3d/proposals message as arrays (PointCloud2Error when it is not one); NaN points are left out."""
+    cloud = decode(msg, skip_nans=True)
+    names = cloud.dtype.names or ()
+    missing = [name for name in REQUIRED_FIELDS if name not in names]
+    if missing:
+        raise PointCloud2Error(f"no {', '.join(missing)} field: is this a /pass3d/proposals cloud?")
+    first, second = proposal_ids(cloud)
+    points = to_xyzi(cloud, with_ring=False).points
+    return ProposalFrame(msg.header, points, cloud["ring"] if "ring" in names else None, first, second)
+
+
 def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:
     """Point indices of each proposal from the per-point cluster_id (and cluster_id2 when present).
 
     Ids are renumbered densely in ascending order (unchanged for stage 1's 0..K-1), so the number of proposals is
     the number of distinct ids, never the largest one.
     """
-    first, second = proposal_ids(cloud)
+    return members_from_ids(*proposal_ids(cloud))
+
+
+def members_from_ids(first: np.ndarray, second: np.ndarray) -> list[np.ndarray]:
+    """Point indices of each proposal from checked primary and secondary ids (see members_from_cloud)."""
     present = np.unique(np.concatenate([first, second]))
     present = present[present >= 0]
     if len(present) and present[-1] != len(present) - 1:
@@ -126,16 +143,29 @@ def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:
 
 
 class SegmentationNode(PointCloudNode):
-    """Runs the stage-2 classifier on every proposal of a frame in one batched pass."""
+    """Runs the stage-2 classifier on every proposal of a frame in one batched pass.
 
-    def __init__(self, **kwargs: Any) -> None:
+    `in_memory=True` (both nodes in one process): no subscription; frames come from the cluster node through
+    `submit_proposals`.
+    """
+
+    def __init__(self, in_memory: bool = False, **kwargs: Any) -> None:
         super().__init__(PARAMETERS, **kwargs)
         self.classifier = self._load_classifier()
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.labeled_pub = self.output_publisher(PointCloud2, "labeled_topic")
         self.objects_pub = self.output_publisher(MarkerArray, "objects_topic")
-        self.start_worker(self._process, "stage2")
+        self.start_worker(self._process, "stage2", subscribe=not in_memory)
+
+    def submit_proposals(self, frame: ProposalFrame) -> None:
+        """The in-memory input: stage 1's result for one frame, segmented at once on the caller's thread.
+
+        Stage 2 in a second Python thread beside stage 1 ran 2-3x slower (the two contend for the GIL at every
+        torch op); in line, a frame's latency is its compute, and the cluster node's slot drops stale scans.
+        """
+        self.stats.input(header_stamp_ns(frame))
+        self.worker.run_inline(frame)
 
     def _load_classifier(self) -> Classifier:
         """Load and warm up the classifier; missing or incompatible weights end start-up with the reason."""
@@ -162,31 +192,38 @@ class SegmentationNode(PointCloudNode):
                 self.classifier.max_proposals = int(p.value)
         return params.result(True)
 
-    def _process(self, msg: PointCloud2) -> None:
-        """One frame: decode, segment every proposal, publish; malformed input is logged and skipped."""
-        received = time.perf_counter()
+    def _process(self, item: PointCloud2 | ProposalFrame) -> None:
+        """One frame: decode (a message), segment every proposal, publish; malformed input is logged and skipped."""
+        clock = self.step_clock()
         try:
-            cloud = decode(msg, skip_nans=True)
-            missing = [name for name in REQUIRED_FIELDS if name not in (cloud.dtype.names or ())]
-            if missing:
-                raise PointCloud2Error(f"no {', '.join(missing)} field: is this a /pass3d/proposals cloud?")
-            members = members_from_cloud(cloud)
-            points = to_xyzi(cloud, with_ring=False).points
+            frame = item if isinstance(item, ProposalFrame) else proposal_frame(item)
+            members = members_from_ids(frame.cluster_id, frame.cluster_id2)
         except PointCloud2Error as exc:
             self.get_logger().warning(f"skipping malformed proposals cloud: {exc}", throttle_duration_sec=LOG_PERIOD_S)
             return
+        points = frame.points
         if len(points) == 0:
             self.get_logger().warning("skipping empty proposals cloud", throttle_duration_sec=LOG_PERIOD_S)
             return
+        clock.mark("decode")
         result = self.classifier.segment(points, members)
-        columns = labeled_cloud(cloud, points, result, self.get_parameter("min_confidence").value)
-        self.labeled_pub.publish(encode(columns, header=msg.header))
-        boxes, classes = object_boxes(points, members, result)
-        self.objects_pub.publish(boxes_to_markers(boxes, msg.header, "objects", classes, with_text=True))
+        clock.mark("compute")
+        columns = labeled_cloud(frame, result, self.get_parameter("min_confidence").value)
+        cloud = encode(columns, header=frame.header)
+        clock.mark("encode")
+        self.labeled_pub.publish(cloud)
+        clock.mark("publish")
+        if self.objects_pub.get_subscription_count() > 0:
+            boxes, classes = object_boxes(points, members, result)
+            markers = boxes_to_markers(boxes, frame.header, "objects", classes, with_text=True)
+            clock.mark("encode")
+            self.objects_pub.publish(markers)
+            clock.mark("publish")
+        self.stats.frame(clock.steps_ms)
         counts = np.bincount(columns["label"], minlength=4)
         self.get_logger().info(
             f"{len(points)} points, {len(members)} proposals, labeled car/ped/cyc points {counts[1:].tolist()}, "
-            f"stage2 {1e3 * (time.perf_counter() - received):.1f} ms, dropped {self.worker.counters.dropped}",
+            f"stage2 {sum(clock.steps_ms.values()):.1f} ms, dropped {self.worker.counters.dropped}",
             throttle_duration_sec=LOG_PERIOD_S,
         )
 

@@ -6,6 +6,10 @@ pedestrian and cyclist that has points (instance id = the box's position in the 
 a 10 Hz stamp. Everything is drawn from SeedSequence([seed, index]), so a (seed, index) pair always gives the
 same bytes. Spec: `synthetic:frames=N,seed=S[,start=K]` yields frames K .. K+N-1 of seed S, generated on
 the fly.
+
+Mixed pixels (a return between the two surfaces of a depth edge) follow KITTI's box labels: one inside a car,
+pedestrian or cyclist box takes that class and instance, any other is background (SemanticKITTI would give it the
+nearer surface's class; the box rule is the one the paper's KITTI labels use). Intensity: see materials.py.
 """
 
 from __future__ import annotations
@@ -20,7 +24,16 @@ from pass3d_ros.data.frame import Box3D, Frame
 from pass3d_ros.data.spec import DatasetError
 from pass3d_ros.synthetic import raycast as rc
 from pass3d_ros.synthetic.builder import Scene, SceneObject
-from pass3d_ros.synthetic.materials import M_CABIN, M_FENCE, POROUS_MATERIALS
+from pass3d_ros.synthetic.materials import (
+    DARK_CELL_SHARE,
+    DARK_RHO,
+    GROUND_DARK_SHARE,
+    M_CABIN,
+    M_FENCE,
+    POROUS_MATERIALS,
+    dark_cells,
+    darken,
+)
 from pass3d_ros.synthetic.scene import generate_scene
 from pass3d_ros.synthetic.sensor import (
     HDL64E,
@@ -37,6 +50,10 @@ GLASS_DROPOUT = 0.45  # side windows: share of rays with no return
 FENCE_DROPOUT = 0.5  # mesh fences: share of rays that find a hole
 MAX_ATTEMPTS = 8  # scenes redrawn when a ring would miss the +x axis (its start could not be recovered)
 LANE_MARK_HALF_WIDTH = 0.07
+# Mixed pixels: a beam that straddles a depth edge returns a range in between. Share of edges given one, fitted so
+# that mixed_pixel_share() of generated scans matches the real HDL-64E scans (see mixed_pixel_share).
+MIXED_EDGE_SHARE = 0.05
+EDGE_JUMP_M = 1.0  # a depth edge: neighbouring beams of a ring differ by more than this (and 10 % of the range)
 DEFAULT_SENSOR = HDL64E()
 
 
@@ -78,12 +95,13 @@ def cast_scene(scene: Scene, origins: np.ndarray, dirs: np.ndarray, max_range: f
                         scene.pcenter, scene.psize, first, count, center, radius, bin_start, bin_items)
 
 
-def _surface(scene: Scene, hit: np.ndarray, region: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(material, reflectivity) of every hit; ground materials from the region and the lane markings."""
+def _surface(scene: Scene, hit: np.ndarray, region: np.ndarray, xyz: np.ndarray,
+             prho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(material, reflectivity) of every hit (primitives: `prho`); ground from the region and the lane markings."""
     on_prim = hit >= 0
     prim = np.where(on_prim, hit, 0)
     material = np.where(on_prim, scene.pmaterial[prim], -1).astype(np.int16)
-    rho = np.where(on_prim, scene.prho[prim], 0.0)
+    rho = np.where(on_prim, prho[prim], 0.0)
     ground_rho = np.array([0.0, scene.road_rho, scene.walk_rho, scene.terrain_rho])
     rho = np.where(on_prim, rho, ground_rho[region])
     road = region == rc.ROAD
@@ -109,7 +127,11 @@ def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAU
     has_hit = hit != rc.NO_HIT
     t_hit = np.where(has_hit, t, 0.0)
     xyz = origins + t_hit[:, None] * dirs
-    material, rho = _surface(scene, hit, region, xyz)
+    material, rho = _surface(scene, hit, region, xyz, darken(scene.prho, scene.pmaterial, scene.pobject, rng))
+    share = np.where(hit == rc.GROUND_HIT, GROUND_DARK_SHARE, DARK_CELL_SHARE[material])
+    share[~has_hit] = 0.0
+    xyz_cell = np.where((hit == rc.GROUND_HIT)[:, None], xyz * [1.0, 1.0, 0.0], xyz)
+    rho = np.where(dark_cells(xyz_cell, share, int(rng.integers(2**31))), 0.5 * DARK_RHO, rho)
     cos_inc = np.abs(np.einsum("ij,ij->i", normal, dirs))
     foliage = np.isin(material, POROUS_MATERIALS)
     t_hit = np.where(foliage, t_hit + np.minimum(depth, np.maximum(t_exit - t_hit, 0.0)), t_hit)
@@ -123,17 +145,52 @@ def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAU
     idx = np.flatnonzero(keep)
     sigma = sensor.range_noise_m
     t_noisy = t_hit[idx] + np.clip(noise_r[idx] * sigma, -3 * sigma, 3 * sigma)
+    mixed = _mixed_pixels(t_noisy, ring[idx], rng)
+    t_noisy[mixed[0]] = mixed[1]
     rho_read = np.where(glass[idx], 0.0, rho[idx])
     points = np.empty((len(idx), 4), dtype=np.float32)
     points[:, :3] = origins[idx] + t_noisy[:, None] * dirs[idx]
-    points[:, 3] = measured_intensity(sensor, rho_read, cos_inc[idx], ring[idx], snr[idx], noise_i[idx], u_zero[idx])
-    return _label(scene, points, ring[idx], hit[idx])
+    points[:, 3] = measured_intensity(sensor, rho_read, cos_inc[idx], ring[idx], snr[idx], noise_i[idx], u_zero[idx],
+                                      t_noisy)
+    hit_kept = hit[idx]
+    hit_kept[mixed[0]] = rc.NO_HIT
+    return _label(scene, points, ring[idx], hit_kept)
+
+
+def _mixed_pixels(t: np.ndarray, ring: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(indices, new ranges) of mixed pixels: at MIXED_EDGE_SHARE of the depth edges between neighbouring returns
+    of a ring, the farther return reads a range inside the gap (20-80 % of the way), as a beam whose footprint
+    straddles the edge does."""
+    near, far = t[:-1], t[1:]
+    same = ring[:-1] == ring[1:]
+    gap = np.abs(far - near)
+    edge = np.flatnonzero(same & (gap > EDGE_JUMP_M) & (gap > 0.1 * np.minimum(near, far)))
+    edge = edge[rng.random(len(edge)) < MIXED_EDGE_SHARE]
+    far_idx = np.where(t[edge] > t[edge + 1], edge, edge + 1)
+    near_t = np.minimum(t[edge], t[edge + 1])
+    new_t = near_t + rng.uniform(0.2, 0.8, len(edge)) * (t[far_idx] - near_t)
+    return far_idx, new_t
+
+
+def mixed_pixel_share(points: np.ndarray, ring: np.ndarray) -> float:
+    """Share of a scan's depth edges with a point in between: over triples of neighbouring points of a ring whose
+    outer two differ by more than EDGE_JUMP_M (and 10 %), the share whose middle point lies inside the gap, at
+    least a quarter of it from either side."""
+    r = np.linalg.norm(np.asarray(points)[:, :3], axis=1)
+    ring = np.asarray(ring)
+    a, m, b = r[:-2], r[1:-1], r[2:]
+    same = (ring[:-2] == ring[1:-1]) & (ring[1:-1] == ring[2:])
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    edge = same & (hi - lo > EDGE_JUMP_M) & (hi - lo > 0.1 * lo)
+    inside = (m > lo + 0.25 * (hi - lo)) & (m < hi - 0.25 * (hi - lo))
+    return float(np.count_nonzero(edge & inside) / max(np.count_nonzero(edge), 1))
 
 
 def _label(scene: Scene, points: np.ndarray, ring: np.ndarray, hit: np.ndarray) -> Scan:
-    """Exact labels, ground, instances and boxes for the kept points (hit: primitive index or GROUND_HIT)."""
+    """Exact labels, ground, instances and boxes for the kept points (hit: primitive index, GROUND_HIT, or NO_HIT
+    for a mixed pixel: not ground, background unless it lies in a foreground box, which it then belongs to)."""
     ground = hit == rc.GROUND_HIT
-    obj = np.where(ground, -1, scene.pobject[np.where(ground, 0, hit)])
+    obj = np.where(hit < 0, -1, scene.pobject[np.maximum(hit, 0)])
     obj_label = np.array([o.label for o in scene.objects] + [BACKGROUND], dtype=np.uint8)
     labels = obj_label[obj]
     instance = np.full(len(points), -1, dtype=np.int32)
@@ -149,6 +206,11 @@ def _label(scene: Scene, points: np.ndarray, ring: np.ndarray, hit: np.ndarray) 
         if o.label != BACKGROUND:
             instance[members] = box.instance
         boxes.append(box)
+    mixed = np.flatnonzero(hit == rc.NO_HIT)
+    for box in boxes:  # box labels, as KITTI's: a mixed pixel inside a foreground box takes its class
+        if box.label != BACKGROUND and len(mixed):
+            inside = mixed[box.contains(points[mixed, :3])]
+            labels[inside], instance[inside] = box.label, box.instance
     return Scan(points, ring.astype(np.uint16), labels, ground, instance, boxes)
 
 

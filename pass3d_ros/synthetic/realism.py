@@ -1,21 +1,27 @@
-"""Realism report: the same scan statistics for synthetic and real frames, printed side by side.
+"""Realism of the synthetic scans, measured against real KITTI frames.
 
-Statistics per dataset: points per frame, points per ring, range histogram, share of ground points (where the
-source knows ground), points per labelled object by class and distance, and intensity distribution.
+- `scorecard(synth_frames, real_specs)`: rows (statistic, synthetic, real, tolerance, passed) - object box sizes,
+  points per car by range, zero-intensity shares per class and per material, background-only and mixed shares of
+  front-view stage-1 proposals, mixed-pixel rate; the tolerances are the generator's targets (notes below).
+- `collect` / `format_report`: descriptive statistics per dataset side by side (points per frame and ring, range
+  histogram, ground share, points per object, intensity distribution).
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from pass3d_ros.classes import CAR, CLASS_NAMES, CYCLIST, PEDESTRIAN
+from pass3d_ros.classes import BACKGROUND, CAR, CLASS_NAMES, CYCLIST, FOREGROUND, IGNORE, PEDESTRIAN
 from pass3d_ros.core.ring import rings_for
+from pass3d_ros.core.stage1 import proposal_members, propose
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.semantickitti import read_label_file
+from pass3d_ros.data.spec import open_dataset, parse_spec
 
 RANGE_BINS_M = (0.0, 5.0, 10.0, 20.0, 40.0, 80.0, np.inf)
 OBJECT_BINS_M = (0.0, 10.0, 20.0, 40.0, np.inf)
@@ -149,3 +155,346 @@ def default_real_specs() -> list[str]:
                 specs.append(f"semantickitti:{root / 'semantickitti' / 'sequences' / '00'}")
             return specs
     return []
+
+
+def default_unlabeled_specs() -> list[str]:
+    """The real unlabelled scans ($PASS3D_KITTI_UNLABELED, or kitti_unlabeled beside the dev frames), when present."""
+    default = REPO_ROOT.parent / "shared" / "data" / "kitti_unlabeled"
+    candidates = [os.environ.get("PASS3D_KITTI_UNLABELED"), str(default)]
+    dev = os.environ.get("PASS3D_KITTI_DEV")
+    if dev:
+        candidates.insert(1, str(Path(dev).parent / "kitti_unlabeled"))
+    for candidate in candidates:
+        if candidate and (Path(candidate) / "velodyne").is_dir():
+            return [f"semantickitti:{candidate}"]
+    return []
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Realism scorecard: a few statistics that matter to PASS3D, synthetic vs real, each with a tolerance.
+#
+# Tolerances are targets for the generator, chosen from what the pipeline is sensitive to and from how well the
+# small real reference pins each number down - not from what today's generator reaches:
+# - Box means: car length 0.3 m, car width / height 0.15 m, pedestrian dimensions 0.15 m. Stage 1's size gates,
+#   the size_rules baseline and the network's canonical coordinates all see box sizes; classes neighbour each
+#   other by a few tens of centimetres (car vs van height 0.7 m, pedestrian vs cyclist length 0.9 m), and a
+#   mean shifted by more than about a fifth of such a gap moves many objects across a decision. The reference is
+#   the dev labels when they hold at least MIN_BOXES boxes of the class, else KITTI's training-label means
+#   (Frustum-PointNets' table in DESIGN.md: a few dev boxes would make the target a coin toss).
+# - Points per car (median, per range bin): within a factor 1.5 either way. Points per object spread over orders
+#   of magnitude (occlusion, distance, size); with a couple of dozen real cars per bin the real median itself is
+#   uncertain by roughly a third, so a tighter factor could not be told apart from noise; Th_num (about 30
+#   points near the sensor) works on this scale.
+# - Zero-intensity shares (per class, per material): within 5 percentage points. KITTI stores many dark returns
+#   as exactly 0; the network sees intensity as a feature, and car paint is 45 % zero while ground is ~10 %:
+#   5 points is a tenth of that contrast. Shares need at least MIN_POINTS real points.
+# - Proposal shares (front view, |azimuth| <= 45 deg): within 10 points. About ten front proposals per real
+#   frame: with the dev frames' ~60 proposals a share's binomial standard error is ~6 points, so 5 points would
+#   fail a perfect generator about half the time. Needs at least MIN_PROPOSALS real proposals.
+# - Mixed-pixel rate: within 30 % of the real rate (relative). Thousands of depth jumps per scan make the real
+#   rate precise; mixed pixels are what bridges a car to the wall behind it in scan-line clustering, and a
+#   rate off by a third changes how often that happens noticeably.
+# A row whose real reference is too thin to judge reports passed = None ("n/a") instead of a verdict.
+# ---------------------------------------------------------------------------------------------------------------
+
+BOX_TOLERANCE_M = {(CAR, 0): 0.3, (CAR, 1): 0.15, (CAR, 2): 0.15,
+                   (PEDESTRIAN, 0): 0.15, (PEDESTRIAN, 1): 0.15, (PEDESTRIAN, 2): 0.15}
+KITTI_TRAIN_BOX_MEAN_M = {CAR: (3.88, 1.63, 1.53), PEDESTRIAN: (0.84, 0.66, 1.76)}  # DESIGN.md, Frustum-PointNets
+POINTS_FACTOR = 1.5
+SHARE_TOLERANCE = 0.05
+PROPOSAL_SHARE_TOLERANCE = 0.10
+MIXED_PIXEL_RELATIVE = 0.30
+MIN_BOXES = 10
+MIN_OBJECTS = 5
+MIN_POINTS = 200
+MIN_PROPOSALS = 20
+CAR_RANGE_BINS_M = ((0.0, 20.0), (20.0, 40.0))
+FRONT_HALF_ANGLE_DEG = 45.0
+MIXED_MINORITY = 0.1  # a proposal is mixed when its smaller side (foreground or background) holds >= 10 %
+JUMP_M = 1.0  # a depth jump between ring neighbours two firings apart
+BETWEEN_MARGIN_M = 0.25  # the point in between lies at least this far from both sides (range noise ~0.02 m)
+MAX_SPAN_DEG = 0.6  # the three firings span at most this azimuth (no dropped returns in between)
+DIMENSIONS = ("length", "width", "height")
+
+# SemanticKITTI classes compared per material, with the real class ids and the synthetic material names
+# (the synthetic ground regions are road, sidewalk and terrain).
+MATERIAL_CLASSES: dict[str, tuple[tuple[int, ...], tuple[str, ...]]] = {
+    "building": ((50,), ("M_BUILDING",)),
+    "fence/wall": ((51,), ("M_FENCE", "M_WALL")),
+    "vegetation": ((70,), ("M_VEGETATION",)),
+    "trunk": ((71,), ("M_TRUNK",)),
+    "pole": ((80,), ("M_POLE",)),
+    "traffic-sign": ((81,), ("M_SIGN",)),
+    "road": ((40, 60), ("road",)),
+    "sidewalk": ((48,), ("sidewalk",)),
+    "terrain": ((72,), ("terrain",)),
+}
+ZERO_GROUPS = ("car", "pedestrian", "cyclist", "background (non-ground)", "ground")
+
+
+@dataclass
+class Row:
+    """One scorecard line: a statistic, its synthetic and real values, the tolerance and the verdict
+    (None when the real reference is too thin to judge, or a side has no data)."""
+
+    name: str
+    synthetic: float | None
+    real: float | None
+    tolerance: str
+    passed: bool | None
+    unit: str = ""
+    note: str = ""
+
+
+@dataclass
+class Sample:
+    """What the scorecard needs from one side (synthetic or real), accumulated over frames."""
+
+    boxes: dict[int, list[np.ndarray]] = field(default_factory=lambda: {CAR: [], PEDESTRIAN: []})
+    car_points: list[list[int]] = field(default_factory=lambda: [[] for _ in CAR_RANGE_BINS_M])
+    zero: dict[str, list[int]] = field(default_factory=lambda: {g: [0, 0] for g in ZERO_GROUPS})
+    material_zero: dict[str, list[int]] = field(default_factory=lambda: {m: [0, 0] for m in MATERIAL_CLASSES})
+    proposals: list[int] = field(default_factory=lambda: [0, 0, 0])  # front proposals, background-only, mixed
+    jumps: list[int] = field(default_factory=lambda: [0, 0])  # depth jumps, with a point in between
+    frames: int = 0
+    material_frames: int = 0
+
+    def add(self, frame: Frame, material: np.ndarray | None = None, proposals: bool = True) -> None:
+        """Fold one frame in; `material` holds per-point MATERIAL_CLASSES names' index + 1 (0 = other)."""
+        self.frames += 1
+        for box in frame.boxes:
+            if box.label in self.boxes and box.kind in ("", CLASS_NAMES[box.label].capitalize()):
+                self.boxes[box.label].append(np.asarray(box.size, dtype=np.float64))
+        if frame.labels is not None:
+            self._add_labelled(frame)
+            if proposals:
+                self._add_proposals(frame)
+        if material is not None:
+            self.material_frames += 1
+            zero = frame.points[:, 3] == 0
+            for k, name in enumerate(MATERIAL_CLASSES, start=1):
+                mask = material == k
+                self.material_zero[name][0] += int(np.count_nonzero(zero & mask))
+                self.material_zero[name][1] += int(np.count_nonzero(mask))
+        self._add_jumps(frame)
+
+    def _add_labelled(self, frame: Frame) -> None:
+        labels, zero = frame.labels, frame.points[:, 3] == 0
+        groups = {"car": labels == CAR, "pedestrian": labels == PEDESTRIAN, "cyclist": labels == CYCLIST}
+        if frame.ground is not None:
+            groups["background (non-ground)"] = (labels == BACKGROUND) & ~frame.ground
+            groups["ground"] = (labels == BACKGROUND) & frame.ground
+        for name, mask in groups.items():
+            self.zero[name][0] += int(np.count_nonzero(zero & mask))
+            self.zero[name][1] += int(np.count_nonzero(mask))
+        if frame.instance is None:
+            return
+        cars = (labels == CAR) & (frame.instance >= 0)
+        if not cars.any():
+            return
+        inst = frame.instance[cars]
+        _, inverse, counts = np.unique(inst, return_inverse=True, return_counts=True)
+        xy = frame.points[cars, :2].astype(np.float64)
+        centre = np.stack([np.bincount(inverse, xy[:, k]) / counts for k in range(2)], axis=1)
+        dist = np.hypot(centre[:, 0], centre[:, 1])
+        for b, (lo, hi) in enumerate(CAR_RANGE_BINS_M):
+            self.car_points[b] += [int(n) for n in counts[(dist >= lo) & (dist < hi)]]
+
+    def _add_proposals(self, frame: Frame) -> None:
+        result = propose(frame.points, frame.ring)
+        members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
+        labels = frame.labels
+        for box, idx in zip(result.boxes, members, strict=True):
+            if abs(np.degrees(np.arctan2(box.center[1], box.center[0]))) > FRONT_HALF_ANGLE_DEG:
+                continue
+            idx = idx[~result.ground[idx] & (labels[idx] != IGNORE)]
+            if len(idx) == 0:
+                continue
+            fg = int(np.count_nonzero(np.isin(labels[idx], FOREGROUND)))
+            bg = len(idx) - fg
+            self.proposals[0] += 1
+            self.proposals[1] += int(fg == 0)
+            self.proposals[2] += int(min(fg, bg) >= MIXED_MINORITY * len(idx))
+
+    def _add_jumps(self, frame: Frame) -> None:
+        pts = frame.points
+        if len(pts) < 3:
+            return
+        ring = rings_for(pts, frame.ring).ring.astype(np.int64)
+        rng = np.linalg.norm(pts[:, :3].astype(np.float64), axis=1)
+        az = np.degrees(np.arctan2(pts[:, 1], pts[:, 0]).astype(np.float64))
+        a, m, b = slice(0, -2), slice(1, -1), slice(2, None)
+        span = np.abs((az[a] - az[b] + 180.0) % 360.0 - 180.0)
+        same = (ring[a] == ring[m]) & (ring[m] == ring[b]) & (span <= MAX_SPAN_DEG)
+        lo, hi = np.minimum(rng[a], rng[b]), np.maximum(rng[a], rng[b])
+        jump = same & (hi - lo > JUMP_M)
+        between = jump & (rng[m] > lo + BETWEEN_MARGIN_M) & (rng[m] < hi - BETWEEN_MARGIN_M)
+        self.jumps[0] += int(np.count_nonzero(jump))
+        self.jumps[1] += int(np.count_nonzero(between))
+
+
+def _real_material(spec: str, frame: Frame) -> np.ndarray | None:
+    """Per-point MATERIAL_CLASSES index + 1 of a SemanticKITTI frame, from its raw .label file (None elsewhere)."""
+    parsed = parse_spec(spec)
+    path = Path(parsed.path) / "labels" / f"{frame.name}.label"
+    if parsed.format != "semantickitti" or not path.is_file():
+        return None
+    semantic = read_label_file(path, len(frame.points)) & 0xFFFF
+    material = np.zeros(len(frame.points), dtype=np.int16)
+    for k, (ids, _) in enumerate(MATERIAL_CLASSES.values(), start=1):
+        material[np.isin(semantic, ids)] = k
+    return material
+
+
+def synthetic_material(frame: Frame, seed: int, index: int) -> np.ndarray | None:
+    """Per-point MATERIAL_CLASSES index + 1 of synthetic frame (seed, index), or None when it cannot be recovered.
+
+    The generator does not hand out materials, so the scene is drawn again from the frame's seed and every point
+    re-cast from its laser's origin; the recovery is trusted only when the re-cast labels agree with the frame's
+    on at least 98 % of the points (a generator that draws the scene differently fails this and gives None).
+    """
+    from pass3d_ros.synthetic import materials, raycast
+    from pass3d_ros.synthetic.dataset import DEFAULT_SENSOR, cast_scene
+    from pass3d_ros.synthetic.scene import generate_scene
+
+    if frame.labels is None or frame.ring is None or len(frame.points) == 0:
+        return None
+    try:
+        scene = generate_scene(np.random.default_rng(np.random.SeedSequence([int(seed), int(index)])))
+        origins = np.zeros((len(frame.points), 3))
+        origins[:, 2] = DEFAULT_SENSOR.vertical_offset_m[frame.ring.astype(np.int64)]
+        dirs = frame.points[:, :3].astype(np.float64) - origins
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        _, _, hit, _, region = cast_scene(scene, origins, dirs, DEFAULT_SENSOR.max_range_m)
+    except (AttributeError, TypeError, ValueError, IndexError):
+        return None
+    on_prim = hit >= 0
+    obj = np.where(on_prim, scene.pobject[np.where(on_prim, hit, 0)], -1)
+    obj_label = np.array([o.label for o in scene.objects] + [BACKGROUND], dtype=np.int64)
+    agree = np.where(hit == raycast.GROUND_HIT, frame.ground if frame.ground is not None else True,
+                     on_prim & (obj_label[obj] == frame.labels))
+    if np.mean(agree) < 0.98:
+        return None
+    prim_material = np.where(on_prim, scene.pmaterial[np.where(on_prim, hit, 0)], -1)
+    regions = {"road": raycast.ROAD, "sidewalk": raycast.SIDEWALK, "terrain": raycast.TERRAIN}
+    material = np.zeros(len(frame.points), dtype=np.int16)
+    for k, (_, names) in enumerate(MATERIAL_CLASSES.values(), start=1):
+        for name in names:
+            if name in regions:
+                material[(hit == raycast.GROUND_HIT) & (region == regions[name])] = k
+            elif hasattr(materials, name):
+                material[on_prim & (prim_material == getattr(materials, name)) & (frame.labels == BACKGROUND)] = k
+    return material
+
+
+def synthetic_frames(frames: int, seed: int = 0, start: int = 0) -> Iterator[tuple[Frame, np.ndarray | None]]:
+    """(frame, material) of synthetic frames start .. start+frames-1 of `seed`, for `scorecard`."""
+    from pass3d_ros.synthetic.dataset import generate_frame
+
+    for index in range(start, start + frames):
+        frame = generate_frame(seed, index)
+        yield frame, synthetic_material(frame, seed, index)
+
+
+def real_sample(real_specs: Iterable[str]) -> Sample:
+    """The real side of the scorecard: every frame of every spec (labels, boxes, materials where known)."""
+    sample = Sample()
+    for spec in real_specs:
+        for frame in open_dataset(spec):
+            sample.add(frame, _real_material(spec, frame))
+    return sample
+
+
+def _share(counts: list[int]) -> float | None:
+    return counts[0] / counts[1] if counts[1] else None
+
+
+def _abs_row(name: str, synth: float | None, real: float | None, tol: float, unit: str, enough: bool,
+             note: str = "") -> Row:
+    judged = synth is not None and real is not None and enough
+    passed = bool(abs(synth - real) <= tol + 1e-12) if judged else None
+    return Row(name, synth, real, f"+-{tol * 100:.0f} pts" if unit == "%" else f"+-{tol:.2f} {unit}", passed, unit,
+               note)
+
+
+def _ratio_row(name: str, synth: float | None, real: float | None, low: float, high: float, text: str,
+               unit: str, enough: bool, note: str = "") -> Row:
+    judged = synth is not None and real is not None and real > 0 and enough
+    passed = bool(low <= synth / real <= high) if judged else None
+    return Row(name, synth, real, text, passed, unit, note)
+
+
+def compare(synth: Sample, real: Sample) -> list[Row]:
+    """Scorecard rows from the two samples (see the tolerance notes above)."""
+    out: list[Row] = []
+    for cls in (CAR, PEDESTRIAN):
+        s_boxes, r_boxes = synth.boxes[cls], real.boxes[cls]
+        use_dev = len(r_boxes) >= MIN_BOXES
+        for d, dim in enumerate(DIMENSIONS):
+            s = float(np.mean([b[d] for b in s_boxes])) if s_boxes else None
+            r = float(np.mean([b[d] for b in r_boxes])) if use_dev else KITTI_TRAIN_BOX_MEAN_M[cls][d]
+            dev = f"{np.mean([b[d] for b in r_boxes]):.2f}" if r_boxes else "-"
+            note = (f"n={len(s_boxes)}/{len(r_boxes)}" if use_dev else
+                    f"n={len(s_boxes)}; real = KITTI train mean (dev labels: {dev}, n={len(r_boxes)})")
+            out.append(_abs_row(f"{CLASS_NAMES[cls]} box {dim} mean", s, r, BOX_TOLERANCE_M[(cls, d)], "m",
+                                bool(s_boxes), note))
+    for b, (lo, hi) in enumerate(CAR_RANGE_BINS_M):
+        s_n, r_n = synth.car_points[b], real.car_points[b]
+        s = float(np.median(s_n)) if s_n else None
+        r = float(np.median(r_n)) if r_n else None
+        out.append(_ratio_row(f"car points/object median {lo:.0f}-{hi:.0f} m", s, r, 1 / POINTS_FACTOR, POINTS_FACTOR,
+                              f"x{POINTS_FACTOR:g}", "pts", len(r_n) >= MIN_OBJECTS, f"n={len(s_n)}/{len(r_n)}"))
+    for group in ZERO_GROUPS:
+        s_c, r_c = synth.zero[group], real.zero[group]
+        out.append(_abs_row(f"zero intensity: {group}", _share(s_c), _share(r_c), SHARE_TOLERANCE, "%",
+                            r_c[1] >= MIN_POINTS, f"pts={s_c[1]}/{r_c[1]}"))
+    for name in MATERIAL_CLASSES:
+        s_c, r_c = synth.material_zero[name], real.material_zero[name]
+        out.append(_abs_row(f"zero intensity: {name}", _share(s_c), _share(r_c), SHARE_TOLERANCE, "%",
+                            r_c[1] >= MIN_POINTS, f"pts={s_c[1]}/{r_c[1]}, frames={synth.material_frames}/"
+                            f"{real.material_frames}"))
+    s_p, r_p = synth.proposals, real.proposals
+    for k, kind in ((1, "background-only"), (2, "mixed")):
+        out.append(_abs_row(f"front proposals {kind}", _share([s_p[k], s_p[0]]), _share([r_p[k], r_p[0]]),
+                            PROPOSAL_SHARE_TOLERANCE, "%", r_p[0] >= MIN_PROPOSALS, f"n={s_p[0]}/{r_p[0]}"))
+    s_j, r_j = _share(synth.jumps[::-1]), _share(real.jumps[::-1])
+    out.append(_ratio_row("mixed-pixel rate", s_j, r_j, 1 - MIXED_PIXEL_RELATIVE, 1 + MIXED_PIXEL_RELATIVE,
+                          f"+-{MIXED_PIXEL_RELATIVE * 100:.0f} % rel", "%", real.jumps[0] >= MIN_POINTS,
+                          f"jumps={synth.jumps[0]}/{real.jumps[0]}"))
+    return out
+
+
+def scorecard(synth_frames: Iterable[Frame | tuple[Frame, np.ndarray | None]], real_specs: Iterable[str]) -> list[Row]:
+    """Scorecard rows of synthetic frames (or (frame, material) pairs, see `synthetic_frames`) against the frames
+    of the real specs (labelled dev frames and unlabelled scans alike; each statistic uses the frames that know
+    what it needs)."""
+    synth = Sample()
+    for item in synth_frames:
+        frame, material = item if isinstance(item, tuple) else (item, None)
+        synth.add(frame, material)
+    return compare(synth, real_sample(real_specs))
+
+
+def _cell(value: float | None, unit: str) -> str:
+    if value is None:
+        return "-"
+    if unit == "%":
+        return f"{100 * value:.1f}%"
+    return f"{value:.2f}" if unit == "m" else f"{value:.0f}"
+
+
+def format_scorecard(rows_: list[Row]) -> str:
+    """The scorecard as a text table, with a closing count of passed / failed / unjudged rows."""
+    header = ("statistic", "synthetic", "real", "tolerance", "pass", "note")
+    cells = [(r.name, _cell(r.synthetic, r.unit), _cell(r.real, r.unit), r.tolerance,
+              "n/a" if r.passed is None else "PASS" if r.passed else "FAIL", r.note) for r in rows_]
+    widths = [max(len(c[i]) for c in [header, *cells]) for i in range(5)]
+    lines = ["  ".join([header[0].ljust(widths[0]), *(h.rjust(w) for h, w in zip(header[1:5], widths[1:], strict=True)),
+                        header[5]])]
+    for c in cells:
+        lines.append("  ".join([c[0].ljust(widths[0]), *(v.rjust(w) for v, w in zip(c[1:5], widths[1:], strict=True)),
+                                c[5]]))
+    verdicts = [r.passed for r in rows_]
+    lines.append(f"{verdicts.count(True)} passed, {verdicts.count(False)} failed, "
+                 f"{verdicts.count(None)} not judged (too little real data)")
+    return "\n".join(lines)

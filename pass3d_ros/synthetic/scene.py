@@ -9,19 +9,30 @@ cyclists. The objects themselves are modelled in `synthetic.objects`; `SceneBuil
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.synthetic import raycast as rc
-from pass3d_ros.synthetic.builder import Scene, SceneBuilder
-from pass3d_ros.synthetic.objects.people import cyclist_parts, pedestrian_parts
+from pass3d_ros.synthetic.builder import TOUCH_CLEARANCE_M, Scene, SceneBuilder
+from pass3d_ros.synthetic.objects import parked as pk
+from pass3d_ros.synthetic.objects import street_furniture as sf
+from pass3d_ros.synthetic.objects import structures as st
+from pass3d_ros.synthetic.objects import vegetation as vg
+from pass3d_ros.synthetic.objects.people import (
+    bicycle_parts,
+    cyclist_parts,
+    pedestrian_parts,
+    seated_person_parts,
+    stroller_parts,
+)
 from pass3d_ros.synthetic.objects.street_furniture import sign_parts, street_lamp_parts
 from pass3d_ros.synthetic.objects.structures import building_parts, fence_parts, porch_parts, wall_parts
 from pass3d_ros.synthetic.objects.vegetation import bush_parts, hedge_parts, tree_parts
 from pass3d_ros.synthetic.objects.vehicles import car_parts, truck_parts, van_parts
-from pass3d_ros.synthetic.parts import part_extent
+from pass3d_ros.synthetic.parts import Part, part_extent
 from pass3d_ros.synthetic.sensor import MOUNT_HEIGHT_M
 
 U_MAX = 130.0  # farthest road coordinate a ray can reach the ground at (bounds the slope term)
@@ -129,6 +140,8 @@ def _add_roadside(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, st
             u += lot
         _add_street_trees(b, rng, lay, side, style)
         _add_poles(b, rng, lay, side)
+        _add_street_clutter(b, rng, lay, side, style)
+    _add_lane_clutter(b, rng, lay)
     if lay.cross:
         _add_cross_street_sides(b, rng, lay, p_building)
 
@@ -207,6 +220,146 @@ def _add_cross_street_sides(b: SceneBuilder, rng: np.random.Generator, lay: Road
                 v += lot
 
 
+_PartsFn = Callable[[np.random.Generator], list[Part]]
+# Street clutter that stage 1 lets through (0.9-2.3 m tall, car-sized or smaller): (model, parts function, weight).
+# Kerb line: within a metre of the curb; sidewalk: along its back half; frontage: at the property line.
+_KERB_CLUTTER = (("bollard", sf.bollard_parts, 3.0), ("post", sf.post_parts, 2.5),
+                 ("short_pole", sf.short_pole_parts, 3.0), ("hydrant", sf.hydrant_parts, 0.7),
+                 ("bin", sf.bin_parts, 1.2), ("trunk", vg.trunk_parts, 1.5),
+                 ("parked_bicycle", pk.parked_bicycle_parts, 1.0))
+_SIDEWALK_CLUTTER = (("bench", sf.bench_parts, 1.0), ("mailbox", sf.mailbox_parts, 0.6),
+                     ("utility_box", sf.utility_box_parts, 1.2), ("bin", sf.bin_parts, 1.5),
+                     ("planter", sf.planter_parts, 0.8), ("parked_bicycle", pk.parked_bicycle_parts, 1.5),
+                     ("parked_motorbike", pk.parked_motorbike_parts, 0.6), ("post", sf.post_parts, 1.0))
+_FRONTAGE_CLUTTER = (("wall_fragment", st.wall_fragment_parts, 2.0), ("hedge_fragment", vg.hedge_fragment_parts, 2.0),
+                     ("building_corner", st.building_corner_parts, 1.0), ("trunk", vg.trunk_parts, 1.0),
+                     ("parked_bicycle", pk.parked_bicycle_parts, 1.0), ("bin", sf.bin_parts, 1.0))
+_CLUTTER_SPACING_M = {"urban": 3.5, "residential": 4.5, "open": 9.0}  # mean kerb length per clutter item
+
+
+def _pick(rng: np.random.Generator, table: tuple[tuple[str, _PartsFn, float], ...]) -> tuple[str, _PartsFn]:
+    """A (model, parts function) drawn from a clutter table by weight."""
+    weights = np.array([w for _, _, w in table])
+    name, fn, _ = table[int(rng.choice(len(table), p=weights / weights.sum()))]
+    return name, fn
+
+
+def _add_street_clutter(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, side: float, style: str) -> None:
+    """Posts, bollard rows, short poles, bins, benches, parked bikes, wall and hedge fragments along one side.
+
+    Real KITTI streets hold many such proposal-sized background objects (64% of real front-view proposals are
+    background only); they stand on the kerb line, the sidewalk and the property line, about every 3.5-9 m.
+    """
+    walk_in = lay.half_width + 0.25
+    walk_out = lay.half_width + lay.sidewalk
+    u = -70.0 + rng.exponential(_CLUTTER_SPACING_M[style])
+    while u < 95.0:
+        if not _in_cross(lay, u, 0.5):
+            where = rng.random()
+            yaw = float(rng.choice([0.0, math.pi])) + rng.normal(0.0, 0.1)
+            if where < 0.5:
+                name, fn = _pick(rng, _KERB_CLUTTER)
+                v = walk_in + rng.uniform(0.05, min(0.8, max(lay.sidewalk - 0.5, 0.1)))
+                if name == "bollard" and rng.random() < 0.35:  # a row of bollards along the kerb
+                    step = rng.uniform(1.2, 2.2)
+                    for k in range(int(rng.integers(3, 9))):
+                        b.place(sf.bollard_parts(rng), u + k * step, side * v, 0.0, model="bollard")
+                    u += 8 * step
+                elif name == "parked_bicycle":
+                    b.place(fn(rng), u, side * v, math.pi / 2 + rng.normal(0.0, 0.3), model=name)
+                else:
+                    b.place(fn(rng), u, side * v, yaw, model=name)
+            elif where < 0.82:
+                name, fn = _pick(rng, _SIDEWALK_CLUTTER)
+                v = walk_out - rng.uniform(0.3, max(0.5, lay.sidewalk / 2))
+                if name == "parked_bicycle" and rng.random() < 0.5:  # a rack full of bikes
+                    _add_bike_rack(b, rng, u, side * v)
+                else:
+                    b.place(fn(rng), u, side * v, yaw, model=name)
+            else:
+                name, fn = _pick(rng, _FRONTAGE_CLUTTER)
+                v = lay.frontage + rng.uniform(-0.8, 0.8)
+                b.place(fn(rng), u, side * v, yaw if name != "building_corner" else (0.0 if side > 0 else math.pi),
+                        model=name)
+        u += rng.exponential(_CLUTTER_SPACING_M[style])
+    u_stop = rng.uniform(5.0, 60.0)
+    if rng.random() < 0.3 and not _in_cross(lay, u_stop, 4.0):
+        b.place(sf.bus_shelter_parts(rng), u_stop, side * (walk_out - 1.2), 0.0 if side > 0 else math.pi,
+                model="bus_shelter")
+
+
+def _add_bike_rack(b: SceneBuilder, rng: np.random.Generator, u: float, v: float) -> None:
+    """A bike rack along the sidewalk with parked bicycles standing in it (background beside background: no gap)."""
+    length = rng.uniform(2.0, 6.0)
+    if not b.place(sf.bike_rack_parts(rng, length), u, v, 0.0, model="bike_rack"):
+        return
+    for x in np.arange(-length / 2, length / 2 + 1e-6, 0.9):
+        if rng.random() < 0.6:
+            b.place(pk.parked_bicycle_parts(rng), u + x + rng.uniform(-0.1, 0.1), v, math.pi / 2 + rng.normal(0, 0.1),
+                    model="parked_bicycle")
+
+
+def _add_lane_clutter(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout) -> None:
+    """Trailers and motorbikes in the parking lanes, traffic lights at the cross street (placed before the cars)."""
+    for side, has_parking in ((-1.0, lay.parking[0]), (1.0, lay.parking[1])):
+        if not has_parking:
+            continue
+        for _ in range(int(rng.poisson(0.8))):
+            trailer = rng.random() < 0.4
+            name, fn = ("trailer", pk.trailer_parts) if trailer else ("parked_motorbike", pk.parked_motorbike_parts)
+            b.place(fn(rng), rng.uniform(-40.0, 60.0), side * (lay.half_width - 1.1 + rng.uniform(-0.2, 0.4)),
+                    float(rng.choice([0.0, math.pi])) + rng.normal(0.0, 0.05), model=name)
+    if lay.cross:
+        for su in (-1.0, 1.0):
+            for sv in (-1.0, 1.0):
+                if rng.random() < 0.7:
+                    u = lay.cross_u + su * (lay.cross_half_width + rng.uniform(0.3, 0.8))
+                    b.place(sf.traffic_light_parts(rng, -sv), u, sv * (lay.half_width + rng.uniform(0.3, 0.7)),
+                            0.0 if su < 0 else math.pi, model="traffic_light")
+
+
+# Lapsed clearance: the share of foreground objects that get a background object against them, and what it is.
+_BESIDE = {PEDESTRIAN: (0.3, (("short_pole", sf.short_pole_parts, 2.0), ("post", sf.post_parts, 2.0),
+                              ("bin", sf.bin_parts, 1.0),
+                              ("bollard", sf.bollard_parts, 1.0), ("trunk", vg.trunk_parts, 1.5),
+                              ("wall_fragment", st.wall_fragment_parts, 1.0))),
+           CYCLIST: (0.25, (("parked_bicycle", pk.parked_bicycle_parts, 2.0), ("post", sf.post_parts, 1.0),
+                            ("short_pole", sf.short_pole_parts, 1.0))),
+           CAR: (0.35, (("bollard", sf.bollard_parts, 2.0), ("post", sf.post_parts, 1.5), ("bin", sf.bin_parts, 1.0),
+                       ("short_pole", sf.short_pole_parts, 1.0), ("hedge_fragment", vg.hedge_fragment_parts, 1.0),
+                       ("parked_motorbike", pk.parked_motorbike_parts, 0.7), ("trunk", vg.trunk_parts, 1.0)))}
+
+
+def _add_clutter_beside_foreground(b: SceneBuilder, rng: np.random.Generator) -> None:
+    """Stand a post, bin, trunk or bike right beside some cars, pedestrians and cyclists (clearance lapsed).
+
+    On real scans stage 1 often proposes a person and a pole, or a car and a bollard, as one cluster (about 9% of
+    real car proposals are mixed); synthetic foreground keeps FOREGROUND_GAP_M from everything and never does.
+    The clearance is TOUCH_CLEARANCE_M, so the labelled boxes stay clean while stage 1's clusters merge.
+    """
+    for obj in [o for o in b.objects if o.label in _BESIDE]:
+        share, table = _BESIDE[obj.label]
+        if rng.random() >= share:
+            continue
+        name, fn = _pick(rng, table)
+        parts = fn(rng)
+        half = max(max(abs(p.center[0]) + part_extent(p)[0], abs(p.center[1]) + part_extent(p)[1]) for p in parts)
+        for _attempt in range(6):
+            ang = float(rng.choice([0.0, 0.5, 1.0, 1.5])) * math.pi + rng.normal(0.0, 0.15)
+            ex = obj.local_max[0] if math.cos(ang) >= 0 else -obj.local_min[0]
+            ey = obj.local_max[1] if math.sin(ang) >= 0 else -obj.local_min[1]
+            reach = abs(ex * math.cos(ang)) + abs(ey * math.sin(ang))
+            dist = reach + half + TOUCH_CLEARANCE_M + rng.uniform(0.02, 0.2)
+            lx, ly = dist * math.cos(ang), dist * math.sin(ang)
+            c, s = math.cos(obj.yaw), math.sin(obj.yaw)
+            u, v = b.road_uv(obj.x + c * lx - s * ly, obj.y + s * lx + c * ly)
+            if obj.label == CAR and abs(v) < abs(b.road_uv(obj.x, obj.y)[1]):
+                continue  # on the kerb side of a car, not in the traffic lane
+            if b.place(parts, u, v, obj.yaw - b.road_yaw() + rng.normal(0.0, 0.2), model=name,
+                       clearance=TOUCH_CLEARANCE_M):
+                break
+
+
 def _distance_u(rng: np.random.Generator) -> float:
     """Road coordinate of an object: mostly 4-40 m away, more often ahead than behind."""
     dist = rng.uniform(3.0, 12.0) if rng.random() < 0.25 else rng.uniform(8.0, 45.0)
@@ -214,30 +367,31 @@ def _distance_u(rng: np.random.Generator) -> float:
 
 
 def _add_vehicles(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, style: str) -> None:
-    """Parked rows (cars close to each other, some vans and trucks) and moving traffic in the lanes."""
+    """Parked rows, off-street parking and moving traffic (queues), cars mixed with vans and trucks.
+
+    Parked rows are dense (cars bumper to bumper, as on KITTI's Karlsruhe streets) and off-street lots put cars
+    behind the parked row, so near cars are often partly hidden: real cars within 20 m carry about half the
+    points of isolated synthetic ones. Cars, vans and trucks overlap in size as KITTI labels them
+    (see `synthetic.objects.vehicles`).
+    """
     for side, has_parking in ((-1.0, lay.parking[0]), (1.0, lay.parking[1])):
         if not has_parking:
             continue
-        occupancy = rng.uniform(0.2, 0.75)
+        occupancy = rng.uniform(0.4, 0.95)
         u = -60.0 + rng.uniform(0, 5)
         while u < 70.0:
-            r = rng.random()
-            kind, parts = ("Van", van_parts(rng)) if r < 0.1 else ("Truck", truck_parts(rng)) if r < 0.13 else \
-                ("Car", car_parts(rng))
+            kind, parts = _draw_vehicle(rng, 0.1, 0.03)
             length = max(abs(p.center[0]) + part_extent(p)[0] for p in parts) * 2
             if rng.random() < occupancy and not _in_cross(lay, u + length / 2, length / 2 + 1.0):
                 flip = math.pi if rng.random() < 0.15 else 0.0
                 v = side * (lay.half_width - 1.1 + rng.uniform(-0.15, 0.2))
-                label = CAR if kind == "Car" else BACKGROUND
-                b.place(parts, u + length / 2, v, flip + rng.normal(0.0, 0.04), label, kind)
-            u += length + rng.uniform(0.35, 2.5)
-    n_moving = int(rng.integers(1, 6))
+                b.place(parts, u + length / 2, v, flip + rng.normal(0.0, 0.04), _VEHICLE_LABEL[kind], kind)
+            u += length + (rng.uniform(0.3, 1.5) if rng.random() < 0.7 else rng.uniform(1.5, 4.0))
+    if style != "urban" or rng.random() < 0.3:
+        _add_parking_lot(b, rng, lay)
     lane_edge = lay.lanes * lay.lane_width / 2
-    for _ in range(n_moving):
-        r = rng.random()
-        kind, parts = ("Van", van_parts(rng)) if r < 0.1 else ("Truck", truck_parts(rng)) if r < 0.15 else \
-            ("Car", car_parts(rng))
-        label = CAR if kind == "Car" else BACKGROUND
+    for _ in range(int(rng.integers(1, 7))):
+        kind, parts = _draw_vehicle(rng, 0.1, 0.05)
         for _attempt in range(6):
             lane = int(rng.integers(0, lay.lanes))
             v = -lane_edge + (lane + 0.5) * lay.lane_width + rng.normal(0.0, 0.2)
@@ -245,7 +399,15 @@ def _add_vehicles(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, st
             if abs(v - lay.v_ego) < lay.lane_width / 2 and abs(u) < 9.0:
                 continue
             heading = 0.0 if v < 0 or lay.lanes == 1 else math.pi
-            if b.place(parts, u, v, heading + rng.normal(0.0, 0.03), label, kind):
+            if b.place(parts, u, v, heading + rng.normal(0.0, 0.03), _VEHICLE_LABEL[kind], kind):
+                length = max(abs(p.center[0]) + part_extent(p)[0] for p in parts) * 2
+                for _k in range(int(rng.choice(3, p=[0.5, 0.3, 0.2]))):  # a queue behind it, one lane, same way
+                    u += math.copysign(length / 2 + rng.uniform(1.5, 5.0), u if u != 0 else 1.0)
+                    kind, parts = _draw_vehicle(rng, 0.08, 0.03)
+                    length = max(abs(p.center[0]) + part_extent(p)[0] for p in parts) * 2
+                    u += math.copysign(length / 2, u)
+                    b.place(parts, u, v + rng.normal(0.0, 0.15), heading + rng.normal(0.0, 0.03),
+                            _VEHICLE_LABEL[kind], kind)
                 break
     if lay.cross:
         for _ in range(int(rng.integers(0, 3))):
@@ -255,12 +417,54 @@ def _add_vehicles(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, st
             b.place(parts, u, v, math.pi / 2 * rng.choice([-1.0, 1.0]) + rng.normal(0, 0.05), CAR, "Car")
 
 
+_VEHICLE_LABEL = {"Car": CAR, "Van": BACKGROUND, "Truck": BACKGROUND}
+
+
+def _draw_vehicle(rng: np.random.Generator, p_van: float, p_truck: float) -> tuple[str, list[Part]]:
+    """(KITTI kind, parts) of a car, van or truck drawn with the given shares."""
+    r = rng.random()
+    if r < p_van:
+        return "Van", van_parts(rng)
+    if r < p_van + p_truck:
+        return "Truck", truck_parts(rng)
+    return "Car", car_parts(rng)
+
+
+def _add_parking_lot(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout) -> None:
+    """A row of cars parked nose-in beyond the sidewalk (a lot, driveways): cars behind cars, seen through gaps."""
+    side = float(rng.choice([-1.0, 1.0]))
+    u = rng.uniform(-35.0, 35.0)
+    spacing = rng.uniform(2.4, 3.0)
+    for k in range(int(rng.integers(2, 8))):
+        if rng.random() > 0.8:
+            continue
+        kind, parts = _draw_vehicle(rng, 0.08, 0.0)
+        length = max(abs(p.center[0]) + part_extent(p)[0] for p in parts) * 2
+        v = side * (lay.half_width + lay.sidewalk + 0.6 + length / 2 + rng.uniform(0.0, 0.5))
+        yaw = side * math.pi / 2 + (math.pi if rng.random() < 0.4 else 0.0) + rng.normal(0.0, 0.05)
+        uk = u + k * spacing
+        if not _in_cross(lay, uk, 2.0):
+            b.place(parts, uk, v, yaw, _VEHICLE_LABEL[kind], kind)
+
+
+def _lateral(heading: float, d: float) -> tuple[float, float]:
+    """Road-coordinate offset `d` metres to the left of a heading."""
+    return -math.sin(heading) * d, math.cos(heading) * d
+
+
 def _add_people(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout) -> None:
-    """Pedestrians (alone, in groups, by walls, between parked cars, crossing) and cyclists."""
-    n_ped = int(rng.choice(5, p=[0.2, 0.25, 0.25, 0.15, 0.15]))
+    """Pedestrians (alone, pairs and groups shoulder to shoulder, pushing bikes or strollers), seated people and
+    cyclists.
+
+    Class rules (see `synthetic.objects.people`): a rider is a Cyclist; a person walking a bicycle is a Pedestrian
+    and the bicycle background; seated people (KITTI's Person_sitting) and strollers are background. Group
+    members walk TOUCH_CLEARANCE_M apart, close enough that stage 1 proposes a pair as one cluster (real
+    pedestrian proposals are 0.85 x 0.52 m, wider than one person) while each labelled box stays clean.
+    """
+    n_ped = int(rng.choice(6, p=[0.15, 0.22, 0.23, 0.16, 0.14, 0.1]))
     placed = 0
     while placed < n_ped:
-        group = min(int(rng.choice([1, 2, 3], p=[0.6, 0.25, 0.15])), n_ped - placed)
+        group = min(int(rng.choice([1, 2, 3, 4], p=[0.5, 0.3, 0.13, 0.07])), n_ped - placed)
         where = rng.random()
         side = float(rng.choice([-1.0, 1.0]))
         u = _distance_u(rng)
@@ -276,13 +480,71 @@ def _add_people(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout) -> N
             heading = float(rng.choice([0.0, math.pi])) + rng.normal(0.0, 0.3)
         else:
             heading = rng.uniform(-math.pi, math.pi)
+        if group == 1 and rng.random() < 0.12:
+            _add_pedestrian_with(b, rng, u, v, heading)
+            placed += 1
+            continue
+        pose = "walk" if rng.random() < 0.75 else "stand"
+        offset = 0.0
         for member in range(group):
-            for _attempt in range(12):
-                du, dv = (0.0, 0.0) if member == 0 and _attempt == 0 else rng.normal(0.0, 0.9, size=2)
-                yaw = heading + rng.normal(0.0, 0.25)
-                if b.place(pedestrian_parts(rng), u + du, v + 0.4 * dv, yaw, PEDESTRIAN, "Pedestrian"):
+            for _attempt in range(8):
+                if member == 0:
+                    du, dv = (0.0, 0.0) if _attempt == 0 else tuple(rng.normal(0.0, 0.5, size=2))
+                else:  # shoulder to shoulder, or a step behind; farther out on each retry
+                    offset_try = offset + rng.uniform(0.75, 0.95) + 0.12 * _attempt
+                    du, dv = _lateral(heading, offset_try)
+                    du += rng.normal(0.0, 0.15) + math.cos(heading) * rng.uniform(-0.3, 0.3)
+                yaw = heading + rng.normal(0.0, 0.15)
+                parts = pedestrian_parts(rng, pose)
+                if b.place(parts, u + du, v + dv, yaw, PEDESTRIAN, "Pedestrian",
+                           clearance=TOUCH_CLEARANCE_M if member else None):
+                    if member:
+                        offset = offset_try
                     break
             placed += 1
+    _add_seated_people(b, rng, lay)
+    _add_cyclists(b, rng, lay)
+
+
+def _add_pedestrian_with(b: SceneBuilder, rng: np.random.Generator, u: float, v: float, heading: float) -> None:
+    """A pedestrian pushing a bicycle at their left or a stroller ahead (the bicycle and stroller background)."""
+    bike = rng.random() < 0.65
+    reach = rng.uniform(0.1, 0.2) if bike else 0.0
+    parts = pedestrian_parts(rng, "walk" if rng.random() < 0.8 else "stand", reach=reach)
+    if not b.place(parts, u, v, heading + rng.normal(0.0, 0.05), PEDESTRIAN, "Pedestrian"):
+        return
+    person_hi = np.max([p.center + part_extent(p) for p in parts], axis=0)
+    if bike:
+        thing = bicycle_parts(rng)
+        half_w = max(abs(p.center[1]) + part_extent(p)[1] for p in thing)
+        du, dv = _lateral(heading, person_hi[1] + TOUCH_CLEARANCE_M + 0.03 + half_w)
+        du += math.cos(heading) * rng.uniform(0.0, 0.3)
+        model = "pushed_bicycle"
+    else:
+        thing = stroller_parts(rng)
+        back = -min(p.center[0] - part_extent(p)[0] for p in thing)
+        d = person_hi[0] + TOUCH_CLEARANCE_M + 0.03 + back
+        du, dv = math.cos(heading) * d, math.sin(heading) * d
+        model = "stroller"
+    b.place(thing, u + du, v + dv, heading, model=model, clearance=TOUCH_CLEARANCE_M)
+
+
+def _add_seated_people(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout) -> None:
+    """People on benches, café chairs or a step (background: KITTI's Person_sitting), facing the street."""
+    for _ in range(int(rng.choice(4, p=[0.45, 0.3, 0.15, 0.1]))):
+        seat = str(rng.choice(["bench", "chair", "curb"], p=[0.45, 0.35, 0.2]))
+        side = float(rng.choice([-1.0, 1.0]))
+        if seat == "chair":  # café tables along the building front
+            v = side * (lay.frontage - rng.uniform(0.6, 1.5))
+        else:
+            v = side * (lay.half_width + rng.uniform(0.6, max(lay.sidewalk - 0.3, 0.7)))
+        facing = -math.pi / 2 if side > 0 else math.pi / 2
+        b.place(seated_person_parts(rng, seat), _distance_u(rng), v, facing + rng.normal(0.0, 0.3),
+                model="person_sitting")
+
+
+def _add_cyclists(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout) -> None:
+    """Cyclists along the lane edge, on the sidewalk, and crossing or turning."""
     n_cyc = int(rng.choice(5, p=[0.3, 0.3, 0.2, 0.12, 0.08]))
     lane_edge = lay.lanes * lay.lane_width / 2
     for _ in range(n_cyc):
@@ -311,6 +573,7 @@ def generate_scene(rng: np.random.Generator) -> Scene:
     _add_roadside(b, rng, lay, style)
     _add_vehicles(b, rng, lay, style)
     _add_people(b, rng, lay)
+    _add_clutter_beside_foreground(b, rng)
     lane_edge = lay.lanes * lay.lane_width / 2
     lines = [-lane_edge + k * lay.lane_width for k in range(lay.lanes + 1)]
     n_patches = int(rng.integers(0, 9))

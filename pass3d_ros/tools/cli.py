@@ -12,6 +12,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
+from typing import TextIO
 
 from rosbags.rosbag2 import ReaderError, WriterError
 
@@ -66,6 +67,18 @@ def _interrupt_status(exc: BaseException) -> int | None:
         seen.add(id(link))
         link = link.__cause__ or link.__context__
     return _received[-1] if _received else None
+
+
+def show_progress(no_progress: bool = False, stream: TextIO | None = None) -> bool:
+    """Whether a tool draws progress bars: not with --no-progress, and only when `stream` (default stderr,
+    where tqdm draws) is a terminal, so logs and pipes get no bar debris."""
+    if no_progress:
+        return False
+    stream = sys.stderr if stream is None else stream
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):  # no isatty, or a closed stream
+        return False
 
 
 def check_writable(path: str | Path, *, folder: bool, what: str = "output") -> None:

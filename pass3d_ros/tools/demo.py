@@ -91,7 +91,7 @@ def stage1_offline(bag: Path) -> dict:
 def draw_frames(input_bag: Path, labeled_bag: Path, out: Path, count: int = BEV_FRAMES) -> list[Path]:
     """Bird's-eye PNGs of `count` evenly spaced recorded output frames and of their ground truth."""
     truth = {frame.stamp_ns: frame for frame in read_bag(input_bag)}
-    outputs = list(read_bag(labeled_bag))
+    outputs = list(read_bag(labeled_bag, labels="predicted"))
     chosen = sorted({int(k) for k in np.linspace(0, len(outputs) - 1, min(count, len(outputs)))}) if outputs else []
     folder = out / "bev"
     folder.mkdir(exist_ok=True)

@@ -14,7 +14,7 @@ Modes (one per run):
                   per step, ground precision / recall where the dataset has a ground truth.
   --live          the live path: the data through cluster_proposal_node and segmentation_node running in
                   this process (pass3d_ros.evaluation.live.run_live, private DDS domain), outputs matched to
-                  inputs by header stamp and scored against the bag's `label` field. One `bag:PATH[#/topic]`
+                  inputs by header stamp and scored against the bag's `label_gt` field. One `bag:PATH[#/topic]`
                   plays as it is; any other spec (synthetic:, kitti_object:, ..., or several specs) is first
                   converted into a temporary labelled bag, as `pass3d_kitti2bag --with-labels` would, and
                   deleted afterwards. Free-running at --rate x the recorded pace (frames a busy node cannot
@@ -30,8 +30,17 @@ the lite network faster than two).
 `--json PATH` writes the summary, nested. Full and live runs share the segmentation keys:
   {"mode": "full" | "live", "frames": N, "data": [specs],
    "classifier": {"kind", "weights", "device", "threads"},
-   "classes": {"background" | "car" | "pedestrian" | "cyclist": {"precision", "recall", "iou", "points"}},
-   "mean_iou": m, "ms_per_frame": {"stage1": m, "stage2": m, "total": m}, "config": {Stage1Config}, ...}
+   "classes": {"background" | "car" | "pedestrian" | "cyclist": {"precision", "recall", "iou", "points",
+                                                                  "interval"}},
+   "mean_iou": m, "mean_iou_interval": interval (full mode),
+   "ms_per_frame": {"stage1": m, "stage2": m, "total": m}, "config": {Stage1Config}, ...}
+  interval: {"low", "high", "level": 0.9, "resamples": 1000, "skipped", "method": "frame bootstrap", "frames",
+  "degenerate"}: frames drawn with replacement (fixed seed: the same frames give the same interval), their
+  confusion matrices summed per resample, the 5th and 95th percentile of the resampled IoUs. A resample in
+  which a class has no ground-truth and no predicted point has no IoU for it and is skipped (counted in
+  "skipped"; low / high are null when every resample was); one frame gives a degenerate interval (low = high,
+  "degenerate": true), which the table says. The table prints each IoU as "car 76.6 [68.1, 83.0]". Live
+  runs carry the per-class intervals too.
   full adds "stage1" (as below) and "per_frame": [{"frame", "points", "proposals", "stage1_ms",
   "stage2_ms", "total_ms", "iou": {class: iou}, "mean_iou"}]; live adds "bag" (the bag played; null when
   it was a deleted temporary), "record_out", and "live": {"frames_in", "frames_out", "dropped",

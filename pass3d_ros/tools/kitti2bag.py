@@ -25,7 +25,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="rosbag2 metadata version: 9 (Jazzy, default) or 8 (Humble)")
     parser.add_argument("--topic", default="/velodyne_points", help="topic (default /velodyne_points)")
     parser.add_argument("--frame-id", default="velodyne", help="header frame_id (default velodyne)")
-    parser.add_argument("--with-labels", action="store_true", help="add a uint8 `label` field (data must have labels)")
+    parser.add_argument("--with-labels", action="store_true",
+                        help="add a uint8 `label_gt` field (data must have labels)")
     parser.add_argument("--force", action="store_true", help="replace an existing BAG")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser

@@ -2,16 +2,23 @@
 
     pass3d_replay BAG [--rate R] [--loop] [--topic T] [--publish-topic P] [--qos sensor|reliable]
     pass3d_replay --record TOPIC[:TYPE] [--record ...] --out BAG [--duration S | --count N]
+                  [--discovery-timeout S] [--qos sensor|reliable]
 
 Replay publishes the stored CDR bytes unchanged (headers and stamps as recorded), paced by the bag's
 times divided by R (R = 0: as fast as possible). Recording writes each message at its header stamp; with
---count it stops after N messages on the first topic. `replay()` and `Recorder` are the in-process API.
+--count it stops after N messages on the first topic. A topic's type comes from the ROS graph (waiting up to
+--discovery-timeout s for it; a topic never seen is an error unless TOPIC:TYPE names the type). Like
+`ros2 bag record`, each topic is subscribed with the QoS its publishers offer: best effort if any publisher is
+best effort (or none is known yet), else reliable; --qos overrides. A recording that received nothing leaves
+no bag and exits 1. Ctrl-C before --count / --duration is reached keeps what was recorded (a complete bag)
+and exits 130 (SIGTERM: 143). `replay()` and `Recorder` are the in-process API.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import queue
 import signal
 import sys
@@ -25,12 +32,25 @@ from typing import Any
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from pass3d_ros.data.bag import STORAGES, TYPESTORE, VERSIONS, BagError, BagWriter, iter_raw, select_topic
-from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, stamp_to_ns
+from pass3d_ros.data.bag import (
+    STORAGES,
+    TYPESTORE,
+    VERSIONS,
+    BagError,
+    BagWriter,
+    iter_raw,
+    message_stamp_ns,
+    select_topic,
+)
+from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE
 from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
-from pass3d_ros.tools.cli import run_tool
+from pass3d_ros.tools.cli import EXIT_SIGINT, Interrupted, run_tool
+
+EXIT_EMPTY = 1  # a recording that received no message
+DISCOVERY_TIMEOUT_S = 10.0
 
 
 def ros_message_class(msgtype: str) -> type:
@@ -138,19 +158,16 @@ def replay(
     return stats
 
 
-def _stamp_of(msgtype: str, raw: bytes) -> int:
-    """The header stamp of a serialized message (MarkerArray: its first marker's), 0 when there is none."""
-    msg = TYPESTORE.deserialize_cdr(raw, msgtype)
-    header = getattr(msg, "header", None)
-    if header is None and getattr(msg, "markers", None):
-        header = msg.markers[0].header
-    return stamp_to_ns(header.stamp) if header is not None else 0
+class EmptyRecordingError(BagError):
+    """`Recorder.close()` found nothing recorded: no bag was written."""
 
 
 class Recorder:
     """Records topics of a node the caller spins into a bag at header stamps; `close()` keeps, `abort()` drops it.
 
-    A writer thread owns the bag (sqlite3 objects stay in one thread); `limit` caps the first topic.
+    A writer thread owns the bag (sqlite3 objects stay in one thread); `limit` caps the first topic. `qos` is a
+    profile name for every topic or {topic: name}. A bag without any message is never finished: `close()`
+    removes it and raises EmptyRecordingError.
     """
 
     def __init__(
@@ -162,7 +179,7 @@ class Recorder:
         storage: str = "mcap",
         version: int = 9,
         force: bool = False,
-        qos: str = "reliable",
+        qos: str | Mapping[str, str] = "reliable",
         depth: int = 100,
         queue_size: int = 256,
         limit: int | None = None,
@@ -178,6 +195,9 @@ class Recorder:
             if msgtype not in TYPESTORE.types:
                 raise BagError(f"message type {msgtype!r} unknown to the ROS 2 Jazzy typestore")
         classes = {topic: ros_message_class(msgtype) for topic, msgtype in self.topics.items()}
+        self.qos: dict[str, str] = {topic: qos if isinstance(qos, str) else qos[topic] for topic in self.topics}
+        profiles = {topic: qos_profile(name, depth) for topic, name in self.qos.items()}
+        self.empty = False
         self.counts: dict[str, int] = dict.fromkeys(self.topics, 0)
         self._accepted = 0
         self.dropped = 0
@@ -192,7 +212,7 @@ class Recorder:
         if self.error is not None:
             raise self.error
         self._subscriptions = [
-            node.create_subscription(cls, topic, partial(self._on_message, topic), qos_profile(qos, depth), raw=True)
+            node.create_subscription(cls, topic, partial(self._on_message, topic), profiles[topic], raw=True)
             for topic, cls in classes.items()
         ]
 
@@ -228,7 +248,8 @@ class Recorder:
                 self.counts[topic] += 1
                 self._changed.notify_all()
         try:
-            if item == "close" and self.error is None:
+            self.empty = item == "close" and self.error is None and not any(self.counts.values())
+            if item == "close" and self.error is None and not self.empty:
                 self._writer.close()
             else:
                 self._writer.abort()
@@ -241,7 +262,7 @@ class Recorder:
                 return
             self._accepted += 1
         try:
-            stamp = _stamp_of(self.topics[topic], raw) or self.node.get_clock().now().nanoseconds
+            stamp = message_stamp_ns(self.topics[topic], raw) or self.node.get_clock().now().nanoseconds
             self._queue.put_nowait((topic, stamp, raw))
         except queue.Full:
             self.dropped += 1
@@ -273,10 +294,13 @@ class Recorder:
             self._thread.join()
 
     def close(self) -> Path:
-        """Stop listening, write what is queued and finish the bag; returns its path."""
+        """Stop listening, write what is queued and finish the bag; returns its path. Nothing recorded:
+        the bag is removed and EmptyRecordingError raised."""
         self._finish("close")
         if self.error is not None:
             raise self.error
+        if self.empty:
+            raise EmptyRecordingError(f"{self.out}: no message arrived on {', '.join(self.topics)}; no bag written")
         return self.out
 
     def abort(self) -> None:
@@ -303,11 +327,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--loop", action="store_true", help="replay until Ctrl-C")
     parser.add_argument("--topic", help="bag topic to replay (default: its only PointCloud2 topic)")
     parser.add_argument("--publish-topic", help="publish under this name instead")
-    parser.add_argument("--qos", choices=QOS_NAMES, help="QoS (default: sensor to replay, reliable to record)")
+    parser.add_argument("--qos", choices=QOS_NAMES,
+                        help="QoS (default: sensor to replay; to record, what the publishers offer)")
     parser.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
                         help="wait (up to 10 s) for N subscribers before publishing")
     parser.add_argument("--record", action="append", metavar="TOPIC[:TYPE]",
-                        help="record this topic (repeatable); TYPE defaults to what the graph says, else PointCloud2")
+                        help="record this topic (repeatable); TYPE defaults to what the ROS graph says")
+    parser.add_argument("--discovery-timeout", type=float, default=DISCOVERY_TIMEOUT_S, metavar="S",
+                        help=f"wait up to S s for --record topics to appear (default {DISCOVERY_TIMEOUT_S:g})")
     parser.add_argument("--out", help="bag to write when recording")
     stop = parser.add_mutually_exclusive_group()
     stop.add_argument("--duration", type=float, help="record for S seconds (default: until Ctrl-C)")
@@ -318,36 +345,76 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _discover_types(node: Any, executor: Any, specs: Sequence[str], timeout: float = 2.0) -> dict[str, str]:
-    """TOPIC[:TYPE] -> {topic: type}; an unnamed type comes from the ROS graph, else PointCloud2."""
+def discover_types(node: Any, specs: Sequence[str], timeout: float = DISCOVERY_TIMEOUT_S,
+                   poll: float = 0.05) -> dict[str, str]:
+    """TOPIC[:TYPE] -> {topic: type}; an unnamed type is the one the ROS graph reports, waited for up to `timeout` s.
+
+    BagError naming the topics the graph never showed, or a topic the graph gives several types.
+    """
     topics: dict[str, str] = {}
-    unknown: list[str] = []
     for spec in specs:
         topic, _, msgtype = spec.partition(":")
+        if not topic:
+            raise BagError(f"--record {spec!r}: empty topic name")
         topics[topic] = msgtype
-        if not msgtype:
-            unknown.append(topic)
     deadline = time.monotonic() + timeout
-    while unknown and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.1)
+    while True:
+        unknown = [topic for topic, msgtype in topics.items() if not msgtype]
+        if not unknown:
+            return topics
         graph = dict(node.get_topic_names_and_types())
-        for topic in [t for t in unknown if graph.get(t)]:
-            topics[topic] = graph[topic][0]
-            unknown.remove(topic)
-    for topic in unknown:
-        topics[topic] = POINTCLOUD2_TYPE
-        print(f"note: {topic} not seen yet, recording it as {POINTCLOUD2_TYPE}", file=sys.stderr)
-    return topics
+        for topic in unknown:
+            types = graph.get(topic) or []
+            if len(types) > 1:
+                raise BagError(f"{topic} is published with several types ({', '.join(types)}); "
+                               f"name one: --record {topic}:TYPE")
+            if types:
+                topics[topic] = types[0]
+        if all(topics.values()):
+            return topics
+        if time.monotonic() >= deadline:
+            missing = ", ".join(topic for topic, msgtype in topics.items() if not msgtype)
+            raise BagError(f"topic(s) {missing} not found in the ROS graph within {timeout:g} s (ROS_DOMAIN_ID "
+                           f"{_domain_id()}); start the publisher first, raise --discovery-timeout, or give the type "
+                           f"as TOPIC:pkg/msg/Type to wait for it while recording")
+        time.sleep(poll)
+
+
+def _domain_id() -> str:
+    return os.environ.get("ROS_DOMAIN_ID", "0 (default)")
+
+
+def recording_qos(node: Any, topic: str) -> str:
+    """The QoS name to record `topic` with, as `ros2 bag record` adapts: `sensor` (best effort) when any known
+    publisher is best effort or none is known yet (best effort matches every publisher), else `reliable`."""
+    infos = node.get_publishers_info_by_topic(topic)
+    if not infos or any(info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for info in infos):
+        return "sensor"
+    return "reliable"
+
+
+def _publishers_note(node: Any, topics: Mapping[str, str]) -> str:
+    """`topic: N publisher(s) (QoS ...)` per topic, for the line that says a recording got nothing."""
+    parts = []
+    for topic in topics:
+        infos = node.get_publishers_info_by_topic(topic)
+        kinds = sorted({"best effort" if info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT else "reliable"
+                        for info in infos})
+        parts.append(f"{topic}: {len(infos)} publisher(s)" + (f" ({', '.join(kinds)})" if kinds else ""))
+    return "; ".join(parts)
 
 
 def _record(args: argparse.Namespace, node: Any, executor: Any) -> int:
-    topics = _discover_types(node, executor, args.record)
+    topics = discover_types(node, args.record, args.discovery_timeout)
+    qos = {topic: args.qos or recording_qos(node, topic) for topic in topics}
     recorder = Recorder(node, topics, args.out, storage=args.storage, version=args.rosbag_version,
-                        force=args.force, qos=args.qos or "reliable", limit=args.count)
+                        force=args.force, qos=qos, limit=args.count)
     first = next(iter(topics))
     start = time.monotonic()
     stop_given = args.duration is not None or args.count is not None
-    print(f"recording {', '.join(f'{t} ({m})' for t, m in topics.items())} into {args.out}", file=sys.stderr)
+    listing = ", ".join(f"{t} ({m}, {'best effort' if qos[t] == 'sensor' else 'reliable'})" for t, m in topics.items())
+    print(f"recording {listing} into {args.out}", file=sys.stderr)
+    status = 0
     try:
         while not (
             (args.duration is not None and time.monotonic() - start >= args.duration)
@@ -356,18 +423,26 @@ def _record(args: argparse.Namespace, node: Any, executor: Any) -> int:
             executor.spin_once(timeout_sec=0.05)
             if recorder.error is not None:
                 raise recorder.error
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # keep what was recorded, like `ros2 bag record`
         if stop_given:
-            recorder.abort()
-            print(f"pass3d_replay: interrupted before the stop condition, {args.out} not written", file=sys.stderr)
-            return 130
+            status = exc.status if isinstance(exc, Interrupted) else EXIT_SIGINT
     except BaseException:
         recorder.abort()
         raise
-    path = recorder.close()
+    seconds = time.monotonic() - start
+    try:
+        path = recorder.close()
+    except EmptyRecordingError:
+        print(f"pass3d_replay: error: recorded nothing in {seconds:.1f} s ({_publishers_note(node, topics)}); "
+              f"{args.out} not written", file=sys.stderr)
+        return status or EXIT_EMPTY
     counts = ", ".join(f"{topic}: {n}" for topic, n in recorder.counts.items())
-    print(f"recorded {sum(recorder.counts.values())} messages in {time.monotonic() - start:.1f} s to {path} ({counts})")
-    return 0
+    stopped = ", interrupted before the stop condition" if status else ""
+    print(f"recorded {sum(recorder.counts.values())} messages in {seconds:.1f} s to {path} ({counts}){stopped}")
+    silent = [topic for topic, n in recorder.counts.items() if n == 0]
+    if silent:
+        print(f"pass3d_replay: warning: no message on {', '.join(silent)}", file=sys.stderr)
+    return status
 
 
 def _replay(args: argparse.Namespace, node: Any) -> int:
@@ -386,7 +461,8 @@ def _replay(args: argparse.Namespace, node: Any) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point: exit 0 on success, 2 on a user error, 130 / 143 when interrupted."""
+    """Console entry point: exit 0 on success, 1 when a recording got nothing, 2 on a user error, 130 / 143 when
+    interrupted (a recording with --count / --duration keeps what it got)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.record:
@@ -396,6 +472,8 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("give either a BAG to replay or --record topics, not both")
         if (args.count is not None and args.count < 1) or (args.duration is not None and args.duration <= 0):
             parser.error("--count and --duration must be positive")
+        if args.discovery_timeout < 0:
+            parser.error("--discovery-timeout must be >= 0")
     elif not args.bag:
         parser.error("give a BAG to replay or --record TOPIC --out BAG")
     return run_tool("pass3d_replay", lambda: _run(args))

@@ -98,7 +98,7 @@ def segment(
     counts = [count_frames(spec) for spec in parsed]
     total = None if None in counts else sum(c for c in counts if c is not None)
     stats = SegmentStats()
-    with tqdm(total=total, unit="frame", desc="segment", disable=not progress) as bar:
+    with tqdm(total=total, unit="frame", desc="segment", disable=None if progress else True) as bar:
         for position, spec in enumerate(parsed):
             folder = out if len(parsed) == 1 else out / f"{position:02d}"
             (folder / "labels").mkdir(parents=True, exist_ok=True)

@@ -2,13 +2,19 @@
 
   pass3d_simulate --frames 100 --seed 0 --out data/synth            # SemanticKITTI sequence layout
   pass3d_simulate --frames 100 --out data/synth_obj --format kitti_object
-  pass3d_simulate --report --frames 10 [--real kitti_object:DIR ...]
+  pass3d_simulate --report --frames 20 [--real kitti_object:DIR ...]
+
+--report prints the realism scorecard: statistics of the synthetic frames next to the real ones (by default the
+kitti_dev frames and the unlabelled kitti_unlabeled scans), each with its tolerance and PASS / FAIL (n/a where the
+real data is too thin to judge); see pass3d_ros.synthetic.realism for what is measured and why each tolerance.
+Below it come the descriptive statistics side by side (points per ring, range histogram, intensity quantiles).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 from tqdm import tqdm
@@ -33,9 +39,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--format", choices=sorted(WRITERS), default="semantickitti",
                         help="layout written (default semantickitti: velodyne/ + labels/)")
     parser.add_argument("--force", action="store_true", help="write into a non-empty --out folder")
-    parser.add_argument("--report", action="store_true", help="print synthetic vs real scan statistics, write nothing")
+    parser.add_argument("--report", action="store_true",
+                        help="print the realism scorecard (synthetic vs real), write nothing")
     parser.add_argument("--real", action="append", metavar="SPEC", default=None,
-                        help="real dataset spec to compare with (repeatable; default: the kitti_dev frames)")
+                        help="real dataset spec to compare with (repeatable; default: kitti_dev and kitti_unlabeled)")
     return parser
 
 
@@ -58,7 +65,7 @@ def generate(args: argparse.Namespace) -> int:
     write = _writer(args.format)
     frames = 10 if args.frames is None else args.frames
     points = 0
-    for index in tqdm(range(args.start, args.start + frames), desc="simulate", unit="frame"):
+    for index in tqdm(range(args.start, args.start + frames), desc="simulate", unit="frame", disable=None):
         frame = generate_frame(args.seed, index)
         write(out, frame)
         points += len(frame.points)
@@ -72,20 +79,36 @@ def _short_name(spec: str) -> str:
 
 
 def report(args: argparse.Namespace) -> int:
-    """Print the realism report: synthetic frames next to each real dataset."""
-    from pass3d_ros.synthetic.realism import collect, default_real_specs, format_report
+    """Print the realism scorecard, then the descriptive statistics: synthetic vs real."""
+    from pass3d_ros.synthetic.realism import (
+        ScanStats,
+        collect,
+        default_real_specs,
+        default_unlabeled_specs,
+        format_report,
+        format_scorecard,
+        scorecard,
+        synthetic_frames,
+    )
 
     frames = 10 if args.frames is None else args.frames
-    real = default_real_specs() if args.real is None else args.real
+    real = default_real_specs() + default_unlabeled_specs() if args.real is None else args.real
     for spec in real:
         parse_spec(spec)
-    synth_spec = f"synthetic:frames={frames},seed={args.seed},start={args.start}"
-    stats = [collect(tqdm(open_dataset(synth_spec), total=frames, desc="synthetic", unit="frame"),
-                     f"synthetic(seed {args.seed})")]
-    stats += [collect(open_dataset(spec), _short_name(spec)) for spec in real]
     if not real:
         print("no real dataset given or found (--real SPEC, or ../shared/data/kitti_dev)", file=sys.stderr)
-    print(format_report(stats))
+    synth_stats = ScanStats(f"synthetic(seed {args.seed})")
+
+    def synth() -> Iterator:
+        for frame, material in tqdm(synthetic_frames(frames, args.seed, args.start), total=frames,
+                                    desc="synthetic", unit="frame", disable=None):
+            synth_stats.add(frame)
+            yield frame, material
+
+    print(f"realism scorecard: {frames} synthetic frame(s) of seed {args.seed} vs {', '.join(real) or 'nothing'}")
+    print(format_scorecard(scorecard(synth(), real)))
+    print()
+    print(format_report([synth_stats] + [collect(open_dataset(spec), _short_name(spec)) for spec in real]))
     return 0
 
 

@@ -35,6 +35,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-n-feature", action="store_true", help="set the point-count feature n to 0")
     p.add_argument("--n-mode", choices=["ratio", "log"], default="log",
                    help="n = log(NUM / N) (default: bounded, trains stably) or the paper's (NUM - N) / N")
+    p.add_argument("--no-intensity-augment", action="store_true",
+                   help="no per-proposal intensity augmentation (gain, offset, gamma, zeroing, constant)")
+    p.add_argument("--no-intensity", action="store_true",
+                   help="feed intensity as 0 (stored in the checkpoint: inference does the same)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--batch-size", type=int, default=32, help="proposals per batch")
     p.add_argument("--lr", type=float, default=1e-3)

@@ -19,7 +19,7 @@ from tqdm import tqdm
 from pass3d_ros.classes import BACKGROUND, IGNORE, NUM_CLASSES
 from pass3d_ros.core import canonical
 from pass3d_ros.core.pointnet2 import ModelConfig
-from pass3d_ros.core.segmentation import prepare_proposals
+from pass3d_ros.core.segmentation import prepare_proposals, uses_intensity
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import DatasetError
 
@@ -142,7 +142,8 @@ def build_samples(
     rng = np.random.default_rng(seed)
     points, labels, index, counts, frame_ids = [], [], [], [], []
     names, sizes, frame_labels = [], [], []
-    for f, frame in enumerate(tqdm(frames, desc="stage 1 proposals", unit="frame", disable=not progress, total=total)):
+    bar = tqdm(frames, desc="stage 1 proposals", unit="frame", disable=None if progress else True, total=total)
+    for f, frame in enumerate(bar):
         if frame.labels is None:
             raise DatasetError(f"frame {frame.name}: no per-point labels, cannot train or validate on it")
         frame_label = np.asarray(frame.labels, dtype=np.uint8)
@@ -220,12 +221,39 @@ def cached_samples(
     return samples, path
 
 
+# Per-proposal intensity augmentation: sensors and surfaces differ in gain, offset and response, dark points read
+# 0 anywhere, and some drivers give no intensity at all (the VLP-32C frames read a constant 1.0).
+GAIN_RANGE = (0.6, 1.6)  # log-uniform
+OFFSET_SIGMA = 0.04
+GAMMA_RANGE = (0.7, 1.4)  # log-uniform
+ZERO_PROB, ZERO_SHARE_MAX = 0.5, 0.5  # half the proposals lose up to half their points' intensity to 0
+CONSTANT_PROB = 0.08  # the whole proposal reads one constant (1.0 half the time)
+
+
+def augment_intensity(intensity: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Intensity (B, N) in [0, 1] after a random gain, offset and gamma per proposal, random zeroing of a share of
+    its points, and now and then one constant for the whole proposal."""
+    b = intensity.shape[0]
+    gain = np.exp(rng.uniform(*np.log(GAIN_RANGE), b))[:, None]
+    gamma = np.exp(rng.uniform(*np.log(GAMMA_RANGE), b))[:, None]
+    offset = rng.normal(0.0, OFFSET_SIGMA, b)[:, None]
+    out = np.clip(np.clip(intensity, 0.0, 1.0) ** gamma * gain + offset, 0.0, 1.0)
+    share = np.where(rng.random(b) < ZERO_PROB, rng.uniform(0.0, ZERO_SHARE_MAX, b), 0.0)
+    out[rng.random(intensity.shape) < share[:, None]] = 0.0
+    constant = rng.random(b) < CONSTANT_PROB
+    level = np.where(rng.random(b) < 0.5, 1.0, rng.uniform(0.0, 1.0, b))
+    out[constant] = level[constant, None]
+    return out.astype(intensity.dtype)
+
+
 def training_batch(
-    samples: SampleSet, ids: np.ndarray, config: ModelConfig, rng: np.random.Generator, augment: bool
+    samples: SampleSet, ids: np.ndarray, config: ModelConfig, rng: np.random.Generator, augment: bool,
+    intensity_augment: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Network input of proposals `ids`: xyz (B, N, 3), features (B, N, 2), labels (B, N).
 
     augment: a random one of the 8 views per proposal; else the inference view (vertex nearest the sensor).
+    intensity_augment: augment_intensity per proposal (not when the config feeds no intensity).
     The N points are a fresh random sample every time.
     """
     ids = np.asarray(ids, dtype=np.int64)
@@ -235,4 +263,7 @@ def training_batch(
     batch = prepare_proposals(
         samples.points, samples.members(ids), config, views=views, rng=rng, boxes=boxes, queries=False
     )
-    return batch.sample_xyz, batch.sample_feat, samples.labels[batch.sample_index]
+    feat = batch.sample_feat
+    if intensity_augment and uses_intensity(config):
+        feat[:, :, 0] = augment_intensity(feat[:, :, 0], rng)
+    return batch.sample_xyz, feat, samples.labels[batch.sample_index]

@@ -52,6 +52,8 @@ class TrainOptions:
     no_augment: bool = False  # train on the inference view only (no 8 views)
     no_n_feature: bool = False  # point-count feature n set to 0
     n_mode: str = "log"
+    no_intensity_augment: bool = False  # no per-proposal intensity augmentation
+    no_intensity: bool = False  # intensity fed as 0, in training and (stored in the config) inference
     seed: int = 0
     batch_size: int = 32  # proposals per batch
     lr: float = 1e-3
@@ -143,6 +145,8 @@ class Trainer:
         self.config = make_config(o.config)
         self.config.n_feature = not o.no_n_feature
         self.config.n_mode = o.n_mode
+        if o.no_intensity:
+            self.config.extra["intensity"] = False
 
     def _load_samples(self) -> None:
         """Training (background partly discarded) and validation samples, from the caches or stage 1."""
@@ -222,7 +226,8 @@ class Trainer:
         if o.max_steps:
             steps = min(steps, o.max_steps)
         losses = []
-        bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{o.epochs}", unit="batch", disable=not self.progress)
+        bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{o.epochs}", unit="batch",
+                   disable=None if self.progress else True)
         started = time.perf_counter()
         for step in bar:
             losses.append(self._train_step(order[step * batch_size : (step + 1) * batch_size], rng))
@@ -231,9 +236,11 @@ class Trainer:
         return {"epoch": epoch, "train_loss": float(np.mean(losses)), "seconds": time.perf_counter() - started}
 
     def _train_step(self, ids: np.ndarray, rng: np.random.Generator) -> float:
-        """One optimizer step on the proposals `ids` (a random view each unless no_augment); the batch loss."""
+        """One optimizer step on the proposals `ids` (a random view each unless no_augment, intensity augmented
+        unless no_intensity_augment); the batch loss."""
         o = self.options
-        xyz, feat, labels = training_batch(self.train_set, ids, self.config, rng, augment=not o.no_augment)
+        xyz, feat, labels = training_batch(self.train_set, ids, self.config, rng, augment=not o.no_augment,
+                                           intensity_augment=not o.no_intensity_augment)
         logits = self.model(torch.from_numpy(xyz).to(o.device), torch.from_numpy(feat).to(o.device))
         loss = self.loss_fn(logits, torch.from_numpy(labels.astype(np.int64)).to(o.device))
         self.optimizer.zero_grad(set_to_none=True)

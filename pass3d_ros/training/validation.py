@@ -26,7 +26,8 @@ def validate(model: PointNet2Seg, samples: SampleSet, device: str, progress: boo
     confusion = ConfusionAccumulator()
     order = np.argsort(samples.frame, kind="stable")
     bounds = np.searchsorted(samples.frame[order], np.arange(len(samples.frame_sizes) + 1))
-    for f in tqdm(range(len(samples.frame_sizes)), desc="validate", unit="frame", disable=not progress, leave=False):
+    frames = range(len(samples.frame_sizes))
+    for f in tqdm(frames, desc="validate", unit="frame", disable=None if progress else True, leave=False):
         ids = order[bounds[f] : bounds[f + 1]]
         size = int(samples.frame_sizes[f])
         labels = np.zeros(size, dtype=np.uint8)

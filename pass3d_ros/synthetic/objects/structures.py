@@ -1,4 +1,4 @@
-"""Models of built structures along the street: buildings, porches, walls and fences (all background)."""
+"""Models of built structures along the street: buildings, porches, walls, fences and their fragments (background)."""
 
 from __future__ import annotations
 
@@ -36,3 +36,22 @@ def fence_parts(rng: np.random.Generator, length: float) -> list[Part]:
     for x in np.linspace(-length / 2, length / 2, n_posts + 1):
         parts.append(cylinder([x, 0.0, -0.1], [x, 0.0, height + 0.05], 0.04, M_POLE, rho))
     return parts
+
+
+def wall_fragment_parts(rng: np.random.Generator) -> list[Part]:
+    """Short wall piece 0.8-5 m long, 0.9-2.2 m high (gate pier, garden-wall end, retaining step): proposal-sized."""
+    length, height, thick = rng.uniform(0.8, 5.0), rng.uniform(0.9, 2.2), rng.uniform(0.2, 0.5)
+    return [box([0, 0, height / 2 - 0.2], [length / 2, thick / 2, height / 2 + 0.2], M_WALL,
+                float(rng.uniform(0.2, 0.6)))]
+
+
+def building_corner_parts(rng: np.random.Generator) -> list[Part]:
+    """Corner of a low structure (garage, kiosk, shed): two walls meeting at the origin, 1.8-2.6 m high.
+
+    The walls run along +x and +y; seen from the street only a few metres of each show, which stage 1 keeps.
+    """
+    height = rng.uniform(1.8, 2.6)
+    a, c, t = rng.uniform(1.0, 4.0), rng.uniform(1.0, 4.0), rng.uniform(0.15, 0.3)
+    rho = float(rng.uniform(0.25, 0.6))
+    return [box([a / 2, t / 2, height / 2 - 0.2], [a / 2, t / 2, height / 2 + 0.2], M_BUILDING, rho),
+            box([t / 2, c / 2, height / 2 - 0.2], [t / 2, c / 2, height / 2 + 0.2], M_BUILDING, rho)]

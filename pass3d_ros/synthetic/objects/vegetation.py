@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from pass3d_ros.synthetic.materials import M_TRUNK, M_VEGETATION
+from pass3d_ros.synthetic.materials import M_POLE, M_TRUNK, M_VEGETATION
 from pass3d_ros.synthetic.parts import Part, box, cylinder, ellipsoid, rot_z
 
 
@@ -66,3 +66,33 @@ def hedge_parts(rng: np.random.Generator, length: float) -> list[Part]:
     height, thick = rng.uniform(0.8, 2.2), rng.uniform(0.6, 1.3)
     return [box([0, 0, height / 2 - 0.1], [length / 2, thick / 2, height / 2 + 0.1], M_VEGETATION,
                 float(rng.uniform(0.35, 0.6)), rounding=(1.05, 1.5, 1.5))]
+
+
+def trunk_parts(rng: np.random.Generator) -> list[Part]:
+    """Tree trunk seen without its crown (pollarded, dead, or the crown out of the beams): 1-2.3 m, pedestrian-like.
+
+    Sometimes with a protective cage of thin posts around it, as street trees have.
+    """
+    height, radius = rng.uniform(1.0, 2.3), rng.uniform(0.08, 0.35)
+    rho = float(rng.uniform(0.25, 0.5))
+    parts = [cylinder([0, 0, -0.2], [0, 0, height], radius, M_TRUNK, rho)]
+    if rng.random() < 0.4:  # a stub branch or two
+        for _ in range(int(rng.integers(1, 3))):
+            ang = rng.uniform(0, 2 * math.pi)
+            z = height * rng.uniform(0.6, 0.95)
+            reach = rng.uniform(0.3, 0.8)
+            parts.append(cylinder([0, 0, z], [reach * math.cos(ang), reach * math.sin(ang), z + reach * 0.6],
+                                  radius * 0.4, M_TRUNK, rho))
+    if rng.random() < 0.25:
+        cage = radius + rng.uniform(0.2, 0.4)
+        for ang in np.linspace(0, 2 * math.pi, 4, endpoint=False):
+            parts.append(cylinder([cage * math.cos(ang), cage * math.sin(ang), -0.1],
+                                  [cage * math.cos(ang), cage * math.sin(ang), 1.4], 0.02, M_POLE, 0.3))
+    return parts
+
+
+def hedge_fragment_parts(rng: np.random.Generator) -> list[Part]:
+    """Short hedge piece or shrub block 1-4 m long, 0.9-2 m high: a foliage proposal of car or pedestrian size."""
+    length, height, thick = rng.uniform(1.0, 4.0), rng.uniform(0.9, 2.0), rng.uniform(0.5, 1.2)
+    return [box([0, 0, height / 2 - 0.1], [length / 2, thick / 2, height / 2 + 0.1], M_VEGETATION,
+                float(rng.uniform(0.35, 0.6)), rounding=(1.1, 1.4, 1.4))]
