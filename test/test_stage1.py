@@ -372,3 +372,17 @@ def test_warm_up_and_synthetic_scan_run():
     stage1.warm_up()
     result = propose(stage1.synthetic_scan())
     assert result.ring_source == "azimuth_wrap" and len(result.boxes) == 1
+
+
+def test_effective_values_are_reported():
+    """Every result names the resolution its scan showed and the th_num / th_prop it ran with; a scan half as dense
+    as the HDL-64E in both directions runs with a quarter of the paper's th_num, and switching the scaling off
+    gives the paper's values."""
+    result = propose(stage1.synthetic_scan(n_rings=64, points_per_ring=2000))
+    assert result.sensor is not None and result.sensor.density == 1.0 and result.sensor.th_num_near == 30.0
+    sparse = stage1.synthetic_scan(n_rings=32, points_per_ring=1000)
+    result = propose(sparse, config=Stage1Config(n_rings=32))
+    assert result.sensor is not None and result.sensor.n_rings == 32
+    assert 0.15 < result.sensor.density < 0.35 and result.sensor.th_num_near < 10.0
+    plain = propose(sparse, config=Stage1Config(n_rings=32, sensor_scaling=False))
+    assert plain.sensor is not None and plain.sensor.density == 1.0 and plain.sensor.th_num_near == 30.0

@@ -1,4 +1,5 @@
-"""Synthetic scan generation speed: seconds per HDL-64E frame (scene, ray casting, noise and labels), one thread."""
+"""Synthetic scan generation speed: seconds per frame of one sensor (default KITTI's HDL-64E), one thread:
+scene, ray casting, noise and labels."""
 
 from __future__ import annotations
 
@@ -14,24 +15,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pass3d_benchmark simulate`."""
     parser.add_argument("--frames", type=int, default=10, help="frames to time (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="sequence seed (default 0)")
+    parser.add_argument("--sensor", type=str.lower, default="hdl64e",
+                        help="LiDAR model: hdl64e (default), vlp16, vlp32c, hdl32e, os1-64, os1-128, pandar64")
 
 
 def run(args: argparse.Namespace) -> int:
     """Time generate_frame after one untimed first call (numba compilation or cache load) and print medians."""
     from pass3d_ros.synthetic import dataset as ds
     from pass3d_ros.synthetic import scene as sc
-    from pass3d_ros.synthetic.sensor import ray_bundle
+    from pass3d_ros.synthetic.sensor import SENSOR_NAMES, ray_bundle, sensor_model
 
     if args.frames < 1:
         print("simulate: --frames must be at least 1")
         return 2
+    if args.sensor not in SENSOR_NAMES:
+        print(f"simulate: unknown --sensor {args.sensor!r}; known: {', '.join(SENSOR_NAMES)}")
+        return 2
+    sensor = sensor_model(args.sensor)
     start = time.perf_counter()
-    ds.generate_frame(args.seed + 1, 0)
+    ds.generate_frame(args.seed + 1, 0, sensor)
     first = time.perf_counter() - start
     wall, cpu, points = [], [], []
     for index in range(args.frames):
         t0, c0 = time.perf_counter(), time.process_time()
-        frame = ds.generate_frame(args.seed, index)
+        frame = ds.generate_frame(args.seed, index, sensor)
         wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
         points.append(len(frame.points))
@@ -41,16 +48,16 @@ def run(args: argparse.Namespace) -> int:
         t0 = time.perf_counter()
         scene = sc.generate_scene(rng)
         t1 = time.perf_counter()
-        ds.simulate_scan(scene, rng)
+        ds.simulate_scan(scene, rng, sensor)
         t2 = time.perf_counter()
-        origins, dirs, _ = ray_bundle(ds.DEFAULT_SENSOR, rng)
-        ds.cast_scene(scene, origins, dirs, ds.DEFAULT_SENSOR.max_range_m)
+        origins, dirs, _ = ray_bundle(sensor, rng)
+        ds.cast_scene(scene, origins, dirs, sensor.max_range_m)
         t3 = time.perf_counter()
         scene_s.append(t1 - t0)
         cast_s.append(t3 - t2)
         post_s.append(max(t2 - t1 - (t3 - t2), 0.0))
     med = float(np.median(wall))
-    print(f"simulate: {args.frames} frames of seed {args.seed}, single thread")
+    print(f"simulate: {args.frames} {args.sensor} frames of seed {args.seed}, single thread")
     print(f"  first call (numba compile or cache load), excluded: {first:.2f} s")
     print(f"  s/frame wall: median {med:.3f}  min {min(wall):.3f}  max {max(wall):.3f}")
     print(f"  s/frame cpu:  median {float(np.median(cpu)):.3f}")

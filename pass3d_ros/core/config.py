@@ -66,6 +66,10 @@ class Stage1Config:
         "auto", "rings: laser table when points have no ring field (" + ", ".join(SENSORS) + "); auto: from the scan",
         SENSORS,
     )
+    sensor_scaling: bool = _param(
+        True, "refinement: scale th_num to the scan's angular resolution (pass3d_ros.core.sensor_params); the "
+        "HDL-64E keeps the paper's values", 0, 1,
+    )
     sensor_height: float = _param(1.73, "ground: sensor height above the road (m, KITTI)", 0.0, 10.0)
     below_ground_margin: float = _param(1.0, "ground: points lower than sensor_height + this never seed (m)", 0.0, 10.0)
     ground_x_extent: float = _param(80.0, "ground: segments split x in [-extent, extent] evenly (m)", 1.0, 500.0)

@@ -17,7 +17,9 @@ from pass3d_ros.core import ground as _ground
 from pass3d_ros.core import refinement as _refinement
 from pass3d_ros.core import ring as _ring
 from pass3d_ros.core import scanline as _scanline
+from pass3d_ros.core import sensor_params as _sensor
 from pass3d_ros.core.config import Stage1Config
+from pass3d_ros.core.sensor_params import SensorScale
 from pass3d_ros.data.frame import Box3D
 
 STEPS: tuple[str, ...] = ("ring", "ground", "clustering", "refinement", "total")
@@ -36,6 +38,7 @@ class Stage1Result:
     ring_source: str = "field"  # how rings were obtained: see pass3d_ros.core.ring.RING_SOURCES
     ground_planes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (n_seg, 4): a x+b y+c z+d=0
     n_clusters: int = 0  # clusters before the gates
+    sensor: SensorScale | None = None  # the scan's resolution and the effective th_num / th_prop it ran with
 
     @property
     def n_proposals(self) -> int:
@@ -80,13 +83,15 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config)
 
     Points in any other order than a scan order are first put in the canonical order (ring, then azimuth:
     pass3d_ros.core.scanline.canonical_order), so the ground fit's point sample, the clustering and the proposals do
-    not depend on the order the points came in; the results are mapped back to the input order.
+    not depend on the order the points came in; the results are mapped back to the input order. The frame runs with
+    the effective config for its sensor (pass3d_ros.core.sensor_params.effective_config), reported in the result.
     """
     t0 = time.perf_counter()
     rings = _ring.rings_for(pts, ring, cfg)
     order = None if _in_scan_order(rings) else _scanline.canonical_order(pts, rings.ring)
     work = pts if order is None else pts[order]
     work_ring = rings.ring if order is None else rings.ring[order]
+    cfg, sensor = _sensor.effective_config(cfg, work, work_ring, rings.n_rings)
     t1 = time.perf_counter()
     fit = _ground.fit_ground(work, cfg)
     t2 = time.perf_counter()
@@ -102,7 +107,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config)
     return Stage1Result(
         ring=rings.ring, ground=ground, cluster_id=cluster_id, cluster_id2=cluster_id2, boxes=boxes,
         timings_ms={k: 1e3 * v for k, v in timings.items()}, ring_source=rings.source, ground_planes=fit.planes,
-        n_clusters=n_clusters,
+        n_clusters=n_clusters, sensor=sensor,
     )
 
 

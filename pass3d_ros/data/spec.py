@@ -60,6 +60,27 @@ def open_datasets(specs: list[str]) -> Iterator[Frame]:
         yield from open_dataset(spec)
 
 
+def open_datasets_shard(specs: list[str], rank: int, world: int) -> Iterator[Frame | None]:
+    """The frames of several specs in order, with None in place of every frame whose position is not
+    rank (mod world): data-parallel training builds only its own share. A reader with a `read_shard(path, keep)`
+    skips the others without making them (synthetic scans cost far more to generate than to skip)."""
+    position = 0
+    for text in specs:
+        spec = parse_spec(text)
+        module, _ = READERS[spec.format].split(":")
+        shard_reader = getattr(importlib.import_module(module), "read_shard", None)
+        offset = position
+
+        def keep(k: int, offset: int = offset) -> bool:
+            return (offset + k) % world == rank
+
+        frames = shard_reader(spec.path, keep) if shard_reader else (
+            frame if keep(k) else None for k, frame in enumerate(open_dataset(spec)))
+        for frame in frames:
+            yield frame
+            position += 1
+
+
 def count_frames(spec: str | DatasetSpec) -> int | None:
     """Frame count for progress bars when the reader can tell cheaply, else None."""
     if isinstance(spec, str):

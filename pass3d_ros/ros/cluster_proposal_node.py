@@ -29,7 +29,10 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "boxes_topic": ("/pass3d/proposal_boxes", "output: MarkerArray of the proposal boxes", None),
     "input_qos": ("sensor", f"QoS of the input subscription: {' or '.join(QOS_NAMES)}", None),
     "output_qos": ("reliable", f"QoS of the outputs: {' or '.join(QOS_NAMES)}", None),
-    "intensity_scale": (1.0, "multiplies the input intensity into [0,1] (1/255 for a 0..255 driver)", (0.0, 1.0)),
+    "intensity_scale": (
+        1.0, "multiplies the input intensity into [0,1] (1/255 for a 0..255 driver, 1/65535 for 16-bit "
+        "reflectivity); a scan still outside 0..1 is divided by its detected full scale, with a warning", (0.0, 1.0),
+    ),
     "use_ring_field": (True, "use the cloud's ring field when present, else recover rings from azimuth", None),
     "publish_boxes": (True, "publish the proposal boxes MarkerArray", None),
 }
@@ -70,13 +73,28 @@ def intensity_problem(intensity: np.ndarray) -> str:
     return ""
 
 
+def intensity_divisor(high: float) -> float:
+    """What a driver's intensity range is divided by to give 0..1, from its largest value: 1 for 0..1, 255 for an
+    8-bit driver (Velodyne), 65535 for 16-bit reflectivity (Ouster), else the largest value itself."""
+    for full_scale in (1.0, 255.0, 65535.0):
+        if high <= full_scale + INTENSITY_TOLERANCE * full_scale:
+            return full_scale
+    return high
+
+
 def unit_intensity(intensity: np.ndarray) -> np.ndarray:
-    """Best guess at 0..1 intensities: a 0..255 range divided by 255, a wider one by its maximum, then clipped."""
+    """Best guess at 0..1 intensities: divided by `intensity_divisor` of the largest value, then clipped."""
     values = np.nan_to_num(intensity, nan=0.0, posinf=0.0, neginf=0.0)
     hi = float(values.max()) if len(values) else 0.0
-    if hi > 1.0 + INTENSITY_TOLERANCE:
-        values = values / (255.0 if hi <= 255.0 else hi)
+    divisor = intensity_divisor(hi)
+    if divisor != 1.0:
+        values = values / divisor
     return np.clip(values, 0.0, 1.0).astype(np.float32)
+
+
+def constant_intensity(intensity: np.ndarray) -> bool:
+    """Whether every point of a (non-trivial) scan has the same intensity: a driver or conversion that drops it."""
+    return len(intensity) > 1 and float(intensity.min()) == float(intensity.max())
 
 
 def proposals_cloud(points: np.ndarray, result: Stage1Result) -> dict[str, np.ndarray]:
@@ -104,6 +122,7 @@ class ClusterProposalNode(PointCloudNode):
         super().__init__(PARAMETERS, **kwargs)
         self.sink = sink
         self.config = params.read_config(self, Stage1Config, STAGE1_PREFIX)
+        self._sensor_source: tuple[str, int] | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         started = time.perf_counter()
@@ -125,6 +144,21 @@ class ClusterProposalNode(PointCloudNode):
             return params.result(False, reason)
         self.config = config
         return params.result(True)
+
+    def _report_sensor(self, result: Stage1Result) -> None:
+        """Log the stream's ring source and effective stage-1 values when they first appear or the source changes
+        (only on a change, so not throttled: a throttle would hide the change that matters); warn (throttled) when
+        rings could not be recovered and came from elevation bins."""
+        source = (result.ring_source, result.sensor.n_rings if result.sensor else 0)
+        if source != self._sensor_source:
+            self._sensor_source = source
+            scale = result.sensor.describe() if result.sensor else "no scale"
+            self.get_logger().info(f"rings from {result.ring_source}: {scale}")
+        if result.ring_source == "elevation_bins":
+            self.get_logger().warning(
+                "ring: rings could not be recovered (no ring field, no firing order, no laser lines found); binned by "
+                "elevation, which splits or merges lasers: publish the driver's ring field or set stage1.sensor",
+                throttle_duration_sec=LOG_PERIOD_S)
 
     def _process(self, msg: PointCloud2) -> None:
         """One frame: decode, propose, publish; a malformed or empty frame is logged and skipped."""
@@ -152,10 +186,16 @@ class ClusterProposalNode(PointCloudNode):
             points[:, 3] *= scale
         problem = intensity_problem(points[:, 3])
         if problem:
+            divisor = intensity_divisor(float(np.nan_to_num(points[:, 3], posinf=0.0).max()))
             self.get_logger().warning(
                 f"intensity: {problem} after intensity_scale {scale:g}, expected 0..1 (a 0..255 driver needs "
-                "intensity_scale 1/255); rescaled into 0..1 for this frame", throttle_duration_sec=LOG_PERIOD_S)
+                "intensity_scale 1/255, 16-bit reflectivity 1/65535); divided by "
+                f"{divisor:g} and clipped into 0..1 for this frame", throttle_duration_sec=LOG_PERIOD_S)
             points[:, 3] = unit_intensity(points[:, 3])
+        if constant_intensity(points[:, 3]):
+            self.get_logger().warning(
+                f"intensity: every point reads {float(points[0, 3]):g}; stage 2 will have no intensity information "
+                "(does the driver or conversion drop it?)", throttle_duration_sec=LOG_PERIOD_S)
         if ring is not None and ring.max() >= self.config.n_rings:
             self.get_logger().warning(
                 f"ring: values up to {int(ring.max())}, expected 0..{self.config.n_rings - 1} (stage1.n_rings "
@@ -165,6 +205,7 @@ class ClusterProposalNode(PointCloudNode):
         clock.mark("decode")
         result = propose(points, ring, self.config)
         clock.mark("compute")
+        self._report_sensor(result)
         if self.sink is not None:
             self.sink(ProposalFrame(msg.header, points, result.ring, result.cluster_id, result.cluster_id2))
             clock.mark("sink")

@@ -175,7 +175,8 @@ class SceneBuilder:
 
     def place(self, parts: list[Part], u: float, v: float, yaw_road: float, label: int = BACKGROUND,
               kind: str = "", footprint: list[tuple[float, ...]] | None = None, veg: bool = False,
-              z_offset: float = 0.0, model: str = "", clearance: float | None = None) -> bool:
+              z_offset: float = 0.0, model: str = "", clearance: float | None = None,
+              extent: tuple[np.ndarray, np.ndarray] | None = None) -> bool:
         """Put `parts` at road coordinates (u, v), heading `yaw_road` relative to the road, unless it collides.
 
         The footprint defaults to the parts' extent; `footprint` rows are (cx, cy, hx, hy, zlo, zhi) in the
@@ -183,6 +184,8 @@ class SceneBuilder:
         `clearance` replaces FOREGROUND_GAP_M between this object and every foreground object (0: footprints
         may touch; negative: overlap that deep); objects placed later keep the full gap from it. Lower than
         TOUCH_CLEARANCE_M next to a foreground object, its labelled box takes in background points.
+        `extent` (min, max corners in the object frame) widens the object's extent beyond its parts: the amodal
+        extent its label box holds (a walker's whole stride), which the default footprint then keeps clear too.
         """
         x, y = self.world_xy(u, v)
         yaw = self.road_yaw() + yaw_road
@@ -192,6 +195,8 @@ class SceneBuilder:
             ext = part_extent(p)
             lo = np.minimum(lo, p.center - ext)
             hi = np.maximum(hi, p.center + ext)
+        if extent is not None:
+            lo, hi = np.minimum(lo, extent[0]), np.maximum(hi, extent[1])
         fg = 1.0 if label != BACKGROUND else 0.0
         if footprint is None:
             footprint = [(0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (hi[0] - lo[0]), 0.5 * (hi[1] - lo[1]),

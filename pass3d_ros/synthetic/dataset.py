@@ -4,8 +4,10 @@ A frame is one HDL-64E revolution ray-cast into a random street scene: points in
 ring, top laser first), per-point labels, instance ids, ground mask and ring, one box per car, van, truck,
 pedestrian and cyclist that has points (instance id = the box's position in the list, foreground only), and
 a 10 Hz stamp. Everything is drawn from SeedSequence([seed, index]), so a (seed, index) pair always gives the
-same bytes. Spec: `synthetic:frames=N,seed=S[,start=K]` yields frames K .. K+N-1 of seed S, generated on
-the fly.
+same bytes. Spec: `synthetic:frames=N,seed=S[,start=K][,sensor=NAME]` yields frames K .. K+N-1 of seed S,
+generated on the fly. Another sensor (`generate_frame(seed, index, sensor_model("vlp16"))`, names in
+sensor.SENSOR_NAMES) scans the same scenes from the same mount height (unless its model says otherwise) and gives
+its points in its ROS 2 driver's order (ring 0 still the top laser, intensity still in [0, 1]).
 
 Mixed pixels (a return between the two surfaces of a depth edge) follow KITTI's box labels: one inside a car,
 pedestrian or cyclist box takes that class and instance, any other is background (SemanticKITTI would give it the
@@ -14,7 +16,7 @@ nearer surface's class; the box rule is the one the paper's KITTI labels use). I
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +27,8 @@ from pass3d_ros.data.spec import DatasetError
 from pass3d_ros.synthetic import raycast as rc
 from pass3d_ros.synthetic.builder import Scene, SceneObject
 from pass3d_ros.synthetic.materials import (
+    DARK_CELL_EDGE_M,
+    DARK_CELL_M,
     DARK_CELL_SHARE,
     DARK_RHO,
     GROUND_DARK_SHARE,
@@ -37,9 +41,14 @@ from pass3d_ros.synthetic.materials import (
 from pass3d_ros.synthetic.scene import generate_scene
 from pass3d_ros.synthetic.sensor import (
     HDL64E,
+    MOUNT_HEIGHT_M,
+    SENSOR_NAMES,
+    LidarModel,
+    driver_order,
     measured_intensity,
-    ray_bundle,
+    ray_grid,
     return_probability,
+    sensor_model,
     signal_to_noise,
 )
 
@@ -67,6 +76,7 @@ class Scan:
     ground: np.ndarray
     instance: np.ndarray
     boxes: list[Box3D]
+    column: np.ndarray | None = None  # firing (column) of every point in the revolution
 
 
 def _object_spheres(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -119,7 +129,10 @@ def _surface(scene: Scene, hit: np.ndarray, region: np.ndarray, xyz: np.ndarray,
 
 def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAULT_SENSOR) -> Scan:
     """Cast one revolution into `scene` and turn the hits into noisy, labelled points in firing order."""
-    origins, dirs, ring = ray_bundle(sensor, rng)
+    origins, dirs, ring, column = ray_grid(sensor, rng)
+    lift = sensor.mount_height_m - MOUNT_HEIGHT_M  # scenes are built for a sensor MOUNT_HEIGHT_M above the road
+    if lift:
+        origins[:, 2] += lift
     t, t_exit, hit, normal, region = cast_scene(scene, origins, dirs, sensor.max_range_m)
     n = len(t)
     u_keep, u_glass, u_zero = rng.random(n), rng.random(n), rng.random(n)
@@ -128,10 +141,11 @@ def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAU
     t_hit = np.where(has_hit, t, 0.0)
     xyz = origins + t_hit[:, None] * dirs
     material, rho = _surface(scene, hit, region, xyz, darken(scene.prho, scene.pmaterial, scene.pobject, rng))
-    share = np.where(hit == rc.GROUND_HIT, GROUND_DARK_SHARE, DARK_CELL_SHARE[material])
+    share = np.where(hit == rc.GROUND_HIT, GROUND_DARK_SHARE[region], DARK_CELL_SHARE[material])
     share[~has_hit] = 0.0
     xyz_cell = np.where((hit == rc.GROUND_HIT)[:, None], xyz * [1.0, 1.0, 0.0], xyz)
-    rho = np.where(dark_cells(xyz_cell, share, int(rng.integers(2**31))), 0.5 * DARK_RHO, rho)
+    edge = np.where(hit == rc.GROUND_HIT, DARK_CELL_M, DARK_CELL_EDGE_M[material])
+    rho = np.where(dark_cells(xyz_cell, share, int(rng.integers(2**31)), edge), 0.5 * DARK_RHO, rho)
     cos_inc = np.abs(np.einsum("ij,ij->i", normal, dirs))
     foliage = np.isin(material, POROUS_MATERIALS)
     t_hit = np.where(foliage, t_hit + np.minimum(depth, np.maximum(t_exit - t_hit, 0.0)), t_hit)
@@ -142,6 +156,8 @@ def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAU
     keep = has_hit & (u_keep < return_probability(sensor, snr, t_hit))
     keep &= ~(glass & (u_glass < GLASS_DROPOUT))
     keep &= ~((material == M_FENCE) & (u_glass < FENCE_DROPOUT))
+    if sensor.ray_drop > 0.0:
+        keep &= rng.random(n) >= sensor.ray_drop
     idx = np.flatnonzero(keep)
     sigma = sensor.range_noise_m
     t_noisy = t_hit[idx] + np.clip(noise_r[idx] * sigma, -3 * sigma, 3 * sigma)
@@ -154,7 +170,9 @@ def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAU
                                       t_noisy)
     hit_kept = hit[idx]
     hit_kept[mixed[0]] = rc.NO_HIT
-    return _label(scene, points, ring[idx], hit_kept)
+    scan = _label(scene, points, ring[idx], hit_kept)
+    scan.column = column[idx]
+    return scan
 
 
 def _mixed_pixels(t: np.ndarray, ring: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -242,45 +260,90 @@ def rings_recoverable(points: np.ndarray, ring: np.ndarray, n_lasers: int) -> bo
     return bool(np.all((x[firsts] > 0) & (y[firsts] >= 0)) and np.all((x[lasts] > 0) & (y[lasts] < 0)))
 
 
-def generate_frame(seed: int, index: int, sensor: HDL64E = DEFAULT_SENSOR) -> Frame:
-    """Frame `index` of the synthetic sequence `seed`; the same pair always gives the same bytes."""
+def _usable(scan: Scan, sensor: LidarModel) -> bool:
+    """Every ring has points (and, in KITTI's order, can be recovered from the azimuth wrap)."""
+    if sensor.point_order == "kitti":
+        return rings_recoverable(scan.points, scan.ring, sensor.n_lasers)
+    return len(np.unique(scan.ring)) == sensor.n_lasers
+
+
+def _to_sensor_frame(scan: Scan, sensor: LidarModel) -> Scan:
+    """Points in the driver's order, and lowered into the sensor's frame when it is not mounted MOUNT_HEIGHT_M up."""
+    order = driver_order(sensor, scan.ring, scan.column)
+    if order is not None:
+        scan = Scan(scan.points[order], scan.ring[order], scan.labels[order], scan.ground[order],
+                    scan.instance[order], scan.boxes, scan.column[order])
+    lift = sensor.mount_height_m - MOUNT_HEIGHT_M
+    if lift:
+        scan.points[:, 2] -= np.float32(lift)
+        for box in scan.boxes:
+            box.center = box.center - np.array([0.0, 0.0, lift])
+    return scan
+
+
+def generate_frame(seed: int, index: int, sensor: LidarModel | str = DEFAULT_SENSOR) -> Frame:
+    """Frame `index` of the synthetic sequence `seed` seen by `sensor` (a model or a name of SENSOR_NAMES);
+    the same pair and sensor always give the same bytes."""
     if seed < 0 or index < 0:
         raise ValueError(f"seed and index must not be negative, got seed={seed}, index={index}")
+    if isinstance(sensor, str):
+        sensor = sensor_model(sensor)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
     for _ in range(MAX_ATTEMPTS):
         scan = simulate_scan(generate_scene(rng), rng, sensor)
-        if rings_recoverable(scan.points, scan.ring, sensor.n_lasers):
+        if _usable(scan, sensor):
             break
+    scan = _to_sensor_frame(scan, sensor)
     return Frame(name=f"{index:06d}", points=scan.points, stamp_ns=index * FRAME_PERIOD_NS, ring=scan.ring,
                  labels=scan.labels, ground=scan.ground, instance=scan.instance, boxes=scan.boxes)
 
 
-def parse_synthetic_spec(text: str) -> dict[str, int]:
-    """`frames=N,seed=S[,start=K]` -> {'frames': N, 'seed': S, 'start': K}; DatasetError on anything else."""
-    values = {"frames": 10, "seed": 0, "start": 0}
+def parse_synthetic_spec(text: str) -> dict[str, int | str]:
+    """`frames=N,seed=S[,start=K][,sensor=NAME]` -> {'frames': N, 'seed': S, 'start': K, 'sensor': NAME};
+    DatasetError on anything else (sensor defaults to hdl64e, KITTI's)."""
+    values: dict[str, int | str] = {"frames": 10, "seed": 0, "start": 0}
+    sensor = "hdl64e"
     for item in filter(None, (part.strip() for part in text.split(","))):
         key, sep, value = item.partition("=")
         key = key.strip()
+        if sep and key == "sensor":
+            sensor = value.strip().lower()
+            if sensor not in SENSOR_NAMES:
+                raise DatasetError(f"synthetic spec {text!r}: unknown sensor {value.strip()!r}, "
+                                   f"known: {', '.join(SENSOR_NAMES)}")
+            continue
         if not sep or key not in values:
-            raise DatasetError(f"synthetic spec {text!r}: expected frames=N,seed=S[,start=K], got {item!r}")
+            raise DatasetError(f"synthetic spec {text!r}: expected frames=N,seed=S[,start=K][,sensor=NAME], "
+                               f"got {item!r}")
         try:
             values[key] = int(value)
         except ValueError as exc:
             raise DatasetError(f"synthetic spec {text!r}: {key} must be an integer, got {value.strip()!r}") from exc
     if min(values.values()) < 0:
         raise DatasetError(f"synthetic spec {text!r}: frames, seed and start must not be negative")
+    values["sensor"] = sensor
     return values
 
 
 def read_synthetic(path: str) -> Iterator[Frame]:
-    """Frames of the spec `synthetic:frames=N,seed=S[,start=K]`, generated as they are read."""
+    """Frames of the spec `synthetic:frames=N,seed=S[,start=K][,sensor=NAME]`, generated as they are read."""
     spec = parse_synthetic_spec(path)
+    sensor = DEFAULT_SENSOR if spec["sensor"] == "hdl64e" else sensor_model(str(spec["sensor"]))
 
     def frames() -> Iterator[Frame]:
         for index in range(spec["start"], spec["start"] + spec["frames"]):
-            yield generate_frame(spec["seed"], index)
+            yield generate_frame(spec["seed"], index, sensor)
 
     return frames()
+
+
+def read_shard(path: str, keep: Callable[[int], bool]) -> Iterator[Frame | None]:
+    """`read_synthetic`, but only the frames whose position k in the spec passes `keep` are generated; the
+    others are None (see `pass3d_ros.data.spec.open_datasets_shard`)."""
+    spec = parse_synthetic_spec(path)
+    sensor = DEFAULT_SENSOR if spec["sensor"] == "hdl64e" else sensor_model(str(spec["sensor"]))
+    for k in range(spec["frames"]):
+        yield generate_frame(spec["seed"], spec["start"] + k, sensor) if keep(k) else None
 
 
 def count_frames(path: str) -> int:

@@ -3,8 +3,8 @@
 The material of a hit decides its intensity and dropout in the dataset's sensor model (glass, foliage, fences).
 On KITTI's HDL-64E a reading of exactly 0 comes from dark (low-reflectivity) surfaces, from glancing hits and
 from range; no class owns it. So every material has a share of dark surfaces (`DARK_SHARE`, drawn per object
-and material: a whole car body, a whole pole), and the sensor model adds the weak-return zeros of far and
-grazing hits.
+and material: a whole pole; car paint and clothes also in patches), and the sensor model adds the weak-return
+zeros of far and grazing hits.
 
 Measured on the real frames (share of points reading exactly 0, %; n = points), with
   `.venv/bin/python -c "from pass3d_ros.synthetic.materials import print_real_table; print_real_table()"`:
@@ -48,22 +48,40 @@ REAL_ZERO_SHARE: dict[str, float] = {
 # things are dark as a whole (DARK_SHARE per object and material; clothes, tyres and bike frames per part), large
 # surfaces in patches (DARK_CELL_SHARE of DARK_CELL_M cells), so one dark wall cannot swing a frame.
 DARK_SHARE = np.zeros(N_MATERIALS)
-DARK_SHARE[[M_TRUNK, M_POLE, M_SIGN, M_TIRE, M_CLOTH, M_SKIN, M_METAL, M_OTHER]] = [0.06, 0.3, 0.04, 0.9, 0.06, 0.15,
+DARK_SHARE[[M_TRUNK, M_POLE, M_SIGN, M_TIRE, M_CLOTH, M_SKIN, M_METAL, M_OTHER]] = [0.04, 0.38, 0.04, 0.9, 0.03, 0.1,
                                                                                   0.7, 0.25]
 PER_PART = (M_TIRE, M_CLOTH, M_SKIN, M_METAL)
 DARK_CELL_SHARE = np.zeros(N_MATERIALS)
-DARK_CELL_SHARE[[M_BUILDING, M_WALL, M_FENCE, M_VEGETATION]] = [0.02, 0.05, 0.05, 0.02]
-DARK_RHO = 0.008  # dark surfaces draw their reflectivity from [0, DARK_RHO)
-GROUND_DARK_SHARE = 0.05  # share of ground cells (patches, tar, wet spots) that are dark
+DARK_CELL_SHARE[[M_WALL, M_FENCE]] = 0.05
+# Clothes: dark garments as a whole (DARK_SHARE per part) and dark patches (CLOTH_CELL_M cells: trousers, bags,
+# hair); mostly patches, so that one near person in black does not swing the pedestrian share of a frame.
+CLOTH_CELL_M = 0.25
+DARK_CELL_SHARE[M_CLOTH] = 0.03
+# Car paint (and the painted cabin roof): KITTI's car points read 0 in 45 % of cases, from black cars and from the
+# dark parts and patches of any car (dark trim, bumpers and grilles, glossy panels that mirror the beam away). A
+# PAINT_BLACK_SHARE of bodies are dark as a whole (`paint_rho`); on the others a DARK_CELL_SHARE of PAINT_CELL_M
+# cells is dark. Most of the darkness thus sits in small patches on every car rather than in whole cars, so the
+# share of a frame, where a few near cars hold most car points, does not swing with one car's colour.
+PAINT_BLACK_SHARE = 0.2
+PAINT_CELL_M = 0.4
+DARK_CELL_SHARE[[M_PAINT, M_CABIN]] = 0.42
 DARK_CELL_M = 1.5  # edge of the dark-patch cells (ground: in x-y; other surfaces: in 3D)
+DARK_CELL_EDGE_M = np.full(N_MATERIALS, DARK_CELL_M)  # dark-patch cell edge per material
+DARK_CELL_EDGE_M[[M_PAINT, M_CABIN]] = PAINT_CELL_M
+DARK_CELL_EDGE_M[M_CLOTH] = CLOTH_CELL_M
+DARK_RHO = 0.008  # dark surfaces draw their reflectivity from [0, DARK_RHO)
+# Share of ground cells (patches, tar, wet spots) that are dark, per ground region (none, road, sidewalk, terrain):
+# asphalt is the dark ground (SemanticKITTI road 12.8 % zero), paving stones and grass rarely read 0 (1.6, 4.3 %).
+GROUND_DARK_SHARE = np.array([0.0, 0.13, 0.02, 0.01])
 
 
 def paint_rho(rng: np.random.Generator) -> float:
-    """Car paint reflectivity: many dark cars (KITTI car points are often intensity 0), some bright."""
+    """Car paint reflectivity: PAINT_BLACK_SHARE black cars, the others mid to bright (dark patches on every car:
+    DARK_CELL_SHARE of paint)."""
     kind = rng.random()
-    if kind < 0.5:
+    if kind < PAINT_BLACK_SHARE:
         return float(rng.uniform(0.0, 0.01))
-    if kind < 0.85:
+    if kind < PAINT_BLACK_SHARE + 0.7 * (1.0 - PAINT_BLACK_SHARE):
         return float(rng.uniform(0.15, 0.5))
     return float(rng.uniform(0.4, 0.7))
 
@@ -85,9 +103,11 @@ def darken(prho: np.ndarray, pmaterial: np.ndarray, pobject: np.ndarray, rng: np
     return np.where(dark[inverse], level[inverse], prho)
 
 
-def dark_cells(xyz: np.ndarray, share: np.ndarray | float, salt: int) -> np.ndarray:
-    """True for points in dark cells of the DARK_CELL_M grid: a `share` (per point) of cells, by `salt`."""
-    cell = np.floor(np.asarray(xyz) / DARK_CELL_M).astype(np.int64)
+def dark_cells(xyz: np.ndarray, share: np.ndarray | float, salt: int,
+               edge: np.ndarray | float = DARK_CELL_M) -> np.ndarray:
+    """True for points in dark cells of a grid of `edge` metres (per point; DARK_CELL_M by default): a `share`
+    (per point) of cells, by `salt`."""
+    cell = np.floor(np.asarray(xyz) / np.reshape(edge, (-1, 1) if np.ndim(edge) else ())).astype(np.int64)
     h = (cell[:, 0] * 73856093) ^ (cell[:, 1] * 19349663) ^ (cell[:, 2] * 83492791) ^ salt
     h = (h * 2654435761) & 0xFFFFFFFF
     return h < (np.asarray(share) * 2**32).astype(np.int64)

@@ -184,7 +184,10 @@ def default_unlabeled_specs() -> list[str]:
 # - Points per car (median, per range bin): within a factor 1.5 either way. Points per object spread over orders
 #   of magnitude (occlusion, distance, size); with a couple of dozen real cars per bin the real median itself is
 #   uncertain by roughly a third, so a tighter factor could not be told apart from noise; Th_num (about 30
-#   points near the sensor) works on this scale.
+#   points near the sensor) works on this scale. The row needs at least MIN_OBJECTS distinct real cars in the bin:
+#   consecutive frames of a sequence see the same cars again (SemanticKITTI's instance ids follow a car through
+#   the sequence), so a car counts once however many frames hold it - three frames of the same two cars are two
+#   samples, not six.
 # - Zero-intensity shares (per class, per material): within 5 percentage points. KITTI stores many dark returns
 #   as exactly 0; the network sees intensity as a feature, and car paint is 45 % zero while ground is ~10 %:
 #   5 points is a tenth of that contrast. Shares need at least MIN_POINTS real points.
@@ -205,7 +208,7 @@ SHARE_TOLERANCE = 0.05
 PROPOSAL_SHARE_TOLERANCE = 0.10
 MIXED_PIXEL_RELATIVE = 0.30
 MIN_BOXES = 10
-MIN_OBJECTS = 5
+MIN_OBJECTS = 10  # distinct objects (not frame-instances), as MIN_BOXES
 MIN_POINTS = 200
 MIN_PROPOSALS = 20
 CAR_RANGE_BINS_M = ((0.0, 20.0), (20.0, 40.0))
@@ -215,6 +218,7 @@ JUMP_M = 1.0  # a depth jump between ring neighbours two firings apart
 BETWEEN_MARGIN_M = 0.25  # the point in between lies at least this far from both sides (range noise ~0.02 m)
 MAX_SPAN_DEG = 0.6  # the three firings span at most this azimuth (no dropped returns in between)
 DIMENSIONS = ("length", "width", "height")
+TRACKED_FORMATS = ("semantickitti", "kitti_raw")  # instance ids follow an object through the sequence
 
 # SemanticKITTI classes compared per material, with the real class ids and the synthetic material names
 # (the synthetic ground regions are road, sidewalk and terrain).
@@ -252,6 +256,7 @@ class Sample:
 
     boxes: dict[int, list[np.ndarray]] = field(default_factory=lambda: {CAR: [], PEDESTRIAN: []})
     car_points: list[list[int]] = field(default_factory=lambda: [[] for _ in CAR_RANGE_BINS_M])
+    car_ids: list[set] = field(default_factory=lambda: [set() for _ in CAR_RANGE_BINS_M])  # distinct cars per bin
     zero: dict[str, list[int]] = field(default_factory=lambda: {g: [0, 0] for g in ZERO_GROUPS})
     material_zero: dict[str, list[int]] = field(default_factory=lambda: {m: [0, 0] for m in MATERIAL_CLASSES})
     proposals: list[int] = field(default_factory=lambda: [0, 0, 0])  # front proposals, background-only, mixed
@@ -259,14 +264,17 @@ class Sample:
     frames: int = 0
     material_frames: int = 0
 
-    def add(self, frame: Frame, material: np.ndarray | None = None, proposals: bool = True) -> None:
-        """Fold one frame in; `material` holds per-point MATERIAL_CLASSES names' index + 1 (0 = other)."""
+    def add(self, frame: Frame, material: np.ndarray | None = None, proposals: bool = True,
+            track: str | None = None) -> None:
+        """Fold one frame in; `material` holds per-point MATERIAL_CLASSES names' index + 1 (0 = other). `track`
+        names the sequence when the frame's instance ids follow objects across its frames (a car seen in several
+        frames is then one distinct object); None: every frame's instances are objects of their own."""
         self.frames += 1
         for box in frame.boxes:
             if box.label in self.boxes and box.kind in ("", CLASS_NAMES[box.label].capitalize()):
                 self.boxes[box.label].append(np.asarray(box.size, dtype=np.float64))
         if frame.labels is not None:
-            self._add_labelled(frame)
+            self._add_labelled(frame, track)
             if proposals:
                 self._add_proposals(frame)
         if material is not None:
@@ -278,7 +286,7 @@ class Sample:
                 self.material_zero[name][1] += int(np.count_nonzero(mask))
         self._add_jumps(frame)
 
-    def _add_labelled(self, frame: Frame) -> None:
+    def _add_labelled(self, frame: Frame, track: str | None = None) -> None:
         labels, zero = frame.labels, frame.points[:, 3] == 0
         groups = {"car": labels == CAR, "pedestrian": labels == PEDESTRIAN, "cyclist": labels == CYCLIST}
         if frame.ground is not None:
@@ -293,12 +301,15 @@ class Sample:
         if not cars.any():
             return
         inst = frame.instance[cars]
-        _, inverse, counts = np.unique(inst, return_inverse=True, return_counts=True)
+        ids, inverse, counts = np.unique(inst, return_inverse=True, return_counts=True)
         xy = frame.points[cars, :2].astype(np.float64)
         centre = np.stack([np.bincount(inverse, xy[:, k]) / counts for k in range(2)], axis=1)
         dist = np.hypot(centre[:, 0], centre[:, 1])
         for b, (lo, hi) in enumerate(CAR_RANGE_BINS_M):
-            self.car_points[b] += [int(n) for n in counts[(dist >= lo) & (dist < hi)]]
+            in_bin = (dist >= lo) & (dist < hi)
+            self.car_points[b] += [int(n) for n in counts[in_bin]]
+            scope = track if track is not None else f"frame {self.frames}"
+            self.car_ids[b].update((scope, int(i)) for i in ids[in_bin])
 
     def _add_proposals(self, frame: Frame) -> None:
         result = propose(frame.points, frame.ring)
@@ -400,8 +411,9 @@ def real_sample(real_specs: Iterable[str]) -> Sample:
     """The real side of the scorecard: every frame of every spec (labels, boxes, materials where known)."""
     sample = Sample()
     for spec in real_specs:
+        track = spec if parse_spec(spec).format in TRACKED_FORMATS else None
         for frame in open_dataset(spec):
-            sample.add(frame, _real_material(spec, frame))
+            sample.add(frame, _real_material(spec, frame), track=track)
     return sample
 
 
@@ -442,8 +454,12 @@ def compare(synth: Sample, real: Sample) -> list[Row]:
         s_n, r_n = synth.car_points[b], real.car_points[b]
         s = float(np.median(s_n)) if s_n else None
         r = float(np.median(r_n)) if r_n else None
+        distinct = len(real.car_ids[b])
+        note = f"n={len(s_n)}/{len(r_n)}, distinct real cars {distinct}"
+        if distinct < MIN_OBJECTS:
+            note += f" (< {MIN_OBJECTS}: too few to judge)"
         out.append(_ratio_row(f"car points/object median {lo:.0f}-{hi:.0f} m", s, r, 1 / POINTS_FACTOR, POINTS_FACTOR,
-                              f"x{POINTS_FACTOR:g}", "pts", len(r_n) >= MIN_OBJECTS, f"n={len(s_n)}/{len(r_n)}"))
+                              f"x{POINTS_FACTOR:g}", "pts", distinct >= MIN_OBJECTS, note))
     for group in ZERO_GROUPS:
         s_c, r_c = synth.zero[group], real.zero[group]
         out.append(_abs_row(f"zero intensity: {group}", _share(s_c), _share(r_c), SHARE_TOLERANCE, "%",

@@ -1,6 +1,9 @@
-"""KITTI's Velodyne HDL-64E: laser table, firing order, ego-vehicle shadow, range noise and return model.
+"""Spinning LiDAR models: laser tables, firing and driver point order, ego-vehicle shadow, range noise, returns.
 
-Geometry measured on KITTI object scans (which lie exactly on 64 cones): laser k fires from (0, 0, v_k)
+The default model is KITTI's Velodyne HDL-64E; `sensor_model(name)` gives the others of
+pass3d_ros.core.lasers (VLP-16, VLP-32C, HDL-32E, OS1-64, OS1-128, Pandar64), see SENSOR_SPECS.
+
+KITTI geometry measured on KITTI object scans (which lie exactly on 64 cones): laser k fires from (0, 0, v_k)
 at elevation e_k, so its points satisfy z = v_k + r_xy * tan(e_k). The upper block (lasers 0-31) is about
 1/3 degree apart, the lower block about 1/2 degree. Points come out ring after ring, top laser first, each
 ring sweeping azimuth upwards from just above 0 (the +x axis) to just below 360 degrees, like a KITTI .bin.
@@ -8,9 +11,11 @@ ring sweeping azimuth upwards from just above 0 (the +x axis) to just below 360 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+
+from pass3d_ros.core.lasers import LASER_TABLES
 
 N_LASERS = 64
 MOUNT_HEIGHT_M = 1.73  # sensor origin above the road under the car
@@ -38,18 +43,20 @@ EGO_SHADOW: tuple[tuple[int, int, float, float], ...] = (
 )
 
 
-def _laser_gains() -> np.ndarray:
+def _laser_gains(n_lasers: int = N_LASERS) -> np.ndarray:
     """Fixed per-laser intensity gains: KITTI's rings differ in brightness (about 15%, a few lasers weak)."""
-    rng = np.random.default_rng(6464)
-    gain = np.exp(rng.normal(0.0, 0.1, N_LASERS))
-    gain[rng.choice(N_LASERS, 6, replace=False)] *= rng.uniform(0.4, 0.75, 6)
+    rng = np.random.default_rng(6464 if n_lasers == N_LASERS else 6464 + n_lasers)
+    gain = np.exp(rng.normal(0.0, 0.1, n_lasers))
+    weak = max(n_lasers * 6 // 64, 1)
+    gain[rng.choice(n_lasers, weak, replace=False)] *= rng.uniform(0.4, 0.75, weak)
     return gain
 
 
 @dataclass(frozen=True)
-class HDL64E:
-    """Sensor parameters; the defaults are KITTI's HDL-64E at 10 Hz."""
+class LidarModel:
+    """Sensor parameters; the defaults are KITTI's HDL-64E at 10 Hz (`sensor_model` gives the others)."""
 
+    name: str = "hdl64e"
     elevation_deg: np.ndarray = field(default_factory=lambda: ELEVATION_DEG.copy())
     vertical_offset_m: np.ndarray = field(default_factory=lambda: VERTICAL_OFFSET_M.copy())
     intensity_gain: np.ndarray = field(default_factory=_laser_gains)
@@ -71,6 +78,16 @@ class HDL64E:
     zero_snr: float = 1.5
     zero_power: float = 2.0
     zero_fade_m: float = 45.0
+    # Point order: "kitti" (ring after ring, each from just above 0 degrees upwards, as a KITTI .bin), "row" (ring
+    # after ring, each sweeping clockwise from start_azimuth_deg: an organized Ouster cloud) or "column" (firing
+    # order: one column after the other, its lasers in `firing_order`: Velodyne and Hesai drivers).
+    point_order: str = "kitti"
+    firing_order: tuple[int, ...] = ()  # rings in the order a column fires them (empty: top to bottom)
+    start_azimuth_deg: float | None = None  # where the scan is cut (None: anywhere, as a packet-count cut)
+    ego_shadow: bool = True  # leave out KITTI's ego-car shadow (EGO_SHADOW: only for KITTI's HDL-64E)
+    ray_drop: float = 0.0  # share of returns lost at random on top of the signal model
+    driver: str = "kitti"  # "kitti" (float .bin), "velodyne", "ouster" or "hesai": the ROS 2 driver's conventions
+    intensity_max: int = 255  # the driver's intensity scale: Frame intensity 1.0 reads this much
 
     @property
     def n_lasers(self) -> int:
@@ -84,7 +101,67 @@ class HDL64E:
         return np.where(half, 0.5 * full, full)
 
 
-def firing_azimuths(sensor: HDL64E, rng: np.random.Generator) -> np.ndarray:
+HDL64E = LidarModel  # KITTI's sensor: the defaults
+
+# Velodyne laser ids in firing order (ring numbers, 0 = top). VLP-16 manual table 9-1: ids alternate -15, +1, -13,
+# +3, ... degrees; HDL-32E manual: -30.67, -9.33, -29.33, -8.0, ...; VLP-32C manual table 9-2 (from the table's
+# id -> angle column).
+_VLP16_FIRING = tuple(int(r) for pair in zip(range(15, 7, -1), range(7, -1, -1), strict=True) for r in pair)
+_HDL32E_FIRING = tuple(int(r) for pair in zip(range(31, 15, -1), range(15, -1, -1), strict=True) for r in pair)
+_VLP32C_ID_DEG = (
+    -25.0, -1.0, -1.667, -15.639, -11.31, 0.0, -0.667, -8.843, -7.254, 0.333, -0.333, -6.148, -5.333, 1.333, 0.667,
+    -4.0, -4.667, 1.667, 1.0, -3.667, -3.333, 3.333, 2.333, -2.667, -3.0, 7.0, 4.667, -2.333, -2.0, 15.0, 10.333,
+    -1.333,
+)
+_VLP32C_FIRING = tuple(LASER_TABLES["vlp32c"].index(e) for e in _VLP32C_ID_DEG)
+
+# Per-sensor parameters at 10 Hz, all mounted at KITTI's 1.73 m (sensor_model(name, mount_height_m=...) moves it).
+# columns: firings per revolution (VLP-16 / VLP-32C 55.296 us firing cycle -> ~0.2 deg, HDL-32E 46.08 us -> ~0.166
+# deg, OS1 1024 or 2048 columns, Pandar64 0.2 deg); range_noise_m: 1 sigma = the data sheet's typical accuracy
+# (VLP-16 +-3 cm, VLP-32C +-3 cm, HDL-32E +-2 cm, OS1 +-3..5 cm: 4 cm, Pandar64 +-2 cm); max_range_m from the data
+# sheets; fade_range_m (where returns thin out) scaled from KITTI's 75 of 120 m; ray_drop is a guess (Ouster's
+# dark/far dropouts more than Velodyne's). Approximate throughout: no per-unit calibration, no per-laser azimuth
+# offsets, no per-point time. Vertical offsets: VLP-16 manual's vertical correction (+-11.2 mm, proportional to the
+# elevation); HDL-32E, VLP-32C, OS1, Pandar64: none modelled (beam origin offsets of a few mm to cm, radial).
+SENSOR_SPECS: dict[str, dict] = {
+    "hdl64e": {},
+    "vlp16": dict(columns=1800, max_range_m=100.0, fade_range_m=62.0, range_noise_m=0.03, firing_order=_VLP16_FIRING,
+                  point_order="column", driver="velodyne", ray_drop=0.005),
+    "vlp32c": dict(columns=1800, max_range_m=200.0, fade_range_m=110.0, range_noise_m=0.03,
+                   firing_order=_VLP32C_FIRING, point_order="column", driver="velodyne", ray_drop=0.005),
+    "hdl32e": dict(columns=2170, max_range_m=100.0, fade_range_m=62.0, range_noise_m=0.02,
+                   firing_order=_HDL32E_FIRING, point_order="column", driver="velodyne", ray_drop=0.005),
+    "os1-64": dict(columns=1024, max_range_m=120.0, fade_range_m=75.0, range_noise_m=0.04, point_order="row",
+                   start_azimuth_deg=180.0, driver="ouster", intensity_max=65535, ray_drop=0.02),
+    "os1-128": dict(columns=1024, max_range_m=120.0, fade_range_m=75.0, range_noise_m=0.04, point_order="row",
+                    start_azimuth_deg=180.0, driver="ouster", intensity_max=65535, ray_drop=0.02),
+    "pandar64": dict(columns=1800, max_range_m=200.0, fade_range_m=110.0, range_noise_m=0.02, point_order="column",
+                     start_azimuth_deg=0.0, driver="hesai", ray_drop=0.01),
+}
+SENSOR_NAMES: tuple[str, ...] = tuple(SENSOR_SPECS)
+
+
+def sensor_model(name: str = "hdl64e", **overrides) -> LidarModel:
+    """The model of a named sensor (SENSOR_NAMES), with any field overridden (columns=2048, mount_height_m=...)."""
+    key = name.lower()
+    if key not in SENSOR_SPECS:
+        raise ValueError(f"unknown sensor {name!r}; known: {', '.join(SENSOR_NAMES)}")
+    if key == "hdl64e":
+        return replace(LidarModel(), **overrides) if overrides else LidarModel()
+    elev = np.asarray(LASER_TABLES[key], dtype=np.float64)
+    offset = -elev * 0.0112 / 15.0 if key == "vlp16" else np.zeros(len(elev))
+    spec = dict(SENSOR_SPECS[key], name=key, elevation_deg=elev, vertical_offset_m=offset,
+                intensity_gain=_laser_gains(len(elev)), half_step_every=(), ego_shadow=False)
+    spec.update(overrides)
+    return LidarModel(**spec)
+
+
+def driver_intensity(sensor: LidarModel, intensity: np.ndarray) -> np.ndarray:
+    """Intensity in [0, 1] on the driver's scale (velodyne and hesai 0..255, ouster 16-bit reflectivity)."""
+    return np.round(np.clip(intensity, 0.0, 1.0) * sensor.intensity_max).astype(np.float32)
+
+
+def firing_azimuths(sensor: LidarModel, rng: np.random.Generator) -> np.ndarray:
     """Azimuth (radians, in [0, 2 pi)) of every firing: shape (lasers, columns), NaN where past 360 degrees.
 
     Each laser starts at its own small offset (the revolution's phase plus a per-laser jitter), so the first
@@ -109,13 +186,52 @@ def ego_shadow_mask(n_lasers: int, azimuth_rad: np.ndarray) -> np.ndarray:
     return mask
 
 
-def ray_bundle(sensor: HDL64E, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rays of one revolution in firing order: origins (N, 3), unit directions (N, 3), ring (N,) uint16.
+def _sweep_azimuths(sensor: LidarModel, rng: np.random.Generator) -> np.ndarray:
+    """Azimuths (radians, lasers x columns) of a clockwise sweep, column 0 at the cut, as real drivers turn."""
+    start = sensor.start_azimuth_deg
+    start = rng.uniform(0.0, 360.0) if start is None else start
+    az = np.deg2rad(start - 360.0 / sensor.columns * np.arange(sensor.columns))
+    return np.broadcast_to(np.mod(az, 2.0 * np.pi), (sensor.n_lasers, sensor.columns))
 
-    Firings past 360 degrees or into the ego car's shadow are left out.
+
+def ray_grid(sensor: LidarModel, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Rays of one revolution, ring after ring in sweep order: origins (N, 3), unit directions (N, 3),
+    ring (N,) uint16 and column (N,) int32 (the firing's place in the revolution).
+
+    KITTI order: firings past 360 degrees or into the ego car's shadow are left out.
     """
-    az = firing_azimuths(sensor, rng)
-    keep = ~np.isnan(az) & ~ego_shadow_mask(sensor.n_lasers, az)
+    if sensor.point_order == "kitti":
+        az = firing_azimuths(sensor, rng)
+        keep = ~np.isnan(az)
+        if sensor.ego_shadow:
+            keep &= ~ego_shadow_mask(sensor.n_lasers, az)
+    else:
+        az = _sweep_azimuths(sensor, rng)
+        keep = np.ones(az.shape, dtype=bool)
+    column = np.broadcast_to(np.arange(sensor.columns, dtype=np.int32)[None, :], az.shape)[keep]
+    origins, dirs, ring = _rays(sensor, az, keep)
+    return origins, dirs, ring, column
+
+
+def ray_bundle(sensor: LidarModel, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rays of one revolution, ring after ring: origins (N, 3), unit directions (N, 3), ring (N,) uint16."""
+    return ray_grid(sensor, rng)[:3]
+
+
+def driver_order(sensor: LidarModel, ring: np.ndarray, column: np.ndarray) -> np.ndarray | None:
+    """Permutation from ring-after-ring order to the order the sensor's driver publishes (None: already in it).
+
+    "column": one column (firing) after the other, each listing its lasers in the order they fire.
+    """
+    if sensor.point_order != "column":
+        return None
+    rank = np.empty(sensor.n_lasers, dtype=np.int64)
+    rank[list(sensor.firing_order or range(sensor.n_lasers))] = np.arange(sensor.n_lasers)
+    return np.lexsort((rank[ring], column))
+
+
+def _rays(sensor: LidarModel, az: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Origins, directions and rings of the kept firings of an azimuth grid (lasers x columns)."""
     ring = np.broadcast_to(np.arange(sensor.n_lasers, dtype=np.uint16)[:, None], az.shape)[keep]
     elev = np.deg2rad(sensor.elevation_deg)[ring]
     azk = az[keep]
@@ -126,7 +242,7 @@ def ray_bundle(sensor: HDL64E, rng: np.random.Generator) -> tuple[np.ndarray, np
     return origins, dirs, np.ascontiguousarray(ring)
 
 
-def signal_to_noise(sensor: HDL64E, reflectivity: np.ndarray, cos_incidence: np.ndarray,
+def signal_to_noise(sensor: LidarModel, reflectivity: np.ndarray, cos_incidence: np.ndarray,
                     distance: np.ndarray) -> np.ndarray:
     """Strength of a return: brighter, more frontal and nearer surfaces give more; fades past fade_range_m."""
     d = np.maximum(distance, 1.0)
@@ -134,12 +250,12 @@ def signal_to_noise(sensor: HDL64E, reflectivity: np.ndarray, cos_incidence: np.
     return sensor.snr_scale * reflectivity * np.clip(cos_incidence, 0.0, 1.0) / d**2 * fade
 
 
-def return_probability(sensor: HDL64E, snr: np.ndarray, distance: np.ndarray) -> np.ndarray:
+def return_probability(sensor: LidarModel, snr: np.ndarray, distance: np.ndarray) -> np.ndarray:
     """Chance that a hit gives a return at all (none beyond max_range_m)."""
     return np.where(distance <= sensor.max_range_m, -np.expm1(-snr), 0.0)
 
 
-def measured_intensity(sensor: HDL64E, reflectivity: np.ndarray, cos_incidence: np.ndarray, ring: np.ndarray,
+def measured_intensity(sensor: LidarModel, reflectivity: np.ndarray, cos_incidence: np.ndarray, ring: np.ndarray,
                        snr: np.ndarray, noise: np.ndarray, uniform: np.ndarray, distance: np.ndarray) -> np.ndarray:
     """KITTI-like intensity in [0, 0.99], 0.01 steps.
 

@@ -1,8 +1,13 @@
-"""`pass3d_simulate`: write synthetic KITTI-like HDL-64E scans with exact labels, or compare them with real ones.
+"""`pass3d_simulate`: write synthetic KITTI-like LiDAR scans with exact labels, or compare them with real ones.
 
   pass3d_simulate --frames 100 --seed 0 --out data/synth            # SemanticKITTI sequence layout
+  pass3d_simulate --frames 100 --sensor vlp16 --out data/synth_vlp16 [--driver-intensity]
   pass3d_simulate --frames 100 --out data/synth_obj --format kitti_object
   pass3d_simulate --report --frames 20 [--real kitti_object:DIR ...]
+
+--sensor picks the LiDAR (default hdl64e, KITTI's; vlp16, vlp32c, hdl32e, os1-64, os1-128, pandar64): the same
+scenes, its laser table, resolution, noise and its ROS 2 driver's point order. Intensity is written in [0, 1] unless
+--driver-intensity asks for the driver's scale (0..255 Velodyne and Hesai, 0..65535 Ouster reflectivity).
 
 --report prints the realism scorecard: statistics of the synthetic frames next to the real ones (by default the
 kitti_dev frames and the unlabelled kitti_unlabeled scans), each with its tolerance and PASS / FAIL (n/a where the
@@ -20,6 +25,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from pass3d_ros.data.spec import DatasetError, open_dataset, parse_spec
+from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 from pass3d_ros.tools.cli import check_writable, run_tool
 
 WRITERS: dict[str, str] = {
@@ -39,6 +45,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--format", choices=sorted(WRITERS), default="semantickitti",
                         help="layout written (default semantickitti: velodyne/ + labels/)")
     parser.add_argument("--force", action="store_true", help="write into a non-empty --out folder")
+    parser.add_argument("--sensor", default="hdl64e", type=str.lower, choices=SENSOR_NAMES,
+                        help="LiDAR model (default hdl64e: KITTI's)")
+    parser.add_argument("--driver-intensity", action="store_true",
+                        help="write intensity on the sensor driver's scale instead of [0, 1]")
     parser.add_argument("--report", action="store_true",
                         help="print the realism scorecard (synthetic vs real), write nothing")
     parser.add_argument("--real", action="append", metavar="SPEC", default=None,
@@ -56,6 +66,7 @@ def _writer(fmt: str):
 def generate(args: argparse.Namespace) -> int:
     """Write the frames; refuse a non-empty folder unless --force."""
     from pass3d_ros.synthetic.dataset import generate_frame
+    from pass3d_ros.synthetic.sensor import driver_intensity, sensor_model
 
     out: Path = args.out
     check_writable(out, folder=True, what="--out folder")
@@ -65,11 +76,15 @@ def generate(args: argparse.Namespace) -> int:
     write = _writer(args.format)
     frames = 10 if args.frames is None else args.frames
     points = 0
+    sensor = sensor_model(args.sensor)
     for index in tqdm(range(args.start, args.start + frames), desc="simulate", unit="frame", disable=None):
-        frame = generate_frame(args.seed, index)
+        frame = generate_frame(args.seed, index, sensor)
+        if args.driver_intensity:
+            frame.points[:, 3] = driver_intensity(sensor, frame.points[:, 3])
         write(out, frame)
         points += len(frame.points)
-    print(f"wrote {frames} frames ({points / max(frames, 1):.0f} points each on average): {args.format}:{out}")
+    print(f"wrote {frames} {args.sensor} frames ({points / max(frames, 1):.0f} points each on average): "
+          f"{args.format}:{out}")
     return 0
 
 
@@ -122,6 +137,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--start and --seed must not be negative")
     if not args.report and args.out is None:
         parser.error("--out DIR is required (or --report)")
+    if args.report and (args.sensor != "hdl64e" or args.driver_intensity):
+        parser.error("--report compares KITTI's hdl64e scans only: drop --sensor and --driver-intensity")
     if args.report and args.out is not None:
         parser.error("--report writes nothing: drop --out")
     return run_tool("pass3d_simulate", lambda: report(args) if args.report else generate(args))

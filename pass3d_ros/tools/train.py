@@ -5,6 +5,9 @@ inference (one batch per frame, overlap rule, points outside every proposal are 
 per-class IoU is counted over every point of every validation frame, so it includes stage 1's misses.
 The best checkpoint is the one with the highest mean IoU over car, pedestrian and cyclist.
 The training itself is pass3d_ros.training.trainer; this module only parses the command line.
+
+Data-parallel: `torchrun --nproc_per_node N -m pass3d_ros.tools.train ...` (or `torchrun ... $(which pass3d_train)`)
+trains in N processes (gloo on CPU, nccl with --device cuda); --batch-size stays the global batch per step.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-intensity", action="store_true",
                    help="feed intensity as 0 (stored in the checkpoint: inference does the same)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--batch-size", type=int, default=32, help="proposals per batch")
+    p.add_argument("--batch-size", type=int, default=32, help="proposals per step (in all, under torchrun)")
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--weight-decay", type=float, default=1e-4)
     p.add_argument("--background-keep", type=float, default=0.3, help="share of background proposals kept")

@@ -91,6 +91,25 @@ class SampleSet:
             "points_per_class": np.bincount(self.labels, minlength=NUM_CLASSES).tolist(),
         }
 
+    @classmethod
+    def concatenate(cls, parts: list[SampleSet]) -> SampleSet:
+        """One set of all proposals and frames of `parts`, in order (frame ids renumbered)."""
+        frame_base = np.cumsum([0] + [len(p.frame_sizes) for p in parts])
+        point_base = np.cumsum([0] + [len(p.points) for p in parts])
+        frame_labels = [p.frame_labels for p in parts if p.frame_labels is not None]  # None: no frames in a part
+        return cls(
+            points=np.concatenate([p.points for p in parts]),
+            labels=np.concatenate([p.labels for p in parts]),
+            offsets=np.concatenate(
+                [[0]] + [p.offsets[1:] + b for p, b in zip(parts, point_base[:-1], strict=True)]
+            ).astype(np.int64),
+            frame=np.concatenate([p.frame + b for p, b in zip(parts, frame_base[:-1], strict=True)]).astype(np.int32),
+            point_index=np.concatenate([p.point_index for p in parts]),
+            frame_names=[n for p in parts for n in p.frame_names],
+            frame_sizes=np.concatenate([p.frame_sizes for p in parts]).astype(np.int64),
+            frame_labels=np.concatenate(frame_labels) if frame_labels else None,
+        )
+
     def save(self, path: Path) -> None:
         """Write as one npz file."""
         arrays = {
@@ -135,11 +154,17 @@ def build_samples(
     proposer: Proposer | None = None,
     progress: bool = True,
     total: int | None = None,
+    shard: tuple[int, int] = (0, 1),
 ) -> SampleSet:
     """Run the proposer on every frame and collect its proposals; a proposal without any foreground point
-    is kept with probability `background_keep` (seeded)."""
+    is kept with probability `background_keep` (seeded). shard=(i, n): only frames i, i + n, i + 2n, ...
+    (still read in turn), with the background draws seeded by (seed, i)."""
     proposer = proposer or stage1_proposer
-    rng = np.random.default_rng(seed)
+    index_in_shard, shards = shard
+    rng = np.random.default_rng(seed if shards == 1 else [seed, index_in_shard])
+    if shards > 1:
+        frames = (frame for f, frame in enumerate(frames) if f % shards == index_in_shard)
+        total = None if total is None else len(range(index_in_shard, total, shards))
     points, labels, index, counts, frame_ids = [], [], [], [], []
     names, sizes, frame_labels = [], [], []
     bar = tqdm(frames, desc="stage 1 proposals", unit="frame", disable=None if progress else True, total=total)
@@ -194,6 +219,17 @@ def stage1_identity() -> str:
     return digest.hexdigest()[:12]
 
 
+def cache_path(
+    specs: list[str], cache_dir: Path, background_keep: float, seed: int, keep_frame_labels: bool,
+    proposer: Proposer | None = None, proposer_name: str | None = None, shards: int = 1,
+) -> Path:
+    """The sample cache file of these settings; a set built in `shards` shards (data-parallel) has its own."""
+    name = proposer_name or ("stage1-" + stage1_identity() if proposer is None else "custom")
+    if shards > 1:
+        name += f"-shards{shards}"
+    return Path(cache_dir) / f"samples_{cache_key(specs, background_keep, seed, keep_frame_labels, name)}.npz"
+
+
 def cached_samples(
     specs: list[str],
     cache_dir: Path,
@@ -208,8 +244,7 @@ def cached_samples(
     total: int | None = None,
 ) -> tuple[SampleSet, Path]:
     """The samples of `specs`, from the cache in `cache_dir` when present, else built (and cached)."""
-    name = proposer_name or ("stage1-" + stage1_identity() if proposer is None else "custom")
-    path = Path(cache_dir) / f"samples_{cache_key(specs, background_keep, seed, keep_frame_labels, name)}.npz"
+    path = cache_path(specs, cache_dir, background_keep, seed, keep_frame_labels, proposer, proposer_name)
     if path.is_file() and not rebuild:
         try:
             return SampleSet.load(path), path

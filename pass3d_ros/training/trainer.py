@@ -4,6 +4,17 @@
 output folder the sample caches, `last.pt` (with optimizer and scheduler state, for resuming), `best.pt`
 (the highest validation mean IoU over car, pedestrian and cyclist; without validation data, the lowest
 training loss) and `history.json`.
+
+Data-parallel (under torchrun, see pass3d_ros.training.distributed): every process runs stage 1 on its share of
+the frames (frame i goes to rank i mod N) and the shares are all-gathered, so every rank holds the whole sample set
+and every epoch visits each sample once. `batch_size` is global, proposals per optimizer step over all processes:
+each rank takes every N-th proposal of the step's batch and DistributedDataParallel averages the gradients, so
+a step is the single-process step up to augmentation noise and BatchNorm statistics. BatchNorm stays per-process
+(no SyncBatchNorm: it does not run on CPU/gloo, and a process's share of a batch still holds thousands of points
+per channel); DDP broadcasts rank 0's running statistics at every forward, and checkpoints hold rank 0's. The
+shuffle order is seeded by (seed, epoch) on every rank; augmentation and dropout by seed + rank. Rank 0 alone
+validates, logs, draws progress bars and writes checkpoints (plain, without the `module.` prefix) and history; a
+sharded sample cache is named apart from the single-process one. Without torchrun nothing of this happens.
 """
 
 from __future__ import annotations
@@ -23,8 +34,17 @@ from tqdm import tqdm
 from pass3d_ros.core.pointnet2 import ModelConfig, PointNet2Seg, count_parameters, make_config
 from pass3d_ros.core.segmentation import CheckpointError, make_checkpoint, read_checkpoint
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.spec import open_datasets_shard
+from pass3d_ros.training import distributed
 from pass3d_ros.training.losses import make_loss
-from pass3d_ros.training.samples import Proposer, SampleSet, cached_samples, training_batch
+from pass3d_ros.training.samples import (
+    Proposer,
+    SampleSet,
+    build_samples,
+    cache_path,
+    cached_samples,
+    training_batch,
+)
 from pass3d_ros.training.validation import format_scores, validate
 
 FrameSource = Callable[[list[str]], Iterable[Frame]]
@@ -55,7 +75,7 @@ class TrainOptions:
     no_intensity_augment: bool = False  # no per-proposal intensity augmentation
     no_intensity: bool = False  # intensity fed as 0, in training and (stored in the config) inference
     seed: int = 0
-    batch_size: int = 32  # proposals per batch
+    batch_size: int = 32  # proposals per optimizer step, over all processes when data-parallel
     lr: float = 1e-3
     weight_decay: float = 1e-4
     background_keep: float = 0.3  # share of background proposals kept
@@ -89,6 +109,7 @@ class Trainer:
     train_set: SampleSet
     val_set: SampleSet | None
     model: PointNet2Seg
+    net: torch.nn.Module  # the model as trained: the model itself, or its DistributedDataParallel wrapper
     optimizer: torch.optim.Optimizer
     scheduler: torch.optim.lr_scheduler.LRScheduler
     loss_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
@@ -110,23 +131,38 @@ class Trainer:
         self.start_epoch, self.best_score, self.history = 0, -1.0, []
         self.data_info: dict = {}
         self.saved_epoch: int | None = None  # the last epoch this run wrote into last.pt (1-based)
+        self.dist = distributed.Dist(device=options.device)
 
     def run(self) -> TrainResult:
         """Train as the options say; raises TrainingError when there is nothing to train on or the
         checkpoint to resume from has another model configuration, CheckpointError when it is missing."""
+        self.dist = distributed.setup(self.options.device)
+        try:
+            return self._run()
+        finally:
+            distributed.shutdown(self.dist)
+
+    def _run(self) -> TrainResult:
+        """The steps of `run`, inside the process group when there is one."""
         self._check_resume()
         self._prepare()
         self._load_samples()
         self._build_model()
         self._resume()
+        self._distribute()
         self._describe_model()
         for epoch in range(self.start_epoch, self.options.epochs):
             record = self._train_epoch(epoch)
             score = self._validate(record)
             improved = self._keep_record(record, score)
             self._save_checkpoints(record, improved)
-        print(f"checkpoints: {self.last_path}, {self.best_path} (best score {self.best_score:.4f})")
+        self._log(f"checkpoints: {self.last_path}, {self.best_path} (best score {self.best_score:.4f})")
         return TrainResult(self.history, self.best_score, self.last_path, self.best_path)
+
+    def _log(self, line: str) -> None:
+        """Print a log line (rank 0 only)."""
+        if self.dist.main:
+            print(line)
 
     # ------------------------------------------------------------------------------------------ steps
 
@@ -140,6 +176,10 @@ class Trainer:
         o = self.options
         if o.threads:
             torch.set_num_threads(o.threads)
+        self.progress = self.progress and self.dist.main
+        if self.dist.enabled:
+            self._log(f"data-parallel: {self.dist.world} processes ({self.dist.device}), "
+                      f"batch {o.batch_size} proposals per step in all")
         self.out.mkdir(parents=True, exist_ok=True)
         torch.manual_seed(o.seed)
         self.config = make_config(o.config)
@@ -157,21 +197,17 @@ class Trainer:
             "proposer": self.proposer,
             "rebuild": o.rebuild_cache,
         }
-        self.train_set, train_cache = cached_samples(
-            o.data, self.out, background_keep=o.background_keep, keep_frame_labels=False, progress=self.progress,
-            total=self._frame_total(o.data), **common
+        self.train_set, train_cache = self._samples(
+            o.data, background_keep=o.background_keep, keep_frame_labels=False, common=common
         )
         if len(self.train_set) == 0:
             raise TrainingError(f"no proposals in {', '.join(o.data)}")
         self.val_set = None
         if o.val_data:
-            self.val_set, _ = cached_samples(
-                o.val_data, self.out, background_keep=1.0, keep_frame_labels=True, progress=self.progress,
-                total=self._frame_total(o.val_data), **common
-            )
-        print(f"train samples: {self.train_set.describe()} (cache {train_cache.name})")
+            self.val_set, _ = self._samples(o.val_data, background_keep=1.0, keep_frame_labels=True, common=common)
+        self._log(f"train samples: {self.train_set.describe()} (cache {train_cache.name})")
         if self.val_set is not None:
-            print(f"val samples: {self.val_set.describe()}")
+            self._log(f"val samples: {self.val_set.describe()}")
         self.data_info = {
             "train": list(o.data),
             "val": list(o.val_data),
@@ -180,10 +216,36 @@ class Trainer:
             "background_keep": o.background_keep,
         }
 
+    def _samples(
+        self, specs: list[str], background_keep: float, keep_frame_labels: bool, common: dict
+    ) -> tuple[SampleSet, Path]:
+        """The samples of `specs` from the cache or stage 1; data-parallel, each rank builds its share of the
+        frames and all ranks gather the whole set, which rank 0 caches."""
+        total = self._frame_total(specs)
+        if not self.dist.enabled:
+            return cached_samples(specs, self.out, background_keep=background_keep,
+                                  keep_frame_labels=keep_frame_labels, progress=self.progress, total=total, **common)
+        path = cache_path(specs, self.out, background_keep, common["seed"], keep_frame_labels, common["proposer"],
+                          shards=self.dist.world)
+        cached = distributed.broadcast(self.dist, path.is_file() and not common["rebuild"])
+        if cached:
+            loaded = _load_cache(path)
+            if all(distributed.all_gather(self.dist, loaded is not None)):
+                return loaded, path
+        frames = (common["frames"](specs) if self.frame_source is not None
+                  else open_datasets_shard(specs, self.dist.rank, self.dist.world))
+        part = build_samples(frames, background_keep, common["seed"], keep_frame_labels,
+                             common["proposer"], self.progress, total, shard=(self.dist.rank, self.dist.world))
+        samples = SampleSet.concatenate(distributed.all_gather(self.dist, part))
+        if self.dist.main:
+            samples.save(path)
+        return samples, path
+
     def _build_model(self) -> None:
         """The network, Adam with a cosine learning-rate schedule over the epochs, and the loss."""
         o = self.options
-        self.model = PointNet2Seg(self.config).to(o.device)
+        self.model = PointNet2Seg(self.config).to(self.dist.device)
+        self.net = self.model
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=o.lr, weight_decay=o.weight_decay)
         self.scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
             self.optimizer, T_max=max(o.epochs, 1), eta_min=o.lr / 100
@@ -199,29 +261,40 @@ class Trainer:
             raise CheckpointError(f"{self.last_path}: not a pass3d training checkpoint (last.pt); cannot resume")
         if state["config"] != self.config.to_dict():
             raise TrainingError(f"{self.last_path} was trained with another config; not resuming")
-        self.model.load_state_dict(state["state_dict"])
+        self.model.load_state_dict(distributed.strip_module_prefix(state["state_dict"]))
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
         self.start_epoch, self.best_score = state["epoch"] + 1, state["best_score"]
         self.history = list(state["history"])
-        print(f"resumed from {self.last_path} at epoch {self.start_epoch}")
+        self._log(f"resumed from {self.last_path} at epoch {self.start_epoch}")
+
+    def _distribute(self) -> None:
+        """Data-parallel: wrap the model (weights fresh or resumed) in DistributedDataParallel."""
+        if self.dist.enabled:
+            cuda = self.dist.device.startswith("cuda")
+            self.net = torch.nn.parallel.DistributedDataParallel(
+                self.model, device_ids=[self.dist.device] if cuda else None
+            )
 
     def _describe_model(self) -> None:
         """Log the network's size, once the weights (fresh or resumed) are in place."""
-        print(
+        self._log(
             f"model {self.config.name}: {count_parameters(self.model)} parameters, "
             f"{self.config.num_points} points per sample"
         )
 
     def _train_epoch(self, epoch: int) -> dict:
         """One pass over the shuffled training samples (seeded per epoch), then a scheduler step; the
-        epoch's record: mean loss and seconds."""
+        epoch's record: mean loss (over all processes) and seconds."""
         o = self.options
+        rank, world = self.dist.rank, self.dist.world
         rng = np.random.default_rng([o.seed, epoch])
-        torch.manual_seed(o.seed * 100_003 + epoch)
-        self.model.train()
+        torch.manual_seed((o.seed + rank) * 100_003 + epoch)
+        self.net.train()
         batch_size = max(1, o.batch_size)
         order = rng.permutation(len(self.train_set))
+        if world > 1:  # the order is shared; augmentation draws are the rank's own
+            rng = np.random.default_rng([o.seed + rank, epoch])
         steps = -(-len(order) // batch_size)
         if o.max_steps:
             steps = min(steps, o.max_steps)
@@ -230,10 +303,14 @@ class Trainer:
                    disable=None if self.progress else True)
         started = time.perf_counter()
         for step in bar:
-            losses.append(self._train_step(order[step * batch_size : (step + 1) * batch_size], rng))
+            batch = order[step * batch_size : (step + 1) * batch_size]
+            if world > 1:  # this rank's share; a batch smaller than the world repeats proposals
+                batch = np.resize(batch, max(len(batch), world))[rank::world]
+            losses.append(self._train_step(batch, rng))
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}", refresh=False)
         self.scheduler.step()
-        return {"epoch": epoch, "train_loss": float(np.mean(losses)), "seconds": time.perf_counter() - started}
+        loss = distributed.mean(self.dist, float(np.mean(losses)))
+        return {"epoch": epoch, "train_loss": loss, "seconds": time.perf_counter() - started}
 
     def _train_step(self, ids: np.ndarray, rng: np.random.Generator) -> float:
         """One optimizer step on the proposals `ids` (a random view each unless no_augment, intensity augmented
@@ -241,8 +318,9 @@ class Trainer:
         o = self.options
         xyz, feat, labels = training_batch(self.train_set, ids, self.config, rng, augment=not o.no_augment,
                                            intensity_augment=not o.no_intensity_augment)
-        logits = self.model(torch.from_numpy(xyz).to(o.device), torch.from_numpy(feat).to(o.device))
-        loss = self.loss_fn(logits, torch.from_numpy(labels.astype(np.int64)).to(o.device))
+        device = self.dist.device
+        logits = self.net(torch.from_numpy(xyz).to(device), torch.from_numpy(feat).to(device))
+        loss = self.loss_fn(logits, torch.from_numpy(labels.astype(np.int64)).to(device))
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
@@ -250,14 +328,16 @@ class Trainer:
 
     def _validate(self, record: dict) -> float:
         """Score the epoch and log it: the validation mean IoU (NaN when undefined), or without validation
-        data minus the training loss. The validation scores go into `record`."""
+        data minus the training loss. The validation scores go into `record`. Data-parallel, rank 0 validates
+        and the others receive its scores."""
         line = f"epoch {record['epoch'] + 1}: loss {record['train_loss']:.4f}"
         if self.val_set is None:
-            print(line)
+            self._log(line)
             return -record["train_loss"]
-        scores = validate(self.model, self.val_set, self.options.device, self.progress)
+        scores = validate(self.model, self.val_set, self.dist.device, self.progress) if self.dist.main else None
+        scores = distributed.broadcast(self.dist, scores)
         record["val"] = scores
-        print(f"{line}; val {format_scores(scores)}")
+        self._log(f"{line}; val {format_scores(scores)}")
         return scores["mean_iou"] if scores["mean_iou"] is not None else float("nan")
 
     def _keep_record(self, record: dict, score: float) -> bool:
@@ -269,7 +349,12 @@ class Trainer:
         return improved
 
     def _save_checkpoints(self, record: dict, improved: bool) -> None:
-        """Write best.pt (when improved, or when missing), last.pt with optimizer and scheduler, history.json."""
+        """Write best.pt (when improved, or when missing), last.pt with optimizer and scheduler, history.json;
+        data-parallel, rank 0 writes and the others wait for it."""
+        if not self.dist.main:
+            distributed.barrier(self.dist)
+            self.saved_epoch = record["epoch"] + 1
+            return
         info = {
             "data": self.data_info,
             "command": self.command,
@@ -287,6 +372,7 @@ class Trainer:
         self.saved_epoch = record["epoch"] + 1
         text = json.dumps(self.history, indent=1)
         _save_atomically(self.out / "history.json", lambda path: path.write_text(text))
+        distributed.barrier(self.dist)
 
     def _frame_total(self, specs: list[str]) -> int | None:
         """Frame count for the progress bar; unknown with a custom frame source."""
@@ -301,6 +387,14 @@ def _save_atomically(path: Path, write: Callable[[Path], object]) -> None:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _load_cache(path: Path) -> SampleSet | None:
+    """The sample cache at `path`, or None when it cannot be read."""
+    try:
+        return SampleSet.load(path)
+    except (OSError, ValueError, KeyError):
+        return None
 
 
 def _default_frames(specs: list[str]) -> Iterable[Frame]:

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pass3d_ros.synthetic.materials import M_CLOTH, M_METAL, M_OTHER, M_SKIN, M_TIRE, cloth_rho
-from pass3d_ros.synthetic.parts import Part, box, cylinder, disc, ellipsoid, rot_y
+from pass3d_ros.synthetic.parts import Part, box, cylinder, disc, ellipsoid, part_extent, rot_y
 
 ADULT_HEIGHT_M = (1.77, 0.09)  # mean, std of adults: with ~8% children the mix is near KITTI's 1.76 m box height
 
@@ -40,42 +40,81 @@ def pedestrian_parts(rng: np.random.Generator, pose: str = "auto", reach: float 
     left (y > 0), as when pushing a bicycle walking beside it. Body proportions put the top of the head at the
     drawn height (hip 0.5 H, shoulder 0.82 H).
     """
+    return pedestrian(rng, pose, reach)[0]
+
+
+def pedestrian(rng: np.random.Generator, pose: str = "auto",
+               reach: float = 0.0) -> tuple[list[Part], np.ndarray, np.ndarray]:
+    """(parts, amodal_min, amodal_max) of a pedestrian (see `pedestrian_parts`).
+
+    The amodal extent is what KITTI's annotators box: the body over its whole gait cycle, so a walker's box holds
+    the full stride and arm swing along the walking direction (x) whatever the phase the scan caught (KITTI's
+    mean Pedestrian box is 0.84 m long). It is the union of the drawn pose's extent and the poses at both ends of
+    the gait; a standing person's is the drawn pose's.
+    """
     height = _person_height(rng)
     s = height / 1.76
     walking = pose == "walk" or (pose == "auto" and rng.random() < 0.75)
-    stride = rng.uniform(0.3, 0.5) * math.cos(rng.uniform(0, math.pi)) if walking else rng.uniform(-0.06, 0.06)
+    if walking:
+        amplitude = rng.uniform(0.3, 0.5)
+        stride = amplitude * math.cos(rng.uniform(0, math.pi))
+    else:
+        stride = rng.uniform(-0.06, 0.06)
+        amplitude = abs(stride)
     leg_len = 0.49 * height
     # Knees and ankles take up half of the hip drop a rigid leg would give at this stride.
     hip_z = leg_len * (0.5 + 0.5 * math.cos(stride)) + 0.035 * s
     shoulder_z = hip_z + 0.32 * height
     girth = rng.uniform(0.85, 1.15)
     rho_legs, rho_top = cloth_rho(rng), cloth_rho(rng)
-    parts = []
-    for side, angle in ((1.0, stride), (-1.0, -stride)):
-        hip = np.array([0.0, side * 0.09 * s, hip_z])
-        foot = hip + (hip_z - 0.035 * s) / math.cos(angle) * np.array([math.sin(angle), 0.0, -math.cos(angle)])
-        parts.append(cylinder(hip, foot, 0.065 * s * girth, M_CLOTH, rho_legs))
-        parts.append(box(foot + np.array([0.06 * s, 0.0, 0.0]), [0.13 * s, 0.05 * s, 0.035 * s], M_CLOTH, 0.1,
-                         rounding=(1.2, 1.3, 1.5)))
+    parts = _legs(stride, hip_z, s, girth, rho_legs)
     parts.append(ellipsoid([0.0, 0.0, hip_z], [0.1 * s * girth, 0.17 * s * girth, 0.1 * s], M_CLOTH, rho_legs))
     lean = rng.uniform(-0.04, 0.1)
     torso_half = 0.5 * (shoulder_z - hip_z) + 0.04 * s
     torso_c = np.array([math.sin(lean) * torso_half, 0.0, 0.5 * (hip_z + shoulder_z) + 0.02])
     parts.append(ellipsoid(torso_c, [0.12 * s * girth, 0.18 * s * girth, torso_half], M_CLOTH, rho_top, rot_y(-lean)))
     arm_len = 0.43 * height
-    swing = rng.uniform(1.0, 1.6) * stride if walking else 0.0
-    for side, angle in ((1.0, -swing), (-1.0, swing)):
+    swing_gain = rng.uniform(1.0, 1.6) if walking else 0.0
+    hands = []
+    for side in (1.0, -1.0):
         shoulder = np.array([math.sin(lean) * 0.3 * height, side * (0.17 * girth + 0.04) * s, shoulder_z - 0.03])
         if side > 0 and reach > 0.0:
             hand = shoulder + np.array([rng.uniform(0.15, 0.3), reach, -0.35 * height])
-            hand = shoulder + (hand - shoulder) * min(1.0, arm_len / float(np.linalg.norm(hand - shoulder)))
+            hands.append((shoulder, shoulder + (hand - shoulder) * min(1.0, arm_len / float(np.linalg.norm(
+                hand - shoulder))), None))
         else:
-            spread = rng.uniform(0.02, 0.12)
-            hand = shoulder + arm_len * np.array([math.sin(angle), side * math.sin(spread), -math.cos(angle)])
-        parts.append(cylinder(shoulder, hand, 0.045 * s, M_CLOTH, rho_top))
+            hands.append((shoulder, None, rng.uniform(0.02, 0.12)))
+    parts += _arms(hands, swing_gain * stride, arm_len, s, rho_top)
     head_c = np.array([math.sin(lean) * 0.35 * height, 0.0, shoulder_z + 0.115 * height])
     parts.append(ellipsoid(head_c, [0.1 * s, 0.08 * s, 0.065 * height], M_SKIN, float(rng.uniform(0.1, 0.5))))
     parts += _carried(rng, s, girth, torso_c, shoulder_z, head_c, height)
+    gait = list(parts)
+    for end in (amplitude, -amplitude):
+        gait += _legs(end, hip_z, s, girth, rho_legs) + _arms(hands, swing_gain * end, arm_len, s, rho_top)
+    lo = np.min([p.center - part_extent(p) for p in gait], axis=0)
+    hi = np.max([p.center + part_extent(p) for p in gait], axis=0)
+    return parts, lo, hi
+
+
+def _legs(stride: float, hip_z: float, s: float, girth: float, rho: float) -> list[Part]:
+    """Both legs with feet at a stride angle (rad, + : left leg forward)."""
+    parts = []
+    for side, angle in ((1.0, stride), (-1.0, -stride)):
+        hip = np.array([0.0, side * 0.09 * s, hip_z])
+        foot = hip + (hip_z - 0.035 * s) / math.cos(angle) * np.array([math.sin(angle), 0.0, -math.cos(angle)])
+        parts.append(cylinder(hip, foot, 0.065 * s * girth, M_CLOTH, rho))
+        parts.append(box(foot + np.array([0.06 * s, 0.0, 0.0]), [0.13 * s, 0.05 * s, 0.035 * s], M_CLOTH, 0.1,
+                         rounding=(1.2, 1.3, 1.5)))
+    return parts
+
+
+def _arms(hands: list, swing: float, arm_len: float, s: float, rho: float) -> list[Part]:
+    """Both arms: (shoulder, fixed hand or None, sideways spread) per side (left first), swinging by `swing`."""
+    parts = []
+    for (shoulder, hand, spread), side, angle in zip(hands, (1.0, -1.0), (-swing, swing), strict=True):
+        if hand is None:
+            hand = shoulder + arm_len * np.array([math.sin(angle), side * math.sin(spread), -math.cos(angle)])
+        parts.append(cylinder(shoulder, hand, 0.045 * s, M_CLOTH, rho))
     return parts
 
 

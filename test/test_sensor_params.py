@@ -1,0 +1,129 @@
+"""Stage-1 parameters that follow the sensor (pass3d_ros.core.sensor_params) and the node's intensity and ring
+reports for other drivers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rclpy.logging import LoggingSeverity
+from sensor_msgs.msg import PointCloud2
+from test_nodes import STAMP0, Collector, Ros, connect, scan_message
+
+from pass3d_ros.core.sensor_params import REFERENCE_DV_DEG, effective_config, resolutions
+from pass3d_ros.core.stage1 import Stage1Config, propose
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.msgs.pointcloud2 import decode
+from pass3d_ros.ros.cluster_proposal_node import (
+    ClusterProposalNode,
+    constant_intensity,
+    intensity_divisor,
+    unit_intensity,
+)
+from pass3d_ros.ros.qos import qos_profile
+from pass3d_ros.synthetic.dataset import generate_frame
+
+
+@pytest.fixture(scope="module")
+def frames() -> list[Frame]:
+    return [generate_frame(5, i) for i in range(3)]
+
+
+def every_other_ring(frame: Frame) -> Frame:
+    """A 32-laser scan: the even rings of an HDL-64E frame, renumbered 0..31."""
+    keep = frame.ring % 2 == 0
+    return Frame(frame.name, frame.points[keep], ring=(frame.ring[keep] // 2).astype(np.uint16),
+                 labels=frame.labels[keep])
+
+
+def recall_and_count(frame: Frame, config: Stage1Config) -> tuple[int, int]:
+    """Foreground points inside a proposal, and foreground points."""
+    result = propose(frame.points, frame.ring, config)
+    fg = frame.labels > 0
+    return int(np.count_nonzero(result.cluster_id[fg] >= 0)), int(np.count_nonzero(fg))
+
+
+def test_hdl64e_keeps_the_papers_values(frames: list[Frame]) -> None:
+    cfg = Stage1Config()
+    assert (cfg.th_num_near, cfg.th_num_range, cfg.th_num_floor, cfg.th_prop, cfg.th_ring) == (30.0, 20.0, 5, 1.0, 0.5)
+    assert cfg.sensor == "auto" and cfg.sensor_scaling and cfg.sensor_height == 1.73
+    for frame in frames:
+        effective, scale = effective_config(cfg, frame.points, frame.ring, 64)
+        assert effective is cfg and scale.density == 1.0
+        assert abs(scale.vertical_deg - REFERENCE_DV_DEG) < 0.05
+        result = propose(frame.points, frame.ring, cfg)
+        assert result.sensor is not None and result.sensor.th_num_near == 30.0 and result.sensor.th_num_floor == 5
+        off = propose(frame.points, frame.ring, Stage1Config(sensor_scaling=False))
+        np.testing.assert_array_equal(result.cluster_id, off.cluster_id)
+        np.testing.assert_array_equal(result.cluster_id2, off.cluster_id2)
+
+
+def test_32_rings_get_a_smaller_th_num_and_a_higher_recall(frames: list[Frame]) -> None:
+    scaled = unscaled = total = 0
+    for frame in map(every_other_ring, frames):
+        result = propose(frame.points, frame.ring, Stage1Config(n_rings=32))
+        assert result.sensor is not None and result.sensor.n_rings == 32
+        assert 0.4 < result.sensor.density < 0.6
+        assert result.sensor.th_num_near < 20.0 and result.sensor.th_num_floor < 5
+        assert "th_num_near" in result.sensor.describe()
+        inside, n_fg = recall_and_count(frame, Stage1Config(n_rings=32))
+        plain, _ = recall_and_count(frame, Stage1Config(n_rings=32, sensor_scaling=False))
+        assert inside >= plain
+        scaled, unscaled, total = scaled + inside, unscaled + plain, total + n_fg
+    assert scaled > unscaled, (scaled, unscaled, total)
+
+
+def test_resolutions_of_an_empty_or_tiny_scan_are_unknown() -> None:
+    vertical, horizontal = resolutions(np.zeros((1, 4), np.float32), np.zeros(1, np.uint16))
+    assert np.isnan(vertical) and np.isnan(horizontal)
+    effective, scale = effective_config(Stage1Config(), np.zeros((1, 4), np.float32), np.zeros(1, np.uint16), 1)
+    assert scale.density == 1.0 and effective.th_num_near == 30.0
+
+
+@pytest.mark.parametrize(("high", "divisor"), [(0.9, 1.0), (1.0, 1.0), (200.0, 255.0), (255.0, 255.0),
+                                                (3000.0, 65535.0), (65535.0, 65535.0), (1e6, 1e6)])
+def test_intensity_full_scale_is_detected(high: float, divisor: float) -> None:
+    assert intensity_divisor(high) == divisor
+    values = np.array([0.0, high / 2, high], np.float32)
+    np.testing.assert_allclose(unit_intensity(values), values / divisor, rtol=1e-6)
+
+
+def test_constant_intensity_is_recognised() -> None:
+    assert constant_intensity(np.ones(10, np.float32))
+    assert not constant_intensity(np.array([0.1, 0.2], np.float32))
+    assert not constant_intensity(np.ones(1, np.float32))
+
+
+def test_node_reports_sensor_and_warns_on_intensity_and_binned_rings(
+    frames: list[Frame], capfd: pytest.CaptureFixture[str]
+) -> None:
+    """16-bit and constant intensity each warn once, the ring source and effective values are logged, and a scan
+    whose rings cannot be recovered warns that they came from elevation bins."""
+    ros = Ros()
+    try:
+        node = ros.add(ClusterProposalNode(context=ros.context))
+        node.get_logger().set_level(LoggingSeverity.INFO)  # another test may have raised the shared logger's level
+        clouds = Collector(ros, PointCloud2, "/pass3d/proposals")
+        pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+        connect(pub, clouds)
+        frame = frames[1]
+        wide = Frame(frame.name, frame.points * np.array([1, 1, 1, 65535], np.float32), ring=frame.ring)
+        pub.publish(scan_message(wide, STAMP0))
+        out = clouds.wait(1)[0]
+        np.testing.assert_allclose(decode(out)["intensity"], frame.points[:, 3], atol=1e-5)
+
+        flat = frame.points.copy()
+        flat[:, 3] = 1.0
+        pub.publish(scan_message(Frame(frame.name, flat, ring=frame.ring), STAMP0 + 1))
+        clouds.wait(2)
+
+        rng = np.random.default_rng(0)
+        blob = np.concatenate([rng.uniform(-30, 30, (4000, 3)), np.full((4000, 1), 0.5)], axis=1).astype(np.float32)
+        pub.publish(scan_message(Frame(frame.name, blob), STAMP0 + 2, with_ring=False))
+        clouds.wait(3)
+    finally:
+        ros.close()
+    err = capfd.readouterr().err
+    assert "divided by 65535" in err
+    assert "every point reads 1; stage 2 will have no intensity information" in err
+    assert "rings from field: 64 rings" in err and "th_num_near 30" in err, err
+    assert "rings could not be recovered" in err and "rings from elevation_bins" in err
