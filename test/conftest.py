@@ -9,7 +9,11 @@ broken rclpy fails the ROS tests instead of skipping them; only PASS3D_SKIP_ROS_
 from __future__ import annotations
 
 import os
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pytest
 import torch
@@ -48,6 +52,37 @@ def kitti_dev() -> Path:
     if root is None:
         pytest.skip("real KITTI frames absent: set PASS3D_KITTI_DEV or place them in ../shared/data/kitti_dev")
     return root
+
+
+@contextmanager
+def private_ros(domain: int) -> Iterator[tuple[Callable[[str], Any], int]]:
+    """(make_node, domain): a private rclpy context on `domain` with a single-threaded executor spinning in a
+    thread; make_node(name) adds a node to it. Everything is shut down on exit."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    context = Context()
+    rclpy.init(context=context, domain_id=domain)
+    executor = SingleThreadedExecutor(context=context)
+    nodes: list[Any] = []
+
+    def make_node(name: str) -> Any:
+        node = rclpy.create_node(f"{name}_{os.getpid()}", context=context)
+        executor.add_node(node)
+        nodes.append(node)
+        return node
+
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        yield make_node, domain
+    finally:
+        executor.shutdown()
+        thread.join(timeout=5)
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import private_ros
 from rosbags.rosbag2 import Reader
 
 import pass3d_ros.data.bag_convert as bag_convert
@@ -192,30 +193,8 @@ def test_real_frames_round_trip(kitti_dev: Path, tmp_path: Path) -> None:
 @pytest.fixture
 def ros():
     """A private rclpy context on a per-process domain, with a real executor spinning in a thread."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-
-    domain = 10 + os.getpid() % 90
-    context = Context()
-    rclpy.init(context=context, domain_id=domain)
-    executor = SingleThreadedExecutor(context=context)
-    nodes = []
-
-    def make_node(name: str):
-        node = rclpy.create_node(f"{name}_{os.getpid()}", context=context)
-        executor.add_node(node)
-        nodes.append(node)
-        return node
-
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    yield make_node, domain
-    executor.shutdown()
-    thread.join(timeout=5)
-    for node in nodes:
-        node.destroy_node()
-    rclpy.try_shutdown(context=context)
+    with private_ros(10 + os.getpid() % 90) as handles:
+        yield handles
 
 
 def small_bag(tmp_path: Path, frames: int = 8) -> Path:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import private_ros
 from rosbags.rosbag2 import Reader
 
 from pass3d_ros.data.bag import TYPESTORE, BagError, read_bag, topic_types, topics_of_type
@@ -26,31 +27,9 @@ MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 
 @pytest.fixture
 def ros():
-    """A private rclpy context on a per-process domain, with a real executor spinning in a thread."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-
-    domain = 110 + os.getpid() % 90
-    context = Context()
-    rclpy.init(context=context, domain_id=domain)
-    executor = SingleThreadedExecutor(context=context)
-    nodes = []
-
-    def make_node(name: str):
-        node = rclpy.create_node(f"{name}_{os.getpid()}", context=context)
-        executor.add_node(node)
-        nodes.append(node)
-        return node
-
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    yield make_node, domain
-    executor.shutdown()
-    thread.join(timeout=5)
-    for node in nodes:
-        node.destroy_node()
-    rclpy.try_shutdown(context=context)
+    """A private rclpy context (its own domain range: these tests start subprocesses on it) with an executor."""
+    with private_ros(110 + os.getpid() % 90) as handles:
+        yield handles
 
 
 def cloud_publisher(node, topic: str, qos: str):

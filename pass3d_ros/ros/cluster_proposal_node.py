@@ -126,6 +126,8 @@ class ClusterProposalNode(PointCloudNode):
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         started = time.perf_counter()
+        self.get_logger().info("stage 1: loading the compiled kernels (the first start after an install compiles "
+                               "them with numba, about 20-30 s; later starts read numba's cache)")
         warm_up()
         self.get_logger().info(f"stage 1 ready (numba warm-up {1e3 * (time.perf_counter() - started):.0f} ms)")
 
