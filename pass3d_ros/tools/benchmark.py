@@ -9,6 +9,7 @@ import sys
 # suite name -> module with `add_arguments(parser)` and `run(args) -> int`.
 SUITES: dict[str, str] = {
     "codec": "pass3d_ros.bench.codec",
+    "fuzz": "pass3d_ros.bench.codec_fuzz",
     "stage1": "pass3d_ros.bench.stage1",
     "stage2": "pass3d_ros.bench.stage2",
     "simulate": "pass3d_ros.bench.simulate",
