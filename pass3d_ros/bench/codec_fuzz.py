@@ -41,13 +41,21 @@ def random_message(rng: np.random.Generator) -> tuple:
     return fields, step, data, height, width, row_step, bool(rng.random() < 0.3)
 
 
+def _shift(value: object, delta: int, floor: int) -> object:
+    """value + delta, not below floor; a value an earlier mutation made junk (not a plain int) stays as it is."""
+    return max(floor, value + delta) if isinstance(value, int) and not isinstance(value, bool) else value
+
+
 def mutate(rng: np.random.Generator, parts: tuple) -> tuple:
+    """One random corruption of a message's layout or data (any field, step, size, byte order, or a junk type)."""
     fields, step, data, height, width, row_step, big = parts
+    if not fields:
+        return parts
     fields = [list(f) for f in fields]
     kind = int(rng.integers(0, 13))
     k = int(rng.integers(0, len(fields)))
     if kind == 0:
-        fields[k][1] = max(-2, fields[k][1] + int(rng.integers(-4, 5)))
+        fields[k][1] = _shift(fields[k][1], int(rng.integers(-4, 5)), -2)
     elif kind == 1:
         fields[k][2] = int(rng.integers(-1, 11))
     elif kind == 2:
@@ -59,13 +67,13 @@ def mutate(rng: np.random.Generator, parts: tuple) -> tuple:
     elif kind == 5:
         fields.append(list(fields[k]))
     elif kind == 6:
-        step = max(-1, step + int(rng.integers(-3, 4))) if rng.random() < 0.8 else 0
+        step = _shift(step, int(rng.integers(-3, 4)), -1) if rng.random() < 0.8 else 0
     elif kind == 7:
-        row_step = max(0, row_step + int(rng.integers(-5, 6)))
+        row_step = _shift(row_step, int(rng.integers(-5, 6)), 0)
     elif kind == 8:
-        height = max(0, height + int(rng.choice([-1, 1])))
+        height = _shift(height, int(rng.choice([-1, 1])), 0)
     elif kind == 9:
-        width = max(0, width + int(rng.choice([-1, 1])))
+        width = _shift(width, int(rng.choice([-1, 1])), 0)
     elif kind == 10:
         cut = int(rng.integers(-6, 7))
         data = data[:cut] if cut < 0 else data + bytes(cut)
