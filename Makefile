@@ -5,8 +5,8 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.setup-stamp
 # numba compiles the stage-1 loops and the scan simulator; tqdm draws progress bars (see README).
 RUNTIME_DEPS := 'ros-jazzy-rclpy[fastrtps]==7.1.6' ros-jazzy-common-interfaces==5.3.6 'rosbags>=0.10' numpy numba tqdm
-# pyyaml: the tests read the parameter YAML and bag metadata.
-TEST_DEPS := pytest pytest-timeout ruff pyyaml
+# pyyaml: the tests read the parameter YAML and bag metadata; rerun-sdk: pass3d_view (optional for users) is tested.
+TEST_DEPS := pytest pytest-timeout ruff pyyaml rerun-sdk
 
 .PHONY: setup demo test lint bench clean
 

@@ -17,6 +17,7 @@ CONSOLE_SCRIPTS = [
     "pass3d_simulate = pass3d_ros.tools.simulate:main",
     "pass3d_benchmark = pass3d_ros.tools.benchmark:main",
     "pass3d_segment = pass3d_ros.tools.segment:main",
+    "pass3d_view = pass3d_ros.tools.view:main",
     "pass3d_params_yaml = pass3d_ros.tools.params_yaml:main",
 ]
 
@@ -39,6 +40,6 @@ setup(
     description="PASS3D LiDAR point-wise semantic segmentation for ROS 2 Jazzy",
     license="Apache-2.0",
     # `colcon test` runs pytest when the package declares this extra (setuptools ignores tests_require).
-    extras_require={"test": ["pytest", "pytest-timeout", "pyyaml"]},
+    extras_require={"test": ["pytest", "pytest-timeout", "pyyaml", "rerun-sdk"], "view": ["rerun-sdk"]},
     entry_points={"console_scripts": CONSOLE_SCRIPTS},
 )
