@@ -21,8 +21,9 @@ $(STAMP): setup.py package.xml Makefile
 	$(BIN)/python -m pip install --quiet --no-deps -e .
 	touch $(STAMP)
 
+# SENSOR=vlp16 (or vlp32c, hdl32e, os1-64, os1-128, pandar64) drives a simulated drive of that LiDAR.
 demo: setup
-	$(BIN)/python -m pass3d_ros.tools.demo
+	$(BIN)/python -m pass3d_ros.tools.demo $(if $(SENSOR),--sensor $(SENSOR))
 
 test: setup
 	$(BIN)/python -m pytest -q test

@@ -1,14 +1,15 @@
 """`make demo`: a short synthetic drive through both live ROS nodes, evaluated, with pictures.
 
-    python -m pass3d_ros.tools.demo [--frames 20] [--seed 7] [--out demo_out]
+    python -m pass3d_ros.tools.demo [--frames 20] [--seed 7] [--sensor hdl64e] [--out demo_out]
                                     [--classifier auto|network|size_rules] [--weights W] [--force]
+    make demo SENSOR=vlp16
 
-Steps: generate a synthetic HDL-64E drive with exact labels and write it as a rosbag2 (MCAP) bag; play it
-in lockstep through cluster_proposal_node and segmentation_node running in this process (private DDS
-domain), recording /pass3d/labeled into a second bag; score it (per-class precision / recall / IoU, mean
-IoU, latency, time per stage); draw bird's-eye views of some recorded output frames beside their ground
-truth. The classifier is the PASS3D network with the shipped weights when they exist; otherwise the
-geometric size-rules baseline, and the output says so.
+Steps: generate a synthetic drive of the chosen LiDAR (default KITTI's HDL-64E) with exact labels and write it as a
+rosbag2 (MCAP) bag; play it in lockstep through cluster_proposal_node and segmentation_node running in this process
+(private DDS domain), recording /pass3d/labeled into a second bag; score it (per-class precision / recall / IoU,
+mean IoU, latency, time per stage); draw bird's-eye views of some recorded output frames beside their ground truth.
+The classifier is the PASS3D network with the shipped weights when they exist; otherwise the geometric size-rules
+baseline, and the output says so.
 
 Everything lands in --out (default ./demo_out, git-ignored). A folder the demo made before (it holds a
 `.pass3d_demo` marker) is reused; any other non-empty folder needs --force.
@@ -30,6 +31,7 @@ from pass3d_ros.core.stage1 import propose
 from pass3d_ros.data.bag import read_bag
 from pass3d_ros.data.bag_convert import convert
 from pass3d_ros.evaluation.bev import render_bev, write_png
+from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 from pass3d_ros.tools.cli import USER_ERRORS, run_tool
 from pass3d_ros.weights import DEFAULT_WEIGHTS_NAME, WEIGHTS_DIR
 
@@ -125,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
 
     step = time.perf_counter()
     input_bag = out / "input_bag"
-    spec = f"synthetic:frames={args.frames},seed={args.seed}"
+    spec = f"synthetic:sensor={args.sensor},frames={args.frames},seed={args.seed}"
     convert([spec], input_bag, with_labels=True, log=lambda _: None)
     print(f"[1/4] {args.frames} synthetic frames ({spec}) -> {input_bag} in {time.perf_counter() - step:.1f} s",
           flush=True)
@@ -182,6 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m pass3d_ros.tools.demo", description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=20, help="synthetic frames to drive (default 20)")
     parser.add_argument("--seed", type=int, default=7, help="synthetic scene seed (default 7)")
+    parser.add_argument("--sensor", choices=SENSOR_NAMES, default="hdl64e",
+                        help="simulated LiDAR (default hdl64e, KITTI's); its driver's point order and fields")
     parser.add_argument("--out", default="demo_out", help="output folder (default ./demo_out)")
     parser.add_argument("--classifier", choices=("auto", "network", "size_rules"), default="auto",
                         help="auto (default): the network with the shipped weights, else size_rules")
