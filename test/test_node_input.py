@@ -288,5 +288,5 @@ def test_implausible_scans_warn_and_are_still_processed(
 
     err = capfd.readouterr().err
     assert "intensity: values " in err and "after intensity_scale 1, expected 0..1" in err
-    assert "ring: values up to 65535, expected 0..63" in err
+    assert "ring: values up to 65535, expected 0..127" in err
     assert "x/y/z: dropping 4 points with non-finite or absurd coordinates" in err

@@ -127,3 +127,12 @@ def test_node_reports_sensor_and_warns_on_intensity_and_binned_rings(
     assert "every point reads 1; stage 2 will have no intensity information" in err
     assert "rings from field: 64 rings" in err and "th_num_near 30" in err, err
     assert "rings could not be recovered" in err and "rings from elevation_bins" in err
+
+
+def test_ring_field_limit_follows_the_sensor() -> None:
+    """A 128-laser driver's ring field is plausible under "auto" (the node once threw it away above 63); a named
+    sensor allows exactly its lasers."""
+    from pass3d_ros.core.lasers import ring_limit
+
+    assert ring_limit("auto", 64) == 128 and ring_limit("auto", 200) == 200
+    assert ring_limit("vlp16", 64) == 16 and ring_limit("os1-128", 64) == 128

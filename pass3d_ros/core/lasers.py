@@ -51,6 +51,14 @@ SENSORS: tuple[str, ...] = ("auto", *LASER_TABLES)
 STANDARD_RING_COUNTS: tuple[int, ...] = (16, 32, 64, 128)
 
 
+def ring_limit(sensor: str, n_rings: int) -> int:
+    """How many lasers a driver's ring field may index: the named sensor's, or with "auto" the most any supported
+    sensor has (at least `n_rings`), so a 128-laser driver's field is not mistaken for a broken one."""
+    if sensor in LASER_TABLES:
+        return len(LASER_TABLES[sensor])
+    return max(n_rings, *STANDARD_RING_COUNTS)
+
+
 def laser_elevations(sensor: str) -> np.ndarray:
     """Elevation angles (radians, descending: ring 0 on top) of a named sensor's lasers."""
     try:

@@ -13,6 +13,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
+from pass3d_ros.core.lasers import ring_limit
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, propose, warm_up
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
 from pass3d_ros.ros import params
@@ -198,10 +199,11 @@ class ClusterProposalNode(PointCloudNode):
             self.get_logger().warning(
                 f"intensity: every point reads {float(points[0, 3]):g}; stage 2 will have no intensity information "
                 "(does the driver or conversion drop it?)", throttle_duration_sec=LOG_PERIOD_S)
-        if ring is not None and ring.max() >= self.config.n_rings:
+        lasers = ring_limit(self.config.sensor, self.config.n_rings)
+        if ring is not None and ring.max() >= lasers:
             self.get_logger().warning(
-                f"ring: values up to {int(ring.max())}, expected 0..{self.config.n_rings - 1} (stage1.n_rings "
-                f"{self.config.n_rings}); rings recovered from the points for this frame",
+                f"ring: values up to {int(ring.max())}, expected 0..{lasers - 1} (stage1.sensor "
+                f"{self.config.sensor}); rings recovered from the points for this frame",
                 throttle_duration_sec=LOG_PERIOD_S)
             ring = None
         clock.mark("decode")

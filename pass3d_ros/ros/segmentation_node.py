@@ -134,8 +134,8 @@ def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:
 
 def members_from_ids(first: np.ndarray, second: np.ndarray) -> list[np.ndarray]:
     """Point indices of each proposal from checked primary and secondary ids (see members_from_cloud)."""
-    present = np.unique(np.concatenate([first, second]))
-    present = present[present >= 0]
+    ids = np.concatenate([first, second])
+    present = np.flatnonzero(np.bincount(ids[ids >= 0]))  # ids are checked below N: linear, no sort
     if len(present) and present[-1] != len(present) - 1:
         first = np.where(first >= 0, np.searchsorted(present, first), -1)
         second = np.where(second >= 0, np.searchsorted(present, second), -1)
