@@ -50,9 +50,18 @@ def _sort_ring(keys: np.ndarray, idx: np.ndarray) -> None:
     if cut > 0:
         keys[:] = np.concatenate((keys[cut:], keys[:cut]))
         idx[:] = np.concatenate((idx[cut:], idx[:cut]))
-    budget = 16 * m
+    if not _insertion_sort(keys, idx, 16 * m):
+        order = np.argsort(keys, kind="mergesort")
+        keys[:] = keys[order]
+        idx[:] = idx[order]
+
+
+@nb.njit(cache=True)
+def _insertion_sort(keys: np.ndarray, idx: np.ndarray, budget: int) -> bool:
+    """Insertion-sort (key, index) pairs by key in place (stable, fast when nearly sorted); False, with the pairs
+    partly sorted, as soon as it has moved more than `budget` pairs (the caller then sorts another way)."""
     moves = 0
-    for j in range(1, m):
+    for j in range(1, keys.shape[0]):
         k = keys[j]
         v = idx[j]
         i = j - 1
@@ -64,10 +73,8 @@ def _sort_ring(keys: np.ndarray, idx: np.ndarray) -> None:
         keys[i + 1] = k
         idx[i + 1] = v
         if moves > budget:
-            order = np.argsort(keys, kind="mergesort")
-            keys[:] = keys[order]
-            idx[:] = idx[order]
-            return
+            return False
+    return True
 
 
 @nb.njit(cache=True)
@@ -296,16 +303,7 @@ def _bucket_sort(keys: np.ndarray, idx: np.ndarray) -> None:
         sorted_keys[at] = keys[j]
         sorted_idx[at] = idx[j]
         count[bucket[j]] = at + 1
-    for j in range(1, m):
-        k = sorted_keys[j]
-        v = sorted_idx[j]
-        i = j - 1
-        while i >= 0 and sorted_keys[i] > k:
-            sorted_keys[i + 1] = sorted_keys[i]
-            sorted_idx[i + 1] = sorted_idx[i]
-            i -= 1
-        sorted_keys[i + 1] = k
-        sorted_idx[i + 1] = v
+    _insertion_sort(sorted_keys, sorted_idx, m * m)  # at most m(m-1)/2 moves: never over budget
     keys[:] = sorted_keys
     idx[:] = sorted_idx
 
