@@ -22,11 +22,9 @@ from pass3d_ros.data.bag import BagError
 from pass3d_ros.data.spec import DatasetError
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error
 
-EXIT_OK = 0
 EXIT_USAGE = 2
 EXIT_SIGINT = 130
 EXIT_SIGTERM = 143
-
 
 
 class OutputError(ValueError):

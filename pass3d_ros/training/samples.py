@@ -230,6 +230,16 @@ def cache_path(
     return Path(cache_dir) / f"samples_{cache_key(specs, background_keep, seed, keep_frame_labels, name)}.npz"
 
 
+def load_cached(path: Path) -> SampleSet | None:
+    """The sample cache at `path`, or None when there is none or it cannot be read (then it is rebuilt)."""
+    if not path.is_file():
+        return None
+    try:
+        return SampleSet.load(path)
+    except (OSError, ValueError, KeyError):
+        return None
+
+
 def cached_samples(
     specs: list[str],
     cache_dir: Path,
@@ -245,11 +255,9 @@ def cached_samples(
 ) -> tuple[SampleSet, Path]:
     """The samples of `specs`, from the cache in `cache_dir` when present, else built (and cached)."""
     path = cache_path(specs, cache_dir, background_keep, seed, keep_frame_labels, proposer, proposer_name)
-    if path.is_file() and not rebuild:
-        try:
-            return SampleSet.load(path), path
-        except (OSError, ValueError, KeyError):
-            pass
+    loaded = None if rebuild else load_cached(path)
+    if loaded is not None:
+        return loaded, path
     samples = build_samples(frames(specs), background_keep, seed, keep_frame_labels, proposer, progress, total)
     path.parent.mkdir(parents=True, exist_ok=True)
     samples.save(path)

@@ -43,6 +43,7 @@ from pass3d_ros.training.samples import (
     build_samples,
     cache_path,
     cached_samples,
+    load_cached,
     training_batch,
 )
 from pass3d_ros.training.validation import format_scores, validate
@@ -229,7 +230,7 @@ class Trainer:
                           shards=self.dist.world)
         cached = distributed.broadcast(self.dist, path.is_file() and not common["rebuild"])
         if cached:
-            loaded = _load_cache(path)
+            loaded = load_cached(path)
             if all(distributed.all_gather(self.dist, loaded is not None)):
                 return loaded, path
         frames = (common["frames"](specs) if self.frame_source is not None
@@ -387,14 +388,6 @@ def _save_atomically(path: Path, write: Callable[[Path], object]) -> None:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
-
-
-def _load_cache(path: Path) -> SampleSet | None:
-    """The sample cache at `path`, or None when it cannot be read."""
-    try:
-        return SampleSet.load(path)
-    except (OSError, ValueError, KeyError):
-        return None
 
 
 def _default_frames(specs: list[str]) -> Iterable[Frame]:
