@@ -193,3 +193,51 @@ def test_ring_sources_are_listed():
     assert set(ring.FIRING_ORDER_SOURCES) <= set(ring.RING_SOURCES)
     for source in ("laser_table_moving", "elevation_lines_moving", "elevation_bins"):
         assert source in ring.RING_SOURCES
+
+
+def test_laser_lines_of_one_scan_give_the_next_scans_rings_without_a_search(monkeypatch):
+    """A stream of one sensor: the second scan, shuffled, reads its rings off the first scan's lines (no search) and
+    clusters exactly as when it searches its own."""
+    first = synthetic_scan(points_per_ring=900)
+    second = synthetic_scan(points_per_ring=1000)
+    lines = propose(np.ascontiguousarray(first[::-1])).lines
+    assert lines is not None and len(lines.a) == 64
+    shuffled = np.ascontiguousarray(second[np.random.default_rng(4).permutation(len(second))])
+    searched = propose(shuffled)
+
+    def no_search(*args, **kwargs):
+        raise AssertionError("the line search ran although the stream's lines fit")
+
+    monkeypatch.setattr(ring, "rings_from_lines", no_search)
+    streamed = propose(shuffled, lines=lines)
+    assert streamed.ring_source == "elevation_lines" and streamed.lines is not None
+    assert np.mean(streamed.ring == searched.ring) > 0.999
+    assert same_partition(streamed.cluster_id, searched.cluster_id)
+
+
+def test_laser_lines_of_another_sensor_are_refused():
+    """Lines that do not fit the scan (another sensor's) fail the quality check: the scan is searched instead."""
+    vlp = synthetic_scan(n_rings=16, points_per_ring=900)
+    wrong = propose(np.ascontiguousarray(vlp[::-1]), config=Stage1Config(n_rings=16)).lines
+    assert wrong is not None and ring.standard_ring_count(len(wrong.a)) == 16
+    pts = synthetic_scan(points_per_ring=900)
+    shuffled = np.ascontiguousarray(pts[np.random.default_rng(5).permutation(len(pts))])
+    result = propose(shuffled, lines=wrong)
+    assert result.n_proposals == propose(shuffled).n_proposals
+    assert result.lines is not None and len(result.lines.a) == 64
+
+
+def test_real_stream_keeps_its_lines_through_motion(kitti_dev):
+    """Motion-corrected real scans (SemanticKITTI): the lines of one scan, given to another whose motion differs,
+    are taken under that scan's own motion, and label its rings as its firing order does."""
+    root = kitti_dev / "semantickitti"
+    scans = sorted(root.rglob("velodyne/*.bin"))[:2]
+    assert len(scans) == 2
+    first, second = (np.fromfile(p, dtype=np.float32).reshape(-1, 4) for p in scans)
+    lines = propose(np.ascontiguousarray(first[::-1])).lines
+    assert lines is not None
+    base = propose(second)
+    order = np.random.default_rng(6).permutation(len(second))
+    result = propose(np.ascontiguousarray(second[order]), lines=lines._replace(motion=(0.0, 0.0)))
+    assert result.ring_source == "elevation_lines_moving" and result.lines.motion != (0.0, 0.0)
+    assert np.mean(result.ring == base.ring[order]) > 0.99

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pass3d_ros.core.stage1 import STEPS, Stage1Config, propose, synthetic_scan, warm_up
+from pass3d_ros.core.ring import LaserLines
+from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, propose, synthetic_scan, warm_up
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import DatasetError, open_dataset, parse_spec
 
@@ -96,31 +97,49 @@ def time_stage1(frames: list[Frame], repeat: int, config: Stage1Config) -> dict[
 
 def time_orders(frames: list[Frame], repeat: int, config: Stage1Config, orders: tuple[str, ...]) -> dict:
     """Median total ms of stage 1 on the frames in firing order and reordered, measured in one run (frames
-    interleaved), with each order's ratio to firing order, ring sources and proposal agreement; printed."""
-    times: dict[str, list[float]] = {how: [] for how in ("firing", *orders)}
-    sources: dict[str, set[str]] = {how: set() for how in times}
-    agree = {how: 0 for how in times}
-    for frame in frames:
-        base = propose(frame.points, frame.ring, config)
-        for how in times:
+    interleaved), with each order's ratio to firing order, ring sources and proposal agreement; printed.
+
+    Each reordering is timed twice: "cold", every scan searched for its laser lines, and "stream", each scan given
+    the lines of the frame before it (the first frame: of the last) as a live node does: a different scan, so the
+    lines are checked, never read off the scan they label. With one frame both come from the same scan (said)."""
+    rows = ("firing", *(f"{how} {kind}" for how in orders for kind in ("cold", "stream")))
+    times: dict[str, list[float]] = {row: [] for row in rows}
+    sources: dict[str, set[str]] = {row: set() for row in rows}
+    agree = {row: 0 for row in rows}
+    bases = [propose(frame.points, frame.ring, config) for frame in frames]
+    carried = [_lines_of(base, frame, config) for frame, base in zip(frames, bases, strict=True)]
+    for index, (frame, base) in enumerate(zip(frames, bases, strict=True)):
+        for row in rows:
+            how, _, kind = row.partition(" ")
             order = reorder(frame.points, base.ring, how)
             pts = np.ascontiguousarray(frame.points[order])
             ring = None if frame.ring is None else frame.ring[order]
-            result = propose(pts, ring, config)
-            agree[how] += same_partition(result.cluster_id, base.cluster_id[order])
-            sources[how].add(result.ring_source)
+            lines = carried[index - 1] if kind == "stream" else None
+            result = propose(pts, ring, config, lines)
+            agree[row] += same_partition(result.cluster_id, base.cluster_id[order])
+            sources[row].add(result.ring_source)
             for _ in range(repeat):
-                times[how].append(propose(pts, ring, config).timings_ms["total"])
+                times[row].append(propose(pts, ring, config, lines).timings_ms["total"])
     firing = statistics.median(times["firing"])
     report = {}
-    print(f"point order ({len(frames)} frame(s), median total ms, ratio to firing order in this run):")
-    for how, values in times.items():
+    print(f"point order ({len(frames)} frame(s), median total ms, ratio to firing order in this run; stream: laser "
+          f"lines of {'the frame before' if len(frames) > 1 else 'the same scan (one frame)'}):")
+    for row, values in times.items():
         median = statistics.median(values)
-        report[how] = {"ms_median": median, "ratio": median / firing, "ring_sources": sorted(sources[how]),
-                       "same_proposals": agree[how], "frames": len(frames)}
-        print(f"  {how:<9} {median:8.3f} ms  x{median / firing:5.2f}  rings: {', '.join(sorted(sources[how]))}"
-              f"  same proposals: {agree[how]}/{len(frames)}")
+        report[row] = {"ms_median": median, "ratio": median / firing, "ring_sources": sorted(sources[row]),
+                       "same_proposals": agree[row], "frames": len(frames)}
+        print(f"  {row:<15} {median:8.3f} ms  x{median / firing:5.2f}  rings: {', '.join(sorted(sources[row]))}"
+              f"  same proposals: {agree[row]}/{len(frames)}")
     return report
+
+
+def _lines_of(result: Stage1Result, frame: Frame, config: Stage1Config) -> LaserLines | None:
+    """The laser lines a stream would carry from this frame: its result's when its rings were read from lines, else
+    those a line search finds in it shuffled (a firing-order scan needs none, but its reordered successor does)."""
+    if result.lines is not None:
+        return result.lines
+    shuffled = np.ascontiguousarray(frame.points[reorder(frame.points, result.ring, "shuffled")])
+    return propose(shuffled, None, config).lines
 
 
 def time_patchwork(frames: list[Frame], repeat: int, sensor_height: float) -> list[float] | None:

@@ -79,12 +79,23 @@ _MIN_U_VAR = 1e-4  # a line's points fix its slope when their u = 1 / r varies m
 _BAND_MARGIN = 1.5  # a band reads its own slope row only when that row is this much sharper than the whole scan's
 
 
+class LaserLines(NamedTuple):
+    """The laser lines t = a + b u of one scan (intercepts descending: ring 0 first) and the origin motion per
+    revolution they hold under: a property of the sensor, so a later scan of the same sensor can reuse them."""
+
+    a: np.ndarray
+    b: np.ndarray
+    motion: tuple[float, float] = (0.0, 0.0)
+
+
 class Rings(NamedTuple):
-    """Ring index per point, how it was obtained (one of RING_SOURCES), and the number of rings found."""
+    """Ring index per point, how it was obtained (one of RING_SOURCES), the number of rings found, and the laser
+    lines they were read from (line sources only)."""
 
     ring: np.ndarray  # (N,) uint16
     source: str
     n_rings: int = 0
+    lines: LaserLines | None = None
 
 
 @nb.njit(cache=True, inline="always")
@@ -559,15 +570,26 @@ def _close_tolerance(a: np.ndarray, share: float) -> np.ndarray:
     return np.maximum(share * np.minimum(np.r_[gaps, np.inf], np.r_[np.inf, gaps]), _T_BIN)
 
 
+@nb.njit(cache=True)
+def _share_close(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, tol: np.ndarray, min_range: float) -> float:
+    """Share of the points beyond `min_range` whose residual is below their line's tolerance (0 when none is)."""
+    min_r2 = min_range * min_range
+    far = 0
+    close = 0
+    for i in range(pts.shape[0]):
+        if pts[i, 0] * pts[i, 0] + pts[i, 1] * pts[i, 1] >= min_r2:
+            far += 1
+            if resid[i] < tol[ring[i]]:
+                close += 1
+    return close / far if far > 0 else 0.0
+
+
 def line_quality(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, a: np.ndarray,
                  min_range: float = 5.0) -> float:
     """Share of the points beyond `min_range` (clean elevations) within a quarter gap of their line: about 1 when
     the lines are the lasers, far lower for lines drawn through a scan that does not fit the model (uniform
     residuals give about one half)."""
-    far = pts[:, 0] * pts[:, 0] + pts[:, 1] * pts[:, 1] >= min_range * min_range
-    if not far.any():
-        return 0.0
-    return float(np.mean(resid[far] < _close_tolerance(a, 0.25)[ring[far]]))
+    return float(_share_close(pts, ring, resid, _close_tolerance(a, 0.25), min_range))
 
 
 def standard_ring_count(n_found: int) -> int | None:
@@ -604,6 +626,26 @@ def _search_lines(sample: np.ndarray, acc: np.ndarray, half_band: int) -> tuple[
     return a, b
 
 
+def rings_from_known_lines(points: np.ndarray, lines: LaserLines, source: str) -> Rings | None:
+    """Rings of a scan in any point order from the laser lines of an earlier scan of the same sensor (no search: a
+    sensor's lines do not change), None unless they fit this scan as well as a search's must (`line_quality` over
+    all its points: a changed sensor or mounting fails it). A motion-corrected scan whose motion changed gets the
+    lines again under its own motion (`estimate_motion`)."""
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    motion = lines.motion
+    for attempt in range(2):
+        if attempt == 1:
+            motion = estimate_motion(search_sample(pts))
+            if motion == lines.motion:
+                return None
+        moving = motion != (0.0, 0.0)
+        seen = _moved_origin(pts, *motion) if moving else pts
+        ring, resid = _assign_lines(seen, lines.a, lines.b)
+        if line_quality(seen, ring, resid, lines.a) >= _MIN_QUALITY:
+            return Rings(ring, source + ("_moving" if moving else ""), len(lines.a), lines._replace(motion=motion))
+    return None
+
+
 def rings_from_lines(points: np.ndarray, sensor: str = "auto") -> Rings | None:
     """Rings of a scan in any point order, from its laser lines (module docstring): seeded by `sensor`'s laser
     table, or found in the scan (`sensor` "auto"; None when no line set near a standard count fits the scan). The
@@ -619,13 +661,13 @@ def rings_from_lines(points: np.ndarray, sensor: str = "auto") -> Rings | None:
     if sensor != "auto":
         a, b = _lines_from_table(acc, laser_elevations(sensor))
         _, _, a, b = fit_laser_lines(seen, a, b)
-        ring, _, a, _ = fit_laser_lines(_moved_origin(pts, vx, vy) if moving else pts, a, b, 0)
-        return Rings(ring, "laser_table" + suffix, len(a))
+        ring, _, a, b = fit_laser_lines(_moved_origin(pts, vx, vy) if moving else pts, a, b, 0)
+        return Rings(ring, "laser_table" + suffix, len(a), LaserLines(a, b, (vx, vy)))
     for half_band in (_HALF_BAND, _N_BINS):
         lines = _search_lines(seen, acc, half_band)
         if lines is not None:
-            ring, _, a, _ = fit_laser_lines(_moved_origin(pts, vx, vy) if moving else pts, *lines, 0)
-            return Rings(ring, "elevation_lines" + suffix, len(a))
+            ring, _, a, b = fit_laser_lines(_moved_origin(pts, vx, vy) if moving else pts, *lines, 0)
+            return Rings(ring, "elevation_lines" + suffix, len(a), LaserLines(a, b, (vx, vy)))
     return None
 
 
@@ -637,10 +679,12 @@ def recover_rings(
     min_ring_points: int = 8,
     missing_tolerance: int = 4,
     min_range: float = 4.0,
+    lines: LaserLines | None = None,
 ) -> Rings:
     """Ring index per point of a scan without a ring field (see the module docstring for the rules): a named
     `config.sensor`'s table, else the firing order (expecting `config.n_rings` rings), else the laser lines found
-    in the scan, else elevation bins.
+    in the scan, else elevation bins. `lines`, the laser lines of an earlier scan of the same sensor (`Rings.lines`),
+    are tried before any line search: a live stream pays for the search once.
 
     `min_jump_deg`: backward azimuth step that starts a ring in the ``azimuth_jump`` rule;
     `min_ring_points`: boundaries closer than this many points are noise; `missing_tolerance`: how many
@@ -653,9 +697,12 @@ def recover_rings(
     if len(pts) == 0:
         return Rings(np.zeros(0, dtype=np.uint16), "azimuth_wrap", 0)
     if cfg.sensor != "auto":
-        lines = rings_from_lines(pts, cfg.sensor)
-        assert lines is not None
-        return lines
+        known = _from_known(pts, lines, "laser_table")
+        if known is not None:
+            return known
+        found = rings_from_lines(pts, cfg.sensor)
+        assert found is not None
+        return found
     min_cos_jump = float(np.cos(np.deg2rad(min_jump_deg)))
     counts = _count_rings(pts, min_cos_jump, min_ring_points, n_rings)
     best: tuple[float, np.ndarray, str, int] | None = None
@@ -669,21 +716,30 @@ def recover_rings(
             best = (spread, ring, source, n_found)
     if best is not None:
         return Rings(best[1], best[2], best[3])
-    lines = rings_from_lines(pts) if len(pts) >= 64 else None
-    if lines is not None:
-        return lines
+    found = _from_known(pts, lines, "elevation_lines")
+    if found is None and len(pts) >= 64:
+        found = rings_from_lines(pts)
+    if found is not None:
+        return found
     elev = np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1]))
     return Rings(elevation_bins(elev, n_rings), "elevation_bins", n_rings)
 
 
-def rings_for(points: np.ndarray, ring: np.ndarray | None, config: Stage1Config | None = None) -> Rings:
-    """The given ring field when there is one (checked for length), else the rings recovered under `config`."""
+def _from_known(pts: np.ndarray, lines: LaserLines | None, source: str) -> Rings | None:
+    """`rings_from_known_lines`, None without lines."""
+    return None if lines is None else rings_from_known_lines(pts, lines, source)
+
+
+def rings_for(points: np.ndarray, ring: np.ndarray | None, config: Stage1Config | None = None,
+              lines: LaserLines | None = None) -> Rings:
+    """The given ring field when there is one (checked for length), else the rings recovered under `config`
+    (trying an earlier scan's laser `lines` before a line search)."""
     if ring is not None:
         ring = np.asarray(ring)
         if len(ring) != len(points):
             raise ValueError(f"ring field has {len(ring)} entries for {len(points)} points")
         return Rings(ring.astype(np.uint16, copy=False), "field", int(ring.max()) + 1 if len(ring) else 0)
-    return recover_rings(points, config)
+    return recover_rings(points, config, lines=lines)
 
 
 def warm_up() -> None:
@@ -696,5 +752,6 @@ def warm_up() -> None:
     recover_rings(pts, Stage1Config(n_rings=2), min_ring_points=2)
     rings_from_lines(pts, "vlp16")
     rings_from_lines(pts)
+    rings_from_known_lines(pts, LaserLines(np.array([0.0, -0.1]), np.zeros(2)), "elevation_lines")
     _motion_scores(pts, np.zeros(1), np.zeros(1), np.zeros(1))
     _moved_origin(pts, 0.1, 0.0)

@@ -39,6 +39,7 @@ class Stage1Result:
     ground_planes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (n_seg, 4): a x+b y+c z+d=0
     n_clusters: int = 0  # clusters before the gates
     sensor: SensorScale | None = None  # the scan's resolution and the effective th_num / th_prop it ran with
+    lines: _ring.LaserLines | None = None  # laser lines the rings were read from: pass to the next scan's propose()
 
     @property
     def n_proposals(self) -> int:
@@ -46,10 +47,13 @@ class Stage1Result:
         return len(self.boxes)
 
 
-def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Config | None = None) -> Stage1Result:
+def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Config | None = None,
+            lines: _ring.LaserLines | None = None) -> Stage1Result:
     """Run stage 1 on one scan: cluster proposals with per-point primary/secondary proposal ids.
 
     Points with a non-finite coordinate (a driver's no-return) take no part: ring 0, not ground, no proposal.
+    `lines`: the previous scan's `Stage1Result.lines` on a stream of one sensor; a scan in no firing order then skips
+    the laser-line search when they still fit it (pass3d_ros.core.ring.recover_rings).
     """
     cfg = config or Stage1Config()
     pts = np.ascontiguousarray(points, dtype=np.float32)
@@ -58,9 +62,9 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
     if ring is not None and len(ring) != len(pts):
         raise ValueError(f"ring field has {len(ring)} entries for {len(pts)} points")
     if np.isfinite(pts.sum()) or np.isfinite(pts[:, :3]).all():
-        return _propose_finite(pts, ring, cfg)
+        return _propose_finite(pts, ring, cfg, lines)
     valid = np.isfinite(pts[:, :3]).all(axis=1)
-    part = _propose_finite(np.ascontiguousarray(pts[valid]), None if ring is None else ring[valid], cfg)
+    part = _propose_finite(np.ascontiguousarray(pts[valid]), None if ring is None else ring[valid], cfg, lines)
     n = len(pts)
     full = {"ring": np.zeros(n, np.uint16), "ground": np.zeros(n, bool), "cluster_id": np.full(n, -1, np.int32),
             "cluster_id2": np.full(n, -1, np.int32)}
@@ -78,7 +82,8 @@ def _in_scan_order(rings: _ring.Rings) -> bool:
     return rings.source == "field" and bool(np.all(rings.ring[1:] >= rings.ring[:-1]))
 
 
-def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config) -> Stage1Result:
+def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
+                    lines: _ring.LaserLines | None) -> Stage1Result:
     """Stage 1 on float32 points whose coordinates are all finite.
 
     Points in any other order than a scan order are first put in the canonical order (ring, then azimuth:
@@ -87,10 +92,10 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config)
     the effective config for its sensor (pass3d_ros.core.sensor_params.effective_config), reported in the result.
     """
     t0 = time.perf_counter()
-    rings = _ring.rings_for(pts, ring, cfg)
+    rings = _ring.rings_for(pts, ring, cfg, lines)
     order = None if _in_scan_order(rings) else _scanline.canonical_order(pts, rings.ring)
-    work = pts if order is None else pts[order]
-    work_ring = rings.ring if order is None else rings.ring[order]
+    work = pts if order is None else np.take(pts, order, axis=0)  # take: a tenth of pts[order]'s time on rows
+    work_ring = rings.ring if order is None else np.take(rings.ring, order)
     cfg, sensor = _sensor.effective_config(cfg, work, work_ring, rings.n_rings)
     t1 = time.perf_counter()
     fit = _ground.fit_ground(work, cfg)
@@ -107,7 +112,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config)
     return Stage1Result(
         ring=rings.ring, ground=ground, cluster_id=cluster_id, cluster_id2=cluster_id2, boxes=boxes,
         timings_ms={k: 1e3 * v for k, v in timings.items()}, ring_source=rings.source, ground_planes=fit.planes,
-        n_clusters=n_clusters, sensor=sensor,
+        n_clusters=n_clusters, sensor=sensor, lines=rings.lines,
     )
 
 

@@ -14,6 +14,7 @@ from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.core.lasers import ring_limit
+from pass3d_ros.core.ring import LaserLines
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, propose, warm_up
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
 from pass3d_ros.ros import params
@@ -124,6 +125,7 @@ class ClusterProposalNode(PointCloudNode):
         self.sink = sink
         self.config = params.read_config(self, Stage1Config, STAGE1_PREFIX)
         self._sensor_source: tuple[str, int] | None = None
+        self._lines: LaserLines | None = None  # the stream's laser lines: a scan in no firing order skips the search
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         started = time.perf_counter()
@@ -146,6 +148,7 @@ class ClusterProposalNode(PointCloudNode):
         if config is None:
             return params.result(False, reason)
         self.config = config
+        self._lines = None
         return params.result(True)
 
     def _report_sensor(self, result: Stage1Result) -> None:
@@ -207,7 +210,8 @@ class ClusterProposalNode(PointCloudNode):
                 throttle_duration_sec=LOG_PERIOD_S)
             ring = None
         clock.mark("decode")
-        result = propose(points, ring, self.config)
+        result = propose(points, ring, self.config, self._lines)
+        self._lines = result.lines or self._lines
         clock.mark("compute")
         self._report_sensor(result)
         if self.sink is not None:
