@@ -34,7 +34,7 @@ class GroundFit(NamedTuple):
     segment_edges: np.ndarray  # (n_seg + 1,) x boundaries
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _segment_of(x: float, x0: float, width: float, n_seg: int) -> int:
     """Segment index of an x coordinate; points beyond the extent fall into the end segments."""
     s = int((x - x0) / width)
@@ -45,7 +45,7 @@ def _segment_of(x: float, x0: float, width: float, n_seg: int) -> int:
     return s
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _lowest_means(pts: np.ndarray, x0: float, width: float, n_seg: int, n_lpr: int, z_floor: float, band: float,
                   outlier_share: float, bin_size: float, stride: int) -> np.ndarray:
     """Per segment, the mean z of the `n_lpr` lowest candidate points (NaN if none).
@@ -95,7 +95,7 @@ def _lowest_means(pts: np.ndarray, x0: float, width: float, n_seg: int, n_lpr: i
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def smallest_eigenvector(cov: np.ndarray) -> np.ndarray:
     """Eigenvector of the smallest eigenvalue of a symmetric 3 x 3 matrix (cyclic Jacobi rotations)."""
     a = cov.copy()
@@ -134,13 +134,13 @@ def smallest_eigenvector(cov: np.ndarray) -> np.ndarray:
     return v[:, best].copy()
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _edge_height(plane: np.ndarray, x: float) -> float:
     """Height of a plane at (x, 0)."""
     return -(plane[0] * x + plane[3]) / plane[2]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _accumulate(acc: np.ndarray, s: int, x: float, y: float, z: float) -> None:
     """Add a point to segment s's moment sums (count, first and second moments)."""
     acc[s, 0] += 1.0
@@ -155,7 +155,7 @@ def _accumulate(acc: np.ndarray, s: int, x: float, y: float, z: float) -> None:
     acc[s, 9] += z * z
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _planes_from_sums(acc: np.ndarray, edges: np.ndarray, fallback_z: np.ndarray, min_normal_z: float,
                       min_points: int, max_step: float) -> np.ndarray:
     """Least-squares plane (smallest covariance eigenvector) per segment from accumulated moments.
@@ -210,7 +210,7 @@ def _planes_from_sums(acc: np.ndarray, edges: np.ndarray, fallback_z: np.ndarray
     return planes
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _ground_kernel(pts: np.ndarray, edges: np.ndarray, n_lpr: int, n_iter: int, th_seeds: float, th_dist: float,
                    z_floor: float, min_normal_z: float, band: float, outlier_share: float, max_step: float,
                    stride: int) -> tuple:

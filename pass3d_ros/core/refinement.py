@@ -20,7 +20,7 @@ from pass3d_ros.core.config import Stage1Config
 from pass3d_ros.data.frame import Box3D
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _cluster_stats(pts: np.ndarray, label: np.ndarray, n_clusters: int, planes: np.ndarray,
                    edges: np.ndarray) -> tuple:
     """Count, x-y sums, x/y/z bounds, and lowest and highest height above the ground plane of every cluster."""
@@ -55,13 +55,13 @@ def _cluster_stats(pts: np.ndarray, label: np.ndarray, n_clusters: int, planes: 
     return count, sums, lo, hi, bottom, top
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _cross(ox: float, oy: float, ax: float, ay: float, bx: float, by: float) -> float:
     """z of (a - o) x (b - o): positive when o, a, b turn counter-clockwise."""
     return (ax - ox) * (by - oy) - (ay - oy) * (bx - ox)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _hull_candidates(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Indices of the points not strictly inside the octagon of extreme points (Akl-Toussaint): the hull's
     vertices are among them, and usually few points remain."""
@@ -102,7 +102,7 @@ def _hull_candidates(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return keep[:m]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _min_area_rect(x_all: np.ndarray, y_all: np.ndarray) -> tuple:
     """(centre x, centre y, length, width, yaw) of the minimal-area rectangle around 2D points; length >= width.
 
@@ -182,7 +182,7 @@ def min_area_rectangle(xy: np.ndarray) -> tuple[float, float, float, float, floa
     return tuple(float(v) for v in _min_area_rect(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _cluster_rects(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -> np.ndarray:
     """Minimal-area rectangle (cx, cy, length, width, yaw) of each candidate cluster (rows in candidate order)."""
     n_clusters = label.max() + 1 if label.shape[0] > 0 else 0
@@ -259,7 +259,7 @@ def select_proposals(
     return boxes, kept
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: np.ndarray, margin: np.ndarray,
                 cell: float) -> tuple:
     """Primary and secondary proposal of every point inside an enlarged box (see `enlarged_membership`);

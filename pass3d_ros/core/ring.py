@@ -98,7 +98,7 @@ class Rings(NamedTuple):
     lines: LaserLines | None = None
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _is_start(x0: float, y0: float, x1: float, y1: float, rule: int, min_cos_jump: float) -> bool:
     """Whether the step from point 0 to point 1 starts a ring under `rule`.
 
@@ -116,7 +116,7 @@ def _is_start(x0: float, y0: float, x1: float, y1: float, rule: int, min_cos_jum
     return dot < min_cos_jump * np.sqrt((x0 * x0 + y0 * y0) * (x1 * x1 + y1 * y1))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _count_rings(pts: np.ndarray, min_cos_jump: float, min_gap: int, max_count: int) -> np.ndarray:
     """Rings found by each of the three rules (one pass); starts closer than `min_gap` points are noise. The pass
     stops once every rule has found more than `max_count` (none can be the firing order)."""
@@ -136,7 +136,7 @@ def _count_rings(pts: np.ndarray, min_cos_jump: float, min_gap: int, max_count: 
     return count
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _segment(pts: np.ndarray, rule: int, min_cos_jump: float, min_gap: int) -> np.ndarray:
     """Ring index per point under one rule, counted as in `_count_rings`."""
     n = pts.shape[0]
@@ -151,7 +151,7 @@ def _segment(pts: np.ndarray, rule: int, min_cos_jump: float, min_gap: int) -> n
     return ring
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _ring_stats(pts: np.ndarray, ring: np.ndarray, n_max: int, min_range: float, stride: int) -> tuple:
     """Per-ring mean tangent of elevation and the mean within-ring standard deviation of it, over every
     `stride`-th point beyond `min_range`."""
@@ -198,7 +198,7 @@ def elevation_bins(elev: np.ndarray, n_rings: int) -> np.ndarray:
     return np.clip(ring, 0, n_rings - 1).astype(np.uint16)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _line_accumulator(pts: np.ndarray, stride: int, min_range: float, slopes: np.ndarray, n_bins: int) -> np.ndarray:
     """Votes of every `stride`-th point beyond `min_range` for (slope, intercept bin) of t = a + slope * u."""
     acc = np.zeros((slopes.shape[0], n_bins), dtype=np.float32)
@@ -217,7 +217,7 @@ def _line_accumulator(pts: np.ndarray, stride: int, min_range: float, slopes: np
     return acc
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _assign_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple:
     """Nearest line (a descending) per point, and its |t - a - b u| distance. A table over t - mean(b) u gives a
     first line near the point's; from there the search walks up or down while the distance falls (lines do not
@@ -260,7 +260,7 @@ def _assign_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple:
     return ring, resid
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _line_sums(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, tol: np.ndarray, min_range: float,
                k_lines: int) -> np.ndarray:
     """Least-squares sums (n, sum u, sum t, sum u^2, sum u t) of every line's points within `tol` of it and beyond
@@ -339,7 +339,7 @@ def _accumulate(pts: np.ndarray) -> np.ndarray:
     return _sharpen(_line_accumulator(pts, 1, _MIN_LINE_RANGE, _SLOPES, _N_BINS))
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _revolution_time(x: float, y: float) -> float:
     """Time within a revolution, -0.5..0.5, of a return at (x, y): 0 facing forward, +-0.5 at the back, linear in
     azimuth (pseudo-azimuth stands in for it, a few tenths of a degree off)."""
@@ -350,7 +350,7 @@ def _revolution_time(x: float, y: float) -> float:
     return 0.5 - 0.25 * p if y >= 0.0 else -0.5 - 0.25 * p
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _moved_origin(pts: np.ndarray, vx: float, vy: float) -> np.ndarray:
     """x, y, z of the points seen from an origin that moves by (vx, vy) over one revolution, linearly in time
     (`_revolution_time`): KITTI's motion-corrected scans."""
@@ -363,7 +363,7 @@ def _moved_origin(pts: np.ndarray, vx: float, vy: float) -> np.ndarray:
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _motion_scores(pts: np.ndarray, vxs: np.ndarray, vys: np.ndarray, slopes: np.ndarray) -> np.ndarray:
     """Line sharpness of the points seen from an origin moving by (vxs[k], vys[k]) per revolution, in slope row
     slopes[k]: the sum of squared positive votes of a [1, 2, 1]-smoothed intercept histogram less the larger of its
@@ -570,7 +570,7 @@ def _close_tolerance(a: np.ndarray, share: float) -> np.ndarray:
     return np.maximum(share * np.minimum(np.r_[gaps, np.inf], np.r_[np.inf, gaps]), _T_BIN)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _share_close(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, tol: np.ndarray, min_range: float) -> float:
     """Share of the points beyond `min_range` whose residual is below their line's tolerance (0 when none is)."""
     min_r2 = min_range * min_range

@@ -20,7 +20,7 @@ import numpy as np
 from pass3d_ros.core.config import Stage1Config
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _pseudo_azimuth(x: float, y: float) -> float:
     """A cheap angle in [0, 4) that orders like atan2(y, x) mapped to [0, 2 pi)."""
     s = abs(x) + abs(y)
@@ -34,7 +34,7 @@ def _pseudo_azimuth(x: float, y: float) -> float:
     return p
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _sort_ring(keys: np.ndarray, idx: np.ndarray) -> None:
     """Sort one ring's (key, index) pairs by key in place: rotate at the wrap, then insertion-sort the jitter."""
     m = keys.shape[0]
@@ -56,7 +56,7 @@ def _sort_ring(keys: np.ndarray, idx: np.ndarray) -> None:
         idx[:] = idx[order]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _insertion_sort(keys: np.ndarray, idx: np.ndarray, budget: int) -> bool:
     """Insertion-sort (key, index) pairs by key in place (stable, fast when nearly sorted); False, with the pairs
     partly sorted, as soon as it has moved more than `budget` pairs (the caller then sorts another way)."""
@@ -77,7 +77,7 @@ def _insertion_sort(keys: np.ndarray, idx: np.ndarray, budget: int) -> bool:
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _find(parent: np.ndarray, a: int) -> int:
     """Root of a's set, compressing the path on the way."""
     root = a
@@ -90,7 +90,7 @@ def _find(parent: np.ndarray, a: int) -> int:
     return root
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _union(parent: np.ndarray, a: int, b: int) -> int:
     """Join the sets of a and b; the smaller root wins and is returned."""
     ra = _find(parent, a)
@@ -104,7 +104,7 @@ def _union(parent: np.ndarray, a: int, b: int) -> int:
     return rb
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _gap2(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, a: int, b: int) -> float:
     """Squared distance between sorted positions a and b."""
     dx = xs[a] - xs[b]
@@ -113,7 +113,7 @@ def _gap2(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, a: int, b: int) -> flo
     return dx * dx + dy * dy + dz * dz
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _lower_bound(keys: np.ndarray, lo: int, hi: int, key: float) -> int:
     """First position in keys[lo:hi] (ascending) whose key is >= `key`, hi if none."""
     while lo < hi:
@@ -125,7 +125,7 @@ def _lower_bound(keys: np.ndarray, lo: int, hi: int, key: float) -> int:
     return lo
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _nearest_in_ring(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, r2s: np.ndarray, k: int, lo: int, hi: int,
                      start: int, best2: float, enough2: float) -> int:
     """Sorted position (lo..hi-1) nearest to position k if closer than sqrt(best2), else -1.
@@ -167,7 +167,7 @@ def _nearest_in_ring(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, r2s: np.nda
     return found
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings: int, th_ring: float,
                     th_prop: float, n_prev_rings: int) -> tuple:
     """Labels (compact 0..C-1, -1 where unused) and C; the steps of the module docstring."""
@@ -251,7 +251,7 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
     return labels, n_clusters
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _canonical_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int) -> np.ndarray:
     """Permutation listing the points ring by ring, each ring by pseudo-azimuth (a counting sort on the ring, then
     a bucket sort of each ring that is not already in order)."""
@@ -282,7 +282,7 @@ def _canonical_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int) -> np.nda
     return idx
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _bucket_sort(keys: np.ndarray, idx: np.ndarray) -> None:
     """Stable sort of (key, index) pairs by key in [0, 4) in place: a counting sort into as many buckets as pairs,
     then an insertion sort of what is left out of order (a few pairs share a bucket)."""
