@@ -1,7 +1,10 @@
-"""PointNet++ (multi-scale grouping) for per-point segmentation of one proposal, in plain PyTorch.
+"""PointNet++ (multi-scale grouping) for per-point segmentation of one proposal, in PyTorch.
 
-No custom ops: farthest point sampling, ball query, grouping and 3-NN interpolation are batched torch
-code that runs on CPU and CUDA. Tensors are channel-last: (batch, points, channels).
+Farthest point sampling, ball query, grouping and 3-NN interpolation are batched torch code that runs on any
+device. On CPU, numba kernels (`pointnet2_cpu`) take over: they compute the same float32 distances and pick
+the same indices (training uses them too: indices need no gradient), and in inference they also fuse the
+grouping, the interpolation and the head's last layer. `torch_ops_only()` turns them off, for reference.
+Tensors are channel-last: (batch, points, channels).
 
 Decoding is split from encoding: `encode` runs the set-abstraction levels and the upper feature
 propagation levels on the N sampled points of each proposal; `decode` runs the last feature propagation
@@ -11,12 +14,16 @@ proposal gets the network's own prediction, not only the N sampled ones.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 
+import numpy as np
 import torch
 from torch import nn
 
 from pass3d_ros.classes import NUM_CLASSES
+from pass3d_ros.core import pointnet2_cpu as _cpu
 
 # Per-point input features beside the local xyz: intensity and the point-count feature n.
 NUM_POINT_FEATURES = 2
@@ -124,13 +131,20 @@ def make_config(name: str) -> ModelConfig:
 # ---------------------------------------------------------------------------------------------- ops
 
 
-def pairwise_sq_dist(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Squared distances (B, P, Q) between a (B, P, 3) and b (B, Q, 3): one batched matmul of
-    (a, |a|^2, 1) with (-2b, 1, |b|^2), clamped >= 0."""
+def lift_points(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rows (a, |a|^2, 1) of a (B, P, 3) and (-2b, 1, |b|^2) of b (B', Q, 3): row dot products are the squared
+    distances."""
     ones_a = torch.ones_like(a[..., :1])
     ones_b = torch.ones_like(b[..., :1])
     left = torch.cat([a, (a * a).sum(-1, keepdim=True), ones_a], dim=-1)
     right = torch.cat([-2.0 * b, ones_b, (b * b).sum(-1, keepdim=True)], dim=-1)
+    return left, right
+
+
+def pairwise_sq_dist(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Squared distances (B, P, Q) between a (B, P, 3) and b (B, Q, 3): one batched matmul of
+    (a, |a|^2, 1) with (-2b, 1, |b|^2), clamped >= 0."""
+    left, right = lift_points(a, b)
     return torch.bmm(left, right.transpose(1, 2)).clamp_min_(0.0)
 
 
@@ -202,6 +216,62 @@ def interpolate(query: torch.Tensor, source: torch.Tensor, source_feat: torch.Te
     return out.reshape(b, q, c)
 
 
+_numba = {"enabled": True}
+# Skip features up to this wide (the last FP level's xyz + point features) are projected inside the numba kernel.
+_KERNEL_SKIP_CHANNELS = 8
+
+
+@contextmanager
+def torch_ops_only() -> Iterator[None]:
+    """Inside the block, the torch code runs on CPU too, as on a GPU: the reference the numba kernels match."""
+    before = _numba["enabled"]
+    _numba["enabled"] = False
+    try:
+        yield
+    finally:
+        _numba["enabled"] = before
+
+
+def _numba_ok(*tensors: torch.Tensor) -> bool:
+    """Whether the numba kernels of `pointnet2_cpu` take these tensors: float32 on the CPU."""
+    return _numba["enabled"] and all(t.device.type == "cpu" and t.dtype == torch.float32 for t in tensors)
+
+
+def _no_grad_needed(*tensors: torch.Tensor | None) -> bool:
+    """Whether autograd needs no graph through an op on these tensors (inference, or none requires grad)."""
+    return not torch.is_grad_enabled() or not any(t is not None and t.requires_grad for t in tensors)
+
+
+def _np(t: torch.Tensor) -> np.ndarray:
+    """A contiguous numpy view (or copy) of a CPU tensor, detached."""
+    return t.detach().contiguous().numpy()
+
+
+def _lifted(a: torch.Tensor, b: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    """lift_points(a, b) channels first, (B, 5, P) and (B', 5, Q), for the numba kernels (vector loads)."""
+    return _cpu.lift_points(_np(a), _np(b))
+
+
+def sample_centres(xyz: torch.Tensor, count: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Farthest point sampling of xyz (B, N, 3): centre indices (B, count) and the centres' squared distances
+    to all points (B, count, N), as pairwise_sq_dist + farthest_point_sample give them. On CPU one numba
+    kernel computes only those rows (unclamped: its ball_query reads them as clamped)."""
+    if _numba_ok(xyz):
+        idx, d2 = _cpu.farthest_point_sample(*_lifted(xyz, xyz), count)
+        return torch.from_numpy(idx), torch.from_numpy(d2)
+    d2_all = pairwise_sq_dist(xyz, xyz)
+    idx = farthest_point_sample(d2_all, count)
+    return idx, torch.gather(d2_all, 1, idx.unsqueeze(-1).expand(-1, -1, d2_all.shape[-1]))
+
+
+def ball_members(d2: torch.Tensor, radius: float, nsample: int) -> torch.Tensor:
+    """ball_query; on CPU a numba kernel (one pass per centre instead of a cumsum and a scatter)."""
+    if not _numba_ok(d2):
+        return ball_query(d2, radius, nsample)
+    # torch compares a float32 tensor with a Python float in float32: so does the kernel.
+    return torch.from_numpy(_cpu.ball_query(_np(d2), np.float32(radius * radius), nsample))
+
+
 # -------------------------------------------------------------------------------------------- layers
 
 
@@ -219,11 +289,27 @@ class SharedMLP(nn.Module):
 
     def forward(self, x: torch.Tensor, start: int = 0) -> torch.Tensor:
         """Apply layers[start:] (start = 1: the caller has applied the first Linear itself)."""
+        return self._run(x, self.layers[start:])
+
+    @staticmethod
+    def _run(x: torch.Tensor, layers: nn.ModuleList | list[nn.Module]) -> torch.Tensor:
         shape = x.shape
         x = x.reshape(-1, shape[-1])
-        for layer in self.layers[start:]:
+        for layer in layers:
             x = layer(x)
         return x.reshape(*shape[:-1], x.shape[-1])
+
+    def pool(self, x: torch.Tensor, start: int = 0) -> torch.Tensor:
+        """forward(x, start) max-pooled over dim -2. A trailing Linear + ReLU (a fused model's) adds its bias
+        and the ReLU after the max: exact (both are monotonic per channel) and far less work on big groups."""
+        layers = list(self.layers[start:])
+        if (len(layers) >= 2 and isinstance(layers[-1], nn.ReLU) and isinstance(layers[-2], nn.Linear)
+                and layers[-2].bias is not None):
+            linear = layers[-2]
+            x = self._run(x, layers[:-2])
+            x = nn.functional.linear(x, linear.weight).amax(dim=-2) + linear.bias
+            return torch.relu_(x)
+        return self._run(x, layers).amax(dim=-2)
 
 
 class SetAbstractionMSG(nn.Module):
@@ -236,19 +322,24 @@ class SetAbstractionMSG(nn.Module):
         self.out_channels = sum(m.out_channels for m in self.mlps)
 
     def forward(self, xyz: torch.Tensor, feat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        d2_all = pairwise_sq_dist(xyz, xyz)
-        centres_idx = farthest_point_sample(d2_all, self.cfg.centres)
+        centres_idx, d2 = sample_centres(xyz, self.cfg.centres)
         centres = gather_points(xyz, centres_idx)
-        d2 = torch.gather(d2_all, 1, centres_idx.unsqueeze(-1).expand(-1, -1, d2_all.shape[-1]))
         both = torch.cat([xyz, feat], dim=-1)
         outs = []
         for radius, nsample, mlp in zip(self.cfg.radii, self.cfg.nsamples, self.mlps, strict=True):
-            idx = ball_query(d2, radius, nsample)
+            idx = ball_members(d2, radius, nsample)
             # The first Linear acts on (point xyz - centre, features): project every point and centre once,
             # then group the projections (cheaper than projecting every grouped copy).
             first = mlp.layers[0]
-            grouped = gather_points(first(both), idx) - (centres @ first.weight[:, :3].T).unsqueeze(2)
-            outs.append(mlp(grouped, start=1).amax(dim=2))
+            projected, centre_part = first(both), centres @ first.weight[:, :3].T
+            start = 1
+            if _numba_ok(projected) and _no_grad_needed(projected, centre_part):
+                relu = isinstance(mlp.layers[1], nn.ReLU)
+                start += relu
+                grouped = torch.from_numpy(_cpu.group_relative(_np(projected), _np(idx), _np(centre_part), relu))
+            else:
+                grouped = gather_points(projected, idx) - centre_part.unsqueeze(2)
+            outs.append(mlp.pool(grouped, start=start))
         return centres, torch.cat(outs, dim=-1)
 
 
@@ -261,7 +352,7 @@ class SetAbstractionAll(nn.Module):
         self.out_channels = self.mlp.out_channels
 
     def forward(self, xyz: torch.Tensor, feat: torch.Tensor) -> torch.Tensor:
-        return self.mlp(torch.cat([xyz, feat], dim=-1)).amax(dim=1, keepdim=True)
+        return self.mlp.pool(torch.cat([xyz, feat], dim=-1)).unsqueeze(1)
 
 
 class FeaturePropagation(nn.Module):
@@ -278,12 +369,31 @@ class FeaturePropagation(nn.Module):
         self.out_channels = self.mlp.out_channels
 
     def forward(
-        self, query: torch.Tensor, skip: torch.Tensor, source: torch.Tensor, source_feat: torch.Tensor
+        self, query: torch.Tensor, skip: torch.Tensor, source: torch.Tensor, source_feat: torch.Tensor,
+        source_batch: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """query (B, Q, 3) with skip features (B, Q, Cs); sources (B, S, 3) with features (B, S, C)."""
+        """query (B, Q, 3) with skip features (B, Q, Cs); sources (B, S, 3) with features (B, S, C), or
+        with `source_batch` (B,) those of proposal source_batch[b] of sources (P, S, 3) and features (P, S, C)."""
         first = self.mlp.layers[0]
         c = self.coarse_channels
-        x = interpolate(query, source, source_feat @ first.weight[:, :c].T) + skip @ first.weight[:, c:].T
+        projected = source_feat @ first.weight[:, :c].T  # per proposal, before any copies per query block
+        skip_weight = first.weight[:, c:]
+        if _numba_ok(query, source, projected, skip) and _no_grad_needed(projected, skip, skip_weight, first.bias):
+            # One source feature (the group-all level's) goes to every query, as `interpolate` does.
+            left, right = _lifted(query, source if projected.shape[1] > 1 else source[:, :1])
+            bias = first.bias if first.bias is not None else torch.zeros(first.out_features)
+            if source_batch is None:
+                source_batch = torch.arange(len(query))
+            relu = isinstance(self.mlp.layers[1], nn.ReLU)
+            if skip.shape[-1] > _KERNEL_SKIP_CHANNELS:  # a matmul for MKL; the kernel adds its result
+                skip, skip_weight = skip @ skip_weight.T, skip_weight[:, :0]
+            x = torch.from_numpy(_cpu.interpolate_project(
+                left, right, _np(source_batch), _np(projected), _np(skip), _np(skip_weight.T), _np(bias),
+                relu))
+            return self.mlp(x, start=1 + relu)
+        if source_batch is not None:
+            source, projected = source[source_batch], projected[source_batch]
+        x = interpolate(query, source, projected) + skip @ skip_weight.T
         if first.bias is not None:
             x = x + first.bias
         return self.mlp(x, start=1)
@@ -336,10 +446,28 @@ class PointNet2Seg(nn.Module):
         proposal: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Logits (Q, L, K) at query blocks xyz (Q, L, 3) with features (Q, L, F); block q belongs to
-        proposal `proposal[q]` of the encoded batch (default: block q is proposal q)."""
-        if proposal is not None:
-            coarse_xyz, coarse_feat = coarse_xyz[proposal], coarse_feat[proposal]
-        return self.head(self.fp[-1](xyz, torch.cat([xyz, feat], dim=-1), coarse_xyz, coarse_feat))
+        proposal `proposal[q]` of the encoded batch (default: block q is proposal q). Without autograd the
+        logits are a view of a (K, Q * L) tensor."""
+        x = self.fp[-1](xyz, torch.cat([xyz, feat], dim=-1), coarse_xyz, coarse_feat, proposal)
+        if not _no_grad_needed(x):
+            return self.head(x)
+        # Inference: the last Linear with classes first, (K, Q * L), returned as a transposed view; a caller's
+        # softmax over classes is ten times faster on CPU in that layout (dim 0) than over a last dim of 4.
+        shape = x.shape[:-1]
+        hidden, _, last = self.head
+        first = hidden.layers[0]
+        if (not self.training and _numba_ok(x) and len(hidden.layers) == 2 and isinstance(hidden.layers[1], nn.ReLU)
+                and first.bias is not None):
+            # A fused model's head: one matmul to channels-first features, then bias, ReLU and the last Linear
+            # in one numba pass (no bias copy, no separate ReLU pass over Q * L * C values).
+            hidden_t = torch.mm(first.weight, x.reshape(-1, x.shape[-1]).T)
+            logits = torch.from_numpy(_cpu.relu_linear_t(_np(hidden_t), _np(first.bias), _np(last.weight),
+                                                         _np(last.bias)))
+        else:
+            for layer in self.head[:-1]:
+                x = layer(x)
+            logits = torch.addmm(last.bias.unsqueeze(1), last.weight, x.reshape(-1, x.shape[-1]).T)
+        return logits.T.reshape(*shape, logits.shape[0])
 
     def forward(self, xyz: torch.Tensor, feat: torch.Tensor) -> torch.Tensor:
         """Logits (B, N, K) for the sampled points xyz (B, N, 3) with features (B, N, F)."""

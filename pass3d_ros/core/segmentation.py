@@ -16,11 +16,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import numba as nb
 import numpy as np
 import torch
 
 from pass3d_ros.classes import BACKGROUND, CLASS_NAMES
-from pass3d_ros.core import canonical
+from pass3d_ros.core import canonical, pointnet2_cpu
 from pass3d_ros.core.pointnet2 import ModelConfig, PointNet2Seg, fuse_batchnorm
 
 CHECKPOINT_FORMAT = "pass3d_stage2"
@@ -137,8 +138,9 @@ def predict_probabilities(model: PointNet2Seg, batch: ProposalBatch, device: tor
             torch.from_numpy(batch.blocks(batch.query_feat)).to(device),
             torch.from_numpy(batch.block_proposal).to(device),
         )
-        logits = logits.reshape(-1, logits.shape[-1])[torch.from_numpy(batch.block_slot).to(device)]
-        return torch.softmax(logits.float(), dim=-1).cpu().numpy()
+        # Classes first (K, M): the softmax runs across points, ten times faster on CPU than over a last dim of 4.
+        logits = logits.reshape(-1, logits.shape[-1]).T[:, torch.from_numpy(batch.block_slot).to(device)]
+        return torch.softmax(logits.float(), dim=0).T.contiguous().cpu().numpy()
 
 
 def scatter_predictions(
@@ -150,14 +152,23 @@ def scatter_predictions(
     out_conf = np.ones(num_points, dtype=np.float32)
     if len(point_index) == 0:
         return out_labels, out_conf
-    order = np.lexsort((np.arange(len(point_index)), confidence, point_index))
-    idx = point_index[order]
-    last = np.ones(len(idx), dtype=bool)
-    last[:-1] = idx[1:] != idx[:-1]
-    winners = order[last]
+    best = _most_confident(num_points, np.asarray(point_index, dtype=np.int64), np.asarray(confidence))
+    winners = best[best >= 0]
     out_labels[point_index[winners]] = labels[winners]
     out_conf[point_index[winners]] = confidence[winners]
     return out_labels, out_conf
+
+
+@nb.njit(cache=True, nogil=True)
+def _most_confident(num_points: int, point_index: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """Per point, the position of its most confident prediction (ties: the later one), -1 where none; one pass
+    instead of a sort of all predictions."""
+    best = np.full(num_points, -1, dtype=np.int64)
+    for i in range(len(point_index)):
+        p = point_index[i]
+        if best[p] < 0 or confidence[i] >= confidence[best[p]]:
+            best[p] = i
+    return best
 
 
 def proposal_majority(query_batch: np.ndarray, labels: np.ndarray, num_proposals: int, num_classes: int) -> np.ndarray:
@@ -278,7 +289,9 @@ class Segmenter:
         return SegmentResult(labels, confidence, proposal_class)
 
     def warm_up(self) -> None:
-        """Run a dummy frame through the whole path once (allocations, lazy initialisation)."""
+        """Compile the numba kernels (on-disk cache after the first time) and run a dummy frame through the
+        whole path once (allocations, lazy initialisation)."""
+        pointnet2_cpu.warm_up()
         rng = np.random.default_rng(0)
         car = rng.uniform([5, -2, -1.7, 0], [9, 2, 0, 1], (600, 4))
         person = rng.uniform([-8, 3, -1.7, 0], [-7, 4, 0, 1], (60, 4))
