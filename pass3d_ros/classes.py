@@ -17,9 +17,16 @@ CLASS_COLORS_RGB: np.ndarray = np.array(
 )
 
 
+_PACKED_COLORS = (CLASS_COLORS_RGB.astype(np.uint32) @ np.array([1 << 16, 1 << 8, 1], dtype=np.uint32)).astype(np.uint32)
+_PACKED_BY_BYTE = np.where(np.arange(256) < NUM_CLASSES, _PACKED_COLORS[np.minimum(np.arange(256), NUM_CLASSES - 1)],
+                           _PACKED_COLORS[BACKGROUND]).astype(np.uint32)  # any uint8 label; unknown ones grey
+
+
 def packed_rgb(labels: np.ndarray) -> np.ndarray:
-    """Per-point colours as float32 packing 0x00RRGGBB, the layout rviz's RGB8 transformer reads."""
-    labels = np.asarray(labels, dtype=np.intp)
-    rgb = CLASS_COLORS_RGB[np.where(labels < NUM_CLASSES, labels, BACKGROUND)].astype(np.uint32)
-    packed = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
-    return packed.view(np.float32)
+    """Per-point colours as float32 packing 0x00RRGGBB, the layout rviz's RGB8 transformer reads; labels that are no
+    class (>= NUM_CLASSES) take the background's."""
+    labels = np.asarray(labels)
+    if labels.dtype == np.uint8:  # the labeled cloud's column: one table lookup (a tenth of the general path)
+        return np.take(_PACKED_BY_BYTE, labels).view(np.float32)
+    labels = labels.astype(np.intp)
+    return _PACKED_COLORS[np.where(labels < NUM_CLASSES, labels, BACKGROUND)].view(np.float32)

@@ -306,3 +306,13 @@ def test_codec_benchmark_runs(capsys: pytest.CaptureFixture[str]) -> None:
     assert "2000 points" in out and "ring:uint16" in out
     for name in ("encode", "decode", "decode_xyzi"):
         assert f"\n{name} " in out
+
+
+def test_packed_rgb_gives_each_class_its_colour_and_unknown_labels_grey() -> None:
+    from pass3d_ros.classes import BACKGROUND, CLASS_COLORS_RGB, packed_rgb
+
+    for labels in (np.array([0, 1, 2, 3, 4, 255], dtype=np.uint8), np.array([0, 1, 2, 3, 4, 1000])):
+        packed = packed_rgb(labels).view(np.uint32)
+        rgb = np.stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255], axis=1)
+        expected = CLASS_COLORS_RGB[[0, 1, 2, 3, BACKGROUND, BACKGROUND]]
+        assert np.array_equal(rgb, expected), labels.dtype

