@@ -97,4 +97,5 @@ class SizeRuleClassifier:
         )
 
     def warm_up(self) -> None:
-        """Nothing to warm up; present for the classifier interface."""
+        """Compile (or load) the box-fit kernels, so the first frame does not pay for it."""
+        canonical.warm_up()

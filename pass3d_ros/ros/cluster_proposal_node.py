@@ -62,7 +62,7 @@ INTENSITY_TOLERANCE = 1e-3
 def plausible_points(points: np.ndarray) -> np.ndarray:
     """True for points whose x, y, z are finite and within MAX_COORDINATE_M: no LiDAR return is farther."""
     xyz = points[:, :3]
-    if len(xyz) and -MAX_COORDINATE_M <= float(xyz.min()) and float(xyz.max()) <= MAX_COORDINATE_M:
+    if len(xyz) and float(xyz.min()) >= -MAX_COORDINATE_M and float(xyz.max()) <= MAX_COORDINATE_M:
         return np.ones(len(points), dtype=bool)  # the usual scan: two reductions (NaN fails them) instead of a mask
     with np.errstate(invalid="ignore"):
         return (np.abs(xyz) <= MAX_COORDINATE_M).all(axis=1)
