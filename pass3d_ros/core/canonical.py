@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
-from numba import types
-from numba.extending import intrinsic
+
+from pass3d_ros.core.fma import fma64
 
 NUM_VIEWS = 8
 # Vertex k sits at (sx * L/2, sy * W/2) in the box frame; counter-clockwise order.
@@ -52,17 +52,6 @@ _REFINES = tuple(
     _direction_table(np.arange(-span, span + step / 2, step))
     for span, step in zip((_COARSE_STEP, *_REFINE_STEPS[:-1]), _REFINE_STEPS, strict=True)
 )
-
-
-@intrinsic
-def _fma(typingctx: object, a: types.Type, b: types.Type, c: types.Type) -> tuple:
-    """a * b + c rounded once (LLVM's fma) in float64."""
-    sig = types.float64(types.float64, types.float64, types.float64)
-
-    def codegen(context, builder, signature, args):
-        return builder.fma(*args)
-
-    return sig, codegen
 
 
 @nb.njit(cache=True, nogil=True)
@@ -102,7 +91,7 @@ def _best_angles(
             if rotate:
                 x, y = x * cb[g] + y * sb[g], y * cb[g] - x * sb[g]
             for d in range(ndir):
-                p = _fma(dsin[d], y, dcos[d] * x)
+                p = fma64(dsin[d], y, dcos[d] * x)
                 lo[d] = p if p < lo[d] else lo[d]
                 hi[d] = p if p > hi[d] else hi[d]
         best_area = (hi[0] - lo[0]) * (hi[nang] - lo[nang])

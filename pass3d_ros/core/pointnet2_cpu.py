@@ -15,25 +15,14 @@ from typing import NamedTuple
 
 import numba as nb
 import numpy as np
-from numba import types
-from numba.extending import intrinsic
+
+from pass3d_ros.core.fma import fma32
 
 _ZERO = np.float32(0.0)
 _ONE = np.float32(1.0)
 _MINUS_TWO = np.float32(-2.0)
 _EPS = np.float32(1e-8)  # three_nn's inverse-distance guard, a float32 as in the torch code
 _FMA = {"contract"}  # feature sums: fused multiply-adds allowed, nothing else (no reassociation, NaN / inf kept)
-
-
-@intrinsic
-def _fma(typingctx: object, a: types.Type, b: types.Type, c: types.Type) -> tuple:
-    """a * b + c rounded once (LLVM's fma) in float32, whatever LLVM would contract or not."""
-    sig = types.float32(types.float32, types.float32, types.float32)
-
-    def codegen(context, builder, signature, args):
-        return builder.fma(*args)
-
-    return sig, codegen
 
 
 @nb.njit(cache=True, nogil=True)
@@ -63,7 +52,7 @@ def _sq_dist(left: np.ndarray, i: int, p: int, right: np.ndarray, k: int, q: int
     sgemm, unclamped."""
     acc = left[i, 0, p] * right[k, 0, q]
     for m in range(1, 5):
-        acc = _fma(left[i, m, p], right[k, m, q], acc)
+        acc = fma32(left[i, m, p], right[k, m, q], acc)
     return acc
 
 
