@@ -15,7 +15,8 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from test_nodes import STAMP0, Collector, Ros, columns, connect, scan_message, wait_until
 
-from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.bench.stage1 import same_partition
+from pass3d_ros.core.stage1 import proposal_members, propose, synthetic_scan
 from pass3d_ros.core.stage2 import load_classifier, resolve_weights
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode
@@ -290,3 +291,31 @@ def test_implausible_scans_warn_and_are_still_processed(
     assert "intensity: values " in err and "after intensity_scale 1, expected 0..1" in err
     assert "ring: values up to 65535, expected 0..127" in err
     assert "x/y/z: dropping 4 points with non-finite or absurd coordinates" in err
+
+
+def test_shuffled_stream_searches_its_laser_lines_once(ros: Ros, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Scans in no firing order and without a ring field: the node finds the laser lines on the first scan and reads
+    the next scans' rings off them (no second search), with the proposals of the scan's own search."""
+    from pass3d_ros.core import ring
+
+    searches: list[int] = []
+    search = ring.rings_from_lines
+
+    def counted(points: np.ndarray, sensor: str = "auto") -> ring.Rings | None:
+        searches.append(len(points))
+        return search(points, sensor)
+
+    ros.add(ClusterProposalNode(context=ros.context))
+    clouds = Collector(ros, PointCloud2, "/pass3d/proposals")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, clouds)
+    points = synthetic_scan(points_per_ring=900)  # a scan whose lines the search finds (see the README on others)
+    expected = propose(points)
+    monkeypatch.setattr(ring, "rings_from_lines", counted)
+    for k in range(3):
+        order = np.random.default_rng(k).permutation(len(points))
+        pub.publish(scan_message(Frame("scan", np.ascontiguousarray(points[order])), STAMP0 + k))
+        out = columns(clouds.wait(k + 1)[k])
+        assert same_partition(out["cluster_id"], expected.cluster_id[order])
+        np.testing.assert_array_equal(out["ring"], expected.ring[order])
+    assert len(searches) == 1
