@@ -100,14 +100,15 @@ def time_orders(frames: list[Frame], repeat: int, config: Stage1Config, orders: 
     interleaved), with each order's ratio to firing order, ring sources and proposal agreement; printed.
 
     Each reordering is timed twice: "cold", every scan searched for its laser lines, and "stream", each scan given
-    the lines of the frame before it (the first frame: of the last) as a live node does: a different scan, so the
-    lines are checked, never read off the scan they label. With one frame both come from the same scan (said)."""
+    the lines held after the frame before it (the first frame: after the last) as a live node holds them: from a
+    different scan, so they are checked, never read off the scan they label. With one frame both are the same scan's
+    (said)."""
     rows = ("firing", *(f"{how} {kind}" for how in orders for kind in ("cold", "stream")))
     times: dict[str, list[float]] = {row: [] for row in rows}
     sources: dict[str, set[str]] = {row: set() for row in rows}
     agree = {row: 0 for row in rows}
     bases = [propose(frame.points, frame.ring, config) for frame in frames]
-    carried = [_lines_of(base, frame, config) for frame, base in zip(frames, bases, strict=True)]
+    carried = _stream_lines(frames, bases, config)
     for index, (frame, base) in enumerate(zip(frames, bases, strict=True)):
         for row in rows:
             how, _, kind = row.partition(" ")
@@ -123,7 +124,7 @@ def time_orders(frames: list[Frame], repeat: int, config: Stage1Config, orders: 
     firing = statistics.median(times["firing"])
     report = {}
     print(f"point order ({len(frames)} frame(s), median total ms, ratio to firing order in this run; stream: laser "
-          f"lines of {'the frame before' if len(frames) > 1 else 'the same scan (one frame)'}):")
+          f"lines held after {'the frame before' if len(frames) > 1 else 'the same scan (one frame)'}):")
     for row, values in times.items():
         median = statistics.median(values)
         report[row] = {"ms_median": median, "ratio": median / firing, "ring_sources": sorted(sources[row]),
@@ -133,13 +134,20 @@ def time_orders(frames: list[Frame], repeat: int, config: Stage1Config, orders: 
     return report
 
 
-def _lines_of(result: Stage1Result, frame: Frame, config: Stage1Config) -> LaserLines | None:
-    """The laser lines a stream would carry from this frame: its result's when its rings were read from lines, else
-    those a line search finds in it shuffled (a firing-order scan needs none, but its reordered successor does)."""
-    if result.lines is not None:
-        return result.lines
-    shuffled = np.ascontiguousarray(frame.points[reorder(frame.points, result.ring, "shuffled")])
-    return propose(shuffled, None, config).lines
+def _stream_lines(frames: list[Frame], results: list[Stage1Result], config: Stage1Config) -> list[LaserLines | None]:
+    """The laser lines a live node holds after each frame, as the cluster node carries them: the frame's own (its
+    firing-order result has none, so the frame shuffled is searched, given the lines held before it), else those
+    held before."""
+    held: LaserLines | None = None
+    out: list[LaserLines | None] = []
+    for frame, result in zip(frames, results, strict=True):
+        lines = result.lines
+        if lines is None:
+            shuffled = np.ascontiguousarray(frame.points[reorder(frame.points, result.ring, "shuffled")])
+            lines = propose(shuffled, None, config, held).lines
+        held = lines or held
+        out.append(held)
+    return out
 
 
 def time_patchwork(frames: list[Frame], repeat: int, sensor_height: float) -> list[float] | None:

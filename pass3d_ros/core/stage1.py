@@ -106,7 +106,8 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge)
     ground = fit.ground
     if order is not None:
-        ground, cluster_id, cluster_id2 = (_to_input_order(v, order) for v in (ground, cluster_id, cluster_id2))
+        inverse = _inverse(order)
+        ground, cluster_id, cluster_id2 = (np.take(v, inverse) for v in (ground, cluster_id, cluster_id2))
     t4 = time.perf_counter()
     timings = {"ring": t1 - t0, "ground": t2 - t1, "clustering": t3 - t2, "refinement": t4 - t3, "total": t4 - t0}
     return Stage1Result(
@@ -116,11 +117,12 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     )
 
 
-def _to_input_order(values: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """Per-point values listed in `order` put back in input order."""
-    out = np.empty_like(values)
-    out[order] = values
-    return out
+def _inverse(order: np.ndarray) -> np.ndarray:
+    """The permutation that puts values listed in `order` back in input order (one scatter, then a take per array:
+    less than half the time of a scatter per array)."""
+    inverse = np.empty(len(order), dtype=np.int64)
+    inverse[order] = np.arange(len(order))
+    return inverse
 
 
 def proposal_members(
