@@ -197,7 +197,6 @@ def test_fit_boxes_matches_reference_on_many_groups_and_offsets():
     offsets = 13 + np.concatenate([[0], np.cumsum([len(g) for g in groups])])  # groups start after 13 points
     want = ref_fit_boxes(xyz, offsets)
     assert_same_boxes(canonical.fit_boxes(xyz, offsets), want)
-    assert_same_boxes(canonical.fit_boxes(xyz, offsets, chunk_points=150), want)
     assert_same_boxes(canonical.fit_boxes(xyz[:, :3].copy(order="F"), offsets), want)  # any layout
     assert_same_boxes(canonical.fit_boxes(np.column_stack([xyz, xyz[:, :1]])[:, :3], offsets), want)
     assert_same_canonical(xyz[13:-5], want, offsets - 13)

@@ -120,14 +120,13 @@ def _extents(xy: np.ndarray, xyz: np.ndarray, offsets: np.ndarray, cb: np.ndarra
     return out
 
 
-def fit_boxes(xyz: np.ndarray, offsets: np.ndarray, chunk_points: int = 200_000) -> Boxes:
+def fit_boxes(xyz: np.ndarray, offsets: np.ndarray) -> Boxes:
     """Minimal-area oriented boxes of P point groups: group p is xyz[offsets[p]:offsets[p+1]] (non-empty).
 
     A coarse search over [0, 90) degrees, then two finer searches around the best angle so far (to about
-    0.02 degrees), in numba kernels that go through each group's points once per search. `chunk_points` is
-    kept for callers; the kernels need O(P) memory beyond the centred coordinates, so it no longer matters.
+    0.02 degrees), in numba kernels that go through each group's points once per search: O(P) memory beyond
+    the centred coordinates, and a group's box does not depend on the other groups.
     """
-    del chunk_points
     xyz = np.asarray(xyz)
     if xyz.dtype not in (np.float32, np.float64):
         xyz = xyz.astype(np.float64)
