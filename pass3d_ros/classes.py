@@ -18,8 +18,8 @@ CLASS_COLORS_RGB: np.ndarray = np.array(
 
 
 _PACKED_COLORS = (CLASS_COLORS_RGB.astype(np.uint32) @ np.array([1 << 16, 1 << 8, 1], np.uint32)).astype(np.uint32)
-_PACKED_BY_BYTE = np.where(np.arange(256) < NUM_CLASSES, _PACKED_COLORS[np.minimum(np.arange(256), NUM_CLASSES - 1)],
-                           _PACKED_COLORS[BACKGROUND]).astype(np.uint32)  # any uint8 label; unknown ones grey
+_PACKED_BY_BYTE = np.full(256, _PACKED_COLORS[BACKGROUND], dtype=np.uint32)  # any uint8 label; unknown ones grey
+_PACKED_BY_BYTE[:NUM_CLASSES] = _PACKED_COLORS
 
 
 def packed_rgb(labels: np.ndarray) -> np.ndarray:

@@ -632,18 +632,22 @@ def rings_from_known_lines(points: np.ndarray, lines: LaserLines, source: str) -
     all its points: a changed sensor or mounting fails it). A motion-corrected scan whose motion changed gets the
     lines again under its own motion (`estimate_motion`)."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
-    motion = lines.motion
-    for attempt in range(2):
-        if attempt == 1:
-            motion = estimate_motion(search_sample(pts))
-            if motion == lines.motion:
-                return None
-        moving = motion != (0.0, 0.0)
-        seen = _moved_origin(pts, *motion) if moving else pts
-        ring, resid = _assign_lines(seen, lines.a, lines.b)
-        if line_quality(seen, ring, resid, lines.a) >= _MIN_QUALITY:
-            return Rings(ring, source + ("_moving" if moving else ""), len(lines.a), lines._replace(motion=motion))
-    return None
+    found = _rings_under(pts, lines, lines.motion, source)
+    if found is None:
+        motion = estimate_motion(search_sample(pts))
+        if motion != lines.motion:
+            found = _rings_under(pts, lines, motion, source)
+    return found
+
+
+def _rings_under(pts: np.ndarray, lines: LaserLines, motion: tuple[float, float], source: str) -> Rings | None:
+    """Rings from `lines` seen from an origin moving by `motion`, None unless they pass `line_quality`."""
+    moving = motion != (0.0, 0.0)
+    seen = _moved_origin(pts, *motion) if moving else pts
+    ring, resid = _assign_lines(seen, lines.a, lines.b)
+    if line_quality(seen, ring, resid, lines.a) < _MIN_QUALITY:
+        return None
+    return Rings(ring, source + ("_moving" if moving else ""), len(lines.a), lines._replace(motion=motion))
 
 
 def rings_from_lines(points: np.ndarray, sensor: str = "auto") -> Rings | None:
