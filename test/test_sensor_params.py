@@ -13,13 +13,9 @@ from pass3d_ros.core.sensor_params import REFERENCE_DV_DEG, effective_config, re
 from pass3d_ros.core.stage1 import Stage1Config, propose
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.msgs.pointcloud2 import decode
-from pass3d_ros.ros.cluster_proposal_node import (
-    ClusterProposalNode,
-    constant_intensity,
-    intensity_divisor,
-    unit_intensity,
-)
+from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
 from pass3d_ros.ros.qos import qos_profile
+from pass3d_ros.ros.scan_checks import MAX_COORDINATE_M, intensity_divisor, scan_summary, unit_intensity
 from pass3d_ros.synthetic.dataset import generate_frame
 
 
@@ -87,10 +83,45 @@ def test_intensity_full_scale_is_detected(high: float, divisor: float) -> None:
     np.testing.assert_allclose(unit_intensity(values), values / divisor, rtol=1e-6)
 
 
+def _scan(intensity: list[float]) -> np.ndarray:
+    points = np.ones((len(intensity), 4), np.float32)
+    points[:, 3] = intensity
+    return points
+
+
 def test_constant_intensity_is_recognised() -> None:
-    assert constant_intensity(np.ones(10, np.float32))
-    assert not constant_intensity(np.array([0.1, 0.2], np.float32))
-    assert not constant_intensity(np.ones(1, np.float32))
+    assert scan_summary(_scan([1.0] * 10)).constant_intensity()
+    assert not scan_summary(_scan([0.1, 0.2])).constant_intensity()
+    assert not scan_summary(_scan([1.0])).constant_intensity()
+    assert not scan_summary(_scan([np.nan, np.nan])).constant_intensity()
+
+
+@pytest.mark.parametrize("case", range(6))
+def test_scan_summary_matches_the_numpy_checks(case: int) -> None:
+    """The one-pass summary says what separate NumPy reductions say, on scans broken in each way the node checks."""
+    rng = np.random.default_rng(case)
+    points = rng.uniform(-80, 80, (500, 4)).astype(np.float32)
+    points[:, 3] = rng.uniform(0, 1, 500)
+    if case == 1:
+        points[rng.integers(0, 500, 3), rng.integers(0, 3, 3)] = np.nan
+    if case == 2:
+        points[7, 2] = -2 * MAX_COORDINATE_M
+    if case == 3:
+        points[[4, 9], 3] = [np.inf, np.nan]
+    if case == 4:
+        points[:, 3] *= 255.0
+    if case == 5:
+        points[11, 0] = np.inf
+    summary = scan_summary(points)
+    with np.errstate(invalid="ignore"):
+        assert summary.plausible == bool((np.abs(points[:, :3]) <= MAX_COORDINATE_M).all())
+    finite = np.isfinite(points[:, 3])
+    assert summary.nonfinite_intensity == np.count_nonzero(~finite)
+    assert summary.intensity_low == points[finite, 3].min() and summary.intensity_high == points[finite, 3].max()
+    assert bool(summary.intensity_problem()) == (case in (3, 4))
+    scaled = summary.scaled(1 / 255)
+    points[:, 3] *= np.float32(1 / 255)
+    assert scaled.intensity_low == points[finite, 3].min() and scaled.intensity_high == points[finite, 3].max()
 
 
 def test_node_reports_sensor_and_warns_on_intensity_and_binned_rings(

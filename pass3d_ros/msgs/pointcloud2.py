@@ -231,8 +231,8 @@ def header_stamp_ns(msg: Any) -> int:
     return stamp_to_ns(msg.header.stamp)
 
 
-def columns_to_cloud(columns: Mapping[str, Any]) -> np.ndarray:
-    """A packed structured array from named columns (1-D, or N x count for a count > 1 field), in order."""
+def _columns_layout(columns: Mapping[str, Any]) -> tuple[dict[str, np.ndarray], np.dtype, int]:
+    """The columns as arrays, the packed dtype holding them in order, and their common length."""
     arrays = {name: np.asarray(values) for name, values in columns.items()}
     lengths = {len(values) for values in arrays.values()}
     if len(lengths) > 1:
@@ -242,7 +242,13 @@ def columns_to_cloud(columns: Mapping[str, Any]) -> np.ndarray:
         if values.ndim not in (1, 2):
             raise PointCloud2Error(f"column {name!r} must be 1-D or N x count, got shape {values.shape}")
         formats.append((name, values.dtype) if values.ndim == 1 else (name, values.dtype, (values.shape[1],)))
-    cloud = np.empty(lengths.pop() if lengths else 0, dtype=np.dtype(formats))
+    return arrays, np.dtype(formats), lengths.pop() if lengths else 0
+
+
+def columns_to_cloud(columns: Mapping[str, Any]) -> np.ndarray:
+    """A packed structured array from named columns (1-D, or N x count for a count > 1 field), in order."""
+    arrays, dtype, length = _columns_layout(columns)
+    cloud = np.empty(length, dtype=dtype)
     for name, values in arrays.items():
         cloud[name] = values
     return cloud
@@ -323,6 +329,40 @@ def _message_classes(msg_class: Any, typestore: Any) -> tuple[Any, Any, Any, Any
         raise PointCloud2Error(f"cannot find PointField/Header beside {msg_class}; pass typestore=") from None
 
 
+def _zeroed_bytes(size: int) -> array.array:
+    """An array.array('B') of `size` zero bytes, made by repetition (no temporary bytes object to copy)."""
+    return array.array("B", b"\0") * size
+
+
+def _packed_data(cloud: np.ndarray | Mapping[str, Any], is_rosbags: bool) -> tuple[np.ndarray, list, Any]:
+    """The cloud in the machine's byte order, its fields, and the message's `data` holding it.
+
+    Columns are written straight into the buffer the message keeps (for rclpy an array.array('B'), whose
+    setter takes it as is), so a 120k-point cloud is packed once rather than packed and then copied.
+    """
+    if isinstance(cloud, Mapping):
+        arrays, dtype, length = _columns_layout(cloud)
+        fields = cloud_fields(dtype)
+        data = np.empty(length * dtype.itemsize, np.uint8) if is_rosbags else _zeroed_bytes(length * dtype.itemsize)
+        packed = np.frombuffer(data, dtype=dtype) if length else np.zeros(0, dtype=dtype)
+        for name, values in arrays.items():
+            packed[name] = values
+        return packed, fields, data
+    if not isinstance(cloud, np.ndarray) or cloud.ndim != 1:
+        raise PointCloud2Error(f"expected a 1-D structured array, got {type(cloud).__name__}")
+    fields = cloud_fields(cloud.dtype)
+    native = _native(cloud.dtype)
+    if native != cloud.dtype:
+        cloud = cloud.astype(native)
+    cloud = np.ascontiguousarray(cloud)
+    raw = cloud.view(np.uint8).reshape(-1) if len(cloud) else np.zeros(0, np.uint8)
+    if is_rosbags:
+        return cloud, fields, raw.copy()
+    data = array.array("B")
+    data.frombytes(raw)
+    return cloud, fields, data
+
+
 def encode(
     cloud: np.ndarray | Mapping[str, Any],
     *,
@@ -336,25 +376,17 @@ def encode(
 ) -> Any:
     """A PointCloud2 (rclpy, or rosbags given `typestore`/`msg_class`) from a structured array or columns.
 
-    Fields come from the dtype; `header` wins over frame_id/stamp_ns; the data is copied.
+    Fields come from the dtype; `header` wins over frame_id/stamp_ns; the data is copied. `is_dense` is
+    computed (no NaN coordinate) unless given.
     """
-    if isinstance(cloud, Mapping):
-        cloud = columns_to_cloud(cloud)
-    if not isinstance(cloud, np.ndarray) or cloud.ndim != 1:
-        raise PointCloud2Error(f"expected a 1-D structured array, got {type(cloud).__name__}")
-    fields = cloud_fields(cloud.dtype)
-    native = _native(cloud.dtype)
-    if native != cloud.dtype:
-        cloud = cloud.astype(native)
-    cloud = np.ascontiguousarray(cloud)
+    cloud_cls, field_cls, header_cls, time_cls, is_rosbags = _message_classes(msg_class, typestore)
     height = _as_count(height, "height")
+    cloud, fields, data = _packed_data(cloud, is_rosbags)
     if height == 0 or len(cloud) % height:
         raise PointCloud2Error(f"{len(cloud)} points do not split into {height} rows")
     width = len(cloud) // height
     if is_dense is None:
         is_dense = bool(finite_mask(cloud).all())
-    raw = cloud.view(np.uint8).reshape(-1) if len(cloud) else np.zeros(0, np.uint8)
-    cloud_cls, field_cls, header_cls, time_cls, is_rosbags = _message_classes(msg_class, typestore)
     if header is None:
         stamp_ns = int(stamp_ns)
         if stamp_ns < 0:
@@ -362,7 +394,8 @@ def encode(
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
         header = header_cls(stamp=time_cls(sec=sec, nanosec=nanosec), frame_id=frame_id)
     point_fields = [
-        field_cls(name=name, offset=offset, datatype=code, count=count) for name, offset, code, count in fields
+        field_cls(name=name, offset=offset, datatype=code, count=count)
+        for name, offset, code, count in fields
     ]
     msg = cloud_cls(
         header=header,
@@ -372,12 +405,9 @@ def encode(
         is_bigendian=sys.byteorder == "big",
         point_step=cloud.dtype.itemsize,
         row_step=cloud.dtype.itemsize * width,
-        data=raw.copy() if is_rosbags else array.array("B"),
+        data=data if is_rosbags else array.array("B"),
         is_dense=is_dense,
     )
     if not is_rosbags:
-        # rclpy's constructor copies `data` element-wise; its setter keeps an array.array('B') as is.
-        data = array.array("B")
-        data.frombytes(raw)
-        msg.data = data
+        msg.data = data  # rclpy's constructor copies `data` element-wise; its setter keeps an array.array as is
     return msg

@@ -17,7 +17,7 @@ from pass3d_ros.core.lasers import ring_limit
 from pass3d_ros.core.ring import LaserLines
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, propose, warm_up
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
-from pass3d_ros.ros import params
+from pass3d_ros.ros import params, scan_checks
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
 from pass3d_ros.ros.qos import QOS_NAMES
@@ -55,53 +55,6 @@ class ProposalFrame:
 ProposalSink = Callable[[ProposalFrame], None]
 
 
-MAX_COORDINATE_M = 1e4
-INTENSITY_TOLERANCE = 1e-3
-
-
-def plausible_points(points: np.ndarray) -> np.ndarray:
-    """True for points whose x, y, z are finite and within MAX_COORDINATE_M: no LiDAR return is farther."""
-    xyz = points[:, :3]
-    if len(xyz) and float(xyz.min()) >= -MAX_COORDINATE_M and float(xyz.max()) <= MAX_COORDINATE_M:
-        return np.ones(len(points), dtype=bool)  # the usual scan: two reductions (NaN fails them) instead of a mask
-    with np.errstate(invalid="ignore"):
-        return (np.abs(xyz) <= MAX_COORDINATE_M).all(axis=1)
-
-
-def intensity_problem(intensity: np.ndarray) -> str:
-    """Why intensities cannot be the 0..1 the core expects ("" when they can): out of range or not numbers."""
-    if not np.isfinite(intensity).all():
-        return f"{np.count_nonzero(~np.isfinite(intensity))} values are not finite"
-    lo, hi = float(intensity.min()), float(intensity.max())
-    if lo < -INTENSITY_TOLERANCE or hi > 1.0 + INTENSITY_TOLERANCE:
-        return f"values {lo:.4g}..{hi:.4g}"
-    return ""
-
-
-def intensity_divisor(high: float) -> float:
-    """What a driver's intensity range is divided by to give 0..1, from its largest value: 1 for 0..1, 255 for an
-    8-bit driver (Velodyne), 65535 for 16-bit reflectivity (Ouster), else the largest value itself."""
-    for full_scale in (1.0, 255.0, 65535.0):
-        if high <= full_scale + INTENSITY_TOLERANCE * full_scale:
-            return full_scale
-    return high
-
-
-def unit_intensity(intensity: np.ndarray) -> np.ndarray:
-    """Best guess at 0..1 intensities: divided by `intensity_divisor` of the largest value, then clipped."""
-    values = np.nan_to_num(intensity, nan=0.0, posinf=0.0, neginf=0.0)
-    hi = float(values.max()) if len(values) else 0.0
-    divisor = intensity_divisor(hi)
-    if divisor != 1.0:
-        values = values / divisor
-    return np.clip(values, 0.0, 1.0).astype(np.float32)
-
-
-def constant_intensity(intensity: np.ndarray) -> bool:
-    """Whether every point of a (non-trivial) scan has the same intensity: a driver or conversion that drops it."""
-    return len(intensity) > 1 and float(intensity.min()) == float(intensity.max())
-
-
 def proposals_cloud(points: np.ndarray, result: Stage1Result) -> dict[str, np.ndarray]:
     """The columns of /pass3d/proposals: everything the segmentation node needs, point order kept."""
     return {
@@ -135,6 +88,7 @@ class ClusterProposalNode(PointCloudNode):
         self.get_logger().info("stage 1: loading the compiled kernels (the first start after an install compiles "
                                "them with numba, about 20-30 s; later starts read numba's cache)")
         warm_up()
+        scan_checks.warm_up()
         self.get_logger().info(f"stage 1 ready (numba warm-up {1e3 * (time.perf_counter() - started):.0f} ms)")
 
         self.proposals_pub = self.output_publisher(PointCloud2, "proposals_topic")
@@ -180,28 +134,32 @@ class ClusterProposalNode(PointCloudNode):
             return
         points = scan.points
         ring = scan.ring if self.get_parameter("use_ring_field").value else None
-        keep = plausible_points(points)
-        if not keep.all():
+        summary = scan_checks.scan_summary(points)
+        if not summary.plausible:
+            keep = scan_checks.plausible_points(points)
             self.get_logger().warning(
                 f"x/y/z: dropping {np.count_nonzero(~keep)} points with non-finite or absurd coordinates "
-                f"(expected finite, |value| <= {MAX_COORDINATE_M:g} m)", throttle_duration_sec=LOG_PERIOD_S)
+                f"(expected finite, |value| <= {scan_checks.MAX_COORDINATE_M:g} m)", throttle_duration_sec=LOG_PERIOD_S)
             points = points[keep]
             ring = None if ring is None else ring[keep]
+            summary = scan_checks.scan_summary(points)
         if len(points) == 0:
             self.get_logger().warning("skipping empty PointCloud2", throttle_duration_sec=LOG_PERIOD_S)
             return
         scale = self.get_parameter("intensity_scale").value
         if scale != 1.0:
             points[:, 3] *= scale
-        problem = intensity_problem(points[:, 3])
+            summary = summary.scaled(scale)
+        problem = summary.intensity_problem()
         if problem:
-            divisor = intensity_divisor(float(np.nan_to_num(points[:, 3], posinf=0.0).max()))
+            divisor = scan_checks.intensity_divisor(float(np.nan_to_num(points[:, 3], posinf=0.0).max()))
             self.get_logger().warning(
                 f"intensity: {problem} after intensity_scale {scale:g}, expected 0..1 (a 0..255 driver needs "
                 "intensity_scale 1/255, 16-bit reflectivity 1/65535); divided by "
                 f"{divisor:g} and clipped into 0..1 for this frame", throttle_duration_sec=LOG_PERIOD_S)
-            points[:, 3] = unit_intensity(points[:, 3])
-        if constant_intensity(points[:, 3]):
+            points[:, 3] = scan_checks.unit_intensity(points[:, 3])
+            summary = scan_checks.scan_summary(points)
+        if summary.constant_intensity():
             self.get_logger().warning(
                 f"intensity: every point reads {float(points[0, 3]):g}; stage 2 will have no intensity information "
                 "(does the driver or conversion drop it?)", throttle_duration_sec=LOG_PERIOD_S)

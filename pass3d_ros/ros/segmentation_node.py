@@ -209,7 +209,7 @@ class SegmentationNode(PointCloudNode):
         result = self.classifier.segment(points, members)
         clock.mark("compute")
         columns = labeled_cloud(frame, result, self.get_parameter("min_confidence").value)
-        cloud = encode(columns, header=frame.header)
+        cloud = encode(columns, header=frame.header, is_dense=True)  # NaN points never reach stage 2
         clock.mark("encode")
         self.labeled_pub.publish(cloud)
         clock.mark("publish")
