@@ -14,7 +14,7 @@ from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset
 from pass3d_ros.synthetic import parts as pt
 from pass3d_ros.synthetic import raycast as rc
 from pass3d_ros.synthetic.builder import Scene, SceneBuilder
-from pass3d_ros.synthetic.dataset import cast_scene, generate_frame
+from pass3d_ros.synthetic.dataset import cast_scene, generate_frame, mixed_pixel_share
 from pass3d_ros.synthetic.materials import M_OTHER, M_TIRE, M_WALL
 from pass3d_ros.synthetic.scene import generate_scene
 from pass3d_ros.synthetic.sensor import HDL64E, ray_bundle
@@ -365,3 +365,33 @@ def test_scene_objects_labelled_by_kitti_rules():
         assert models.get(model, {(BACKGROUND, "")}) == {(BACKGROUND, "")}
     assert "person_sitting" in models
     assert models["Pedestrian"] == {(PEDESTRIAN, "Pedestrian")} and models["Cyclist"] == {(CYCLIST, "Cyclist")}
+
+
+def test_world_changes_can_be_left_out_for_an_ablation():
+    """`without=` leaves out exactly the named change: nothing by default (same bytes), the clutter objects, the
+    clutter standing against foreground objects, the dark surfaces, the mixed pixels."""
+    assert generate_frame(3, 1, without=frozenset()).points.tobytes() == generate_frame(3, 1).points.tobytes()
+    frames = {name: next(open_dataset(f"synthetic:frames=1,seed=3,start=1,without={name}"))
+              for name in ("dark", "mixed_pixels")}
+    full = generate_frame(3, 1)
+    dark_share = {k: float(np.mean(f.points[:, 3] < 0.02)) for k, f in (("full", full), ("dark", frames["dark"]))}
+    assert dark_share["dark"] < 0.7 * dark_share["full"]
+    edges = {k: mixed_pixel_share(f.points, f.ring) for k, f in (("full", full), ("mixed", frames["mixed_pixels"]))}
+    assert edges["mixed"] < 0.6 * edges["full"]
+
+    def scene(without: frozenset) -> Scene:
+        return generate_scene(np.random.default_rng(np.random.SeedSequence([3, 1])), without)
+
+    clutter_models = {"utility_box", "bike_rack", "bus_shelter", "traffic_light", "trailer"}  # none stands "beside"
+    assert any(o.model in clutter_models for o in scene(frozenset()).objects)
+    assert not any(o.model in clutter_models for o in scene(frozenset({"clutter"})).objects)
+    touching = [o for o in scene(frozenset()).objects if o.clearance is not None and o.label == BACKGROUND]
+    assert len(touching) > len([o for o in scene(frozenset({"beside"})).objects
+                                if o.clearance is not None and o.label == BACKGROUND])
+
+
+def test_unknown_world_change_is_refused():
+    with pytest.raises(DatasetError, match=r"unknown world change.*known: clutter, beside, dark, mixed_pixels"):
+        list(open_dataset("synthetic:frames=1,seed=0,without=clutter+rain"))
+    with pytest.raises(ValueError, match="rain"):
+        generate_frame(0, 0, without=frozenset({"rain"}))

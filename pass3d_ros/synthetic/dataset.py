@@ -4,8 +4,9 @@ A frame is one HDL-64E revolution ray-cast into a random street scene: points in
 ring, top laser first), per-point labels, instance ids, ground mask and ring, one box per car, van, truck,
 pedestrian and cyclist that has points (instance id = the box's position in the list, foreground only), and
 a 10 Hz stamp. Everything is drawn from SeedSequence([seed, index]), so a (seed, index) pair always gives the
-same bytes. Spec: `synthetic:frames=N,seed=S[,start=K][,sensor=NAME]` yields frames K .. K+N-1 of seed S,
-generated on the fly. Another sensor (`generate_frame(seed, index, sensor_model("vlp16"))`, names in
+same bytes. Spec: `synthetic:frames=N,seed=S[,start=K][,sensor=NAME][,without=CHANGE+CHANGE]` yields frames
+K .. K+N-1 of seed S, generated on the fly (`without`: WORLD_CHANGES left out, for an ablation). Another sensor
+(`generate_frame(seed, index, sensor_model("vlp16"))`, names in
 sensor.SENSOR_NAMES) scans the same scenes from the same mount height (unless its model says otherwise) and gives
 its points in its ROS 2 driver's order (ring 0 still the top laser, intensity still in [0, 1]).
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +40,7 @@ from pass3d_ros.synthetic.materials import (
     dark_cells,
     darken,
 )
-from pass3d_ros.synthetic.scene import generate_scene
+from pass3d_ros.synthetic.scene import SCENE_CHANGES, generate_scene
 from pass3d_ros.synthetic.sensor import (
     HDL64E,
     MOUNT_HEIGHT_M,
@@ -51,6 +53,9 @@ from pass3d_ros.synthetic.sensor import (
     sensor_model,
     signal_to_noise,
 )
+
+# World changes an ablation can leave out (`synthetic:...,without=clutter+dark`): see generate_scene, simulate_scan.
+WORLD_CHANGES: tuple[str, ...] = (*SCENE_CHANGES, "dark", "mixed_pixels")
 
 FRAME_PERIOD_NS = 100_000_000  # 10 Hz
 BOX_MARGIN_M = 0.02  # a box reaches at least this far beyond its object's outermost point
@@ -127,8 +132,13 @@ def _surface(scene: Scene, hit: np.ndarray, region: np.ndarray, xyz: np.ndarray,
     return material, rho
 
 
-def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAULT_SENSOR) -> Scan:
-    """Cast one revolution into `scene` and turn the hits into noisy, labelled points in firing order."""
+def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAULT_SENSOR,
+                  without: frozenset[str] = frozenset()) -> Scan:
+    """Cast one revolution into `scene` and turn the hits into noisy, labelled points in firing order.
+
+    `without` leaves world changes out, for an ablation: "dark" (darkened parts and dark cells: every surface
+    reads its material's reflectivity), "mixed_pixels" (no return inside a depth edge).
+    """
     origins, dirs, ring, column = ray_grid(sensor, rng)
     lift = sensor.mount_height_m - MOUNT_HEIGHT_M  # scenes are built for a sensor MOUNT_HEIGHT_M above the road
     if lift:
@@ -140,12 +150,15 @@ def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAU
     has_hit = hit != rc.NO_HIT
     t_hit = np.where(has_hit, t, 0.0)
     xyz = origins + t_hit[:, None] * dirs
-    material, rho = _surface(scene, hit, region, xyz, darken(scene.prho, scene.pmaterial, scene.pobject, rng))
-    share = np.where(hit == rc.GROUND_HIT, GROUND_DARK_SHARE[region], DARK_CELL_SHARE[material])
-    share[~has_hit] = 0.0
-    xyz_cell = np.where((hit == rc.GROUND_HIT)[:, None], xyz * [1.0, 1.0, 0.0], xyz)
-    edge = np.where(hit == rc.GROUND_HIT, DARK_CELL_M, DARK_CELL_EDGE_M[material])
-    rho = np.where(dark_cells(xyz_cell, share, int(rng.integers(2**31)), edge), 0.5 * DARK_RHO, rho)
+    dark = "dark" not in without
+    prho = darken(scene.prho, scene.pmaterial, scene.pobject, rng) if dark else scene.prho
+    material, rho = _surface(scene, hit, region, xyz, prho)
+    if dark:
+        share = np.where(hit == rc.GROUND_HIT, GROUND_DARK_SHARE[region], DARK_CELL_SHARE[material])
+        share[~has_hit] = 0.0
+        xyz_cell = np.where((hit == rc.GROUND_HIT)[:, None], xyz * [1.0, 1.0, 0.0], xyz)
+        edge = np.where(hit == rc.GROUND_HIT, DARK_CELL_M, DARK_CELL_EDGE_M[material])
+        rho = np.where(dark_cells(xyz_cell, share, int(rng.integers(2**31)), edge), 0.5 * DARK_RHO, rho)
     cos_inc = np.abs(np.einsum("ij,ij->i", normal, dirs))
     foliage = np.isin(material, POROUS_MATERIALS)
     t_hit = np.where(foliage, t_hit + np.minimum(depth, np.maximum(t_exit - t_hit, 0.0)), t_hit)
@@ -161,15 +174,17 @@ def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAU
     idx = np.flatnonzero(keep)
     sigma = sensor.range_noise_m
     t_noisy = t_hit[idx] + np.clip(noise_r[idx] * sigma, -3 * sigma, 3 * sigma)
-    mixed = _mixed_pixels(t_noisy, ring[idx], rng)
-    t_noisy[mixed[0]] = mixed[1]
+    mixed = np.zeros(0, np.int64)
+    if "mixed_pixels" not in without:
+        mixed, mixed_t = _mixed_pixels(t_noisy, ring[idx], rng)
+        t_noisy[mixed] = mixed_t
     rho_read = np.where(glass[idx], 0.0, rho[idx])
     points = np.empty((len(idx), 4), dtype=np.float32)
     points[:, :3] = origins[idx] + t_noisy[:, None] * dirs[idx]
     points[:, 3] = measured_intensity(sensor, rho_read, cos_inc[idx], ring[idx], snr[idx], noise_i[idx], u_zero[idx],
                                       t_noisy)
     hit_kept = hit[idx]
-    hit_kept[mixed[0]] = rc.NO_HIT
+    hit_kept[mixed] = rc.NO_HIT
     scan = _label(scene, points, ring[idx], hit_kept)
     scan.column = column[idx]
     return scan
@@ -281,16 +296,20 @@ def _to_sensor_frame(scan: Scan, sensor: LidarModel) -> Scan:
     return scan
 
 
-def generate_frame(seed: int, index: int, sensor: LidarModel | str = DEFAULT_SENSOR) -> Frame:
+def generate_frame(seed: int, index: int, sensor: LidarModel | str = DEFAULT_SENSOR,
+                   without: frozenset[str] = frozenset()) -> Frame:
     """Frame `index` of the synthetic sequence `seed` seen by `sensor` (a model or a name of SENSOR_NAMES);
-    the same pair and sensor always give the same bytes."""
+    the same pair and sensor always give the same bytes. `without`: WORLD_CHANGES left out (an ablation)."""
+    unknown = set(without) - set(WORLD_CHANGES)
+    if unknown:
+        raise ValueError(f"unknown world change(s) {', '.join(sorted(unknown))}; known: {', '.join(WORLD_CHANGES)}")
     if seed < 0 or index < 0:
         raise ValueError(f"seed and index must not be negative, got seed={seed}, index={index}")
     if isinstance(sensor, str):
         sensor = sensor_model(sensor)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
     for _ in range(MAX_ATTEMPTS):
-        scan = simulate_scan(generate_scene(rng), rng, sensor)
+        scan = simulate_scan(generate_scene(rng, without), rng, sensor, without)
         if _usable(scan, sensor):
             break
     scan = _to_sensor_frame(scan, sensor)
@@ -298,11 +317,13 @@ def generate_frame(seed: int, index: int, sensor: LidarModel | str = DEFAULT_SEN
                  labels=scan.labels, ground=scan.ground, instance=scan.instance, boxes=scan.boxes)
 
 
-def parse_synthetic_spec(text: str) -> dict[str, int | str]:
-    """`frames=N,seed=S[,start=K][,sensor=NAME]` -> {'frames': N, 'seed': S, 'start': K, 'sensor': NAME};
-    DatasetError on anything else (sensor defaults to hdl64e, KITTI's)."""
-    values: dict[str, int | str] = {"frames": 10, "seed": 0, "start": 0}
+def parse_synthetic_spec(text: str) -> dict[str, Any]:
+    """`frames=N,seed=S[,start=K][,sensor=NAME][,without=CHANGE+CHANGE]` -> {'frames': N, 'seed': S, 'start': K,
+    'sensor': NAME, 'without': frozenset}; DatasetError on anything else (sensor defaults to hdl64e, KITTI's;
+    `without` names WORLD_CHANGES to leave out, for an ablation)."""
+    values: dict[str, Any] = {"frames": 10, "seed": 0, "start": 0}
     sensor = "hdl64e"
+    without: frozenset[str] = frozenset()
     for item in filter(None, (part.strip() for part in text.split(","))):
         key, sep, value = item.partition("=")
         key = key.strip()
@@ -312,9 +333,16 @@ def parse_synthetic_spec(text: str) -> dict[str, int | str]:
                 raise DatasetError(f"synthetic spec {text!r}: unknown sensor {value.strip()!r}, "
                                    f"known: {', '.join(SENSOR_NAMES)}")
             continue
+        if sep and key == "without":
+            without = frozenset(filter(None, (name.strip() for name in value.split("+"))))
+            unknown = sorted(without - set(WORLD_CHANGES))
+            if unknown:
+                raise DatasetError(f"synthetic spec {text!r}: unknown world change(s) {', '.join(unknown)} in "
+                                   f"without=, known: {', '.join(WORLD_CHANGES)}")
+            continue
         if not sep or key not in values:
-            raise DatasetError(f"synthetic spec {text!r}: expected frames=N,seed=S[,start=K][,sensor=NAME], "
-                               f"got {item!r}")
+            raise DatasetError(f"synthetic spec {text!r}: expected frames=N,seed=S[,start=K][,sensor=NAME]"
+                               f"[,without=CHANGE+CHANGE], got {item!r}")
         try:
             values[key] = int(value)
         except ValueError as exc:
@@ -322,17 +350,23 @@ def parse_synthetic_spec(text: str) -> dict[str, int | str]:
     if min(values.values()) < 0:
         raise DatasetError(f"synthetic spec {text!r}: frames, seed and start must not be negative")
     values["sensor"] = sensor
+    values["without"] = without
     return values
 
 
+def _spec_sensor(spec: dict[str, Any]) -> LidarModel:
+    return DEFAULT_SENSOR if spec["sensor"] == "hdl64e" else sensor_model(str(spec["sensor"]))
+
+
 def read_synthetic(path: str) -> Iterator[Frame]:
-    """Frames of the spec `synthetic:frames=N,seed=S[,start=K][,sensor=NAME]`, generated as they are read."""
+    """Frames of the spec `synthetic:frames=N,seed=S[,start=K][,sensor=NAME][,without=...]`, generated as they
+    are read."""
     spec = parse_synthetic_spec(path)
-    sensor = DEFAULT_SENSOR if spec["sensor"] == "hdl64e" else sensor_model(str(spec["sensor"]))
+    sensor = _spec_sensor(spec)
 
     def frames() -> Iterator[Frame]:
         for index in range(spec["start"], spec["start"] + spec["frames"]):
-            yield generate_frame(spec["seed"], index, sensor)
+            yield generate_frame(spec["seed"], index, sensor, spec["without"])
 
     return frames()
 
@@ -341,9 +375,9 @@ def read_shard(path: str, keep: Callable[[int], bool]) -> Iterator[Frame | None]
     """`read_synthetic`, but only the frames whose position k in the spec passes `keep` are generated; the
     others are None (see `pass3d_ros.data.spec.open_datasets_shard`)."""
     spec = parse_synthetic_spec(path)
-    sensor = DEFAULT_SENSOR if spec["sensor"] == "hdl64e" else sensor_model(str(spec["sensor"]))
+    sensor = _spec_sensor(spec)
     for k in range(spec["frames"]):
-        yield generate_frame(spec["seed"], spec["start"] + k, sensor) if keep(k) else None
+        yield generate_frame(spec["seed"], spec["start"] + k, sensor, spec["without"]) if keep(k) else None
 
 
 def count_frames(path: str) -> int:

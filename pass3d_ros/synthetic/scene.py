@@ -114,8 +114,9 @@ def _in_cross(lay: RoadLayout, u: float, margin: float) -> bool:
     return lay.cross and abs(u - lay.cross_u) < lay.cross_half_width + lay.sidewalk + margin
 
 
-def _add_roadside(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, style: str) -> None:
-    """Buildings, walls, fences, hedges, trees, bushes, poles and signs along both sides of the street."""
+def _add_roadside(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, style: str, clutter: bool = True) -> None:
+    """Buildings, walls, fences, hedges, trees, bushes, poles and signs along both sides of the street, and (with
+    `clutter`) the street clutter."""
     p_building = {"urban": 0.85, "residential": 0.55, "open": 0.15}[style]
     for side in (1.0, -1.0):
         u = -115.0 + rng.uniform(0, 10)
@@ -140,8 +141,10 @@ def _add_roadside(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, st
             u += lot
         _add_street_trees(b, rng, lay, side, style)
         _add_poles(b, rng, lay, side)
-        _add_street_clutter(b, rng, lay, side, style)
-    _add_lane_clutter(b, rng, lay)
+        if clutter:
+            _add_street_clutter(b, rng, lay, side, style)
+    if clutter:
+        _add_lane_clutter(b, rng, lay)
     if lay.cross:
         _add_cross_street_sides(b, rng, lay, p_building)
 
@@ -235,6 +238,9 @@ _FRONTAGE_CLUTTER = (("wall_fragment", st.wall_fragment_parts, 2.0), ("hedge_fra
                      ("building_corner", st.building_corner_parts, 1.0), ("trunk", vg.trunk_parts, 1.0),
                      ("parked_bicycle", pk.parked_bicycle_parts, 1.0), ("bin", sf.bin_parts, 1.0))
 _CLUTTER_SPACING_M = {"urban": 3.5, "residential": 4.5, "open": 9.0}  # mean kerb length per clutter item
+
+
+SCENE_CHANGES = ("clutter", "beside")  # what generate_scene(without=...) can leave out
 
 
 def _pick(rng: np.random.Generator, table: tuple[tuple[str, _PartsFn, float], ...]) -> tuple[str, _PartsFn]:
@@ -564,16 +570,21 @@ def _add_cyclists(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout) ->
                 break
 
 
-def generate_scene(rng: np.random.Generator) -> Scene:
-    """A random street scene; everything drawn from `rng`, so one seed gives one scene."""
+def generate_scene(rng: np.random.Generator, without: frozenset[str] = frozenset()) -> Scene:
+    """A random street scene; everything drawn from `rng`, so one seed gives one scene.
+
+    `without` leaves world changes out, for an ablation: "clutter" (street and lane clutter), "beside" (clutter
+    standing against foreground objects); the rest of the scene is drawn from the same stream, so it differs too.
+    """
     style = str(rng.choice(["urban", "residential", "open"], p=[0.45, 0.45, 0.1]))
     lay = _road_layout(rng, style)
     gp, bumps, waves = _ground_params(rng, lay)
     b = SceneBuilder(gp, bumps, waves)
-    _add_roadside(b, rng, lay, style)
+    _add_roadside(b, rng, lay, style, clutter="clutter" not in without)
     _add_vehicles(b, rng, lay, style)
     _add_people(b, rng, lay)
-    _add_clutter_beside_foreground(b, rng)
+    if "beside" not in without:
+        _add_clutter_beside_foreground(b, rng)
     lane_edge = lay.lanes * lay.lane_width / 2
     lines = [-lane_edge + k * lay.lane_width for k in range(lay.lanes + 1)]
     n_patches = int(rng.integers(0, 9))
