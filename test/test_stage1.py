@@ -319,6 +319,24 @@ def test_proposal_members_from_the_two_fields():
         proposal_members(cid, cid2, n_proposals=2)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_proposal_members_match_a_sort_of_the_id_pairs(seed: int):
+    """The counting sort gives what sorting (proposal id, point index) pairs gives: each proposal's points
+    ascending, a point listed once per field that names the proposal (twice when both do)."""
+    rng = np.random.default_rng(seed)
+    n, k = 5000, 40
+    first = np.where(rng.random(n) < 0.6, -1, rng.integers(0, k, n)).astype(np.int32)
+    second = np.where(rng.random(n) < 0.9, -1, rng.integers(0, k, n)).astype(np.int32)
+    second[:20] = first[:20]
+    ids = np.concatenate([first, second]).astype(np.int64)
+    index = np.concatenate([np.arange(n), np.arange(n)])
+    keep = ids >= 0
+    pairs = sorted(zip(ids[keep].tolist(), index[keep].tolist(), strict=True))
+    expected = [[i for p, i in pairs if p == j] for j in range(k + 3)]
+    members = proposal_members(first, second, n_proposals=k + 3)
+    assert [m.tolist() for m in members] == expected
+
+
 def test_size_gates_reject_what_is_not_a_road_user():
     solids = [Solid((25.0, 0.0, -SENSOR_HEIGHT + 4.0), (3.0, 3.0, 8.0)),  # a tower: too tall (seen to 2.6 m)
               Solid((-10.0, 8.0, -SENSOR_HEIGHT + 1.0), (12.0, 3.0, 2.0)),  # a bus-sized block: too long

@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+import numba as nb
 import numpy as np
 
 from pass3d_ros.core import ground as _ground
@@ -133,23 +134,40 @@ def proposal_members(
     `n_proposals` fixes the list length (proposals without points get an empty array); by default it is one
     more than the largest id.
     """
-    cluster_id = np.asarray(cluster_id)
-    cluster_id2 = np.asarray(cluster_id2)
+    cluster_id = np.asarray(cluster_id, dtype=np.int64)
+    cluster_id2 = np.asarray(cluster_id2, dtype=np.int64)
     if cluster_id.shape != cluster_id2.shape:
         raise ValueError(f"cluster_id {cluster_id.shape} and cluster_id2 {cluster_id2.shape} differ in shape")
-    ids = np.concatenate([cluster_id, cluster_id2]).astype(np.int64)
-    index = np.concatenate([np.arange(len(cluster_id)), np.arange(len(cluster_id2))])
-    valid = ids >= 0
-    ids, index = ids[valid], index[valid]
-    k = int(ids.max()) + 1 if len(ids) else 0
+    top = max(int(cluster_id.max(initial=-1)), int(cluster_id2.max(initial=-1)))
+    k = top + 1
     if n_proposals is not None:
         if n_proposals < k:
             raise ValueError(f"n_proposals={n_proposals} but ids go up to {k - 1}")
         k = n_proposals
-    order = np.argsort(ids * (len(cluster_id) + 1) + index, kind="stable")
-    ids, index = ids[order], index[order]
-    bounds = np.searchsorted(ids, np.arange(k + 1))
+    index, bounds = _members_kernel(cluster_id.reshape(-1), cluster_id2.reshape(-1), k)
     return [index[bounds[j]:bounds[j + 1]] for j in range(k)]
+
+
+@nb.njit(cache=True, nogil=True)
+def _members_kernel(first: np.ndarray, second: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Point indices grouped by proposal (a counting sort: ascending within each proposal, as the points come),
+    and the k + 1 bounds of the groups; ids below 0 are no proposal."""
+    bounds = np.zeros(k + 1, dtype=np.int64)
+    for i in range(first.shape[0]):
+        if first[i] >= 0:
+            bounds[first[i] + 1] += 1
+        if second[i] >= 0:
+            bounds[second[i] + 1] += 1
+    for j in range(k):
+        bounds[j + 1] += bounds[j]
+    fill = bounds[:k].copy()
+    index = np.empty(bounds[k], dtype=np.int64)
+    for i in range(first.shape[0]):
+        for proposal in (first[i], second[i]):
+            if proposal >= 0:
+                index[fill[proposal]] = i
+                fill[proposal] += 1
+    return index, bounds
 
 
 def synthetic_scan(n_rings: int = 64, points_per_ring: int = 720) -> np.ndarray:
@@ -175,4 +193,5 @@ def warm_up() -> None:
     _ground.warm_up()
     _scanline.warm_up()
     _refinement.warm_up()
-    propose(synthetic_scan(n_rings=16, points_per_ring=90), config=Stage1Config(n_rings=16))
+    result = propose(synthetic_scan(n_rings=16, points_per_ring=90), config=Stage1Config(n_rings=16))
+    proposal_members(result.cluster_id, result.cluster_id2)
