@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 
 from pass3d_ros.bench import live as bench_live
-from pass3d_ros.classes import CLASS_NAMES, FOREGROUND, NUM_CLASSES
+from pass3d_ros.classes import CLASS_NAMES, FOREGROUND, IGNORE, NUM_CLASSES
 from pass3d_ros.core import stage2
 from pass3d_ros.core.metrics import SegmentationMetrics
 from pass3d_ros.data.bag import iter_raw, read_bag, select_topic
 from pass3d_ros.data.bag_convert import convert
 from pass3d_ros.evaluation.live import LiveFrame, LiveResult, cdr_stamp_ns, run_live, with_stamp
+from pass3d_ros.evaluation.offline import background_proposals
 from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.tools import evaluate
 
@@ -64,8 +65,25 @@ def test_full_mode_json_has_every_key_and_true_point_counts(tmp_path: Path, caps
     rows = data["per_frame"]
     assert [r["points"] for r in rows] == [len(generate_frame(1, i).labels) for i in range(2)]
     assert all(r["proposals"] > 0 and r["total_ms"] == pytest.approx(r["stage1_ms"] + r["stage2_ms"]) for r in rows)
+    background = data["background_proposals"]
+    assert set(background) == {"front_view", "called_object"}
+    assert background["called_object"] <= background["front_view"] <= sum(r["proposals"] for r in rows)
+    assert background["front_view"] > 0
     printed = capsys.readouterr().out
     assert "mean IoU (car, pedestrian, cyclist)" in printed and "stage 2" in printed and "#000001" in printed
+    assert f"called an object: {background['called_object']} of {background['front_view']}" in printed
+
+
+def test_background_proposals_counts_front_view_clutter_only() -> None:
+    """Counted: proposals ahead whose labelled points are all background; called: those stage 2 made an object."""
+    points = np.zeros((10, 4), np.float32)
+    points[:, 0] = [10, 10, -10, -10, 10, 10, 10, 10, 10, 10]
+    points[8:, 1] = 30.0  # 71 degrees to the left: outside the front view
+    truth = np.array([0, 0, 0, 0, 0, 1, IGNORE, IGNORE, 0, 0], np.uint8)
+    members = [np.array([0, 1]), np.array([2, 3]), np.array([4, 5]), np.array([6, 7]), np.array([8, 9]),
+               np.array([1, 6])]
+    proposal_class = np.array([1, 1, 1, 1, 1, 0])
+    assert background_proposals(points, truth, members, proposal_class) == (2, 1)
 
 
 def test_segmentation_metrics_pool_frames() -> None:

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from pass3d_ros.classes import BACKGROUND
+from pass3d_ros.classes import BACKGROUND, IGNORE
 from pass3d_ros.core.metrics import SegmentationMetrics, Stage1Metrics
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose, warm_up
 from pass3d_ros.core.stage2 import Classifier
@@ -68,6 +68,27 @@ def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config) -
     return summary
 
 
+FRONT_VIEW_DEG = 45.0  # KITTI's camera view, as the project applies it: |azimuth| <= 45 degrees ahead
+
+
+def background_proposals(points: np.ndarray, truth: np.ndarray, members: list[np.ndarray],
+                         proposal_class: np.ndarray) -> tuple[int, int]:
+    """(background-only front-view proposals, how many of them stage 2 called an object): proposals whose
+    labelled points are all background and whose median point lies in the front view; the clutter a real
+    street offers stage 2 (posts, trunks, wall fragments), where false positives show first."""
+    total = called = 0
+    for k, m in enumerate(members):
+        known = truth[m][truth[m] != IGNORE]
+        if len(known) == 0 or np.any(known != BACKGROUND):
+            continue
+        x, y = np.median(points[m, 0]), np.median(points[m, 1])
+        if x <= 0.0 or abs(np.degrees(np.arctan2(y, x))) > FRONT_VIEW_DEG:
+            continue
+        total += 1
+        called += int(proposal_class[k] > BACKGROUND)
+    return total, called
+
+
 def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, classifier: Classifier) -> dict:
     """Stage 1 then stage 2 on every frame, scored against its labels: per-class metrics, stage times,
     and the stage-1 summary."""
@@ -75,6 +96,7 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     classifier.warm_up()
     segmentation = SegmentationMetrics()
     stage1 = Stage1Metrics()
+    background = np.zeros(2, dtype=np.int64)
     for spec, frame in frames:
         if frame.labels is None:
             raise DatasetError(f"{spec}: frame {frame.name} has no point labels; full evaluation needs labelled data")
@@ -88,8 +110,10 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
         result = propose(points, ring, config)
         split = time.perf_counter()
         members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
-        labels = classifier.segment(points, members).labels
+        segmented = classifier.segment(points, members)
         done = time.perf_counter()
+        labels = segmented.labels
+        background += background_proposals(points, truth, members, segmented.proposal_class)
         predicted = labels
         if keep is not None:
             predicted = np.full(len(frame.points), BACKGROUND, dtype=np.uint8)
@@ -100,5 +124,6 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
         stage1.update_result(name, result, truth, ground)
     summary = segmentation.summary()
     summary["stage1"] = stage1.summary()["stage1"]
+    summary["background_proposals"] = {"front_view": int(background[0]), "called_object": int(background[1])}
     summary["per_frame"] = segmentation.per_frame
     return summary

@@ -125,6 +125,10 @@ def format_full(summary: dict, per_frame: bool = False) -> str:
     lines.append(_stage_ms_line(summary["ms_per_frame"]))
     lines.append(f"stage 1: foreground recall {_fmt(s1['foreground_recall'])}, proposals / frame median "
                  f"{_fmt(s1['proposals_per_frame']['median'], 1)}")
+    background = summary.get("background_proposals")
+    if background:
+        lines.append(f"background-only front-view proposals called an object: {background['called_object']} of "
+                     f"{background['front_view']}")
     if per_frame:
         lines.append("")
         lines.append(f"  {'frame':<48} {'points':>7} {'props':>5} {'s1 ms':>7} {'s2 ms':>7} {'mIoU':>6}")

@@ -6,9 +6,10 @@ Modes (one per run):
                   labels: per-class precision / recall / IoU and ground-truth point counts, mean IoU over
                   car / pedestrian / cyclist, median ms per frame per stage (stage 1 = propose(); stage 2 =
                   proposal members + segment(); total = their sum per frame). The stage-1 numbers come
-                  along. A frame without point labels is an error naming its spec. Points with a
-                  non-finite coordinate never reach the core: they are predicted background and still
-                  scored (a labelled one counts as a miss).
+                  along, and how many background-only proposals in the front 90 degrees stage 2 called
+                  an object (street clutter mistaken for road users). A frame without point labels is
+                  an error naming its spec. Points with a non-finite coordinate never reach the core:
+                  they are predicted background and still scored (a labelled one counts as a miss).
   --stage1-only   stage 1 cluster proposals: foreground recall (share of ground-truth car / pedestrian /
                   cyclist points inside a kept proposal), proposals per frame, milliseconds per frame and
                   per step, ground precision / recall where the dataset has a ground truth.
@@ -41,7 +42,8 @@ the lite network faster than two).
   "skipped"; low / high are null when every resample was); one frame gives a degenerate interval (low = high,
   "degenerate": true), which the table says. The table prints each IoU as "car 76.6 [68.1, 83.0]". Live
   runs carry the per-class intervals too.
-  full adds "stage1" (as below) and "per_frame": [{"frame", "points", "proposals", "stage1_ms",
+  full adds "stage1" (as below), "background_proposals": {"front_view": n, "called_object": n} and
+  "per_frame": [{"frame", "points", "proposals", "stage1_ms",
   "stage2_ms", "total_ms", "iou": {class: iou}, "mean_iou"}]; live adds "bag" (the bag played; null when
   it was a deleted temporary), "record_out", and "live": {"frames_in", "frames_out", "dropped",
   "latency_ms": {"median", "mean", "p95", "max"}, "stage_ms", "output_hz", "mismatched", "timeouts", ...}.
