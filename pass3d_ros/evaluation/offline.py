@@ -78,7 +78,8 @@ def background_proposals(points: np.ndarray, truth: np.ndarray, members: list[np
     street offers stage 2 (posts, trunks, wall fragments), where false positives show first."""
     total = called = 0
     for k, m in enumerate(members):
-        known = truth[m][truth[m] != IGNORE]
+        labels = truth[m]
+        known = labels[labels != IGNORE]
         if len(known) == 0 or np.any(known != BACKGROUND):
             continue
         x, y = np.median(points[m, 0]), np.median(points[m, 1])

@@ -296,13 +296,19 @@ def _to_sensor_frame(scan: Scan, sensor: LidarModel) -> Scan:
     return scan
 
 
+def unknown_changes(without: frozenset[str]) -> str:
+    """Why `without` cannot be applied (names outside WORLD_CHANGES), "" when it can."""
+    unknown = sorted(set(without) - set(WORLD_CHANGES))
+    return f"unknown world change(s) {', '.join(unknown)}; known: {', '.join(WORLD_CHANGES)}" if unknown else ""
+
+
 def generate_frame(seed: int, index: int, sensor: LidarModel | str = DEFAULT_SENSOR,
                    without: frozenset[str] = frozenset()) -> Frame:
     """Frame `index` of the synthetic sequence `seed` seen by `sensor` (a model or a name of SENSOR_NAMES);
     the same pair and sensor always give the same bytes. `without`: WORLD_CHANGES left out (an ablation)."""
-    unknown = set(without) - set(WORLD_CHANGES)
-    if unknown:
-        raise ValueError(f"unknown world change(s) {', '.join(sorted(unknown))}; known: {', '.join(WORLD_CHANGES)}")
+    problem = unknown_changes(without)
+    if problem:
+        raise ValueError(problem)
     if seed < 0 or index < 0:
         raise ValueError(f"seed and index must not be negative, got seed={seed}, index={index}")
     if isinstance(sensor, str):
@@ -335,10 +341,9 @@ def parse_synthetic_spec(text: str) -> dict[str, Any]:
             continue
         if sep and key == "without":
             without = frozenset(filter(None, (name.strip() for name in value.split("+"))))
-            unknown = sorted(without - set(WORLD_CHANGES))
-            if unknown:
-                raise DatasetError(f"synthetic spec {text!r}: unknown world change(s) {', '.join(unknown)} in "
-                                   f"without=, known: {', '.join(WORLD_CHANGES)}")
+            problem = unknown_changes(without)
+            if problem:
+                raise DatasetError(f"synthetic spec {text!r}, without=: {problem}")
             continue
         if not sep or key not in values:
             raise DatasetError(f"synthetic spec {text!r}: expected frames=N,seed=S[,start=K][,sensor=NAME]"
