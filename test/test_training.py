@@ -3,6 +3,7 @@ smoke run."""
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -303,11 +304,44 @@ def test_resume_without_a_checkpoint_is_an_error(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_init_starts_from_a_checkpoints_weights(tmp_path, capsys):
+    """--init (fine-tuning) starts from the named weights with a fresh schedule: epoch 0 of the new run, and with
+    no training step taken (--max-steps 0 is all; lr 0) the weights are the initial ones, not random ones."""
+    rng = np.random.default_rng(6)
+    frames = [constructed_frame(rng, f"t{i}") for i in range(3)]
+    first, second = tmp_path / "first", tmp_path / "second"
+    common = ["--data", "constructed:train", "--config", "lite", "--epochs", "1", "--batch-size", "4",
+              "--max-steps", "1", "--quiet", "--seed", "4"]
+    run = functools.partial(train.run, proposer=instance_proposer, frame_source=lambda specs: iter(frames))
+    assert run(train.build_parser().parse_args([*common, "--out", str(first)])) == 0
+    start = torch.load(first / "best.pt", weights_only=True)["state_dict"]
+    argv = [*common, "--out", str(second), "--init", str(first / "best.pt"), "--lr", "0", "--weight-decay", "0"]
+    assert run(train.build_parser().parse_args(argv)) == 0
+    assert f"initial weights: {first / 'best.pt'}" in capsys.readouterr().out
+    tuned = torch.load(second / "last.pt", weights_only=True)
+    assert tuned["epoch"] == 0 and tuned["train_args"]["init"] == str(first / "best.pt")
+    for name, value in start.items():
+        if not name.endswith(("running_mean", "running_var", "num_batches_tracked")):
+            assert torch.equal(value, tuned["state_dict"][name]), name
+
+
+def test_init_with_a_missing_file_or_with_resume_is_an_error(tmp_path, capsys):
+    """A missing --init file is named (exit 2, before any work); --init with --resume is refused (exit 1)."""
+    out = tmp_path / "run"
+    missing = tmp_path / "nosuch.pt"
+    assert train.main(["--data", "constructed:train", "--out", str(out), "--init", str(missing), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert str(missing) in err and "Traceback" not in err
+    out.mkdir()
+    torch.save({"epoch": 0}, out / "last.pt")
+    assert train.main(["--data", "constructed:train", "--out", str(out), "--init", str(missing), "--resume",
+                       "--quiet"]) == 1
+    assert "--init and --resume" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(("stop_at", "expected"), [(0, "before any checkpoint was written"), (1, "(epoch 1)")])
 def test_ctrl_c_names_the_last_checkpoint(tmp_path, capsys, monkeypatch, stop_at, expected):
     """Ctrl-C during training: exit 130 and one line naming the last checkpoint written (or that none was)."""
-    import functools
-
     rng = np.random.default_rng(2)
     frames = [constructed_frame(rng, f"t{i}") for i in range(3)]
     monkeypatch.setattr(train, "Trainer", functools.partial(Trainer, proposer=instance_proposer,

@@ -31,6 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="output folder: checkpoints, sample caches, log")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    p.add_argument("--init", type=Path, metavar="CHECKPOINT",
+                   help="start from these weights (fine-tuning; fresh optimizer and schedule)")
     p.add_argument("--loss", choices=["ce", "focal"], default="ce")
     p.add_argument("--focal-alpha", type=float, default=0.25, help="focal alpha: foreground weight, background 1-a")
     p.add_argument("--focal-gamma", type=float, default=2.0)

@@ -67,6 +67,7 @@ class TrainOptions:
     out: Path  # output folder: checkpoints, sample caches, history
     device: str = "cpu"
     resume: bool = False  # continue from OUT/last.pt
+    init: Path | None = None  # start from these weights (fine-tuning): fresh optimizer, schedule and epochs
     loss: str = "ce"  # "ce" or "focal"
     focal_alpha: float = 0.25
     focal_gamma: float = 2.0
@@ -131,6 +132,7 @@ class Trainer:
         self.progress = not options.quiet
         self.start_epoch, self.best_score, self.history = 0, -1.0, []
         self.data_info: dict = {}
+        self.init_state: dict | None = None  # the checkpoint `init` names, read before any work
         self.saved_epoch: int | None = None  # the last epoch this run wrote into last.pt (1-based)
         self.dist = distributed.Dist(device=options.device)
 
@@ -149,6 +151,7 @@ class Trainer:
         self._prepare()
         self._load_samples()
         self._build_model()
+        self._initialise()
         self._resume()
         self._distribute()
         self._describe_model()
@@ -168,9 +171,13 @@ class Trainer:
     # ------------------------------------------------------------------------------------------ steps
 
     def _check_resume(self) -> None:
-        """With `resume`, the checkpoint must be there before any work starts."""
+        """With `resume`, the checkpoint must be there before any work starts; `init` must be readable."""
         if self.options.resume and not self.last_path.is_file():
             raise CheckpointError(f"{self.last_path}: no checkpoint to resume from (--resume)")
+        if self.options.resume and self.options.init is not None:
+            raise TrainingError("--init and --resume exclude each other: a resumed run already has its weights")
+        if self.options.init is not None:
+            self.init_state = self._read_init(Path(self.options.init))
 
     def _prepare(self) -> None:
         """Threads, output folder, the seed, and the model configuration (a bad name fails before stage 1)."""
@@ -252,6 +259,25 @@ class Trainer:
             self.optimizer, T_max=max(o.epochs, 1), eta_min=o.lr / 100
         )
         self.loss_fn = make_loss(o.loss, alpha=o.focal_alpha, gamma=o.focal_gamma)
+
+    def _read_init(self, path: Path) -> dict:
+        """The stage-2 checkpoint (best.pt, last.pt or shipped weights) to start from; CheckpointError when it
+        is missing or not one."""
+        state, where = read_checkpoint(path)
+        if not isinstance(state, dict) or not {"config", "state_dict"} <= state.keys():
+            raise CheckpointError(f"{where}: not a pass3d stage-2 checkpoint; cannot start from it (--init)")
+        return state
+
+    def _initialise(self) -> None:
+        """With `init`, load its weights into the fresh model (fine-tuning); the model configuration must
+        match (the checkpoint's, including the n feature and intensity settings)."""
+        if self.options.init is None:
+            return
+        if self.init_state["config"] != self.config.to_dict():
+            raise TrainingError(f"{self.options.init} was trained with another config "
+                                f"({self.init_state['config'].get('name')}); cannot start from it")
+        self.model.load_state_dict(distributed.strip_module_prefix(self.init_state["state_dict"]))
+        self._log(f"initial weights: {self.options.init}")
 
     def _resume(self) -> None:
         """With `resume`, continue from last.pt: weights, optimizer, scheduler, epoch, best score, history."""
