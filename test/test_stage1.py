@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
@@ -210,6 +210,24 @@ def test_runs_merge_labels_smallest_wins_and_ring_closes():
     circle[150:170, :2] *= 3.0  # a break: without closing at the wrap the circle would be two runs
     label, n = scanline.cluster_scanlines(circle, np.zeros(400, np.uint16), np.ones(400, bool), RUNS)
     assert label[0] == label[-1] == label[100] and n == 2
+
+
+@pytest.mark.parametrize(("through", "run_skip", "clusters"), [(1, 0, 3), (1, 1, 2), (2, 1, 3), (2, 2, 2)])
+def test_runs_bridge_points_seen_through_a_gap(through: int, run_skip: int, clusters: int):
+    """One ring crosses a walker at 20 m, and `through` of its rays pass a gap (arm and body) to a wall 5 m behind:
+    the walker's two pieces are one run when at most run_skip points lie between them; the wall points stay apart
+    (they are not taken into the walker's run)."""
+    walker = _arc(20.0, 0.0, 0.5, 1.1, step=0.05)  # clear of the ring's start at azimuth 0
+    gap = np.arange(len(walker) // 2 - 1, len(walker) // 2 - 1 + through)
+    wall = walker[gap].copy()
+    wall[:, 0], wall[:, 1] = 25.0, walker[gap, 1] * 25.0 / 20.0  # the same rays, 5 m farther
+    pts = np.concatenate([np.delete(walker, gap, axis=0), wall]).astype(np.float32)
+    label, n = scanline.cluster_scanlines(pts, np.zeros(len(pts), np.uint16), np.ones(len(pts), bool),
+                                          replace(RUNS, run_skip=run_skip))
+    walker_labels = np.unique(label[: len(walker) - through])
+    assert n == clusters
+    assert len(walker_labels) == (1 if through <= run_skip else 2)
+    assert not set(label[len(walker) - through:]) & set(walker_labels)
 
 
 def test_clustering_uses_only_the_given_points():

@@ -37,6 +37,9 @@ class Stage1Config:
     th_ring: float = _param(0.5, "clustering: consecutive ring points closer than this form a run (m)", 0.01, 5.0)
     th_prop: float = _param(1.0, "clustering: a run takes the label of a previous-ring point this close (m)", 0.01, 5.0)
     n_prev_rings: int = _param(2, "clustering: rings searched back when the previous one has no match", 1, 8)
+    run_skip: int = _param(
+        1, "clustering: a run bridges this many ring points farther away (seen through an arm or a window)", 0, 4
+    )
     # Proposal refinement: point count needed, about 30 near the sensor and falling as 1/range.
     th_num_near: float = _param(30.0, "refinement: points a cluster needs up to th_num_range", 1.0, 1e4)
     th_num_range: float = _param(
