@@ -212,12 +212,13 @@ def test_runs_merge_labels_smallest_wins_and_ring_closes():
     assert label[0] == label[-1] == label[100] and n == 2
 
 
+@pytest.mark.parametrize("y_from", [0.5, -0.3])  # clear of the ring's start at azimuth 0, and across it
 @pytest.mark.parametrize(("through", "run_skip", "clusters"), [(1, 0, 3), (1, 1, 2), (2, 1, 3), (2, 2, 2)])
-def test_runs_bridge_points_seen_through_a_gap(through: int, run_skip: int, clusters: int):
+def test_runs_bridge_points_seen_through_a_gap(through: int, run_skip: int, clusters: int, y_from: float):
     """One ring crosses a walker at 20 m, and `through` of its rays pass a gap (arm and body) to a wall 5 m behind:
     the walker's two pieces are one run when at most run_skip points lie between them; the wall points stay apart
     (they are not taken into the walker's run)."""
-    walker = _arc(20.0, 0.0, 0.5, 1.1, step=0.05)  # clear of the ring's start at azimuth 0
+    walker = _arc(20.0, 0.0, y_from, y_from + 0.6, step=0.05)
     gap = np.arange(len(walker) // 2 - 1, len(walker) // 2 - 1 + through)
     wall = walker[gap].copy()
     wall[:, 0], wall[:, 1] = 25.0, walker[gap, 1] * 25.0 / 20.0  # the same rays, 5 m farther

@@ -262,13 +262,18 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
 @nb.njit(cache=True, nogil=True)
 def _bridge_runs(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, run_of: np.ndarray, parent: np.ndarray, lo: int,
                  hi: int, run_skip: int, th_ring2: float) -> None:
-    """Join the runs of one ring (sorted positions lo..hi-1) whose facing ends are within th_ring with at most
-    `run_skip` points of other runs between them (the module docstring's bridges); not across the ring's start."""
-    for k in range(lo + 1, hi):
-        if run_of[k] == run_of[k - 1]:
+    """Join the runs of one ring (sorted positions lo..hi-1, read as a circle: the ring's start lies straight
+    ahead on KITTI) whose facing ends are within th_ring with at most `run_skip` points of other runs between them
+    (the module docstring's bridges)."""
+    m = hi - lo
+    for k in range(lo, hi):
+        end = k - 1 if k > lo else hi - 1  # the last point of the run before k
+        if run_of[k] == run_of[end]:
             continue
-        end = k - 1  # the last point of the run before k
-        for ahead in range(k + 1, min(k + 1 + run_skip, hi)):  # skips the points k .. ahead - 1
+        for step in range(1, run_skip + 1):  # skips the points k .. ahead - 1
+            ahead = lo + (k - lo + step) % m
+            if ahead == end:
+                break
             if _gap2(xs, ys, zs, end, ahead) < th_ring2:
                 _union(parent, run_of[end], run_of[ahead])
                 break
