@@ -167,7 +167,7 @@ class SegmentationNode(PointCloudNode):
 
         In line, a frame's latency is its compute and the cluster node's slot drops stale scans. On its own thread
         stage 2 overlaps the next scan's stage 1, but the two contend for the GIL at every torch op: measured
-        (README) +16-19 % frames at 20 Hz with a core to spare, and 8.0 instead of 9.9 Hz beside a CPU hog.
+        (README) +15-19 % frames at 20 Hz with a core to spare, and 8.0 instead of 9.9 Hz beside a CPU hog.
         """
         if self.overlap:
             self.submit(frame, header_stamp_ns(frame))
