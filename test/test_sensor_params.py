@@ -80,7 +80,9 @@ def test_resolutions_of_an_empty_or_tiny_scan_are_unknown() -> None:
 def test_intensity_full_scale_is_detected(high: float, divisor: float) -> None:
     assert intensity_divisor(high) == divisor
     values = np.array([0.0, high / 2, high], np.float32)
-    np.testing.assert_allclose(unit_intensity(values), values / divisor, rtol=1e-6)
+    np.testing.assert_allclose(unit_intensity(values, divisor), values / divisor, rtol=1e-6)
+    dirty = np.array([np.nan, np.inf, -np.inf, -1.0, 2 * divisor], np.float32)
+    np.testing.assert_array_equal(unit_intensity(dirty, divisor), [0.0, 0.0, 0.0, 0.0, 1.0])
 
 
 def _scan(intensity: list[float]) -> np.ndarray:

@@ -152,12 +152,12 @@ class ClusterProposalNode(PointCloudNode):
             summary = summary.scaled(scale)
         problem = summary.intensity_problem()
         if problem:
-            divisor = scan_checks.intensity_divisor(float(np.nan_to_num(points[:, 3], posinf=0.0).max()))
+            divisor = scan_checks.intensity_divisor(summary.intensity_high)
             self.get_logger().warning(
                 f"intensity: {problem} after intensity_scale {scale:g}, expected 0..1 (a 0..255 driver needs "
                 "intensity_scale 1/255, 16-bit reflectivity 1/65535); divided by "
                 f"{divisor:g} and clipped into 0..1 for this frame", throttle_duration_sec=LOG_PERIOD_S)
-            points[:, 3] = scan_checks.unit_intensity(points[:, 3])
+            points[:, 3] = scan_checks.unit_intensity(points[:, 3], divisor)
             summary = scan_checks.scan_summary(points)
         if summary.constant_intensity():
             self.get_logger().warning(

@@ -87,11 +87,10 @@ def intensity_divisor(high: float) -> float:
     return high
 
 
-def unit_intensity(intensity: np.ndarray) -> np.ndarray:
-    """Best guess at 0..1 intensities: divided by `intensity_divisor` of the largest value, then clipped."""
+def unit_intensity(intensity: np.ndarray, divisor: float) -> np.ndarray:
+    """0..1 intensities from a driver's: non-finite values read 0, the rest are divided by `divisor` (the
+    `intensity_divisor` of the scan's largest finite value) and clipped."""
     values = np.nan_to_num(intensity, nan=0.0, posinf=0.0, neginf=0.0)
-    hi = float(values.max()) if len(values) else 0.0
-    divisor = intensity_divisor(hi)
     if divisor != 1.0:
         values = values / divisor
     return np.clip(values, 0.0, 1.0).astype(np.float32)
