@@ -305,8 +305,8 @@ def test_resume_without_a_checkpoint_is_an_error(tmp_path, capsys):
 
 
 def test_init_starts_from_a_checkpoints_weights(tmp_path, capsys):
-    """--init (fine-tuning) starts from the named weights with a fresh schedule: epoch 0 of the new run, and with
-    no training step taken (--max-steps 0 is all; lr 0) the weights are the initial ones, not random ones."""
+    """--init (fine-tuning) starts from the named weights with a fresh schedule: epoch 0 of the new run, and with a
+    zero learning rate and no weight decay its weights stay the initial ones, not random ones."""
     rng = np.random.default_rng(6)
     frames = [constructed_frame(rng, f"t{i}") for i in range(3)]
     first, second = tmp_path / "first", tmp_path / "second"

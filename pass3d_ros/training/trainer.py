@@ -32,7 +32,7 @@ import torch
 from tqdm import tqdm
 
 from pass3d_ros.core.pointnet2 import ModelConfig, PointNet2Seg, count_parameters, make_config
-from pass3d_ros.core.segmentation import CheckpointError, make_checkpoint, read_checkpoint
+from pass3d_ros.core.segmentation import CheckpointError, load_model, make_checkpoint, read_checkpoint
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import open_datasets_shard
 from pass3d_ros.training import distributed
@@ -132,7 +132,7 @@ class Trainer:
         self.progress = not options.quiet
         self.start_epoch, self.best_score, self.history = 0, -1.0, []
         self.data_info: dict = {}
-        self.init_state: dict | None = None  # the checkpoint `init` names, read before any work
+        self.init_model: PointNet2Seg | None = None  # the network `init` names, loaded before any work
         self.saved_epoch: int | None = None  # the last epoch this run wrote into last.pt (1-based)
         self.dist = distributed.Dist(device=options.device)
 
@@ -147,7 +147,7 @@ class Trainer:
 
     def _run(self) -> TrainResult:
         """The steps of `run`, inside the process group when there is one."""
-        self._check_resume()
+        self._check_checkpoints()
         self._prepare()
         self._load_samples()
         self._build_model()
@@ -170,14 +170,14 @@ class Trainer:
 
     # ------------------------------------------------------------------------------------------ steps
 
-    def _check_resume(self) -> None:
-        """With `resume`, the checkpoint must be there before any work starts; `init` must be readable."""
+    def _check_checkpoints(self) -> None:
+        """Before any work: with `resume`, last.pt must be there; with `init`, its checkpoint must load."""
         if self.options.resume and not self.last_path.is_file():
             raise CheckpointError(f"{self.last_path}: no checkpoint to resume from (--resume)")
         if self.options.resume and self.options.init is not None:
             raise TrainingError("--init and --resume exclude each other: a resumed run already has its weights")
         if self.options.init is not None:
-            self.init_state = self._read_init(Path(self.options.init))
+            self.init_model, _ = load_model(self.options.init)  # every check a checkpoint gets (format, classes, ...)
 
     def _prepare(self) -> None:
         """Threads, output folder, the seed, and the model configuration (a bad name fails before stage 1)."""
@@ -260,23 +260,15 @@ class Trainer:
         )
         self.loss_fn = make_loss(o.loss, alpha=o.focal_alpha, gamma=o.focal_gamma)
 
-    def _read_init(self, path: Path) -> dict:
-        """The stage-2 checkpoint (best.pt, last.pt or shipped weights) to start from; CheckpointError when it
-        is missing or not one."""
-        state, where = read_checkpoint(path)
-        if not isinstance(state, dict) or not {"config", "state_dict"} <= state.keys():
-            raise CheckpointError(f"{where}: not a pass3d stage-2 checkpoint; cannot start from it (--init)")
-        return state
-
     def _initialise(self) -> None:
         """With `init`, load its weights into the fresh model (fine-tuning); the model configuration must
         match (the checkpoint's, including the n feature and intensity settings)."""
-        if self.options.init is None:
+        if self.init_model is None:
             return
-        if self.init_state["config"] != self.config.to_dict():
+        if self.init_model.config.to_dict() != self.config.to_dict():
             raise TrainingError(f"{self.options.init} was trained with another config "
-                                f"({self.init_state['config'].get('name')}); cannot start from it")
-        self.model.load_state_dict(distributed.strip_module_prefix(self.init_state["state_dict"]))
+                                f"({self.init_model.config.name}); cannot start from it")
+        self.model.load_state_dict(self.init_model.state_dict())
         self._log(f"initial weights: {self.options.init}")
 
     def _resume(self) -> None:
