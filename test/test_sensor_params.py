@@ -75,6 +75,41 @@ def test_resolutions_of_an_empty_or_tiny_scan_are_unknown() -> None:
     assert scale.density == 1.0 and effective.th_num_near == 30.0
 
 
+def reference_resolutions(points: np.ndarray, ring: np.ndarray, stride: int = 16) -> tuple[float, float]:
+    """`resolutions` as its docstring defines it, with plain numpy arc tangents and medians."""
+    i = np.arange(0, len(points) - 1, stride)
+    x, y, z = (points[i, k].astype(np.float64) for k in range(3))
+    x1, y1 = points[i + 1, 0].astype(np.float64), points[i + 1, 1].astype(np.float64)
+    far = np.hypot(x, y) >= 2.0
+    step = np.abs(np.arctan2(x * y1 - y * x1, x * x1 + y * y1))
+    same = (ring[i + 1] == ring[i]) & far & (step > 0.0)
+    horizontal = float(np.degrees(np.median(step[same])))
+    elev, rings = np.degrees(np.arctan2(z, np.hypot(x, y)))[far], ring[i][far]
+    present = np.unique(rings)
+    medians = np.array([np.sort(elev[rings == k])[np.count_nonzero(rings == k) // 2] for k in present])
+    return float(np.median(np.abs(np.diff(medians)) / np.diff(present))), horizontal
+
+
+@pytest.mark.parametrize(("seed", "unordered"), [(0, False), (1, False), (2, True), (3, True)])
+def test_resolutions_match_their_definition(seed: int, unordered: bool) -> None:
+    """The kernel takes its medians over z / r and a key of each step (no arc tangent per point): the same numbers as
+    the definition, with uneven rings, a missing ring, steps past 90 degrees (most of them in a ring of unordered
+    azimuths, where the median step is about 90 degrees) and even and odd sample counts."""
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(40, 400, size=12)
+    counts[5] = 0
+    pts, rings = [], []
+    for k, count in enumerate(counts):
+        az = rng.uniform(0.0, 2.0 * np.pi, count)
+        az = az if unordered else np.sort(az)
+        az[::7] = rng.uniform(0.0, 2.0 * np.pi, len(az[::7]))  # steps of any size, some past 90 degrees
+        r = rng.uniform(1.0, 40.0, count)
+        pts.append(np.stack([r * np.cos(az), r * np.sin(az), r * np.tan(np.deg2rad(2.0 - 1.5 * k)), r], axis=1))
+        rings.append(np.full(count, k, np.uint16))
+    points, ring = np.concatenate(pts).astype(np.float32), np.concatenate(rings)
+    np.testing.assert_allclose(resolutions(points, ring), reference_resolutions(points, ring), rtol=1e-9)
+
+
 @pytest.mark.parametrize(("high", "divisor"), [(0.9, 1.0), (1.0, 1.0), (200.0, 255.0), (255.0, 255.0),
                                                 (3000.0, 65535.0), (65535.0, 65535.0), (1e6, 1e6)])
 def test_intensity_full_scale_is_detected(high: float, divisor: float) -> None:

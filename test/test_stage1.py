@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -156,6 +157,33 @@ def test_fit_stride_only_thins_the_plane_fits():
     assert np.count_nonzero(every.ground != thinned.ground) < 1e-3 * len(points)
     assert np.allclose(every.planes, thinned.planes, atol=0.01)
 
+
+
+@pytest.mark.parametrize("order", ["firing", "ring field", "shuffled", "shuffled ring field"])
+def test_ground_thread_gives_the_same_result(order: str, monkeypatch: pytest.MonkeyPatch):
+    """The ground fit on the ground thread gives what the fit in line gives. It is started there whenever the scan
+    may be in scan order (no ring field, or one that never steps back) and used only when it is."""
+    points, rings, _ = raycast([car_at(12.0, -4.0), Solid((8.0, 3.0, -0.83), PEDESTRIAN)])
+    if order.startswith("shuffled"):
+        perm = np.random.default_rng(0).permutation(len(points))
+        points, rings = points[perm], rings[perm]
+    ring_field = rings if order.endswith("ring field") else None
+    threads: list[str] = []
+    fit = ground.fit_ground
+
+    def recording_fit(*args, **kwargs):
+        threads.append(threading.current_thread().name)
+        return fit(*args, **kwargs)
+
+    monkeypatch.setattr(stage1._ground, "fit_ground", recording_fit)
+    in_line = propose(points, ring_field, Stage1Config(ground_thread=False))
+    assert threads == [threading.current_thread().name]
+    threads.clear()
+    beside = propose(points, ring_field, Stage1Config())
+    assert any(name.startswith("pass3d-ground") for name in threads) == (order != "shuffled ring field")
+    for key in ("ground", "cluster_id", "cluster_id2"):
+        np.testing.assert_array_equal(getattr(in_line, key), getattr(beside, key))
+    assert beside.n_proposals == in_line.n_proposals >= 2
 
 def test_smallest_eigenvector_matches_numpy():
     rng = np.random.default_rng(2)

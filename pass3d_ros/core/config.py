@@ -87,6 +87,10 @@ class Stage1Config:
     fit_stride: int = _param(
         4, "ground: the LPR and the plane fits read every fit_stride-th point (the final ground test reads all)", 1, 64
     )
+    ground_thread: bool = _param(
+        True, "ground: fit the ground planes on a second thread while rings are recovered (same result; scans in "
+        "scan order)", 0, 1,
+    )
 
     def __post_init__(self) -> None:
         self.enlarge = tuple(float(v) for v in self.enlarge)

@@ -131,7 +131,7 @@ def _lower_bound(keys: np.ndarray, lo: int, hi: int, key: float) -> int:
     return lo
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
 def _nearest_in_ring(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, r2s: np.ndarray, k: int, lo: int, hi: int,
                      start: int, best2: float, enough2: float) -> int:
     """Sorted position (lo..hi-1) nearest to position k if closer than sqrt(best2), else -1.
@@ -227,6 +227,7 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
             label = n_runs
             parent[label] = label
             n_runs += 1
+            joined = -1
             for k in range(run_lo, j):
                 if r > 0:
                     while ptr < lo and keys[ptr] < keys[k]:
@@ -238,7 +239,9 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
                     at = ptr if back == 1 else _lower_bound(keys, start[pr], start[pr + 1], keys[k])
                     near = _nearest_in_ring(xs, ys, zs, r2s, k, start[pr], start[pr + 1], at, th_prop2, enough2)
                     if near >= 0:
-                        label = _union(parent, label, run_of[near])
+                        if run_of[near] != joined:  # a run's points mostly meet one run above: union once
+                            joined = run_of[near]
+                            label = _union(parent, label, joined)
                         break
             for k in range(run_lo, j):
                 run_of[k] = label

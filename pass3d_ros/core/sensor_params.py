@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from pass3d_ros.core.config import Stage1Config
@@ -62,28 +63,97 @@ def resolutions(points: np.ndarray, ring: np.ndarray) -> tuple[float, float]:
     """(vertical, horizontal) angular resolution in degrees of a scan in scan order (each ring's points together,
     in azimuth order): the median elevation gap between neighbouring non-empty rings and the median azimuth step
     between neighbouring points of one ring, from every _SAMPLE_STRIDE-th point; nan where the scan cannot tell."""
-    n = len(points)
-    if n < 2:
+    if len(points) < 2:
         return float("nan"), float("nan")
-    i = np.arange(0, n - 1, _SAMPLE_STRIDE)
-    x, y, z = (points[i, k].astype(np.float64) for k in range(3))
-    r = np.hypot(x, y)
-    near = r < _MIN_RANGE
-    rings = ring[i].astype(np.int64)
-    x1, y1 = points[i + 1, 0].astype(np.float64), points[i + 1, 1].astype(np.float64)
-    step = np.abs(np.arctan2(x * y1 - y * x1, x * x1 + y * y1))
-    same = (ring[i + 1] == ring[i]) & ~near & (step > 0.0)
-    horizontal = float(np.degrees(np.median(step[same]))) if same.any() else float("nan")
-    keep = ~near
-    elev, rings = np.degrees(np.arctan2(z[keep], r[keep])), rings[keep]
-    order = np.lexsort((elev, rings))
-    elev, rings = elev[order], rings[order]
-    present, first, counts = np.unique(rings, return_index=True, return_counts=True)
-    if len(present) < 2:
-        return float("nan"), horizontal
-    medians = elev[first + counts // 2]
-    gaps = np.abs(np.diff(medians)) / np.diff(present)
-    return float(np.median(gaps)), horizontal
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    rings = np.ascontiguousarray(ring, dtype=np.uint16)
+    vertical, horizontal = _resolutions_kernel(pts, rings, int(rings.max()) + 1, _SAMPLE_STRIDE, _MIN_RANGE)
+    return float(vertical), float(horizontal)
+
+
+@nb.njit(cache=True, nogil=True)
+def _resolutions_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int, stride: int,
+                        min_range: float) -> tuple[float, float]:
+    """`resolutions` in one pass over the sample: the azimuth steps to each sampled point's successor in its ring,
+    and the sampled elevations grouped by ring (a counting sort), each ring's median (the upper one of an even
+    count) selected from its group. Medians are taken over z / r and over a key of each step, which order as the
+    angles do, and only the medians are turned into angles (the arc tangents were most of the time)."""
+    n_sample = (pts.shape[0] - 2) // stride + 1
+    steps = np.empty(n_sample, dtype=np.float64)
+    elev = np.empty(n_sample, dtype=np.float64)
+    elev_ring = np.empty(n_sample, dtype=np.int64)
+    n_steps = 0
+    n_elev = 0
+    for s in range(n_sample):
+        i = s * stride
+        x = np.float64(pts[i, 0])
+        y = np.float64(pts[i, 1])
+        r = np.hypot(x, y)
+        if r < min_range:
+            continue
+        elev[n_elev] = np.float64(pts[i, 2]) / r
+        elev_ring[n_elev] = ring[i]
+        n_elev += 1
+        if ring[i + 1] == ring[i]:
+            x1 = np.float64(pts[i + 1, 0])
+            y1 = np.float64(pts[i + 1, 1])
+            cross = abs(x * y1 - y * x1)
+            dot = x * x1 + y * y1
+            if cross > 0.0 or dot < 0.0:
+                steps[n_steps] = _step_key(cross, dot)
+                n_steps += 1
+    horizontal = np.nan
+    if n_steps > 0:
+        middle = n_steps // 2
+        keys = np.partition(steps[:n_steps], (max(middle - 1, 0), middle))
+        upper = _step_angle(keys[middle])
+        horizontal = np.degrees(upper if n_steps % 2 else 0.5 * (_step_angle(keys[middle - 1]) + upper))
+    start = np.zeros(n_rings + 1, dtype=np.int64)
+    for s in range(n_elev):
+        start[elev_ring[s] + 1] += 1
+    for k in range(n_rings):
+        start[k + 1] += start[k]
+    grouped = np.empty(n_elev, dtype=np.float64)
+    fill = start[:n_rings].copy()
+    for s in range(n_elev):
+        k = elev_ring[s]
+        grouped[fill[k]] = elev[s]
+        fill[k] += 1
+    gaps = np.empty(n_rings, dtype=np.float64)
+    n_gaps = 0
+    last_ring = -1
+    last_median = 0.0
+    for k in range(n_rings):
+        count = start[k + 1] - start[k]
+        if count == 0:
+            continue
+        group = np.partition(grouped[start[k]:start[k + 1]], count // 2)
+        median = np.degrees(np.arctan(group[count // 2]))
+        if last_ring >= 0:
+            gaps[n_gaps] = abs(median - last_median) / (k - last_ring)
+            n_gaps += 1
+        last_ring = k
+        last_median = median
+    if n_gaps == 0:
+        return np.nan, horizontal
+    return np.median(gaps[:n_gaps]), horizontal
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _step_key(cross: float, dot: float) -> float:
+    """A key in [0, 2] that orders azimuth steps (|cross|, dot: the sines and cosines of their angles, scaled) as the
+    angles do: cross / (cross + dot) below 90 degrees, 1 + -dot / (cross - dot) from there to 180."""
+    if dot > 0.0:
+        return cross / (cross + dot)
+    return 1.0 - dot / (cross - dot)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _step_angle(key: float) -> float:
+    """The step angle (radians) of a `_step_key`."""
+    if key < 1.0:
+        return np.arctan2(key, 1.0 - key)
+    return 0.5 * np.pi + np.arctan2(key - 1.0, 2.0 - key)
 
 
 def _ratio(reference: float, measured: float) -> float:

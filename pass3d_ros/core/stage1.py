@@ -8,7 +8,9 @@ order, a ring field, or the scan's laser lines (see `_propose_finite`). Every pa
 
 from __future__ import annotations
 
+import threading
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numba as nb
@@ -93,13 +95,14 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     the effective config for its sensor (pass3d_ros.core.sensor_params.effective_config), reported in the result.
     """
     t0 = time.perf_counter()
+    early = _early_ground(pts, ring, cfg, lines)
     rings = _ring.rings_for(pts, ring, cfg, lines)
     order = None if _in_scan_order(rings) else _scanline.canonical_order(pts, rings.ring)
     work = pts if order is None else np.take(pts, order, axis=0)  # take: a tenth of pts[order]'s time on rows
     work_ring = rings.ring if order is None else np.take(rings.ring, order)
     cfg, sensor = _sensor.effective_config(cfg, work, work_ring, rings.n_rings)
     t1 = time.perf_counter()
-    fit = _ground.fit_ground(work, cfg)
+    fit = early.result() if early is not None and order is None else _ground.fit_ground(work, cfg)
     t2 = time.perf_counter()
     label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~fit.ground, cfg)
     t3 = time.perf_counter()
@@ -116,6 +119,30 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
         timings_ms={k: 1e3 * v for k, v in timings.items()}, ring_source=rings.source, ground_planes=fit.planes,
         n_clusters=n_clusters, sensor=sensor, lines=rings.lines,
     )
+
+
+_GROUND_POOL: ThreadPoolExecutor | None = None
+_GROUND_POOL_LOCK = threading.Lock()
+
+
+def _early_ground(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
+                  lines: _ring.LaserLines | None) -> Future | None:
+    """The ground fit of the points as they come, started on the ground thread (`Stage1Config.ground_thread`) when
+    they are likely in scan order: no ring field and no laser lines held from an earlier scan (those come with scans
+    in no firing order), or a ring field that never steps back. Its kernels release the GIL, so it runs beside ring
+    recovery; the caller uses it only if the points prove to be in scan order. The ground fit reads no field that
+    `effective_config` changes, so it may start before that config is known."""
+    if not cfg.ground_thread or len(pts) == 0:
+        return None
+    if ring is None and lines is not None:
+        return None
+    if ring is not None and not np.all(ring[1:] >= ring[:-1]):
+        return None
+    global _GROUND_POOL
+    with _GROUND_POOL_LOCK:
+        if _GROUND_POOL is None:
+            _GROUND_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pass3d-ground")
+    return _GROUND_POOL.submit(_ground.fit_ground, pts, cfg)
 
 
 def _inverse(order: np.ndarray) -> np.ndarray:
