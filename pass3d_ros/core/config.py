@@ -85,11 +85,11 @@ class Stage1Config:
     )
     ground_max_slope_deg: float = _param(25.0, "ground: a steeper plane is rejected (degrees)", 0.0, 90.0)
     fit_stride: int = _param(
-        4, "ground: the LPR and the plane fits read every fit_stride-th point (the final ground test reads all)", 1, 64
+        4, "ground: the LPR and the plane fits read about one point in fit_stride (the final ground test reads all)",
+        1, 64,
     )
     ground_thread: bool = _param(
-        True, "ground: fit the ground planes on a second thread while rings are recovered (same result; scans in "
-        "scan order)", 0, 1,
+        True, "ground: fit the ground planes on a second thread while rings are recovered (same result)", 0, 1,
     )
 
     def __post_init__(self) -> None:

@@ -12,8 +12,9 @@ Robustness the paper leaves open, needed on full 360-degree KITTI scans: points 
 |y| < `ground_seed_band` seed and fit (terrain falling away 30 m to the side is not the road); sparse height
 bins below the road (a pit, stray returns) cannot set the LPR; an outer segment whose plane is degenerate, too
 steep, or steps away from its inner neighbour at their shared edge takes the neighbour's plane. The LPR and
-the fits read every `fit_stride`-th point (the same planes at a fraction of the cost); the final ground test
-reads every point.
+the fits read about one point in `fit_stride` (the same planes at a fraction of the cost): the points of every
+`fit_stride`-th narrow azimuth sector, so they read the same points whatever order the scan comes in (stage 1 fits
+the ground on the points as they come, beside ring recovery); the final ground test reads every point.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def _segment_of(x: float, x0: float, width: float, n_seg: int) -> int:
 
 @nb.njit(cache=True, nogil=True)
 def _lowest_means(pts: np.ndarray, x0: float, width: float, n_seg: int, n_lpr: int, z_floor: float, band: float,
-                  outlier_share: float, bin_size: float, stride: int) -> np.ndarray:
+                  outlier_share: float, bin_size: float, sample: np.ndarray) -> np.ndarray:
     """Per segment, the mean z of the `n_lpr` lowest candidate points (NaN if none).
 
     Candidates lie above `z_floor`, within |y| < band, and not below the lowest height bin that holds at
@@ -55,7 +56,7 @@ def _lowest_means(pts: np.ndarray, x0: float, width: float, n_seg: int, n_lpr: i
     """
     n_bins = 64
     hist = np.zeros((n_seg, n_bins), dtype=np.int64)
-    for i in range(0, pts.shape[0], stride):
+    for i in sample:
         z = pts[i, 2]
         if z < z_floor or abs(pts[i, 1]) >= band:
             continue
@@ -70,7 +71,7 @@ def _lowest_means(pts: np.ndarray, x0: float, width: float, n_seg: int, n_lpr: i
                 z_low[s] = z_floor + b * bin_size
                 break
     low = np.full((n_seg, n_lpr), np.inf)  # per segment, ascending
-    for i in range(0, pts.shape[0], stride):
+    for i in sample:
         z = pts[i, 2]
         if abs(pts[i, 1]) >= band:
             continue
@@ -210,19 +211,46 @@ def _planes_from_sums(acc: np.ndarray, edges: np.ndarray, fallback_z: np.ndarray
     return planes
 
 
+_SECTORS_PER_QUADRANT = 360  # the ground sample's azimuth sectors: about 0.25 degrees each
+
+
+@nb.njit(cache=True, nogil=True)
+def _sample(pts: np.ndarray, stride: int) -> np.ndarray:
+    """Indices (ascending) of the points in every `stride`-th azimuth sector of about 0.25 degrees (sectors of equal
+    pseudo-azimuth): about one point in `stride`, spread evenly around the sensor like every `stride`-th point of a
+    firing-order scan, and the same points in any order. All points when `stride` is 1."""
+    n = pts.shape[0]
+    if stride <= 1:
+        return np.arange(n)
+    out = np.empty(n, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        x = pts[i, 0]
+        y = pts[i, 1]
+        s = abs(x) + abs(y)
+        p = 0.0 if s == 0.0 else y / s
+        key = (2.0 - p) if x < 0.0 else (4.0 + p if y < 0.0 else p)  # pseudo-azimuth in [0, 4)
+        if int(key * _SECTORS_PER_QUADRANT) % stride == 0:
+            out[count] = i
+            count += 1
+    return out[:count]
+
+
 @nb.njit(cache=True, nogil=True)
 def _ground_kernel(pts: np.ndarray, edges: np.ndarray, n_lpr: int, n_iter: int, th_seeds: float, th_dist: float,
                    z_floor: float, min_normal_z: float, band: float, outlier_share: float, max_step: float,
                    stride: int) -> tuple:
-    """Ground mask and planes; the LPR and the plane fits read every `stride`-th point, the final test all."""
+    """Ground mask and planes; the LPR and the plane fits read the `_sample` of about one point in `stride`, the
+    final test all."""
     n = pts.shape[0]
     n_seg = edges.shape[0] - 1
     x0 = edges[0]
     width = edges[1] - edges[0]
-    lpr = _lowest_means(pts, x0, width, n_seg, n_lpr, z_floor, band, outlier_share, 0.1, stride)
+    sample = _sample(pts, stride)
+    lpr = _lowest_means(pts, x0, width, n_seg, n_lpr, z_floor, band, outlier_share, 0.1, sample)
     fallback_z = np.where(np.isnan(lpr), z_floor, lpr)
     acc = np.zeros((n_seg, 10))
-    for i in range(0, n, stride):
+    for i in sample:
         x = pts[i, 0]
         y = pts[i, 1]
         z = pts[i, 2]
@@ -233,7 +261,7 @@ def _ground_kernel(pts: np.ndarray, edges: np.ndarray, n_lpr: int, n_iter: int, 
     planes = _planes_from_sums(acc, edges, fallback_z, min_normal_z, min_points, max_step)
     for _ in range(n_iter - 1):
         acc[:] = 0.0
-        for i in range(0, n, stride):
+        for i in sample:
             x = pts[i, 0]
             y = pts[i, 1]
             z = pts[i, 2]

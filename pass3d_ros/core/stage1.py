@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numba as nb
@@ -78,8 +78,8 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
 
 
 def _in_scan_order(rings: _ring.Rings) -> bool:
-    """Whether the points are already in a scan order that clustering and the ground fit can read as they are: rings
-    read from the firing order, or a ring field that never steps back (ring after ring)."""
+    """Whether the points are already in a scan order that clustering can read as they are: rings read from the
+    firing order, or a ring field that never steps back (ring after ring)."""
     if rings.source in _ring.FIRING_ORDER_SOURCES:
         return True
     return rings.source == "field" and bool(np.all(rings.ring[1:] >= rings.ring[:-1]))
@@ -89,33 +89,34 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
                     lines: _ring.LaserLines | None) -> Stage1Result:
     """Stage 1 on float32 points whose coordinates are all finite.
 
-    Points in any other order than a scan order are first put in the canonical order (ring, then azimuth:
-    pass3d_ros.core.scanline.canonical_order), so the ground fit's point sample, the clustering and the proposals do
-    not depend on the order the points came in; the results are mapped back to the input order. The frame runs with
-    the effective config for its sensor (pass3d_ros.core.sensor_params.effective_config), reported in the result.
+    Ground plane fitting reads the points as they come (its sample does not depend on their order), on the ground
+    thread beside ring recovery. Points in any other order than a scan order are put in the canonical order (ring,
+    then azimuth: pass3d_ros.core.scanline.canonical_order) for clustering and refinement, so the proposals do not
+    depend on the order the points came in; the results are mapped back to the input order. The frame runs with the
+    effective config for its sensor (pass3d_ros.core.sensor_params.effective_config), reported in the result.
     """
     t0 = time.perf_counter()
-    early = _early_ground(pts, ring, cfg, lines)
+    beside = _ground_pool().submit(_ground.fit_ground, pts, cfg) if cfg.ground_thread else None
     rings = _ring.rings_for(pts, ring, cfg, lines)
     order = None if _in_scan_order(rings) else _scanline.canonical_order(pts, rings.ring)
     work = pts if order is None else np.take(pts, order, axis=0)  # take: a tenth of pts[order]'s time on rows
     work_ring = rings.ring if order is None else np.take(rings.ring, order)
     cfg, sensor = _sensor.effective_config(cfg, work, work_ring, rings.n_rings)
     t1 = time.perf_counter()
-    fit = early.result() if early is not None and order is None else _ground.fit_ground(work, cfg)
+    fit = beside.result() if beside is not None else _ground.fit_ground(pts, cfg)
+    work_ground = fit.ground if order is None else np.take(fit.ground, order)
     t2 = time.perf_counter()
-    label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~fit.ground, cfg)
+    label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~work_ground, cfg)
     t3 = time.perf_counter()
     boxes, kept = _refinement.select_proposals(work, label, n_clusters, fit.planes, fit.segment_edges, cfg)
     cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge)
-    ground = fit.ground
     if order is not None:
         inverse = _inverse(order)
-        ground, cluster_id, cluster_id2 = (np.take(v, inverse) for v in (ground, cluster_id, cluster_id2))
+        cluster_id, cluster_id2 = (np.take(v, inverse) for v in (cluster_id, cluster_id2))
     t4 = time.perf_counter()
     timings = {"ring": t1 - t0, "ground": t2 - t1, "clustering": t3 - t2, "refinement": t4 - t3, "total": t4 - t0}
     return Stage1Result(
-        ring=rings.ring, ground=ground, cluster_id=cluster_id, cluster_id2=cluster_id2, boxes=boxes,
+        ring=rings.ring, ground=fit.ground, cluster_id=cluster_id, cluster_id2=cluster_id2, boxes=boxes,
         timings_ms={k: 1e3 * v for k, v in timings.items()}, ring_source=rings.source, ground_planes=fit.planes,
         n_clusters=n_clusters, sensor=sensor, lines=rings.lines,
     )
@@ -125,24 +126,15 @@ _GROUND_POOL: ThreadPoolExecutor | None = None
 _GROUND_POOL_LOCK = threading.Lock()
 
 
-def _early_ground(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
-                  lines: _ring.LaserLines | None) -> Future | None:
-    """The ground fit of the points as they come, started on the ground thread (`Stage1Config.ground_thread`) when
-    they are likely in scan order: no ring field and no laser lines held from an earlier scan (those come with scans
-    in no firing order), or a ring field that never steps back. Its kernels release the GIL, so it runs beside ring
-    recovery; the caller uses it only if the points prove to be in scan order. The ground fit reads no field that
-    `effective_config` changes, so it may start before that config is known."""
-    if not cfg.ground_thread or len(pts) == 0:
-        return None
-    if ring is None and lines is not None:
-        return None
-    if ring is not None and not np.all(ring[1:] >= ring[:-1]):
-        return None
+def _ground_pool() -> ThreadPoolExecutor:
+    """The ground thread (`Stage1Config.ground_thread`): ground plane fitting reads the points in any order and
+    releases the GIL, so it runs beside ring recovery and the canonical ordering. It reads no field that
+    `effective_config` changes, so it starts before that config is known."""
     global _GROUND_POOL
     with _GROUND_POOL_LOCK:
         if _GROUND_POOL is None:
             _GROUND_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pass3d-ground")
-    return _GROUND_POOL.submit(_ground.fit_ground, pts, cfg)
+    return _GROUND_POOL
 
 
 def _inverse(order: np.ndarray) -> np.ndarray:
