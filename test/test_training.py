@@ -140,6 +140,24 @@ def test_build_samples_cache_and_background_discard(tmp_path):
     assert isinstance(SampleSet.load(path), SampleSet)
 
 
+def test_cache_name_follows_stage1_and_the_synthetic_world(tmp_path, monkeypatch):
+    """A changed stage 1 renames every cache; a changed synthetic generator renames the caches of synthetic data only
+    (their frames changed; a real dataset's did not)."""
+    import pass3d_ros.training.samples as samples
+
+    def names(**identities: str) -> tuple:
+        for function, value in identities.items():
+            monkeypatch.setattr(samples, function, lambda value=value: value)
+        return tuple(samples.cache_path([spec], tmp_path, 0.5, 0, False).name
+                     for spec in ("synthetic:frames=4,seed=1", "kitti_object:somewhere"))
+
+    base = names(stage1_identity="a", synthetic_identity="x")
+    world = names(stage1_identity="a", synthetic_identity="y")
+    stage1 = names(stage1_identity="b", synthetic_identity="x")
+    assert world[0] != base[0] and world[1] == base[1]
+    assert stage1[0] != base[0] and stage1[1] != base[1]
+
+
 def test_training_batch_shapes_views_and_labels():
     rng = np.random.default_rng(1)
     samples = build_samples([constructed_frame(rng)], proposer=instance_proposer, progress=False)

@@ -208,15 +208,29 @@ def cache_key(specs: list[str], background_keep: float, seed: int, keep_frame_la
     return hashlib.sha1(text.encode()).hexdigest()[:12]
 
 
-def stage1_identity() -> str:
-    """A hash of the stage-1 source files, so a changed stage 1 rebuilds the caches."""
-    core = Path(__file__).resolve().parents[1] / "core"
+_STAGE1_SOURCES = ("stage1.py", "ground.py", "scanline.py", "ring.py", "refinement.py", "sensor_params.py",
+                   "config.py", "lasers.py")  # pass3d_ros/core files whose change changes the proposals
+
+
+def _digest(paths: list[Path]) -> str:
+    """A short hash of the files' contents, in the order given."""
     digest = hashlib.sha1()
-    for name in ("stage1.py", "ground.py", "scanline.py", "ring.py"):
-        path = core / name
+    for path in paths:
         if path.is_file():
             digest.update(path.read_bytes())
     return digest.hexdigest()[:12]
+
+
+def stage1_identity() -> str:
+    """A hash of the stage-1 source files, so a changed stage 1 rebuilds the caches."""
+    core = Path(__file__).resolve().parents[1] / "core"
+    return _digest([core / name for name in _STAGE1_SOURCES])
+
+
+def synthetic_identity() -> str:
+    """A hash of the synthetic generator's source files, so a changed world rebuilds the caches of synthetic data."""
+    root = Path(__file__).resolve().parents[1] / "synthetic"
+    return _digest(sorted(root.rglob("*.py")))
 
 
 def cache_path(
@@ -225,6 +239,8 @@ def cache_path(
 ) -> Path:
     """The sample cache file of these settings; a set built in `shards` shards (data-parallel) has its own."""
     name = proposer_name or ("stage1-" + stage1_identity() if proposer is None else "custom")
+    if any(spec.startswith("synthetic") for spec in specs):
+        name += "-world-" + synthetic_identity()
     if shards > 1:
         name += f"-shards{shards}"
     return Path(cache_dir) / f"samples_{cache_key(specs, background_keep, seed, keep_frame_labels, name)}.npz"
