@@ -218,35 +218,35 @@ _SECTORS_PER_QUADRANT = 360  # the ground sample's azimuth sectors: about 0.25 d
 def _sample(pts: np.ndarray, stride: int) -> np.ndarray:
     """Indices (ascending) of the points in every `stride`-th azimuth sector of about 0.25 degrees (sectors of equal
     pseudo-azimuth): about one point in `stride`, spread evenly around the sensor like every `stride`-th point of a
-    firing-order scan, and the same points in any order. All points when `stride` is 1."""
+    firing-order scan, and the same points in any order. All points when `stride` is 1. Branch-free per point, so
+    the loop vectorises; the indices are gathered after it."""
     n = pts.shape[0]
+    keep = np.empty(n, dtype=np.bool_)
     if stride <= 1:
-        return np.arange(n)
-    out = np.empty(n, dtype=np.int64)
-    count = 0
+        keep[:] = True
+        return np.flatnonzero(keep)
+    scale = _SECTORS_PER_QUADRANT / stride
+    share = 1.0 / stride
     for i in range(n):
-        x = pts[i, 0]
-        y = pts[i, 1]
-        s = abs(x) + abs(y)
-        p = 0.0 if s == 0.0 else y / s
-        key = (2.0 - p) if x < 0.0 else (4.0 + p if y < 0.0 else p)  # pseudo-azimuth in [0, 4)
-        if int(key * _SECTORS_PER_QUADRANT) % stride == 0:
-            out[count] = i
-            count += 1
-    return out[:count]
+        x = np.float64(pts[i, 0])
+        y = np.float64(pts[i, 1])
+        p = y / (abs(x) + abs(y) + 1e-300)
+        key = (2.0 - p) if x < 0.0 else ((4.0 + p) if y < 0.0 else p)  # pseudo-azimuth in [0, 4)
+        f = key * scale
+        keep[i] = f - np.floor(f) < share
+    return np.flatnonzero(keep)
 
 
 @nb.njit(cache=True, nogil=True)
 def _ground_kernel(pts: np.ndarray, edges: np.ndarray, n_lpr: int, n_iter: int, th_seeds: float, th_dist: float,
                    z_floor: float, min_normal_z: float, band: float, outlier_share: float, max_step: float,
-                   stride: int) -> tuple:
-    """Ground mask and planes; the LPR and the plane fits read the `_sample` of about one point in `stride`, the
-    final test all."""
+                   stride: int, sample: np.ndarray) -> tuple:
+    """Ground mask and planes; the LPR and the plane fits read `sample` (`_sample`: about one point in `stride`),
+    the final test all."""
     n = pts.shape[0]
     n_seg = edges.shape[0] - 1
     x0 = edges[0]
     width = edges[1] - edges[0]
-    sample = _sample(pts, stride)
     lpr = _lowest_means(pts, x0, width, n_seg, n_lpr, z_floor, band, outlier_share, 0.1, sample)
     fallback_z = np.where(np.isnan(lpr), z_floor, lpr)
     acc = np.zeros((n_seg, 10))
@@ -297,6 +297,7 @@ def fit_ground(points: np.ndarray, config: Stage1Config | None = None) -> Ground
         pts, edges, int(cfg.n_lpr), int(cfg.n_iter), cfg.th_seeds, cfg.th_dist,
         -(cfg.sensor_height + cfg.below_ground_margin), float(np.cos(np.deg2rad(cfg.ground_max_slope_deg))),
         cfg.ground_seed_band, cfg.ground_lpr_outlier_share, cfg.ground_max_step, int(cfg.fit_stride),
+        _sample(pts, int(cfg.fit_stride)),  # apart: called inside the kernel, the same fit took 3.7 ms, not 2.5
     )
     return GroundFit(ground, planes, edges)
 
