@@ -390,8 +390,28 @@ def test_world_changes_can_be_left_out_for_an_ablation():
                                 if o.clearance is not None and o.label == BACKGROUND])
 
 
+def test_hidden_pedestrians_stand_behind_something_and_keep_the_rest_of_the_scene():
+    """Without "hidden" the scene is the same but for the pedestrians placed behind parked cars and low things
+    (drawn from their own stream); each of those stands farther from the sensor than something in its line of
+    sight."""
+    found = 0
+    for seed in range(6):
+        full = generate_scene(np.random.default_rng(np.random.SeedSequence([seed, 4])))
+        plain = generate_scene(np.random.default_rng(np.random.SeedSequence([seed, 4])), frozenset({"hidden"}))
+        assert [(o.model, o.x, o.y) for o in full.objects[:len(plain.objects)]] == [
+            (o.model, o.x, o.y) for o in plain.objects]
+        for person in full.objects[len(plain.objects):]:
+            assert person.label == PEDESTRIAN
+            dist, ray = np.hypot(person.x, person.y), np.arctan2(person.y, person.x)
+            in_front = [o for o in plain.objects if np.hypot(o.x, o.y) < dist - 0.3
+                        and abs(np.angle(np.exp(1j * (np.arctan2(o.y, o.x) - ray)))) < 0.2]
+            assert in_front, (seed, person.x, person.y)
+            found += 1
+    assert found >= 4
+
+
 def test_unknown_world_change_is_refused():
-    with pytest.raises(DatasetError, match=r"unknown world change.*known: clutter, beside, dark, mixed_pixels"):
+    with pytest.raises(DatasetError, match=r"unknown world change.*known: clutter, beside, hidden, dark, mixed_pixels"):
         list(open_dataset("synthetic:frames=1,seed=0,without=clutter+rain"))
     with pytest.raises(ValueError, match="rain"):
         generate_frame(0, 0, without=frozenset({"rain"}))
