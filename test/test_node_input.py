@@ -236,24 +236,35 @@ def test_shutdown_mid_frame_is_quiet(
     assert "frame failed" not in err and "[ERROR]" not in err, err
 
 
-def test_shipped_weights_label_a_live_frame(ros: Ros, frame: Frame, proposal_columns: dict[str, np.ndarray]) -> None:
+@pytest.fixture(scope="module")
+def people_frame() -> Frame:
+    """A synthetic HDL-64E scan whose proposals hold cars, pedestrians and cyclists (12, 3 and 2 of them)."""
+    return generate_frame(seed=7, index=0)
+
+
+def test_shipped_weights_label_a_live_frame(ros: Ros, people_frame: Frame) -> None:
     """Guards the shipped network predicting background everywhere (the other node tests use random weights):
-    the default node labels cars and people close to the offline Segmenter, and every class of the truth."""
+    the default node labels cars and people close to the offline Segmenter, and every class that some proposal holds
+    mostly (20 points or more; a person of 3 points that no proposal holds cannot be labelled by stage 2)."""
+    frame = people_frame
+    cloud = proposals_cloud(frame.points, propose(frame.points, frame.ring))
     ros.add(SegmentationNode(context=ros.context))  # weights "" = the shipped pass3d_lite.pt
     labeled = Collector(ros, PointCloud2, "/pass3d/labeled")
     pub = ros.probe.create_publisher(PointCloud2, "/pass3d/proposals", qos_profile("reliable"))
     connect(pub, labeled)
-    pub.publish(encode(proposal_columns, stamp_ns=STAMP0))
+    pub.publish(encode(cloud, stamp_ns=STAMP0))
     got = np.bincount(columns(labeled.wait(1)[0])["label"], minlength=4)
 
-    members = proposal_members(proposal_columns["cluster_id"], proposal_columns["cluster_id2"])
+    members = proposal_members(cloud["cluster_id"], cloud["cluster_id2"])
     offline = load_classifier(*resolve_weights("network", "")).segment(frame.points, members)
     expected = np.bincount(offline.labels, minlength=4)
     assert np.abs(got - expected).max() <= 0.02 * len(frame.points), (got, expected)
-    for cls in np.unique(frame.labels):
-        if cls > 0:
-            assert got[cls] > 0, f"class {cls} is in the truth but never predicted: {got}"
-            assert expected[cls] > 0
+    proposed = {int(np.bincount(frame.labels[m][frame.labels[m] < 4], minlength=4).argmax())
+                for m in members if len(m) >= 20}
+    assert proposed >= {1, 2, 3}, proposed
+    for cls in (1, 2, 3):
+        assert got[cls] > 0, f"class {cls} is held by a proposal but never predicted: {got}"
+        assert expected[cls] > 0
 
 
 # ---- cluster_proposal_node ----
