@@ -283,15 +283,23 @@ def _bridge_runs(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, run_of: np.ndar
 
 
 @nb.njit(cache=True, nogil=True)
+def group_starts(group: np.ndarray, n_groups: int) -> np.ndarray:
+    """Where each group starts (n_groups + 1 offsets, the last = len(group)) in a counting sort of `group`, whose
+    values are 0 .. n_groups - 1."""
+    start = np.zeros(n_groups + 1, dtype=np.int64)
+    for i in range(group.shape[0]):
+        start[group[i] + 1] += 1
+    for g in range(n_groups):
+        start[g + 1] += start[g]
+    return start
+
+
+@nb.njit(cache=True, nogil=True)
 def _canonical_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int) -> np.ndarray:
     """Permutation listing the points ring by ring, each ring by pseudo-azimuth (a counting sort on the ring, then
     a bucket sort of each ring that is not already in order)."""
     n = pts.shape[0]
-    start = np.zeros(n_rings + 1, dtype=np.int64)
-    for i in range(n):
-        start[ring[i] + 1] += 1
-    for r in range(n_rings):
-        start[r + 1] += start[r]
+    start = group_starts(ring, n_rings)
     idx = np.empty(n, dtype=np.int64)
     keys = np.empty(n, dtype=np.float64)
     fill = start[:n_rings].copy()

@@ -30,6 +30,7 @@ import numba as nb
 import numpy as np
 
 from pass3d_ros.core.config import Stage1Config
+from pass3d_ros.core.scanline import group_starts
 
 REFERENCE_DV_DEG = 0.42  # KITTI's HDL-64E: median elevation gap between neighbouring rings (this module's estimate)
 REFERENCE_DH_DEG = 0.17  # KITTI's HDL-64E at 10 Hz: median azimuth step between neighbouring points of a ring
@@ -108,11 +109,7 @@ def _resolutions_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int, stride:
         keys = np.partition(steps[:n_steps], (max(middle - 1, 0), middle))
         upper = _step_angle(keys[middle])
         horizontal = np.degrees(upper if n_steps % 2 else 0.5 * (_step_angle(keys[middle - 1]) + upper))
-    start = np.zeros(n_rings + 1, dtype=np.int64)
-    for s in range(n_elev):
-        start[elev_ring[s] + 1] += 1
-    for k in range(n_rings):
-        start[k + 1] += start[k]
+    start = group_starts(elev_ring[:n_elev], n_rings)
     grouped = np.empty(n_elev, dtype=np.float64)
     fill = start[:n_rings].copy()
     for s in range(n_elev):
