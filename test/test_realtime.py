@@ -81,8 +81,8 @@ def pair() -> Iterator[tuple]:
 
 
 def test_in_memory_pipeline_labels_like_the_message_path(bag: Path) -> None:
-    """Same bag, lockstep: the in-memory hand-off (stage 2 in line or on its own thread) and the two nodes over
-    PointCloud2 give the same labels."""
+    """Same bag, lockstep: the in-memory hand-off (stage 2 in line, on its own thread, or in a child process) and
+    the two nodes over PointCloud2 give the same labels."""
     runs = {layout: run_live(bag, lockstep=True, layout=layout, timeout_s=WAIT_S)
             for layout in ("one-process", "in-memory")}
     overlap = run_live(bag, lockstep=True, layout="in-memory", timeout_s=WAIT_S,
@@ -91,6 +91,11 @@ def test_in_memory_pipeline_labels_like_the_message_path(bag: Path) -> None:
     assert {f.stamp_ns: f.predicted.tobytes() for f in overlap.frames} == {
         f.stamp_ns: f.predicted.tobytes() for f in runs["in-memory"].frames}
     assert overlap.node_counters["segmentation_node"]["processed"] == 2
+    child = run_live(bag, lockstep=True, layout="in-memory", timeout_s=WAIT_S,
+                     node_parameters={"segmentation_node": {"overlap": True, "process": True}})
+    assert child.frames_in == child.frames_out == 2 and child.mismatched == 0
+    assert {f.stamp_ns: f.predicted.tobytes() for f in child.frames} == {
+        f.stamp_ns: f.predicted.tobytes() for f in runs["in-memory"].frames}
     for result in runs.values():
         assert result.frames_in == result.frames_out == 2 and result.mismatched == 0
     by_stamp = {layout: {f.stamp_ns: f.predicted for f in r.frames} for layout, r in runs.items()}

@@ -1,7 +1,8 @@
 """Live-path throughput and memory: a synthetic drive replayed at 10 Hz x rate through both live nodes.
 
 `pass3d_benchmark live [--frames N] [--hz F | --rate R] [--seconds S] [--soak] [--warmup S] [--load N]
-                       [--layout one-process|in-memory|two-process] [--overlap] [--input-qos sensor|reliable]
+                       [--layout one-process|in-memory|two-process] [--overlap] [--process]
+                       [--input-qos sensor|reliable]
                        [--classifier network|size_rules] [--weights W] [--threads N] [--seed K] [--json PATH]`
 
 Sustain test: N synthetic HDL-64E frames (about 120k points each) are written to a temporary bag and
@@ -258,6 +259,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overlap", action="store_true",
                         help="segmentation_node's `overlap`: stage 2 on its own thread beside the next scan's stage 1 "
                              "(in-memory and two-process layouts)")
+    parser.add_argument("--process", action="store_true",
+                        help="segmentation_node's `process`: the classifier in a child process (its CPU counts as "
+                             "another process's below)")
     parser.add_argument("--input-qos", choices=("sensor", "reliable"),
                         help="the cluster node's input QoS (default: its parameter default, sensor)")
     parser.add_argument("--seconds", type=float, metavar="S",
@@ -303,7 +307,8 @@ def run(args: argparse.Namespace) -> int:
     spec = f"synthetic:frames={args.frames},seed={args.seed}"
     print(f"classifier {kind}{f' ({weights})' if weights else ''}, torch threads {args.threads}, "
           f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}, layout {args.layout}"
-          f"{' (stage 2 overlapping stage 1)' if args.overlap else ''}, "
+          f"{' (stage 2 overlapping stage 1)' if args.overlap else ''}"
+          f"{' (classifier in a child process)' if args.process else ''}, "
           f"competing CPU hogs {args.load}", flush=True)
     cluster_parameters = {"input_qos": args.input_qos} if args.input_qos else {}
     with tempfile.TemporaryDirectory(prefix="pass3d_bench_live_") as workdir:
@@ -319,7 +324,7 @@ def run(args: argparse.Namespace) -> int:
                     result = run_live(
                         bag, lockstep=False, rate=args.rate, keep_labels=False, repeat=repeat, timeout_s=30.0,
                         node_parameters={"segmentation_node": {"classifier": kind, "weights": weights or "",
-                                                               "overlap": args.overlap},
+                                                               "overlap": args.overlap, "process": args.process},
                                          "cluster_proposal_node": cluster_parameters},
                         log_level="warn", layout=args.layout,
                     )

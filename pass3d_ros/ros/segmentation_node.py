@@ -13,6 +13,7 @@ from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.classes import BACKGROUND, packed_rgb
 from pass3d_ros.core.canonical import fit_box_members
+from pass3d_ros.core.classifier_process import ProcessClassifier
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult
 from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, load_classifier, resolve_weights
@@ -44,6 +45,8 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "min_confidence": (0.0, "points predicted below this confidence are labeled background", (0.0, 1.0)),
     "overlap": (False, "pass3d_pipeline only: segment on this node's own thread, so stage 1 of the next scan "
                 "overlaps stage 2 (more frames per second with a spare core; far fewer when the CPU is shared)", None),
+    "process": (False, "run the classifier in a child process (with overlap: stage 2 beside stage 1 without sharing "
+                "the GIL; each frame's arrays cross a pipe, a few ms)", None),
 }
 PARAMETERS = params.NodeParameters("segmentation_node", NODE_PARAMETERS)
 
@@ -182,12 +185,24 @@ class SegmentationNode(PointCloudNode):
         if threads > 0:
             self.get_logger().info(limit_threads(threads).describe())
         started = time.perf_counter()
-        classifier = load_classifier(kind, weights, device=self.get_parameter("device").value,
-                                     max_proposals=self.get_parameter("max_proposals").value)
-        classifier.warm_up()
+        device, max_proposals = self.get_parameter("device").value, self.get_parameter("max_proposals").value
+        if self.get_parameter("process").value:
+            classifier: Classifier = ProcessClassifier(kind, weights, device=device, max_proposals=max_proposals,
+                                                       threads=threads)
+            where = f" in process {classifier.pid}"
+        else:
+            classifier = load_classifier(kind, weights, device=device, max_proposals=max_proposals)
+            classifier.warm_up()
+            where = ""
         took = 1e3 * (time.perf_counter() - started)
-        self.get_logger().info(f"stage 2 ready: {kind} {weights or ''} (load + warm-up {took:.0f} ms)")
+        self.get_logger().info(f"stage 2 ready{where}: {kind} {weights or ''} (load + warm-up {took:.0f} ms)")
         return classifier
+
+    def destroy_node(self) -> None:
+        """Stop the worker, then the classifier's process if it has one."""
+        super().destroy_node()
+        if isinstance(self.classifier, ProcessClassifier):
+            self.classifier.close()
 
     def _on_set_parameters(self, changed: list[Parameter]) -> Any:
         """Only max_proposals and min_confidence change at run time; the rest need a restart."""
