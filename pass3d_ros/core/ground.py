@@ -25,6 +25,7 @@ import numba as nb
 import numpy as np
 
 from pass3d_ros.core.config import Stage1Config
+from pass3d_ros.core.scanline import pseudo_azimuth
 
 
 class GroundFit(NamedTuple):
@@ -218,8 +219,8 @@ _SECTORS_PER_QUADRANT = 360  # the ground sample's azimuth sectors: about 0.25 d
 def _sample(pts: np.ndarray, stride: int) -> np.ndarray:
     """Indices (ascending) of the points in every `stride`-th azimuth sector of about 0.25 degrees (sectors of equal
     pseudo-azimuth): about one point in `stride`, spread evenly around the sensor like every `stride`-th point of a
-    firing-order scan, and the same points in any order. All points when `stride` is 1. Branch-free per point, so
-    the loop vectorises; the indices are gathered after it."""
+    firing-order scan, and the same points in any order. All points when `stride` is 1. The mask is written for
+    every point and the indices gathered after it (a gather inside the loop kept it from vectorising)."""
     n = pts.shape[0]
     keep = np.empty(n, dtype=np.bool_)
     if stride <= 1:
@@ -228,11 +229,7 @@ def _sample(pts: np.ndarray, stride: int) -> np.ndarray:
     scale = _SECTORS_PER_QUADRANT / stride
     share = 1.0 / stride
     for i in range(n):
-        x = np.float64(pts[i, 0])
-        y = np.float64(pts[i, 1])
-        p = y / (abs(x) + abs(y) + 1e-300)
-        key = (2.0 - p) if x < 0.0 else ((4.0 + p) if y < 0.0 else p)  # pseudo-azimuth in [0, 4)
-        f = key * scale
+        f = pseudo_azimuth(pts[i, 0], pts[i, 1]) * scale
         keep[i] = f - np.floor(f) < share
     return np.flatnonzero(keep)
 

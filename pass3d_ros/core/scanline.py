@@ -27,7 +27,7 @@ from pass3d_ros.core.config import Stage1Config
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _pseudo_azimuth(x: float, y: float) -> float:
+def pseudo_azimuth(x: float, y: float) -> float:
     """A cheap angle in [0, 4) that orders like atan2(y, x) mapped to [0, 2 pi)."""
     s = abs(x) + abs(y)
     if s == 0.0:
@@ -192,7 +192,7 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
         if use[i]:
             r = ring[i]
             idx[fill[r]] = i
-            keys[fill[r]] = _pseudo_azimuth(pts[i, 0], pts[i, 1])
+            keys[fill[r]] = pseudo_azimuth(pts[i, 0], pts[i, 1])
             fill[r] += 1
     for r in range(n_rings):
         _sort_ring(keys[start[r]:start[r + 1]], idx[start[r]:start[r + 1]])
@@ -306,7 +306,7 @@ def _canonical_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int) -> np.nda
     for i in range(n):
         r = ring[i]
         idx[fill[r]] = i
-        keys[fill[r]] = _pseudo_azimuth(pts[i, 0], pts[i, 1])
+        keys[fill[r]] = pseudo_azimuth(pts[i, 0], pts[i, 1])
         fill[r] += 1
     for r in range(n_rings):
         lo = start[r]
