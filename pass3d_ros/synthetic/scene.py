@@ -374,13 +374,14 @@ _HIDDEN_COUNT_P = (0.2, 0.35, 0.3, 0.15)  # pedestrians placed behind something 
 
 
 def _add_hidden_pedestrians(b: SceneBuilder, rng: np.random.Generator) -> None:
-    """Pedestrians (alone or a pair) standing or walking just beyond a parked car, van, hedge or wall fragment,
-    bin or bench as the sensor sees it, so only their upper body shows.
+    """Pedestrians (alone or a pair) standing or walking just beyond a parked car, van, truck, hedge or wall
+    fragment, bin, mailbox, bench, utility box or another pedestrian as the sensor sees it, so only their upper body
+    shows.
 
-    Measured on the dev data: all 22 real VLP-32C pedestrians of >= 10 points at 8-35 m show only the upper body
-    (lowest point 0.80-1.15 m above the road; a crowded street), against 4 of 31 synthetic ones placed by
-    `_add_people` alone. One crowded scene sets no rate; these placements bring the synthetic share to about a
-    third (README of the weights: the count per scene and the share measured).
+    Measured on the dev data (real VLP-32C boxes corrected, see the weights README): 15 of 22 real pedestrians of
+    >= 10 points at 8-35 m show only the upper body (a crowded street), the one KITTI pedestrian its whole body,
+    against 3 of 46 synthetic ones placed by `_add_people` alone. These placements bring the synthetic share to about
+    a third.
     """
     hiders = [o for o in b.objects if o.model in _HIDING and 5.0 < math.hypot(o.x, o.y) < 35.0]
     if not hiders:
@@ -399,7 +400,7 @@ def _add_hidden_pedestrians(b: SceneBuilder, rng: np.random.Generator) -> None:
         for member in range(2 if pair else 1):
             for _attempt in range(4):
                 behind = dist + depth + rng.uniform(0.45, 1.6)
-                side = rng.uniform(-0.6, 0.6) * wide + (0.8 * member if pair else 0.0)
+                side = rng.uniform(-0.6, 0.6) * wide + 0.8 * member  # a pair's second walks beside the first
                 x = behind * math.cos(ray) - side * math.sin(ray)
                 y = behind * math.sin(ray) + side * math.cos(ray)
                 u, v = b.road_uv(x, y)
