@@ -688,7 +688,8 @@ def recover_rings(
     """Ring index per point of a scan without a ring field (see the module docstring for the rules): a named
     `config.sensor`'s table, else the firing order (expecting `config.n_rings` rings), else the laser lines found
     in the scan, else elevation bins. `lines`, the laser lines of an earlier scan of the same sensor (`Rings.lines`),
-    are tried before any line search: a live stream pays for the search once.
+    are tried first: only a scan in no firing order yields lines, so a stream that held them is read from them
+    without the firing-order count or a line search (a live stream pays for the search once).
 
     `min_jump_deg`: backward azimuth step that starts a ring in the ``azimuth_jump`` rule;
     `min_ring_points`: boundaries closer than this many points are noise; `missing_tolerance`: how many
@@ -707,6 +708,9 @@ def recover_rings(
         found = rings_from_lines(pts, cfg.sensor)
         assert found is not None
         return found
+    known = _from_known(pts, lines, "elevation_lines")
+    if known is not None:
+        return known
     min_cos_jump = float(np.cos(np.deg2rad(min_jump_deg)))
     counts = _count_rings(pts, min_cos_jump, min_ring_points, n_rings)
     best: tuple[float, np.ndarray, str, int] | None = None
@@ -720,9 +724,7 @@ def recover_rings(
             best = (spread, ring, source, n_found)
     if best is not None:
         return Rings(best[1], best[2], best[3])
-    found = _from_known(pts, lines, "elevation_lines")
-    if found is None and len(pts) >= 64:
-        found = rings_from_lines(pts)
+    found = rings_from_lines(pts) if len(pts) >= 64 else None
     if found is not None:
         return found
     elev = np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1]))

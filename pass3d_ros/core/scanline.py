@@ -295,9 +295,10 @@ def group_starts(group: np.ndarray, n_groups: int) -> np.ndarray:
 
 
 @nb.njit(cache=True, nogil=True)
-def _canonical_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int) -> np.ndarray:
+def _canonical_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int) -> tuple:
     """Permutation listing the points ring by ring, each ring by pseudo-azimuth (a counting sort on the ring, then
-    a bucket sort of each ring that is not already in order)."""
+    a bucket sort of each ring that is not already in order), and the rings in that order (written ring by ring
+    here instead of gathered)."""
     n = pts.shape[0]
     start = group_starts(ring, n_rings)
     idx = np.empty(n, dtype=np.int64)
@@ -308,6 +309,7 @@ def _canonical_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int) -> np.nda
         idx[fill[r]] = i
         keys[fill[r]] = pseudo_azimuth(pts[i, 0], pts[i, 1])
         fill[r] += 1
+    work_ring = np.empty_like(ring)
     for r in range(n_rings):
         lo = start[r]
         hi = start[r + 1]
@@ -318,7 +320,8 @@ def _canonical_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int) -> np.nda
                 break
         if not ordered:
             _bucket_sort(keys[lo:hi], idx[lo:hi])
-    return idx
+        work_ring[lo:hi] = r
+    return idx, work_ring
 
 
 @nb.njit(cache=True, nogil=True)
@@ -351,11 +354,17 @@ def canonical_order(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
     """The scan's canonical point order ((N,) int64 permutation): by ring, then by azimuth counter-clockwise from
     the +x axis (ties keep their input order). Clustering sorts each ring the same way, so a scan in this order
     clusters like the same scan in firing order."""
+    return in_canonical_order(points, ring)[0]
+
+
+def in_canonical_order(points: np.ndarray, ring: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`canonical_order`, with the points (float32, N x C) and their rings (uint16) put in that order."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
-    if len(pts) == 0:
-        return np.zeros(0, dtype=np.int64)
     ring = np.ascontiguousarray(ring, dtype=np.uint16)
-    return _canonical_kernel(pts, ring, int(ring.max()) + 1)
+    if len(pts) == 0:
+        return np.zeros(0, dtype=np.int64), pts.copy(), ring.copy()
+    order, work_ring = _canonical_kernel(pts, ring, int(ring.max()) + 1)
+    return order, np.take(pts, order, axis=0), work_ring  # take: a tenth of pts[order]'s time on rows
 
 
 def cluster_scanlines(

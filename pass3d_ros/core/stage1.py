@@ -98,9 +98,9 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     t0 = time.perf_counter()
     beside = _ground_pool().submit(_ground.fit_ground, pts, cfg) if cfg.ground_thread else None
     rings = _ring.rings_for(pts, ring, cfg, lines)
-    order = None if _in_scan_order(rings) else _scanline.canonical_order(pts, rings.ring)
-    work = pts if order is None else np.take(pts, order, axis=0)  # take: a tenth of pts[order]'s time on rows
-    work_ring = rings.ring if order is None else np.take(rings.ring, order)
+    order, work, work_ring = None, pts, rings.ring
+    if not _in_scan_order(rings):
+        order, work, work_ring = _scanline.in_canonical_order(pts, rings.ring)
     cfg, sensor = _sensor.effective_config(cfg, work, work_ring, rings.n_rings)
     t1 = time.perf_counter()
     fit = beside.result() if beside is not None else _ground.fit_ground(pts, cfg)
@@ -111,8 +111,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     boxes, kept = _refinement.select_proposals(work, label, n_clusters, fit.planes, fit.segment_edges, cfg)
     cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge)
     if order is not None:
-        inverse = _inverse(order)
-        cluster_id, cluster_id2 = (np.take(v, inverse) for v in (cluster_id, cluster_id2))
+        cluster_id, cluster_id2 = _in_input_order(order, cluster_id, cluster_id2)
     t4 = time.perf_counter()
     timings = {"ring": t1 - t0, "ground": t2 - t1, "clustering": t3 - t2, "refinement": t4 - t3, "total": t4 - t0}
     return Stage1Result(
@@ -137,12 +136,16 @@ def _ground_pool() -> ThreadPoolExecutor:
     return _GROUND_POOL
 
 
-def _inverse(order: np.ndarray) -> np.ndarray:
-    """The permutation that puts values listed in `order` back in input order (one scatter, then a take per array:
-    less than half the time of a scatter per array)."""
-    inverse = np.empty(len(order), dtype=np.int64)
-    inverse[order] = np.arange(len(order))
-    return inverse
+@nb.njit(cache=True, nogil=True)
+def _in_input_order(order: np.ndarray, first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two per-point fields listed in `order` put back in input order (one scatter pass for both: a quarter of the
+    time of inverting the permutation and taking each field)."""
+    out_first = np.empty_like(first)
+    out_second = np.empty_like(second)
+    for j in range(order.shape[0]):
+        out_first[order[j]] = first[j]
+        out_second[order[j]] = second[j]
+    return out_first, out_second
 
 
 def proposal_members(
