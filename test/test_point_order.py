@@ -208,13 +208,26 @@ def test_laser_lines_of_one_scan_give_the_next_scans_rings_without_a_search(monk
     searched = propose(shuffled)
 
     def no_search(*args, **kwargs):
-        raise AssertionError("the line search ran although the stream's lines fit")
+        raise AssertionError("the line search or the firing-order count ran although the stream's lines fit")
 
     monkeypatch.setattr(ring, "rings_from_lines", no_search)
+    monkeypatch.setattr(ring, "_count_rings", no_search)
     streamed = propose(shuffled, lines=lines)
     assert streamed.ring_source == "elevation_lines" and streamed.lines is not None
     assert np.mean(streamed.ring == searched.ring) > 0.999
     assert same_partition(streamed.cluster_id, searched.cluster_id)
+
+
+def test_held_lines_read_a_firing_order_scan_as_its_firing_order_does():
+    """Held lines are tried before the firing order: a scan that is in firing order after all gets the same rings
+    and proposals from them."""
+    pts = synthetic_scan(points_per_ring=900)
+    lines = propose(np.ascontiguousarray(pts[::-1])).lines
+    base = propose(pts)
+    streamed = propose(pts, lines=lines)
+    assert base.ring_source in ring.FIRING_ORDER_SOURCES and streamed.ring_source == "elevation_lines"
+    assert np.mean(streamed.ring == base.ring) > 0.999
+    assert same_partition(streamed.cluster_id, base.cluster_id)
 
 
 def test_laser_lines_of_another_sensor_are_refused():
