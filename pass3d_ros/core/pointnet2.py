@@ -508,3 +508,19 @@ def fuse_batchnorm(model: PointNet2Seg) -> PointNet2Seg:
         if isinstance(module, SharedMLP):
             module.layers = nn.ModuleList(_fuse_layers(list(module.layers)))
     return model
+
+
+def flush_subnormals(model: nn.Module) -> nn.Module:
+    """Set every subnormal weight and buffer value (|v| < 1.2e-38, never 0) to 0, in place, for inference.
+
+    Training leaves some (weight decay on dead units; the shipped lite weights hold about 6,300); an x86 CPU takes a
+    slow microcode path for each multiply with one, and they add less than 1e-30 to any output. Measured on the
+    lite weights (10 synthetic frames, the two models interleaved frame by frame): the same labels and confidences,
+    stage 2 7-8 % faster (median per-frame ratio 0.92-0.93).
+    """
+    tiny = torch.finfo(torch.float32).tiny
+    with torch.no_grad():
+        for tensor in (*model.parameters(), *model.buffers()):
+            if tensor.dtype.is_floating_point:
+                tensor[tensor.abs() < tiny] = 0.0
+    return model

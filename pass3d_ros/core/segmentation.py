@@ -22,7 +22,7 @@ import torch
 
 from pass3d_ros.classes import BACKGROUND, CLASS_NAMES
 from pass3d_ros.core import canonical, pointnet2_cpu
-from pass3d_ros.core.pointnet2 import ModelConfig, PointNet2Seg, fuse_batchnorm
+from pass3d_ros.core.pointnet2 import ModelConfig, PointNet2Seg, flush_subnormals, fuse_batchnorm
 
 CHECKPOINT_FORMAT = "pass3d_stage2"
 CHECKPOINT_VERSION = 1
@@ -270,7 +270,7 @@ class Segmenter:
         self.data_description = checkpoint.get("data")
         self.checkpoint_info = {k: v for k, v in checkpoint.items() if k not in ("state_dict", "optimizer")}
         self.max_proposals = max_proposals
-        self.model = (fuse_batchnorm(model) if fuse else model).to(self.device).eval()
+        self.model = flush_subnormals(fuse_batchnorm(model) if fuse else model).to(self.device).eval()
 
     def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult:
         """Labels and confidences of all points, and the class of each proposal (nearest `max_proposals`)."""
