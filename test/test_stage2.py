@@ -14,6 +14,7 @@ from pass3d_ros.core.pointnet2 import (
     ball_query,
     count_parameters,
     farthest_point_sample,
+    flush_subnormals,
     fuse_batchnorm,
     make_config,
     pairwise_sq_dist,
@@ -216,6 +217,29 @@ def test_fused_batchnorm_matches_eval_model():
     assert not any(isinstance(m, torch.nn.BatchNorm1d) for m in fused.modules())
     with torch.no_grad():
         assert torch.allclose(fused(xyz, feat), model(xyz, feat), atol=1e-4)
+
+
+def test_subnormal_weights_are_flushed_for_inference():
+    """Subnormal weights (slow on x86) become 0 and nothing else changes; the inference model holds none."""
+    torch.manual_seed(2)
+    model = PointNet2Seg(make_config("lite")).eval()
+    weight = model.sa[0].mlps[0].layers[0].weight
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    with torch.no_grad():
+        weight[0, :3] = torch.tensor([1e-39, -3e-40, 2e-38])  # two subnormals and the smallest-but-normal kind
+    segmenter = Segmenter(make_checkpoint(model))
+    flush_subnormals(model)
+    assert weight[0, 0].item() == 0.0 and weight[0, 1].item() == 0.0 and weight[0, 2].item() == pytest.approx(2e-38)
+    for key, value in model.state_dict().items():
+        if key.endswith("sa.0.mlps.0.layers.0.weight"):
+            torch.testing.assert_close(value[1:], before[key][1:])
+            torch.testing.assert_close(value[0, 3:], before[key][0, 3:])
+        else:
+            torch.testing.assert_close(value, before[key])
+    tiny = torch.finfo(torch.float32).tiny
+    for value in segmenter.model.state_dict().values():
+        if value.dtype.is_floating_point:
+            assert not ((value.abs() < tiny) & (value != 0)).any()
 
 
 # --------------------------------------------------------------------------------------------- inference
