@@ -14,6 +14,7 @@ import rclpy
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from test_nodes import STAMP0, Collector, Ros, columns, connect, scan_message, wait_until
+from test_point_order import no_laser_lines_scan
 
 from pass3d_ros.bench.stage1 import same_partition
 from pass3d_ros.core.stage1 import proposal_members, propose, synthetic_scan
@@ -330,3 +331,34 @@ def test_shuffled_stream_searches_its_laser_lines_once(ros: Ros, monkeypatch: py
         assert same_partition(out["cluster_id"], expected.cluster_id[order])
         np.testing.assert_array_equal(out["ring"], expected.ring[order])
     assert len(searches) == 1
+
+
+def test_stream_without_laser_lines_searches_again_only_after_the_retry_time(
+        ros: Ros, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Scans in which no line search can find laser lines: the node searches on the first, bins the next ones by
+    elevation without searching, and searches again once LINE_SEARCH_RETRY_S has passed."""
+    from pass3d_ros.core import ring
+    from pass3d_ros.ros import cluster_proposal_node
+
+    searches: list[int] = []
+    search = ring.rings_from_lines
+
+    def counted(points: np.ndarray, sensor: str = "auto") -> ring.Rings | None:
+        searches.append(len(points))
+        return search(points, sensor)
+
+    ros.add(ClusterProposalNode(context=ros.context))
+    clouds = Collector(ros, PointCloud2, "/pass3d/proposals")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, clouds)
+    points = no_laser_lines_scan()
+    expected = propose(points)
+    monkeypatch.setattr(ring, "rings_from_lines", counted)
+    monkeypatch.setattr(cluster_proposal_node, "LINE_SEARCH_RETRY_S", 3600.0)
+    for k in range(4):
+        if k == 3:
+            monkeypatch.setattr(cluster_proposal_node, "LINE_SEARCH_RETRY_S", 0.0)
+        pub.publish(scan_message(Frame("scan", points), STAMP0 + k))
+        out = columns(clouds.wait(k + 1)[k])
+        assert same_partition(out["cluster_id"], expected.cluster_id)
+        assert len(searches) == (1 if k < 3 else 2)

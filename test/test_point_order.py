@@ -230,6 +230,30 @@ def test_held_lines_read_a_firing_order_scan_as_its_firing_order_does():
     assert same_partition(streamed.cluster_id, base.cluster_id)
 
 
+def no_laser_lines_scan(points: int = 20000, seed: int = 0) -> np.ndarray:
+    """Points at random elevations in random order: no ring field, no firing order, no laser lines to find."""
+    rng = np.random.default_rng(seed)
+    r, az, z = rng.uniform(5, 50, points), rng.uniform(-np.pi, np.pi, points), rng.uniform(-2, 3, points)
+    return np.stack([r * np.cos(az), r * np.sin(az), z, rng.uniform(0, 1, points)], 1).astype(np.float32)
+
+
+def test_a_failed_line_search_is_held_and_not_repeated(monkeypatch):
+    """A scan whose line search finds nothing says so (NO_LINES, rings binned by elevation); given that, the next
+    scan skips the search and bins at once, with the same proposals."""
+    pts = no_laser_lines_scan()
+    searched = propose(pts)
+    assert searched.ring_source == "elevation_bins" and searched.lines is not None and searched.lines.empty
+
+    def no_search(*args, **kwargs):
+        raise AssertionError("a line search ran although this stream's search found none")
+
+    monkeypatch.setattr(ring, "rings_from_lines", no_search)
+    held = propose(pts, lines=ring.NO_LINES)
+    assert held.ring_source == "elevation_bins" and held.lines is ring.NO_LINES
+    np.testing.assert_array_equal(held.ring, searched.ring)
+    assert same_partition(held.cluster_id, searched.cluster_id)
+
+
 def test_laser_lines_of_another_sensor_are_refused():
     """Lines that do not fit the scan (another sensor's) fail the quality check: the scan is searched instead."""
     vlp = synthetic_scan(n_rings=16, points_per_ring=900)

@@ -81,16 +81,27 @@ _BAND_MARGIN = 1.5  # a band reads its own slope row only when that row is this 
 
 class LaserLines(NamedTuple):
     """The laser lines t = a + b u of one scan (intercepts descending: ring 0 first) and the origin motion per
-    revolution they hold under: a property of the sensor, so a later scan of the same sensor can reuse them."""
+    revolution they hold under: a property of the sensor, so a later scan of the same sensor can reuse them.
+
+    No lines (`NO_LINES`, `empty`) records a line search that found none: a stream of the same sensor skips the
+    search (30-40 ms a scan) and bins by elevation at once, until its holder clears it to search again."""
 
     a: np.ndarray
     b: np.ndarray
     motion: tuple[float, float] = (0.0, 0.0)
 
+    @property
+    def empty(self) -> bool:
+        """Whether this records a search that found no lines."""
+        return len(self.a) == 0
+
+
+NO_LINES = LaserLines(np.zeros(0), np.zeros(0))
+
 
 class Rings(NamedTuple):
     """Ring index per point, how it was obtained (one of RING_SOURCES), the number of rings found, and the laser
-    lines they were read from (line sources only)."""
+    lines they were read from (line sources; `NO_LINES` when a line search found none)."""
 
     ring: np.ndarray  # (N,) uint16
     source: str
@@ -689,7 +700,8 @@ def recover_rings(
     `config.sensor`'s table, else the firing order (expecting `config.n_rings` rings), else the laser lines found
     in the scan, else elevation bins. `lines`, the laser lines of an earlier scan of the same sensor (`Rings.lines`),
     are tried first: only a scan in no firing order yields lines, so a stream that held them is read from them
-    without the firing-order count or a line search (a live stream pays for the search once).
+    without the firing-order count or a line search (a live stream pays for the search once). `NO_LINES` (what a
+    failed search returns) skips the search: such a stream pays for it once too.
 
     `min_jump_deg`: backward azimuth step that starts a ring in the ``azimuth_jump`` rule;
     `min_ring_points`: boundaries closer than this many points are noise; `missing_tolerance`: how many
@@ -724,16 +736,17 @@ def recover_rings(
             best = (spread, ring, source, n_found)
     if best is not None:
         return Rings(best[1], best[2], best[3])
-    found = rings_from_lines(pts) if len(pts) >= 64 else None
+    searched = lines is not None and lines.empty  # a search of this stream found none: not again
+    found = rings_from_lines(pts) if len(pts) >= 64 and not searched else None
     if found is not None:
         return found
     elev = np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1]))
-    return Rings(elevation_bins(elev, n_rings), "elevation_bins", n_rings)
+    return Rings(elevation_bins(elev, n_rings), "elevation_bins", n_rings, NO_LINES if len(pts) >= 64 else None)
 
 
 def _from_known(pts: np.ndarray, lines: LaserLines | None, source: str) -> Rings | None:
-    """`rings_from_known_lines`, None without lines."""
-    return None if lines is None else rings_from_known_lines(pts, lines, source)
+    """`rings_from_known_lines`, None without lines (or with `NO_LINES`)."""
+    return None if lines is None or lines.empty else rings_from_known_lines(pts, lines, source)
 
 
 def rings_for(points: np.ndarray, ring: np.ndarray | None, config: Stage1Config | None = None,

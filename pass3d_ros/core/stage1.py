@@ -42,7 +42,8 @@ class Stage1Result:
     ground_planes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (n_seg, 4): a x+b y+c z+d=0
     n_clusters: int = 0  # clusters before the gates
     sensor: SensorScale | None = None  # the scan's resolution and the effective th_num / th_prop it ran with
-    lines: _ring.LaserLines | None = None  # laser lines the rings were read from: pass to the next scan's propose()
+    lines: _ring.LaserLines | None = None  # laser lines the rings were read from (NO_LINES: a search found none):
+    # pass to the next scan's propose()
 
     @property
     def n_proposals(self) -> int:
@@ -56,7 +57,8 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
 
     Points with a non-finite coordinate (a driver's no-return) take no part: ring 0, not ground, no proposal.
     `lines`: the previous scan's `Stage1Result.lines` on a stream of one sensor; a scan in no firing order then skips
-    the laser-line search when they still fit it (pass3d_ros.core.ring.recover_rings).
+    the laser-line search when they still fit it, or (`NO_LINES`, from a search that found none) altogether
+    (pass3d_ros.core.ring.recover_rings).
     """
     cfg = config or Stage1Config()
     pts = np.ascontiguousarray(points, dtype=np.float32)
