@@ -132,6 +132,14 @@ def test_inference_view_uses_vertex_nearest_sensor():
     assert view[0] < 4
 
 
+def test_inference_sample_is_the_seeded_draw_and_read_only():
+    for count in (40, 1000):
+        drawn = canonical.sample_indices(count, 256, canonical.inference_rng(count))
+        cached = canonical.inference_sample(count, 256)
+        np.testing.assert_array_equal(cached, drawn)
+        assert canonical.inference_sample(count, 256) is cached and not cached.flags.writeable
+
+
 def test_sampling_exact_count_and_n_feature():
     rng = np.random.default_rng(6)
     many = canonical.sample_indices(1000, 256, rng)

@@ -110,8 +110,10 @@ def prepare_proposals(
     n = canonical.n_feature(counts, num, config.n_mode) if config.n_feature else np.zeros(count)
     pos = np.empty((count, num), dtype=np.int64)
     for p, size in enumerate(counts):
-        gen = rng if rng is not None else canonical.inference_rng(int(size))
-        pos[p] = offsets[p] + canonical.sample_indices(int(size), num, gen)
+        if rng is None:
+            pos[p] = offsets[p] + canonical.inference_sample(int(size), num)
+        else:
+            pos[p] = offsets[p] + canonical.sample_indices(int(size), num, rng)
     if not queries:
         local, feat = _canonical_input(points, index[pos.ravel()], np.repeat(np.arange(count), num), boxes, views, n,
                                        uses_intensity(config))
