@@ -62,6 +62,7 @@ FIRING_ORDER_SOURCES: tuple[str, ...] = ("azimuth_wrap", "azimuth_jump")  # ring
 
 _T_MAX = 0.8  # largest |tan(elevation)| the line search covers (about 38.7 degrees)
 _T_BIN = 0.0005  # accumulator bin of tan(elevation), about 0.03 degrees
+_U_MAX, _U_CELLS = 0.5, 32  # the line assignment's first-guess table: u = 1 / range up to 0.5 (2 m), in 32 cells
 _N_BINS = round(2 * _T_MAX / _T_BIN)  # accumulator bins
 _SLOPES = np.round(np.arange(-0.1, 0.3001, 0.01), 4)  # laser heights above the origin searched (m)
 _SEARCH_POINTS = 20000  # points the line search's accumulator reads, about (hash-chosen: the same in any order)
@@ -228,6 +229,25 @@ def _line_accumulator(pts: np.ndarray, stride: int, min_range: float, slopes: np
     return acc
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _walk(t: float, u: float, a: np.ndarray, b: np.ndarray, k: int) -> tuple[int, float]:
+    """From line k, the nearest line to (u, t) walking up or down while the distance |t - a - b u| falls."""
+    best = abs(t - a[k] - b[k] * u)
+    while k > 0:
+        d = abs(t - a[k - 1] - b[k - 1] * u)
+        if d >= best:
+            break
+        best = d
+        k -= 1
+    while k < a.shape[0] - 1:
+        d = abs(t - a[k + 1] - b[k + 1] * u)
+        if d >= best:
+            break
+        best = d
+        k += 1
+    return k, best
+
+
 @nb.njit(cache=True, nogil=True)
 def _assign_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple:
     """Nearest line (a descending) per point, and its |t - a - b u| distance. A table over t - mean(b) u gives a
@@ -252,22 +272,44 @@ def _assign_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple:
         u = 1.0 / r
         t = pts[i, 2] * u
         c = int((t - b_mean * u - key0) / _T_BIN)
-        best_k = first[min(max(c, 0), n_cells - 1)]
-        best = abs(t - a[best_k] - b[best_k] * u)
-        while best_k > 0:
-            d = abs(t - a[best_k - 1] - b[best_k - 1] * u)
-            if d >= best:
-                break
-            best = d
-            best_k -= 1
-        while best_k < k_lines - 1:
-            d = abs(t - a[best_k + 1] - b[best_k + 1] * u)
-            if d >= best:
-                break
-            best = d
-            best_k += 1
-        ring[i] = best_k
-        resid[i] = best
+        ring[i], resid[i] = _walk(t, u, a, b, first[min(max(c, 0), n_cells - 1)])
+    return ring, resid
+
+
+@nb.njit(cache=True, nogil=True)
+def _assign_known_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple:
+    """`_assign_lines` for the settled lines a stream holds: the first-guess table is over (u, t) cells, each
+    holding the line nearest its centre, so the walk rarely moves, in any point order (over t alone, near points
+    have several lines to walk and a shuffled scan pays for the unpredictable walks: 4.4 -> 2.8 ms and, in a slower
+    hour, 5.9 -> 4.7 ms on 13 real shuffled 120k-point scans, the same rings). A search's own lines may still
+    cross; it keeps `_assign_lines`, whose walks it was tuned with."""
+    n = pts.shape[0]
+    k_lines = a.shape[0]
+    ring = np.zeros(n, dtype=np.uint16)
+    resid = np.empty(n, dtype=np.float64)
+    u_step = _U_MAX / _U_CELLS
+    low, high = 0.0, 0.0  # the table spans every finite line over u in [0, _U_MAX]
+    for k in range(k_lines):
+        for edge in (a[k], a[k] + b[k] * _U_MAX):
+            if np.isfinite(edge):
+                low, high = min(low, edge), max(high, edge)
+    key0 = low - 0.1
+    n_cells = int((high + 0.1 - key0) / _T_BIN) + 2
+    first = np.empty((_U_CELLS, n_cells), dtype=np.int64)
+    for j in range(_U_CELLS):
+        u = (j + 0.5) * u_step
+        k = k_lines - 1
+        for c in range(n_cells):
+            t = key0 + (c + 0.5) * _T_BIN
+            while k > 0 and abs(t - a[k - 1] - b[k - 1] * u) < abs(t - a[k] - b[k] * u):
+                k -= 1
+            first[j, c] = k
+    for i in range(n):
+        r = max(np.sqrt(pts[i, 0] * pts[i, 0] + pts[i, 1] * pts[i, 1]), 0.1)
+        u = 1.0 / r
+        t = pts[i, 2] * u
+        cell = first[min(int(u / u_step), _U_CELLS - 1), min(max(int((t - key0) / _T_BIN), 0), n_cells - 1)]
+        ring[i], resid[i] = _walk(t, u, a, b, cell)
     return ring, resid
 
 
@@ -546,7 +588,7 @@ def _fill_gaps(pts: np.ndarray, a: np.ndarray, b: np.ndarray, min_range: float =
     gap_of = np.where(into_below, ring, np.where(into_above, ring - 1, -2))
     counts = np.bincount(gap_of[gap_of >= -1] + 1, minlength=len(a) + 1)  # gaps -1 (above the top) .. len(a) - 1
     new_a, new_b = list(a), list(b)
-    for g in np.flatnonzero(counts >= need) - 1:
+    for g in np.flatnonzero((counts >= need) & (counts > 0)) - 1:  # an empty gap never gets a line
         slope = b[0] if g < 0 else b[-1] if g >= len(a) - 1 else 0.5 * (b[g] + b[g + 1])
         members = gap_of == g
         new_a.append(float(np.median(t[members] - slope * u[members])))
@@ -655,7 +697,7 @@ def _rings_under(pts: np.ndarray, lines: LaserLines, motion: tuple[float, float]
     """Rings from `lines` seen from an origin moving by `motion`, None unless they pass `line_quality`."""
     moving = motion != (0.0, 0.0)
     seen = _moved_origin(pts, *motion) if moving else pts
-    ring, resid = _assign_lines(seen, lines.a, lines.b)
+    ring, resid = _assign_known_lines(seen, lines.a, lines.b)
     if line_quality(seen, ring, resid, lines.a) < _MIN_QUALITY:
         return None
     return Rings(ring, source + ("_moving" if moving else ""), len(lines.a), lines._replace(motion=motion))
