@@ -561,7 +561,7 @@ class LiveHarness:
         def idle() -> bool:
             if self.options.layout == "two-process":
                 return True  # the child's workers: "quiet" (no output for QUIET_S) stands for idle
-            return self.cluster.worker.idle() and self.segmenter.worker.idle()
+            return self.cluster.idle() and self.segmenter.idle()
 
         def finished() -> bool:
             with session.cond:
@@ -588,8 +588,8 @@ class LiveHarness:
             self.result.node_stats = stats
             return
         self.result.node_counters = {
-            NODE_NAMES[0]: asdict(self.cluster.worker.counters),
-            NODE_NAMES[1]: asdict(self.segmenter.worker.counters),
+            NODE_NAMES[0]: asdict(self.cluster.counters()),
+            NODE_NAMES[1]: asdict(self.segmenter.counters()),
         }
         self.result.node_stats = {NODE_NAMES[0]: self.cluster.stats.snapshot(),
                                   NODE_NAMES[1]: self.segmenter.stats.snapshot()}

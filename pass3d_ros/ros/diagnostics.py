@@ -19,7 +19,8 @@ DIAGNOSTICS_TOPIC = "/diagnostics"
 DIAGNOSTICS_PERIOD_S = 1.0
 GAP_FACTOR = 1.5  # a stamp gap above this x the median period means frames were lost before the node
 HISTORY = 200  # frames kept for the percentiles and the median period
-STEPS = ("wait", "decode", "compute", "encode", "publish", "sink")  # sink: the in-memory next stage
+STEPS = ("wait", "decode", "compute", "handoff", "encode", "publish", "sink")  # sink: the in-memory next stage;
+# handoff: the wait in segmentation_node's publishing thread (overlap)
 
 
 class NodeStats:

@@ -14,7 +14,7 @@ from sensor_msgs.msg import PointCloud2
 
 from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
 from pass3d_ros.ros.diagnostics import DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, NodeStats, StepClock, to_status
-from pass3d_ros.ros.latest_frame import LatestFrameWorker
+from pass3d_ros.ros.latest_frame import FrameCounters, LatestFrameWorker
 from pass3d_ros.ros.params import NodeParameters
 from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
 
@@ -65,6 +65,14 @@ class PointCloudNode(Node):
         self.stats.input(stamp_ns)
         self.worker.submit(item)
 
+    def counters(self) -> FrameCounters:
+        """The node's frame counters: received, processed (= output), dropped, failed."""
+        return self.worker.counters
+
+    def idle(self) -> bool:
+        """True when no frame is pending or in hand."""
+        return self.worker.idle()
+
     def step_clock(self) -> StepClock:
         """A clock for the frame in hand, starting with the time it waited in the worker's slot."""
         return StepClock(self.worker.last_wait_s)
@@ -74,7 +82,7 @@ class PointCloudNode(Node):
         worker = getattr(self, "worker", None)
         if worker is None:
             return
-        counters = vars(worker.counters)
+        counters = vars(self.counters())
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [to_status(self.get_name(), counters, self.stats)]
