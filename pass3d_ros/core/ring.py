@@ -71,6 +71,7 @@ _MIN_LINE_RANGE = 2.0  # nearer points are left out of the line search and fits 
 _MAX_LINES = 144  # a line search that finds more lines than this has failed
 _FILL_ROUNDS = 4  # rounds of gap filling and refitting at most
 _MIN_QUALITY = 0.97  # line_quality a line set needs
+_QUALITY_RANGE = 5.0  # line_quality reads the points beyond this range (m): clean elevations
 _HALF_BAND = 120  # accumulator bins either side that choose a band's slope row (0.06 in tan(elevation))
 _MOTION_STEPS = np.round(np.arange(-2.0, 2.01, 0.1), 2)  # origin motions along x per revolution searched (m)
 _MOTION_SLOPES = np.array([0.12, 0.2])  # slope rows the motion search reads
@@ -277,16 +278,20 @@ def _assign_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple:
 
 
 @nb.njit(cache=True, nogil=True)
-def _assign_known_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple:
-    """`_assign_lines` for the settled lines a stream holds: the first-guess table is over (u, t) cells, each
-    holding the line nearest its centre, so the walk rarely moves, in any point order (over t alone, near points
-    have several lines to walk and a shuffled scan pays for the unpredictable walks: 4.4 -> 2.8 ms and, in a slower
-    hour, 5.9 -> 4.7 ms on 13 real shuffled 120k-point scans, the same rings). A search's own lines may still
-    cross; it keeps `_assign_lines`, whose walks it was tuned with."""
+def _assign_known_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray, vx: float, vy: float, tol: np.ndarray,
+                        min_range: float) -> tuple[np.ndarray, float]:
+    """`_assign_lines` for the settled lines a stream holds, seen from an origin moving by (vx, vy) per revolution
+    (`_moved_origin`, computed per point here), with their `line_quality` (`_share_close` under `tol`, beyond
+    `min_range`) counted in the same pass: one pass over the points instead of three.
+
+    The first-guess table is over (u, t) cells, each holding the line nearest its centre, so the walk rarely moves,
+    in any point order (over t alone, near points have several lines to walk and a shuffled scan pays for the
+    unpredictable walks: 4.4 -> 2.8 ms and, in a slower hour, 5.9 -> 4.7 ms on 13 real shuffled 120k-point scans,
+    the same rings). A search's own lines may still cross; it keeps `_assign_lines`, whose walks it was tuned with.
+    """
     n = pts.shape[0]
     k_lines = a.shape[0]
     ring = np.zeros(n, dtype=np.uint16)
-    resid = np.empty(n, dtype=np.float64)
     u_step = _U_MAX / _U_CELLS
     low, high = 0.0, 0.0  # the table spans every finite line over u in [0, _U_MAX]
     for k in range(k_lines):
@@ -304,13 +309,26 @@ def _assign_known_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple:
             while k > 0 and abs(t - a[k - 1] - b[k - 1] * u) < abs(t - a[k] - b[k] * u):
                 k -= 1
             first[j, c] = k
+    min_r2 = min_range * min_range
+    far = 0
+    close = 0
     for i in range(n):
-        r = max(np.sqrt(pts[i, 0] * pts[i, 0] + pts[i, 1] * pts[i, 1]), 0.1)
+        x, y = pts[i, 0], pts[i, 1]
+        if vx != 0.0 or vy != 0.0:  # float32, as _moved_origin stores them
+            tau = _revolution_time(x, y)
+            x, y = np.float32(x - vx * tau), np.float32(y - vy * tau)
+        r2 = x * x + y * y
+        r = max(np.sqrt(r2), 0.1)
         u = 1.0 / r
         t = pts[i, 2] * u
         cell = first[min(int(u / u_step), _U_CELLS - 1), min(max(int((t - key0) / _T_BIN), 0), n_cells - 1)]
-        ring[i], resid[i] = _walk(t, u, a, b, cell)
-    return ring, resid
+        k, resid = _walk(t, u, a, b, cell)
+        ring[i] = k
+        if r2 >= min_r2:
+            far += 1
+            if resid < tol[k]:
+                close += 1
+    return ring, close / far if far > 0 else 0.0
 
 
 @nb.njit(cache=True, nogil=True)
@@ -638,7 +656,7 @@ def _share_close(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, tol: np.n
 
 
 def line_quality(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, a: np.ndarray,
-                 min_range: float = 5.0) -> float:
+                 min_range: float = _QUALITY_RANGE) -> float:
     """Share of the points beyond `min_range` (clean elevations) within a quarter gap of their line: about 1 when
     the lines are the lasers, far lower for lines drawn through a scan that does not fit the model (uniform
     residuals give about one half)."""
@@ -696,9 +714,9 @@ def rings_from_known_lines(points: np.ndarray, lines: LaserLines, source: str) -
 def _rings_under(pts: np.ndarray, lines: LaserLines, motion: tuple[float, float], source: str) -> Rings | None:
     """Rings from `lines` seen from an origin moving by `motion`, None unless they pass `line_quality`."""
     moving = motion != (0.0, 0.0)
-    seen = _moved_origin(pts, *motion) if moving else pts
-    ring, resid = _assign_known_lines(seen, lines.a, lines.b)
-    if line_quality(seen, ring, resid, lines.a) < _MIN_QUALITY:
+    ring, quality = _assign_known_lines(pts, lines.a, lines.b, motion[0], motion[1], _close_tolerance(lines.a, 0.25),
+                                        _QUALITY_RANGE)
+    if quality < _MIN_QUALITY:
         return None
     return Rings(ring, source + ("_moving" if moving else ""), len(lines.a), lines._replace(motion=motion))
 
