@@ -248,6 +248,7 @@ def test_a_failed_line_search_is_held_and_not_repeated(monkeypatch):
         raise AssertionError("a line search ran although this stream's search found none")
 
     monkeypatch.setattr(ring, "rings_from_lines", no_search)
+    assert ring.rings_from_known_lines(pts, ring.NO_LINES, "elevation_lines") is None
     held = propose(pts, lines=ring.NO_LINES)
     assert held.ring_source == "elevation_bins" and held.lines is ring.NO_LINES
     np.testing.assert_array_equal(held.ring, searched.ring)

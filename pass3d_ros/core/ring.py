@@ -701,7 +701,9 @@ def rings_from_known_lines(points: np.ndarray, lines: LaserLines, source: str) -
     """Rings of a scan in any point order from the laser lines of an earlier scan of the same sensor (no search: a
     sensor's lines do not change), None unless they fit this scan as well as a search's must (`line_quality` over
     all its points: a changed sensor or mounting fails it). A motion-corrected scan whose motion changed gets the
-    lines again under its own motion (`estimate_motion`)."""
+    lines again under its own motion (`estimate_motion`). `NO_LINES` fits nothing: None."""
+    if lines.empty:
+        return None
     pts = np.ascontiguousarray(points, dtype=np.float32)
     found = _rings_under(pts, lines, lines.motion, source)
     if found is None:
@@ -805,8 +807,8 @@ def recover_rings(
 
 
 def _from_known(pts: np.ndarray, lines: LaserLines | None, source: str) -> Rings | None:
-    """`rings_from_known_lines`, None without lines (or with `NO_LINES`)."""
-    return None if lines is None or lines.empty else rings_from_known_lines(pts, lines, source)
+    """`rings_from_known_lines`, None without lines."""
+    return None if lines is None else rings_from_known_lines(pts, lines, source)
 
 
 def rings_for(points: np.ndarray, ring: np.ndarray | None, config: Stage1Config | None = None,
