@@ -7,6 +7,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 import pytest
@@ -305,9 +306,9 @@ def test_implausible_scans_warn_and_are_still_processed(
     assert "x/y/z: dropping 4 points with non-finite or absurd coordinates" in err
 
 
-def test_shuffled_stream_searches_its_laser_lines_once(ros: Ros, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Scans in no firing order and without a ring field: the node finds the laser lines on the first scan and reads
-    the next scans' rings off them (no second search), with the proposals of the scan's own search."""
+def stream_with_counted_searches(ros: Ros) -> tuple[Any, Collector, list[int], Callable[..., Any]]:
+    """A cluster node fed by a probe publisher, its proposals collector, and a laser-line search that records each
+    call in the returned list (monkeypatch it over `ring.rings_from_lines` once the expected result is computed)."""
     from pass3d_ros.core import ring
 
     searches: list[int] = []
@@ -321,6 +322,15 @@ def test_shuffled_stream_searches_its_laser_lines_once(ros: Ros, monkeypatch: py
     clouds = Collector(ros, PointCloud2, "/pass3d/proposals")
     pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
     connect(pub, clouds)
+    return pub, clouds, searches, counted
+
+
+def test_shuffled_stream_searches_its_laser_lines_once(ros: Ros, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Scans in no firing order and without a ring field: the node finds the laser lines on the first scan and reads
+    the next scans' rings off them (no second search), with the proposals of the scan's own search."""
+    from pass3d_ros.core import ring
+
+    pub, clouds, searches, counted = stream_with_counted_searches(ros)
     points = synthetic_scan(points_per_ring=900)  # a scan whose lines the search finds (see the README on others)
     expected = propose(points)
     monkeypatch.setattr(ring, "rings_from_lines", counted)
@@ -340,17 +350,7 @@ def test_stream_without_laser_lines_searches_again_only_after_the_retry_time(
     from pass3d_ros.core import ring
     from pass3d_ros.ros import cluster_proposal_node
 
-    searches: list[int] = []
-    search = ring.rings_from_lines
-
-    def counted(points: np.ndarray, sensor: str = "auto") -> ring.Rings | None:
-        searches.append(len(points))
-        return search(points, sensor)
-
-    ros.add(ClusterProposalNode(context=ros.context))
-    clouds = Collector(ros, PointCloud2, "/pass3d/proposals")
-    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
-    connect(pub, clouds)
+    pub, clouds, searches, counted = stream_with_counted_searches(ros)
     points = no_laser_lines_scan()
     expected = propose(points)
     monkeypatch.setattr(ring, "rings_from_lines", counted)
