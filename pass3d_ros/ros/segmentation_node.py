@@ -218,21 +218,24 @@ class SegmentationNode(PointCloudNode):
     def counters(self) -> FrameCounters:
         """The stage-2 worker's counters; with a publishing thread, a frame counts as processed once published, and
         a result that thread dropped for a newer one counts as dropped."""
-        if self.publisher is None:
+        publisher = getattr(self, "publisher", None)  # diagnostics may ask before __init__ has made it
+        if publisher is None:
             return self.worker.counters
-        stage2, publish = self.worker.counters, self.publisher.counters
+        stage2, publish = self.worker.counters, publisher.counters
         return FrameCounters(received=stage2.received, processed=publish.processed,
                              dropped=stage2.dropped + publish.dropped, failed=stage2.failed + publish.failed)
 
     def idle(self) -> bool:
         """True when neither the stage-2 thread nor the publishing thread has a frame."""
-        return self.worker.idle() and (self.publisher is None or self.publisher.idle())
+        publisher = getattr(self, "publisher", None)
+        return self.worker.idle() and (publisher is None or publisher.idle())
 
     def stop_worker(self) -> None:
         """Finish the frame in hand, then what the publishing thread holds."""
         super().stop_worker()
-        if self.publisher is not None:
-            self.publisher.stop()
+        publisher = getattr(self, "publisher", None)
+        if publisher is not None:
+            publisher.stop()
 
     def destroy_node(self) -> None:
         """Stop the workers, then the classifier's process if it has one."""
