@@ -3,6 +3,7 @@ recovery of a 32-laser scan, the reported fallback, and the benchmark's reorderi
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -216,6 +217,39 @@ def test_laser_lines_of_one_scan_give_the_next_scans_rings_without_a_search(monk
     assert streamed.ring_source == "elevation_lines" and streamed.lines is not None
     assert np.mean(streamed.ring == searched.ring) > 0.999
     assert same_partition(streamed.cluster_id, searched.cluster_id)
+
+
+def test_held_lines_assign_half_the_points_on_the_helper_thread_with_the_same_rings():
+    """Under held lines the ground thread assigns the second half of the points: the same rings and line quality as
+    one thread, and the proposals as without the ground thread."""
+    pts = synthetic_scan(points_per_ring=900)
+    lines = propose(np.ascontiguousarray(pts[::-1])).lines
+    shuffled = np.ascontiguousarray(pts[np.random.default_rng(5).permutation(len(pts))])
+    tol = ring._close_tolerance(lines.a, 0.25)
+    alone = ring._assign_known_lines(shuffled, lines.a, lines.b, 0.0, 0.0, tol, 5.0)
+    with ThreadPoolExecutor(max_workers=1) as helper:
+        halves = ring._assign_known_lines(shuffled, lines.a, lines.b, 0.0, 0.0, tol, 5.0, helper)
+        submitted = []
+        counting = _CountingExecutor(helper, submitted)
+        ring._assign_known_lines(shuffled, lines.a, lines.b, 0.0, 0.0, tol, 5.0, counting)
+    assert len(submitted) == 1 and len(shuffled) >= ring._SPLIT_POINTS
+    np.testing.assert_array_equal(halves[0], alone[0])
+    assert halves[1] == alone[1] > 0.97
+    on_two = propose(shuffled, lines=lines)
+    on_one = propose(shuffled, config=Stage1Config(ground_thread=False), lines=lines)
+    np.testing.assert_array_equal(on_two.ring, on_one.ring)
+    np.testing.assert_array_equal(on_two.cluster_id, on_one.cluster_id)
+
+
+class _CountingExecutor:
+    """An executor that records what is submitted to it."""
+
+    def __init__(self, inner: ThreadPoolExecutor, log: list) -> None:
+        self.inner, self.log = inner, log
+
+    def submit(self, fn, *args):
+        self.log.append(fn)
+        return self.inner.submit(fn, *args)
 
 
 def test_held_lines_read_a_firing_order_scan_as_its_firing_order_does():

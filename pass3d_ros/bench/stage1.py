@@ -96,20 +96,24 @@ def time_stage1(frames: list[Frame], repeat: int, config: Stage1Config) -> dict[
 
 
 def time_orders(frames: list[Frame], repeat: int, config: Stage1Config, orders: tuple[str, ...]) -> dict:
-    """Median total ms of stage 1 on the frames in firing order and reordered, measured in one run (frames
-    interleaved), with each order's ratio to firing order, ring sources and proposal agreement; printed.
+    """Median total ms of stage 1 on the frames in firing order and reordered, measured in one run, with each
+    order's ratio to firing order, ring sources and proposal agreement; printed.
 
-    Each reordering is timed twice: "cold", every scan searched for its laser lines, and "stream", each scan given
-    the lines held after the frame before it (the first frame: after the last) as a live node holds them: from a
-    different scan, so they are checked, never read off the scan they label. With one frame both are the same scan's
-    (said)."""
+    The orders take turns, one run each per round, and a ratio is the median over rounds of the order's time over
+    the firing order's in the same round: this machine's speed drifts by up to 2x within seconds, and timing one
+    order after the other turned that drift into the ratios. Each reordering is timed twice: "cold", every scan
+    searched for its laser lines, and "stream", each scan given the lines held after the frame before it (the
+    first frame: after the last) as a live node holds them: from a different scan, so they are checked, never read
+    off the scan they label. With one frame both are the same scan's (said)."""
     rows = ("firing", *(f"{how} {kind}" for how in orders for kind in ("cold", "stream")))
     times: dict[str, list[float]] = {row: [] for row in rows}
+    ratios: dict[str, list[float]] = {row: [] for row in rows}
     sources: dict[str, set[str]] = {row: set() for row in rows}
     agree = {row: 0 for row in rows}
     bases = [propose(frame.points, frame.ring, config) for frame in frames]
     carried = _stream_lines(frames, bases, config)
     for index, (frame, base) in enumerate(zip(frames, bases, strict=True)):
+        runs = {}
         for row in rows:
             how, _, kind = row.partition(" ")
             order = reorder(frame.points, base.ring, how)
@@ -119,17 +123,21 @@ def time_orders(frames: list[Frame], repeat: int, config: Stage1Config, orders: 
             result = propose(pts, ring, config, lines)
             agree[row] += same_partition(result.cluster_id, base.cluster_id[order])
             sources[row].add(result.ring_source)
-            for _ in range(repeat):
-                times[row].append(propose(pts, ring, config, lines).timings_ms["total"])
-    firing = statistics.median(times["firing"])
+            runs[row] = (pts, ring, lines)
+        for _ in range(repeat):
+            this_round = {row: propose(*runs[row][:2], config, runs[row][2]).timings_ms["total"] for row in rows}
+            for row, ms in this_round.items():
+                times[row].append(ms)
+                ratios[row].append(ms / this_round["firing"])
     report = {}
-    print(f"point order ({len(frames)} frame(s), median total ms, ratio to firing order in this run; stream: laser "
-          f"lines held after {'the frame before' if len(frames) > 1 else 'the same scan (one frame)'}):")
+    print(f"point order ({len(frames)} frame(s), median total ms; ratio to firing order: median over rounds of the "
+          f"same round's times; stream: laser lines held after "
+          f"{'the frame before' if len(frames) > 1 else 'the same scan (one frame)'}):")
     for row, values in times.items():
-        median = statistics.median(values)
-        report[row] = {"ms_median": median, "ratio": median / firing, "ring_sources": sorted(sources[row]),
+        median, ratio = statistics.median(values), statistics.median(ratios[row])
+        report[row] = {"ms_median": median, "ratio": ratio, "ring_sources": sorted(sources[row]),
                        "same_proposals": agree[row], "frames": len(frames)}
-        print(f"  {row:<15} {median:8.3f} ms  x{median / firing:5.2f}  rings: {', '.join(sorted(sources[row]))}"
+        print(f"  {row:<15} {median:8.3f} ms  x{ratio:5.2f}  rings: {', '.join(sorted(sources[row]))}"
               f"  same proposals: {agree[row]}/{len(frames)}")
     return report
 

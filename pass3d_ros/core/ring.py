@@ -46,6 +46,7 @@ evenly spaced lasers: the result's ``source`` says so, for the caller to report.
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
 from typing import NamedTuple
 
 import numba as nb
@@ -63,6 +64,7 @@ FIRING_ORDER_SOURCES: tuple[str, ...] = ("azimuth_wrap", "azimuth_jump")  # ring
 _T_MAX = 0.8  # largest |tan(elevation)| the line search covers (about 38.7 degrees)
 _T_BIN = 0.0005  # accumulator bin of tan(elevation), about 0.03 degrees
 _U_MAX, _U_CELLS = 0.5, 32  # the line assignment's first-guess table: u = 1 / range up to 0.5 (2 m), in 32 cells
+_SPLIT_POINTS = 20000  # a scan with fewer points is assigned on one thread (a hand-off costs more than half)
 _N_BINS = round(2 * _T_MAX / _T_BIN)  # accumulator bins
 _SLOPES = np.round(np.arange(-0.1, 0.3001, 0.01), 4)  # laser heights above the origin searched (m)
 _SEARCH_POINTS = 20000  # points the line search's accumulator reads, about (hash-chosen: the same in any order)
@@ -278,22 +280,12 @@ def _assign_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple:
 
 
 @nb.njit(cache=True, nogil=True)
-def _assign_known_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray, vx: float, vy: float, tol: np.ndarray,
-                        min_range: float) -> tuple[np.ndarray, float]:
-    """`_assign_lines` for the settled lines a stream holds, seen from an origin moving by (vx, vy) per revolution
-    (`_moved_origin`, computed per point here), with their `line_quality` (`_share_close` under `tol`, beyond
-    `min_range`) counted in the same pass: one pass over the points instead of three.
-
-    The first-guess table is over (u, t) cells, each holding the line nearest its centre, so the walk rarely moves,
-    in any point order (over t alone, near points have several lines to walk and a shuffled scan pays for the
-    unpredictable walks: 4.4 -> 2.8 ms and, in a slower hour, 5.9 -> 4.7 ms on 13 real shuffled 120k-point scans,
-    the same rings). A search's own lines may still cross; it keeps `_assign_lines`, whose walks it was tuned with.
-    """
-    n = pts.shape[0]
+def _first_guess_table(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
+    """`_assign_known_part`'s first-guess table over (u, t) cells, each holding the line nearest its centre, and
+    the t of its first cell; it spans every finite line over u in [0, _U_MAX]."""
     k_lines = a.shape[0]
-    ring = np.zeros(n, dtype=np.uint16)
     u_step = _U_MAX / _U_CELLS
-    low, high = 0.0, 0.0  # the table spans every finite line over u in [0, _U_MAX]
+    low, high = 0.0, 0.0
     for k in range(k_lines):
         for edge in (a[k], a[k] + b[k] * _U_MAX):
             if np.isfinite(edge):
@@ -309,10 +301,29 @@ def _assign_known_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray, vx: float
             while k > 0 and abs(t - a[k - 1] - b[k - 1] * u) < abs(t - a[k] - b[k] * u):
                 k -= 1
             first[j, c] = k
+    return first, key0
+
+
+@nb.njit(cache=True, nogil=True)
+def _assign_known_part(pts: np.ndarray, lo: int, hi: int, a: np.ndarray, b: np.ndarray, vx: float, vy: float,
+                       tol: np.ndarray, min_range: float, first: np.ndarray, key0: float,
+                       ring: np.ndarray) -> tuple[int, int]:
+    """`_assign_lines` for points lo..hi-1 under the settled lines a stream holds, seen from an origin moving by
+    (vx, vy) per revolution (`_moved_origin`, computed per point here), writing `ring`; returns the counts their
+    `line_quality` is made of (points within `tol` of their line, and all, beyond `min_range`): one pass over the
+    points instead of three.
+
+    The first-guess table (`_first_guess_table`) is over (u, t) cells, so the walk rarely moves, in any point order
+    (over t alone, near points have several lines to walk and a shuffled scan pays for the unpredictable walks:
+    4.4 -> 2.8 ms and, in a slower hour, 5.9 -> 4.7 ms on 13 real shuffled 120k-point scans, the same rings). A
+    search's own lines may still cross; it keeps `_assign_lines`, whose walks it was tuned with.
+    """
+    u_step = _U_MAX / _U_CELLS
+    n_cells = first.shape[1]
     min_r2 = min_range * min_range
     far = 0
     close = 0
-    for i in range(n):
+    for i in range(lo, hi):
         x, y = pts[i, 0], pts[i, 1]
         if vx != 0.0 or vy != 0.0:  # float32, as _moved_origin stores them
             tau = _revolution_time(x, y)
@@ -328,6 +339,27 @@ def _assign_known_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray, vx: float
             far += 1
             if resid < tol[k]:
                 close += 1
+    return close, far
+
+
+def _assign_known_lines(pts: np.ndarray, a: np.ndarray, b: np.ndarray, vx: float, vy: float, tol: np.ndarray,
+                        min_range: float, helper: Executor | None = None) -> tuple[np.ndarray, float]:
+    """Ring per point from a stream's settled lines (`_assign_known_part`) and their `line_quality`. With a
+    `helper` (a one-thread executor) the second half of the points is assigned there while this thread assigns the
+    first: the kernel releases the GIL, so a shuffled or column-ordered scan's largest step takes half the time
+    (the same rings)."""
+    n = pts.shape[0]
+    ring = np.zeros(n, dtype=np.uint16)
+    first, key0 = _first_guess_table(a, b)
+    args = (a, b, vx, vy, tol, min_range, first, key0, ring)
+    if helper is None or n < _SPLIT_POINTS:
+        close, far = _assign_known_part(pts, 0, n, *args)
+    else:
+        half = n // 2
+        other = helper.submit(_assign_known_part, pts, half, n, *args)
+        close, far = _assign_known_part(pts, 0, half, *args)
+        close_other, far_other = other.result()
+        close, far = close + close_other, far + far_other
     return ring, close / far if far > 0 else 0.0
 
 
@@ -697,27 +729,30 @@ def _search_lines(sample: np.ndarray, acc: np.ndarray, half_band: int) -> tuple[
     return a, b
 
 
-def rings_from_known_lines(points: np.ndarray, lines: LaserLines, source: str) -> Rings | None:
+def rings_from_known_lines(points: np.ndarray, lines: LaserLines, source: str,
+                           helper: Executor | None = None) -> Rings | None:
     """Rings of a scan in any point order from the laser lines of an earlier scan of the same sensor (no search: a
     sensor's lines do not change), None unless they fit this scan as well as a search's must (`line_quality` over
     all its points: a changed sensor or mounting fails it). A motion-corrected scan whose motion changed gets the
-    lines again under its own motion (`estimate_motion`). `NO_LINES` fits nothing: None."""
+    lines again under its own motion (`estimate_motion`). `NO_LINES` fits nothing: None. `helper`: a one-thread
+    executor that assigns half of the points (`_assign_known_lines`)."""
     if lines.empty:
         return None
     pts = np.ascontiguousarray(points, dtype=np.float32)
-    found = _rings_under(pts, lines, lines.motion, source)
+    found = _rings_under(pts, lines, lines.motion, source, helper)
     if found is None:
         motion = estimate_motion(search_sample(pts))
         if motion != lines.motion:
-            found = _rings_under(pts, lines, motion, source)
+            found = _rings_under(pts, lines, motion, source, helper)
     return found
 
 
-def _rings_under(pts: np.ndarray, lines: LaserLines, motion: tuple[float, float], source: str) -> Rings | None:
+def _rings_under(pts: np.ndarray, lines: LaserLines, motion: tuple[float, float], source: str,
+                 helper: Executor | None) -> Rings | None:
     """Rings from `lines` seen from an origin moving by `motion`, None unless they pass `line_quality`."""
     moving = motion != (0.0, 0.0)
     ring, quality = _assign_known_lines(pts, lines.a, lines.b, motion[0], motion[1], _close_tolerance(lines.a, 0.25),
-                                        _QUALITY_RANGE)
+                                        _QUALITY_RANGE, helper)
     if quality < _MIN_QUALITY:
         return None
     return Rings(ring, source + ("_moving" if moving else ""), len(lines.a), lines._replace(motion=motion))
@@ -757,6 +792,7 @@ def recover_rings(
     missing_tolerance: int = 4,
     min_range: float = 4.0,
     lines: LaserLines | None = None,
+    helper: Executor | None = None,
 ) -> Rings:
     """Ring index per point of a scan without a ring field (see the module docstring for the rules): a named
     `config.sensor`'s table, else the firing order (expecting `config.n_rings` rings), else the laser lines found
@@ -764,6 +800,8 @@ def recover_rings(
     are tried first: only a scan in no firing order yields lines, so a stream that held them is read from them
     without the firing-order count or a line search (a live stream pays for the search once). `NO_LINES` (what a
     failed search returns) skips the search: such a stream pays for it once too.
+
+    `helper`: a one-thread executor that assigns half of the points under held `lines`.
 
     `min_jump_deg`: backward azimuth step that starts a ring in the ``azimuth_jump`` rule;
     `min_ring_points`: boundaries closer than this many points are noise; `missing_tolerance`: how many
@@ -776,13 +814,13 @@ def recover_rings(
     if len(pts) == 0:
         return Rings(np.zeros(0, dtype=np.uint16), "azimuth_wrap", 0)
     if cfg.sensor != "auto":
-        known = _from_known(pts, lines, "laser_table")
+        known = _from_known(pts, lines, "laser_table", helper)
         if known is not None:
             return known
         found = rings_from_lines(pts, cfg.sensor)
         assert found is not None
         return found
-    known = _from_known(pts, lines, "elevation_lines")
+    known = _from_known(pts, lines, "elevation_lines", helper)
     if known is not None:
         return known
     min_cos_jump = float(np.cos(np.deg2rad(min_jump_deg)))
@@ -806,21 +844,21 @@ def recover_rings(
     return Rings(elevation_bins(elev, n_rings), "elevation_bins", n_rings, NO_LINES if len(pts) >= 64 else None)
 
 
-def _from_known(pts: np.ndarray, lines: LaserLines | None, source: str) -> Rings | None:
+def _from_known(pts: np.ndarray, lines: LaserLines | None, source: str, helper: Executor | None) -> Rings | None:
     """`rings_from_known_lines`, None without lines."""
-    return None if lines is None else rings_from_known_lines(pts, lines, source)
+    return None if lines is None else rings_from_known_lines(pts, lines, source, helper)
 
 
 def rings_for(points: np.ndarray, ring: np.ndarray | None, config: Stage1Config | None = None,
-              lines: LaserLines | None = None) -> Rings:
+              lines: LaserLines | None = None, helper: Executor | None = None) -> Rings:
     """The given ring field when there is one (checked for length), else the rings recovered under `config`
-    (trying an earlier scan's laser `lines` before a line search)."""
+    (trying an earlier scan's laser `lines` before a line search, half of them assigned on `helper`)."""
     if ring is not None:
         ring = np.asarray(ring)
         if len(ring) != len(points):
             raise ValueError(f"ring field has {len(ring)} entries for {len(points)} points")
         return Rings(ring.astype(np.uint16, copy=False), "field", int(ring.max()) + 1 if len(ring) else 0)
-    return recover_rings(points, config, lines=lines)
+    return recover_rings(points, config, lines=lines, helper=helper)
 
 
 def warm_up() -> None:

@@ -92,14 +92,19 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     """Stage 1 on float32 points whose coordinates are all finite.
 
     Ground plane fitting reads the points as they come (its sample does not depend on their order), on the ground
-    thread beside ring recovery. Points in any other order than a scan order are put in the canonical order (ring,
-    then azimuth: pass3d_ros.core.scanline.canonical_order) for clustering and refinement, so the proposals do not
-    depend on the order the points came in; the results are mapped back to the input order. The frame runs with the
+    thread beside ring recovery (after assigning half of the points to held laser lines, when there are some).
+    Points in any other order than a scan order are put in the canonical order (ring, then azimuth:
+    pass3d_ros.core.scanline.canonical_order) for clustering and refinement, so the proposals do not depend on the
+    order the points came in; the results are mapped back to the input order. The frame runs with the
     effective config for its sensor (pass3d_ros.core.sensor_params.effective_config), reported in the result.
     """
     t0 = time.perf_counter()
-    beside = _ground_pool().submit(_ground.fit_ground, pts, cfg) if cfg.ground_thread else None
-    rings = _ring.rings_for(pts, ring, cfg, lines)
+    # Under held laser lines the ground thread first assigns half of the points to them, then fits the ground.
+    split = cfg.ground_thread and ring is None and lines is not None and not lines.empty
+    beside = _ground_pool().submit(_ground.fit_ground, pts, cfg) if cfg.ground_thread and not split else None
+    rings = _ring.rings_for(pts, ring, cfg, lines, _ground_pool() if split else None)
+    if split:
+        beside = _ground_pool().submit(_ground.fit_ground, pts, cfg)
     order, work, work_ring = None, pts, rings.ring
     if not _in_scan_order(rings):
         order, work, work_ring = _scanline.in_canonical_order(pts, rings.ring)
