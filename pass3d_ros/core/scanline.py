@@ -40,6 +40,17 @@ def pseudo_azimuth(x: float, y: float) -> float:
     return p
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def pseudo_azimuth_unordered(x: float, y: float) -> float:
+    """`pseudo_azimuth`'s value (0 for the origin, which it may give as -0), without a branch on the quadrant: for
+    points in no scan order, whose quadrants the CPU cannot predict (115k shuffled points: 1.0 -> 0.4 ms; in scan
+    order, where those branches are predicted, 0.3 -> 0.45 ms)."""
+    s = abs(x) + abs(y)
+    p = y / (s if s > 0.0 else np.float32(1.0))
+    lower = 4.0 + p if y < 0.0 else p
+    return 2.0 - p if x < 0.0 else lower
+
+
 @nb.njit(cache=True, nogil=True)
 def _sort_ring(keys: np.ndarray, idx: np.ndarray) -> None:
     """Sort one ring's (key, index) pairs by key in place: rotate at the wrap, then insertion-sort the jitter."""
@@ -307,7 +318,7 @@ def _canonical_kernel(pts: np.ndarray, ring: np.ndarray, n_rings: int) -> tuple:
     for i in range(n):
         r = ring[i]
         idx[fill[r]] = i
-        keys[fill[r]] = pseudo_azimuth(pts[i, 0], pts[i, 1])
+        keys[fill[r]] = pseudo_azimuth_unordered(pts[i, 0], pts[i, 1])
         fill[r] += 1
     work_ring = np.empty_like(ring)
     for r in range(n_rings):
