@@ -303,9 +303,9 @@ def fit_ground(points: np.ndarray, config: Stage1Config | None = None, in_scan_o
     edges = -cfg.ground_x_extent + width * np.arange(n_seg + 1)
     if len(pts) == 0:
         return GroundFit(np.zeros(0, dtype=bool), np.tile([0.0, 0.0, 1.0, cfg.sensor_height], (n_seg, 1)), edges)
+    sample = _sample(pts, int(cfg.fit_stride), in_scan_order)  # apart: inside the kernel, the fit took 3.7 ms, not 2.5
     ground, planes = _ground_kernel(
-        pts, np.take(pts, _sample(pts, int(cfg.fit_stride), in_scan_order), axis=0),  # apart: called inside the kernel, the
-        edges, int(cfg.n_lpr), int(cfg.n_iter), cfg.th_seeds, cfg.th_dist,  # same fit took 3.7 ms, not 2.5
+        pts, np.take(pts, sample, axis=0), edges, int(cfg.n_lpr), int(cfg.n_iter), cfg.th_seeds, cfg.th_dist,
         -(cfg.sensor_height + cfg.below_ground_margin), float(np.cos(np.deg2rad(cfg.ground_max_slope_deg))),
         cfg.ground_seed_band, cfg.ground_lpr_outlier_share, cfg.ground_max_step, int(cfg.fit_stride),
     )
