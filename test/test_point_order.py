@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pass3d_ros.bench.stage1 import reorder, same_partition
-from pass3d_ros.core import lasers, ring, scanline
+from pass3d_ros.core import ground, lasers, ring, scanline
 from pass3d_ros.core.stage1 import Stage1Config, propose, synthetic_scan
 
 
@@ -239,6 +239,20 @@ def test_held_lines_assign_half_the_points_on_the_helper_thread_with_the_same_ri
     on_one = propose(shuffled, config=Stage1Config(ground_thread=False), lines=lines)
     np.testing.assert_array_equal(on_two.ring, on_one.ring)
     np.testing.assert_array_equal(on_two.cluster_id, on_one.cluster_id)
+
+
+def test_unordered_variants_give_the_same_keys_sample_and_ground():
+    """The branch-free pseudo-azimuth and ground sample for points in no scan order give the same values as the
+    scan-order ones, on the axes and at the origin too."""
+    pts = synthetic_scan(points_per_ring=900)
+    shuffled = np.ascontiguousarray(pts[np.random.default_rng(6).permutation(len(pts))])
+    corners = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1], [-1, -1], [2, -3], [-0.0, -0.0]], np.float32)
+    for x, y in np.concatenate([corners, shuffled[:2000, :2]]):
+        assert scanline.pseudo_azimuth_unordered(x, y) == scanline.pseudo_azimuth(x, y), (x, y)
+    np.testing.assert_array_equal(ground._sample(shuffled, 4, False), ground._sample(shuffled, 4, True))
+    fast, plain = ground.fit_ground(shuffled, in_scan_order=False), ground.fit_ground(shuffled)
+    np.testing.assert_array_equal(fast.ground, plain.ground)
+    np.testing.assert_array_equal(fast.planes, plain.planes)
 
 
 class _CountingExecutor:
