@@ -204,6 +204,26 @@ def test_nan_points_kept_or_dropped() -> None:
     assert decode_xyzi(msg, skip_nans=True).points.shape == (4, 4)
 
 
+@pytest.mark.parametrize("layout", ["xyzi_float32", "float64"])
+def test_decode_xyzi_drops_nan_points_with_their_rings(layout: str) -> None:
+    """The one-pass copy (x, y, z, intensity consecutive float32) and the column path drop the same points, and the
+    ring of each point that stays."""
+    n = 9
+    dtype = np.float32 if layout == "xyzi_float32" else np.float64
+    cols = {axis: np.arange(n, dtype=dtype) + k for k, axis in enumerate(("x", "y", "z"))}
+    cols["intensity"] = np.linspace(0, 1, n).astype(np.float32)
+    cols["ring"] = np.arange(n, dtype=np.uint16) * 3
+    cols["y"][2] = np.nan
+    cols["z"][7] = np.nan
+    scan = decode_xyzi(encode(cols), skip_nans=True)
+    keep = [0, 1, 3, 4, 5, 6, 8]
+    np.testing.assert_array_equal(scan.ring, cols["ring"][keep])
+    np.testing.assert_array_equal(scan.points[:, 0], cols["x"][keep].astype(np.float32))
+    np.testing.assert_array_equal(scan.points[:, 3], cols["intensity"][keep])
+    whole = decode_xyzi(encode(cols))
+    assert len(whole.points) == n and np.isnan(whole.points[2, 1]) and len(whole.ring) == n
+
+
 @pytest.mark.parametrize("alias", ["intensity", "i", "reflectance"])
 def test_intensity_aliases(alias: str) -> None:
     cols = sample_columns(20)

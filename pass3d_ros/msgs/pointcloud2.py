@@ -22,6 +22,7 @@ import sys
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
+import numba as nb
 import numpy as np
 
 POINTCLOUD2_TYPE = "sensor_msgs/msg/PointCloud2"
@@ -187,8 +188,9 @@ def intensity_name(cloud: np.ndarray | np.dtype) -> str | None:
     return next((name for name in INTENSITY_NAMES if name in names), None)
 
 
-def _packed_xyzi(cloud: np.ndarray, name: str | None) -> np.ndarray | None:
-    """One strided copy when x, y, z, intensity are consecutive native float32 (the usual layout), else None."""
+def _xyzi_view(cloud: np.ndarray, name: str | None) -> np.ndarray | None:
+    """An N x 4 float32 view of x, y, z, intensity when they are consecutive native float32 (the usual layout),
+    else None."""
     if name is None or not cloud.flags.c_contiguous or len(cloud) == 0:
         return None
     fields = cloud.dtype.fields
@@ -198,27 +200,62 @@ def _packed_xyzi(cloud: np.ndarray, name: str | None) -> np.ndarray | None:
         if dtype != np.dtype(np.float32) or offset != start + 4 * k:
             return None
     raw = cloud.view(np.uint8)
-    return np.ndarray((len(cloud), 4), np.float32, buffer=raw, offset=start, strides=(cloud.itemsize, 4)).copy()
+    return np.ndarray((len(cloud), 4), np.float32, buffer=raw, offset=start, strides=(cloud.itemsize, 4))
 
 
-def to_xyzi(cloud: np.ndarray, *, with_ring: bool = True) -> XYZI:
-    """N x 4 float32 (x, y, z, intensity) from a decoded cloud; intensity zeros when it has none."""
+@nb.njit(cache=True, nogil=True)
+def _copy_xyzi(view: np.ndarray, out: np.ndarray) -> int:
+    """Copy the N x 4 (strided) view into `out` and count the rows with a NaN coordinate, in one pass: the message
+    arrives cold from DDS, and reading it once instead of four times (three NaN tests and the copy) took a 120k-point
+    scan from 2.9 to 0.8 ms."""
+    bad = 0
+    for i in range(view.shape[0]):
+        x, y, z = view[i, 0], view[i, 1], view[i, 2]
+        out[i, 0] = x
+        out[i, 1] = y
+        out[i, 2] = z
+        out[i, 3] = view[i, 3]
+        bad += np.isnan(x) | np.isnan(y) | np.isnan(z)
+    return bad
+
+
+def to_xyzi(cloud: np.ndarray, *, with_ring: bool = True, skip_nans: bool = False) -> XYZI:
+    """N x 4 float32 (x, y, z, intensity) from a decoded cloud; intensity zeros when it has none. `skip_nans` drops
+    points whose x, y or z is NaN (and their ring)."""
     name = intensity_name(cloud)
-    points = _packed_xyzi(cloud, name)
-    if points is None:
+    view = _xyzi_view(cloud, name)
+    keep = None
+    if view is not None:
+        points = np.empty((len(cloud), 4), dtype=np.float32)
+        if _copy_xyzi(view, points) and skip_nans:
+            keep = ~np.isnan(points[:, :3]).any(axis=1)
+            points = points[keep]
+    else:
+        if skip_nans:
+            keep = finite_mask(cloud)
+            if keep.all():  # copying 120k points only to drop none cost 1.8 ms a frame
+                keep = None
+            else:
+                cloud = cloud[keep]
         points = np.empty((len(cloud), 4), dtype=np.float32)
         for column, axis in enumerate(("x", "y", "z")):
             points[:, column] = cloud[axis]
         points[:, 3] = 0.0 if name is None else cloud[name]
     ring = None
     if with_ring and "ring" in (cloud.dtype.names or ()):
-        ring = cloud["ring"].astype(np.uint16)
+        ring = cloud["ring"] if view is None or keep is None else cloud["ring"][keep]
+        ring = ring.astype(np.uint16)
     return XYZI(points, name is not None, ring)
 
 
 def decode_xyzi(msg: Any, *, skip_nans: bool = False, with_ring: bool = True) -> XYZI:
     """`decode` then `to_xyzi`: the one call a node needs to feed the core."""
-    return to_xyzi(decode(msg, skip_nans=skip_nans), with_ring=with_ring)
+    return to_xyzi(decode(msg), with_ring=with_ring, skip_nans=skip_nans)
+
+
+def warm_up() -> None:
+    """Compile the codec's kernel."""
+    _copy_xyzi(np.zeros((1, 4), np.float32), np.empty((1, 4), np.float32))
 
 
 def stamp_to_ns(stamp: Any) -> int:
