@@ -204,6 +204,20 @@ def test_nan_points_kept_or_dropped() -> None:
     assert decode_xyzi(msg, skip_nans=True).points.shape == (4, 4)
 
 
+@pytest.mark.parametrize("view", ["rows", "every_other_row", "reversed", "columns_swapped"])
+def test_columns_of_one_point_array_encode_like_copies(view: str) -> None:
+    """x, y, z, intensity taken from one N x 4 array (copied as one block when they lie side by side) give the
+    same bytes as the same columns copied apart."""
+    base = np.random.default_rng(3).normal(size=(40, 4)).astype(np.float32)
+    points = {"rows": base, "every_other_row": base[::2], "reversed": base[::-1],
+              "columns_swapped": base[:, [1, 0, 2, 3]]}[view]
+    cols = {"x": points[:, 0], "y": points[:, 1], "z": points[:, 2], "intensity": points[:, 3],
+            "label": np.arange(len(points), dtype=np.uint8)}
+    copies = {name: np.array(values) for name, values in cols.items()}
+    assert bytes(encode(cols).data) == bytes(encode(copies).data)
+    assert np.array_equal(decode(encode(cols))["z"], points[:, 2])
+
+
 @pytest.mark.parametrize("layout", ["xyzi_float32", "float64"])
 def test_decode_xyzi_drops_nan_points_with_their_rings(layout: str) -> None:
     """The one-pass copy (x, y, z, intensity consecutive float32) and the column path drop the same points, and the
