@@ -11,7 +11,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
-from pass3d_ros.classes import BACKGROUND, packed_rgb
+from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN, packed_rgb
 from pass3d_ros.core.canonical import fit_box_members
 from pass3d_ros.core.classifier_process import ProcessClassifier
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult
@@ -293,9 +293,10 @@ class SegmentationNode(PointCloudNode):
             self.objects_pub.publish(markers)
             clock.mark("publish")
         self.stats.frame(clock.steps_ms)
-        counts = np.bincount(columns["label"], minlength=4)
+        labels = columns["label"]  # counted class by class: np.bincount of 120k uint8 labels took 1.3-3 ms
+        counts = [int(np.count_nonzero(labels == k)) for k in (CAR, PEDESTRIAN, CYCLIST)]
         self.get_logger().info(
-            f"{len(frame.points)} points, {len(members)} proposals, labeled car/ped/cyc points {counts[1:].tolist()}, "
+            f"{len(frame.points)} points, {len(members)} proposals, labeled car/ped/cyc points {counts}, "
             f"stage2 {sum(clock.steps_ms.values()):.1f} ms, dropped {self.counters().dropped}",
             throttle_duration_sec=LOG_PERIOD_S,
         )
