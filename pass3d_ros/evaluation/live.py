@@ -537,13 +537,14 @@ class LiveHarness:
                 if delay > 0:
                     time.sleep(delay)
             entry = _Pending(index, points, truth)
+            message = bytes(raw)  # copied before the clock starts: a driver publishes what it holds
             with session.cond:
                 if session.error is not None:
                     raise session.error
                 session.pending[stamp] = entry
                 result.frames_in += 1
                 entry.published = time.perf_counter()
-            self.publisher.publish(bytes(raw))
+            self.publisher.publish(message)
             if options.lockstep:
                 with session.cond:
                     arrived = session.cond.wait_for(
