@@ -100,11 +100,12 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     """
     t0 = time.perf_counter()
     # Under held laser lines the ground thread first assigns half of the points to them, then fits the ground.
-    split = cfg.ground_thread and ring is None and lines is not None and not lines.empty
-    beside = _ground_pool().submit(_ground.fit_ground, pts, cfg) if cfg.ground_thread and not split else None
-    rings = _ring.rings_for(pts, ring, cfg, lines, _ground_pool() if split else None)
+    pool = _ground_pool() if cfg.ground_thread else None
+    split = pool is not None and ring is None and lines is not None and not lines.empty
+    beside = pool.submit(_ground.fit_ground, pts, cfg) if pool is not None and not split else None
+    rings = _ring.rings_for(pts, ring, cfg, lines, pool if split else None)
     if split:  # held lines: a stream whose points come in no firing order
-        beside = _ground_pool().submit(_ground.fit_ground, pts, cfg, False)
+        beside = pool.submit(_ground.fit_ground, pts, cfg, False)
     order, work, work_ring = None, pts, rings.ring
     if not _in_scan_order(rings):
         order, work, work_ring = _scanline.in_canonical_order(pts, rings.ring)

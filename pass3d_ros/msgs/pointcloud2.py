@@ -165,11 +165,14 @@ def decode(msg: Any, *, skip_nans: bool = False) -> np.ndarray:
     else:
         rows = np.ndarray((height, width), dtype=dtype, buffer=buf, strides=(row_step, point_step))
         cloud = rows.reshape(-1)
-    if skip_nans:
-        keep = finite_mask(cloud)
-        if not keep.all():  # copying 120k points only to drop none cost 1.8 ms a frame
-            cloud = cloud[keep]
-    return cloud
+    return _without_nan_points(cloud) if skip_nans else cloud
+
+
+def _without_nan_points(cloud: np.ndarray) -> np.ndarray:
+    """The cloud without points whose x, y or z is NaN; the cloud itself when it has none (copying 120k points
+    only to drop none cost 1.8 ms a frame)."""
+    keep = finite_mask(cloud)
+    return cloud if keep.all() else cloud[keep]
 
 
 def finite_mask(cloud: np.ndarray) -> np.ndarray:
@@ -224,7 +227,7 @@ def to_xyzi(cloud: np.ndarray, *, with_ring: bool = True, skip_nans: bool = Fals
     points whose x, y or z is NaN (and their ring)."""
     name = intensity_name(cloud)
     view = _xyzi_view(cloud, name)
-    keep = None
+    keep = None  # the points kept from `cloud` when the one-pass copy found NaN points to drop
     if view is not None:
         points = np.empty((len(cloud), 4), dtype=np.float32)
         if _copy_xyzi(view, points) and skip_nans:
@@ -232,19 +235,14 @@ def to_xyzi(cloud: np.ndarray, *, with_ring: bool = True, skip_nans: bool = Fals
             points = points[keep]
     else:
         if skip_nans:
-            keep = finite_mask(cloud)
-            if keep.all():  # copying 120k points only to drop none cost 1.8 ms a frame
-                keep = None
-            else:
-                cloud = cloud[keep]
+            cloud = _without_nan_points(cloud)
         points = np.empty((len(cloud), 4), dtype=np.float32)
         for column, axis in enumerate(("x", "y", "z")):
             points[:, column] = cloud[axis]
         points[:, 3] = 0.0 if name is None else cloud[name]
     ring = None
     if with_ring and "ring" in (cloud.dtype.names or ()):
-        ring = cloud["ring"] if view is None or keep is None else cloud["ring"][keep]
-        ring = ring.astype(np.uint16)
+        ring = (cloud["ring"] if keep is None else cloud["ring"][keep]).astype(np.uint16)
     return XYZI(points, name is not None, ring)
 
 

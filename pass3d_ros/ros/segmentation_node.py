@@ -165,6 +165,9 @@ class SegmentationNode(PointCloudNode):
     `submit_proposals`.
     """
 
+    publisher: LatestFrameWorker[Labeled] | None = None  # the publishing thread (overlap and process); a class
+    # default, because diagnostics may ask for the counters before __init__ has decided
+
     def __init__(self, in_memory: bool = False, **kwargs: Any) -> None:
         super().__init__(PARAMETERS, **kwargs)
         self.classifier = self._load_classifier()
@@ -177,7 +180,6 @@ class SegmentationNode(PointCloudNode):
         # With overlap and the classifier in a child process, a third thread encodes and publishes, so the stage-2
         # thread hands the next scan to the child at once (20 Hz, four back-to-back pairs: +1 to +11 % frames). With
         # stage 2 on a thread of this process it only added a third thread taking turns for the GIL.
-        self.publisher: LatestFrameWorker[Labeled] | None = None
         if self.overlap and isinstance(self.classifier, ProcessClassifier):
             self.publisher = LatestFrameWorker(self._publish, self._on_error, "publish")
 
@@ -218,24 +220,22 @@ class SegmentationNode(PointCloudNode):
     def counters(self) -> FrameCounters:
         """The stage-2 worker's counters; with a publishing thread, a frame counts as processed once published, and
         a result that thread dropped for a newer one counts as dropped."""
-        publisher = getattr(self, "publisher", None)  # diagnostics may ask before __init__ has made it
-        if publisher is None:
+        if self.publisher is None:
             return self.worker.counters
-        stage2, publish = self.worker.counters, publisher.counters
+        stage2, publish = self.worker.counters, self.publisher.counters
         return FrameCounters(received=stage2.received, processed=publish.processed,
                              dropped=stage2.dropped + publish.dropped, failed=stage2.failed + publish.failed)
 
     def idle(self) -> bool:
         """True when neither the stage-2 thread nor the publishing thread has a frame."""
-        publisher = getattr(self, "publisher", None)
-        return self.worker.idle() and (publisher is None or publisher.idle())
+        return self.worker.idle() and (self.publisher is None or self.publisher.idle())
 
     def stop_worker(self) -> None:
-        """Finish the frame in hand, then what the publishing thread holds."""
+        """Stop the stage-2 thread, then the publishing thread (each finishes the frame in hand; a pending one is
+        dropped)."""
         super().stop_worker()
-        publisher = getattr(self, "publisher", None)
-        if publisher is not None:
-            publisher.stop()
+        if self.publisher is not None:
+            self.publisher.stop()
 
     def destroy_node(self) -> None:
         """Stop the workers, then the classifier's process if it has one."""
