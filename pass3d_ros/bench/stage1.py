@@ -125,7 +125,8 @@ def time_orders(frames: list[Frame], repeat: int, config: Stage1Config, orders: 
             sources[row].add(result.ring_source)
             runs[row] = (pts, ring, lines)
         for _ in range(repeat):
-            this_round = {row: propose(*runs[row][:2], config, runs[row][2]).timings_ms["total"] for row in rows}
+            this_round = {row: propose(pts, ring, config, lines).timings_ms["total"]
+                          for row, (pts, ring, lines) in runs.items()}
             for row, ms in this_round.items():
                 times[row].append(ms)
                 ratios[row].append(ms / this_round["firing"])

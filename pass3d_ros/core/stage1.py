@@ -105,7 +105,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     beside = pool.submit(_ground.fit_ground, pts, cfg) if pool is not None and not split else None
     rings = _ring.rings_for(pts, ring, cfg, lines, pool if split else None)
     if split:  # held lines: a stream whose points come in no firing order
-        beside = pool.submit(_ground.fit_ground, pts, cfg, False)
+        beside = pool.submit(_ground.fit_ground, pts, cfg, in_scan_order=False)
     order, work, work_ring = None, pts, rings.ring
     if not _in_scan_order(rings):
         order, work, work_ring = _scanline.in_canonical_order(pts, rings.ring)

@@ -365,6 +365,7 @@ def _message_classes(msg_class: Any, typestore: Any) -> tuple[Any, Any, Any, Any
 
 
 def _address(values: np.ndarray) -> int:
+    """Address of an array's first element (to tell whether two columns lie side by side in memory)."""
     return values.__array_interface__["data"][0]
 
 

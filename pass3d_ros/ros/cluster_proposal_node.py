@@ -16,8 +16,8 @@ from visualization_msgs.msg import MarkerArray
 from pass3d_ros.core.lasers import ring_limit
 from pass3d_ros.core.ring import LaserLines
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, propose, warm_up
-from pass3d_ros.msgs import pointcloud2
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
+from pass3d_ros.msgs.pointcloud2 import warm_up as warm_up_codec
 from pass3d_ros.ros import params, scan_checks
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
@@ -93,7 +93,7 @@ class ClusterProposalNode(PointCloudNode):
                                "them with numba, about 20-30 s; later starts read numba's cache)")
         warm_up()
         scan_checks.warm_up()
-        pointcloud2.warm_up()
+        warm_up_codec()
         self.get_logger().info(f"stage 1 ready (numba warm-up {1e3 * (time.perf_counter() - started):.0f} ms)")
 
         self.proposals_pub = self.output_publisher(PointCloud2, "proposals_topic")
