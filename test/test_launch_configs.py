@@ -82,12 +82,22 @@ def test_parameter_yaml_is_generated_from_the_code() -> None:
     assert values == {name: entry[0] for name, entry in segmentation_node.NODE_PARAMETERS.items()}
 
 
+def test_parameter_reference_is_generated_from_the_code() -> None:
+    docs = ROOT / "docs" / "parameters.md"
+    assert docs.read_text() == params_yaml.render_markdown(), "run pass3d_params_yaml --markdown --out " + str(docs)
+    rows = {line.split("|")[1].strip().strip("`") for line in docs.read_text().splitlines() if line.startswith("| `")}
+    declared = declared_parameters()
+    assert rows == declared["cluster_proposal_node"] | declared["segmentation_node"]
+
+
 def test_params_yaml_tool_writes_the_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "params.yaml"
     assert params_yaml.main(["--out", str(out)]) == 0
     assert out.read_text() == params_yaml.render()
     assert params_yaml.main([]) == 0
     assert capsys.readouterr().out == params_yaml.render()
+    assert params_yaml.main(["--markdown", "--out", str(out)]) == 0
+    assert out.read_text() == params_yaml.render_markdown()
 
 
 # Every rclpy node declares use_sim_time itself.

@@ -137,3 +137,38 @@ def params_yaml(nodes: Sequence[NodeParameters], header: str = "") -> str:
                 description = field.metadata.get("description", field.name)
                 lines.append(_yaml_entry(3, field.name, getattr(defaults, field.name), description))
     return "\n".join(lines) + "\n"
+
+
+def _markdown_value(value: Any) -> str:
+    """A default as a table cell: the YAML form in backticks, `""` for an empty string."""
+    return f"`{_yaml_scalar(list(value) if isinstance(value, tuple) else value)}`"
+
+
+def _markdown_range(value_range: tuple[float, float] | None, default: Any) -> str:
+    """A closed range as `lo .. hi`, blank where the parameter has none (strings, booleans, lists)."""
+    if value_range is None or isinstance(default, (bool, str, list, tuple)):
+        return ""
+    return f"{value_range[0]:g} .. {value_range[1]:g}"
+
+
+def _markdown_row(name: str, default: Any, value_range: tuple[float, float] | None, description: str) -> str:
+    """One parameter as `| name | default | range | description |` (pipes in text escaped)."""
+    text = " ".join(description.split()).replace("|", "\\|")
+    return f"| `{name}` | {_markdown_value(default)} | {_markdown_range(value_range, default)} | {text} |"
+
+
+def params_markdown(nodes: Sequence[NodeParameters], header: str = "") -> str:
+    """The same parameters as `params_yaml`, as one Markdown table per node (name, default, range, description);
+    a config prefix's fields are listed under their dotted names (`stage1.th_ring`) and can change at run time."""
+    lines = [header.rstrip(), ""] if header else []
+    for spec in nodes:
+        lines += [f"## {spec.node_name}", "", "| parameter | default | range | description |", "|---|---|---|---|"]
+        for name, (default, description, value_range) in spec.table.items():
+            lines.append(_markdown_row(name, default, value_range, description))
+        for prefix, config_type in spec.configs.items():
+            defaults = config_type()
+            for field in dataclasses.fields(config_type):
+                lines.append(_markdown_row(prefix + field.name, getattr(defaults, field.name),
+                                           field.metadata.get("range"), field.metadata.get("description", field.name)))
+        lines.append("")
+    return "\n".join(lines)
