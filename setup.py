@@ -23,7 +23,7 @@ CONSOLE_SCRIPTS = [
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
+    version="0.2.0",
     packages=find_packages(exclude=["test", "test.*"]),
     package_data={PACKAGE: ["weights/*.pt", "weights/*.md"]},
     data_files=[
