@@ -161,6 +161,7 @@ def test_diagnostics_carry_counters_and_input_gaps(pair: tuple, scan: np.ndarray
     assert 0 < values["latency_p50_ms"] <= values["latency_p95_ms"] <= values["latency_max_ms"]
     assert values["compute_p50_ms"] > 0
     assert latest["segmentation_node"]["processed"] == expected
+    assert "input_gaps" not in latest["segmentation_node"], "the cluster node's input counts the gaps, once"
 
 
 def test_input_gaps_counted_from_stamps() -> None:
@@ -173,3 +174,50 @@ def test_input_gaps_counted_from_stamps() -> None:
     assert snapshot["stamps_out_of_order"] == 1 and snapshot["input_period_ms"] == pytest.approx(100.0)
     stats.frame({"wait": 1.0, "compute": 4.0})
     assert stats.snapshot()["latency_p50_ms"] == pytest.approx(5.0)
+
+
+def test_near_duplicate_stamps_at_start_up_are_not_the_cadence() -> None:
+    stats = NodeStats()
+    for stamp in (STAMP0, STAMP0 + 1_000, STAMP0 + 2_000):  # a driver's start-up burst, stamps 1 us apart
+        stats.input(stamp)
+    for k in range(1, 60):
+        stats.input(STAMP0 + 2_000 + k * PERIOD_NS)
+    snapshot = stats.snapshot()
+    assert snapshot["input_gaps"] == 0 and snapshot["frames_missed_upstream"] == 0
+    assert snapshot["stamps_out_of_order"] == 2 and snapshot["input_period_ms"] == pytest.approx(100.0)
+
+
+def test_cadence_is_relearnt_after_a_rate_change() -> None:
+    stats = NodeStats()
+    stamp = STAMP0
+    for _ in range(40):  # 20 Hz
+        stamp += PERIOD_NS // 2
+        stats.input(stamp)
+    gaps_by_frame = []
+    for _ in range(100):  # then 10 Hz, nothing lost
+        stamp += PERIOD_NS
+        stats.input(stamp)
+        gaps_by_frame.append(stats.snapshot()["input_gaps"])
+    assert gaps_by_frame[-1] <= 30, "a rate change may look like loss for a while, not forever"
+    assert gaps_by_frame[-1] == gaps_by_frame[40], "once re-learnt, the new rate counts no gaps"
+    assert stats.snapshot()["input_period_ms"] == pytest.approx(100.0)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_heavy_loss_counted_frame_by_frame(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    lost = set(rng.choice(np.arange(5, 120), size=59, replace=False).tolist())  # half of 115, none at the ends
+    stats = NodeStats()
+    for k in range(125):
+        if k not in lost:
+            stats.input(STAMP0 + k * PERIOD_NS + int(rng.integers(-3_000_000, 3_000_000)))  # +-3 ms jitter
+    assert stats.snapshot()["frames_missed_upstream"] == 59
+
+
+def test_a_long_silence_is_a_pause_not_lost_frames() -> None:
+    stats = NodeStats()
+    for k in range(10):
+        stats.input(STAMP0 + k * PERIOD_NS)
+    stats.input(STAMP0 + 3600 * 10**9)  # the bag restarted an hour later
+    snapshot = stats.snapshot()
+    assert snapshot["stream_pauses"] == 1 and snapshot["frames_missed_upstream"] == 0

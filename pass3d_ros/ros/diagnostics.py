@@ -17,8 +17,13 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
 DIAGNOSTICS_PERIOD_S = 1.0
-GAP_FACTOR = 1.5  # a stamp gap above this x the median period means frames were lost before the node
-HISTORY = 200  # frames kept for the percentiles and the median period
+GAP_FACTOR = 1.5  # a stamp interval above this x the sensor's period means frames were lost before the node
+HISTORY = 200  # frames kept for the percentiles
+CADENCE_WINDOW = 30  # recent stamp intervals the sensor's period is estimated from (gaps included: it re-learns)
+CADENCE_QUANTILE = 10.0  # a first guess of the period: this low percentile of them, so that loss leaves it alone
+MIN_INTERVALS = 3  # intervals seen before gaps are counted
+MIN_PERIOD_NS = 2_000_000  # no scanning LiDAR turns faster than 500 Hz: a shorter interval is a repeated stamp
+MAX_GAP_NS = 10_000_000_000  # a longer silence is a pause of the stream (stopped, bag restarted), not lost frames
 STEPS = ("wait", "decode", "compute", "handoff", "encode", "publish", "sink")  # sink: the in-memory next stage;
 # handoff: the wait in segmentation_node's publishing thread (overlap)
 
@@ -26,33 +31,47 @@ STEPS = ("wait", "decode", "compute", "handoff", "encode", "publish", "sink")  #
 class NodeStats:
     """Thread-safe counters of one node: fed by the subscription callback (`input`) and the worker (`frame`)."""
 
-    def __init__(self, history: int = HISTORY) -> None:
+    def __init__(self, history: int = HISTORY, count_gaps: bool = True) -> None:
         self._lock = threading.Lock()
-        self._periods: deque[int] = deque(maxlen=history)
+        self.count_gaps = count_gaps  # False where the input is another node's output, whose drops are its own
+        self._intervals: deque[int] = deque(maxlen=CADENCE_WINDOW)
         self._last_stamp: int | None = None
-        self.input_gaps = 0  # stamp gaps longer than GAP_FACTOR x the median period
-        self.frames_missed = 0  # frames those gaps stand for (gap / median period - 1, rounded)
-        self.stamps_out_of_order = 0
+        self.input_gaps = 0  # stamp intervals longer than GAP_FACTOR x the sensor's period
+        self.frames_missed = 0  # frames those gaps stand for (interval / period - 1, rounded)
+        self.stream_pauses = 0  # silences longer than MAX_GAP_NS
+        self.stamps_out_of_order = 0  # stamps not after the previous one, or repeated within MIN_PERIOD_NS
         self.latency_ms: deque[float] = deque(maxlen=history)
         self.steps_ms: dict[str, deque[float]] = {name: deque(maxlen=history) for name in STEPS}
 
     def input(self, stamp_ns: int) -> None:
-        """A frame arrived with this header stamp: count a gap when it is far after the previous one."""
+        """A frame arrived with this header stamp: count the frames missing since the previous one."""
+        if not self.count_gaps:
+            return
         with self._lock:
             last, self._last_stamp = self._last_stamp, stamp_ns
             if last is None:
                 return
-            period = stamp_ns - last
-            if period <= 0:
+            interval = stamp_ns - last
+            if interval < MIN_PERIOD_NS:
                 self.stamps_out_of_order += 1
                 return
-            if len(self._periods) >= 3:
-                median = float(np.median(self._periods))
-                if period > GAP_FACTOR * median:
+            if interval > MAX_GAP_NS:
+                self.stream_pauses += 1
+                return
+            if len(self._intervals) >= MIN_INTERVALS:
+                period = self._period()
+                missing = round(interval / period) - 1
+                if interval > GAP_FACTOR * period and missing >= 1:
                     self.input_gaps += 1
-                    self.frames_missed += max(1, round(period / median) - 1)
-                    return  # a gap is not a period: the median stays the sensor's
-            self._periods.append(period)
+                    self.frames_missed += missing
+            self._intervals.append(interval)
+
+    def _period(self) -> float:
+        """The sensor's period (call with the lock held): each recent interval divided by the whole number of
+        periods it spans by a first guess (a low percentile), then their median, which averages out jitter."""
+        intervals = np.asarray(self._intervals, dtype=np.float64)
+        guess = float(np.percentile(intervals, CADENCE_QUANTILE))
+        return float(np.median(intervals / np.maximum(1.0, np.round(intervals / guess))))
 
     def frame(self, steps_ms: Mapping[str, float]) -> None:
         """One processed frame: its step times (ms); their sum is the node's latency for it."""
@@ -66,15 +85,20 @@ class NodeStats:
         """The gap counters, latency p50 / p95 / max and the median of every step, as plain numbers."""
         with self._lock:
             latency = np.array(self.latency_ms)
-            out: dict[str, float | int | None] = {
-                "input_gaps": self.input_gaps,
-                "frames_missed_upstream": self.frames_missed,
-                "stamps_out_of_order": self.stamps_out_of_order,
-                "input_period_ms": float(np.median(self._periods)) / 1e6 if self._periods else None,
+            out: dict[str, float | int | None] = {}
+            if self.count_gaps:
+                out.update({
+                    "input_gaps": self.input_gaps,
+                    "frames_missed_upstream": self.frames_missed,
+                    "stream_pauses": self.stream_pauses,
+                    "stamps_out_of_order": self.stamps_out_of_order,
+                    "input_period_ms": self._period() / 1e6 if self._intervals else None,
+                })
+            out.update({
                 "latency_p50_ms": float(np.percentile(latency, 50)) if len(latency) else None,
                 "latency_p95_ms": float(np.percentile(latency, 95)) if len(latency) else None,
                 "latency_max_ms": float(latency.max()) if len(latency) else None,
-            }
+            })
             for name, values in self.steps_ms.items():
                 out[f"{name}_p50_ms"] = float(np.median(values)) if values else None
         return out

@@ -29,13 +29,16 @@ class PointCloudNode(Node):
     ends start-up with a ValueError.
     """
 
+    # Stamp gaps are counted where the input is the sensor; a node fed by another node leaves them to that one.
+    COUNTS_INPUT_GAPS = True
+
     def __init__(self, parameters: NodeParameters, **kwargs: Any) -> None:
         super().__init__(parameters.node_name, **kwargs)
         parameters.declare(self)
         for name in QOS_PARAMETERS:
             if self.get_parameter(name).value not in QOS_NAMES:
                 raise ValueError(f"parameter {name} must be one of {QOS_NAMES}")
-        self.stats = NodeStats()
+        self.stats = NodeStats(count_gaps=self.COUNTS_INPUT_GAPS)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
 
