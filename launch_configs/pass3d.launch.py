@@ -2,22 +2,35 @@
 
     ros2 launch pass3d_ros pass3d.launch.py input_topic:=/velodyne_points rviz:=true
     ros2 launch pass3d_ros pass3d.launch.py namespace:=car1 use_sim_time:=true   # a bag played with --clock
+
+Every process it starts gets the shipped Fast DDS large-cloud profile unless FASTRTPS_DEFAULT_PROFILES_FILE is set
+(or fastdds_profile:=... names another; fastdds_profile:='' means Fast DDS defaults).
 """
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.conditions import IfCondition
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
+
+PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
 
 
 def generate_launch_description() -> LaunchDescription:
     config_dir = PathJoinSubstitution([FindPackageShare("pass3d_ros"), "config"])
     params_file = LaunchConfiguration("params_file")
     sim_time = {"use_sim_time": LaunchConfiguration("use_sim_time")}
+    shipped_profile = PathJoinSubstitution([config_dir, "fastdds_large_clouds.xml"])
     return LaunchDescription(
         [
+            DeclareLaunchArgument(
+                "fastdds_profile",
+                default_value=EnvironmentVariable(PROFILE_VARIABLE, default_value=shipped_profile),
+                description="Fast DDS profile of every process; default: yours if set, else the shipped one "
+                "for large clouds between processes",
+            ),
+            SetEnvironmentVariable(PROFILE_VARIABLE, LaunchConfiguration("fastdds_profile")),
             DeclareLaunchArgument(
                 "params_file",
                 default_value=PathJoinSubstitution([config_dir, "pass3d_params.yaml"]),

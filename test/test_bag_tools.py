@@ -19,7 +19,7 @@ from rosbags.rosbag2 import Reader
 import pass3d_ros.data.bag_convert as bag_convert
 import pass3d_ros.tools.kitti2bag as kitti2bag
 from pass3d_ros.data.bag import TYPESTORE, BagError, BagWriter, read_bag
-from pass3d_ros.data.spec import DatasetError, open_dataset
+from pass3d_ros.data.spec import Dataset, DatasetError, DatasetFormat, open_dataset
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, decode, encode, header_stamp_ns
 
 SEMANTIC_OF = np.array([99, 10, 30, 31], dtype=np.uint32)  # background, car, person, bicyclist
@@ -91,16 +91,15 @@ def test_labels_only_on_request_and_required(tmp_path: Path, capsys: pytest.Capt
     assert not (tmp_path / "b2").exists()
 
 
-def test_ring_and_absolute_stamps_are_kept(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_ring_and_absolute_stamps_are_kept(tmp_path: Path) -> None:
     from pass3d_ros.data.frame import Frame
 
     rng = np.random.default_rng(5)
     stamps = [1_317_000_000_123_456_789 + k * 103_000_000 for k in range(3)]
     frames = [Frame(name=f"f{k}", points=rng.random((50, 4), dtype=np.float32), stamp_ns=stamps[k],
                     ring=rng.integers(0, 64, 50).astype(np.uint16)) for k in range(3)]
-    monkeypatch.setattr(bag_convert, "open_dataset", lambda spec: iter(frames))
-    monkeypatch.setattr(bag_convert, "count_frames", lambda spec: 3)
-    stats = bag_convert.convert(["kitti_raw:fake"], tmp_path / "b", progress=False, log=lambda _: None)
+    source = Dataset("kitti_raw", "fake", DatasetFormat(read=lambda _: iter(frames), count=lambda _: 3))
+    stats = bag_convert.convert([source], tmp_path / "b", progress=False, log=lambda _: None)
     assert stats.synthesized == () and stats.first_stamp_ns == stamps[0]
     back = list(read_bag(str(tmp_path / "b")))
     assert [f.stamp_ns for f in back] == stamps

@@ -1,20 +1,23 @@
 """Data-parallel pass3d_train: two CPU processes under torch.distributed.run (gloo) train a few steps, write each
 file once, give a plain checkpoint that loads like a single-process one (offline and in the segmentation node),
-resume, and reach about the loss of a one-process run from the same seed."""
+resume, and reach about the loss of a one-process run from the same seed; the workers die with their launcher, and
+pass3d_train --nproc stops them with one line and the shell's exit status."""
 
 from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from pass3d_ros.core.stage2 import load_classifier
+from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.training.distributed import strip_module_prefix
 from pass3d_ros.training.samples import SampleSet
 
@@ -50,7 +53,7 @@ def test_two_processes_write_one_plain_checkpoint(ddp_run: tuple[Path, str]) -> 
     cache = SampleSet.load(next(out.glob("samples_*.npz")))
     assert len(cache.frame_names) == 4  # both shards gathered
 
-    classifier = load_classifier("network", out / "best.pt")
+    classifier = open_classifier(out / "best.pt")
     rng = np.random.default_rng(0)
     points = np.column_stack([rng.uniform(0, 2, (400, 3)), rng.uniform(0, 1, 400)]).astype(np.float32)
     result = classifier.segment(points, [np.arange(150), np.arange(150, 400)])
@@ -108,3 +111,134 @@ def test_segmentation_node_loads_the_ddp_checkpoint(ddp_run: tuple[Path, str]) -
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
+
+
+# ------------------------------------------------------------------------------------------ lifecycle
+
+LONG = [*ARGS, "--epochs", "100000"]  # runs until stopped
+
+
+def launch_command(how: str, out: Path, *extra: str) -> list[str]:
+    """pass3d_train in 2 processes, started by torchrun or by pass3d_train --nproc itself."""
+    if how == "torchrun":
+        return [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--standalone",
+                "-m", "pass3d_ros.tools.train", *extra, "--out", str(out)]
+    return [sys.executable, "-m", "pass3d_ros.tools.train", "--nproc", "2", *extra, "--out", str(out)]
+
+
+def start_long_run(how: str, out: Path) -> tuple[subprocess.Popen, Path]:
+    """A 2-process run that trains until stopped, once it wrote last.pt; the launcher and its stderr file."""
+    err = out.with_suffix(".err")
+    with err.open("w") as stderr:
+        launcher = subprocess.Popen(launch_command(how, out, *LONG), stdout=subprocess.DEVNULL, stderr=stderr,
+                                    env={**os.environ, "OMP_NUM_THREADS": "1"}, start_new_session=True)
+    deadline = time.monotonic() + 240
+    while not (out / "last.pt").is_file():
+        assert launcher.poll() is None and time.monotonic() < deadline, err.read_text()[-3000:]
+        time.sleep(0.2)
+    return launcher, err
+
+
+def children(pid: int) -> list[int]:
+    """The pids of the live processes whose parent is `pid`."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            found.append(int(stat.parent.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    """Whether `pid` runs (a zombie, exited but not reaped, does not)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("how", ["torchrun", "nproc"])
+def test_workers_die_with_a_killed_launcher(how: str, tmp_path: Path) -> None:
+    """SIGKILL on the launcher: both workers exit within seconds (parent-death signal, watchdog) and stop
+    rewriting last.pt."""
+    out = tmp_path / "run"
+    launcher, _ = start_long_run(how, out)
+    workers = children(launcher.pid)
+    try:
+        assert len(workers) == 2
+        launcher.kill()
+        launcher.wait()
+        deadline = time.monotonic() + 15
+        while any(alive(pid) for pid in workers):
+            assert time.monotonic() < deadline, "workers outlived their launcher"
+            time.sleep(0.1)
+        written = (out / "last.pt").stat().st_mtime_ns
+        time.sleep(2)
+        assert (out / "last.pt").stat().st_mtime_ns == written
+    finally:
+        for pid in filter(alive, workers):
+            os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize(("signum", "status"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_nproc_signal_gives_its_status_and_one_line(signum: int, status: int, tmp_path: Path) -> None:
+    """pass3d_train --nproc 2 stopped by SIGTERM / SIGINT: 143 / 130, one line from rank 0 naming the last
+    checkpoint, no traceback, no worker left."""
+    out = tmp_path / "run"
+    launcher, err = start_long_run("nproc", out)
+    workers = children(launcher.pid)
+    launcher.send_signal(signum)
+    assert launcher.wait(timeout=60) == status
+    text = err.read_text()
+    assert text.count("\n") == 1 and text.startswith("pass3d_train: interrupted; last checkpoint written"), text
+    assert not any(alive(pid) for pid in workers)
+
+
+def test_user_error_is_one_line_with_status_2(tmp_path: Path) -> None:
+    """A user error in every worker (here a missing --init file): exit 2 and its line once, not once per rank; under
+    torchrun the workers print it once too (torchrun's own report follows)."""
+    missing = tmp_path / "missing.pt"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(launch_command("nproc", tmp_path / "a", *ARGS, "--init", str(missing)),
+                          capture_output=True, text=True, timeout=120, env=env)
+    assert done.returncode == 2 and done.stderr == f"pass3d_train: error: {missing}: no such checkpoint file\n"
+    done = subprocess.run(launch_command("torchrun", tmp_path / "b", *ARGS, "--init", str(missing)),
+                          capture_output=True, text=True, timeout=120, env=env)
+    assert done.returncode != 0 and done.stderr.count(f"pass3d_train: error: {missing}") == 1, done.stderr
+
+
+def test_nproc_refuses_a_bad_value_before_starting_workers(tmp_path: Path) -> None:
+    """Argument and --param errors of pass3d_train --nproc: exit 2, one error line, no worker started."""
+    from pass3d_ros.tools import train
+
+    out = tmp_path / "run"
+    assert train.main([*ARGS, "--nproc", "2", "--param", "th_dist=nan?", "--out", str(out)]) == 2
+    assert not out.exists()
+
+
+def test_a_user_error_in_one_rank_alone_is_its_one_line(tmp_path: Path) -> None:
+    """Frame 1 (rank 1's share) has no labels: rank 1 reports it, rank 0 only loses its peer and says nothing, and
+    pass3d_train --nproc shows rank 1's line once with its status 2."""
+    drive = tmp_path / "drive"
+    (drive / "velodyne_points" / "data").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-20, 20, (2000, 2)), rng.uniform(-1.7, 0, 2000), rng.uniform(0, 1, 2000)])
+    points.astype(np.float32).tofile(drive / "velodyne_points" / "data" / "0000000000.bin")
+    argv = ["--data", "synthetic:frames=1,seed=3", "--data", f"kitti_raw:{drive}", "--epochs", "1", "--quiet"]
+    done = subprocess.run(launch_command("nproc", tmp_path / "run", *argv), capture_output=True, text=True,
+                          timeout=120, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and "no per-point labels" in done.stderr, done.stderr
+
+
+def test_peer_loss_is_recognised() -> None:
+    """gloo reports a vanished peer as a plain RuntimeError; a bug's RuntimeError is not one."""
+    from pass3d_ros.training.distributed import is_peer_loss
+
+    gloo = RuntimeError("[pair.cc:553] Connection closed by peer [127.0.0.1]:43923. This is typically caused by a "
+                        "remote worker crashing.")
+    assert is_peer_loss(gloo) and is_peer_loss(torch.distributed.DistError("x"))
+    assert not is_peer_loss(RuntimeError("shape mismatch")) and not is_peer_loss(ValueError("Broken pipe"))

@@ -129,10 +129,7 @@ def test_user_errors_exit_2(labelled_bag: Path, tmp_path: Path, capsys: pytest.C
     assert evaluate.main(["--data", "nosuchformat:/x", "--classifier", "size_rules"]) == 2
     assert "unknown format" in capsys.readouterr().err
 
-    def missing() -> Path:
-        raise FileNotFoundError("shipped stage-2 weights missing: /x/pass3d_lite.pt (train them with pass3d_train)")
-
-    monkeypatch.setattr(stage2, "default_weights", missing)
+    monkeypatch.setattr(stage2, "DEFAULT_WEIGHTS", tmp_path / "pass3d_lite.pt")
     for extra in ([], ["--live"]):
         assert evaluate.main(["--data", SPEC, *extra]) == 2
         err = capsys.readouterr().err

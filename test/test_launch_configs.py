@@ -175,3 +175,39 @@ def test_fastdds_profile_fits_a_large_cloud_in_shared_memory() -> None:
     used = {t.text for t in root.iterfind(".//f:userTransports/f:transport_id", ns)}
     assert shm[0].findtext("f:transport_id", namespaces=ns) in used
     assert root.findtext(".//f:useBuiltinTransports", namespaces=ns) == "false"
+
+
+def test_launch_files_give_every_process_the_shipped_fastdds_profile_unless_the_user_set_one() -> None:
+    """Both launch files set FASTRTPS_DEFAULT_PROFILES_FILE before starting anything: the user's value when set, else
+    the profile setup.py installs under share/pass3d_ros/config."""
+    from pass3d_ros.ros.dds_profile import PROFILE_NAME, PROFILE_VARIABLE
+
+    assert re.search(rf'share/{{PACKAGE}}/config".*"launch_configs/{PROFILE_NAME}"', (ROOT / "setup.py").read_text(),
+                     re.S), "setup.py must install the profile into share/pass3d_ros/config"
+
+    entries = yaml.safe_load((LAUNCH / "pass3d.launch.yaml").read_text())["launch"]
+    kinds = [next(iter(entry)) for entry in entries]
+    assert [entry["set_env"] for entry in entries if "set_env" in entry] == [
+        {"name": PROFILE_VARIABLE, "value": "$(var fastdds_profile)"}]
+    assert kinds.index("set_env") < kinds.index("node"), "the variable must be set before the nodes start"
+    args = {entry["arg"]["name"]: entry["arg"] for entry in entries if "arg" in entry}
+    assert args["fastdds_profile"]["default"] == (
+        f"$(env {PROFILE_VARIABLE} $(find-pkg-share pass3d_ros)/config/{PROFILE_NAME})")
+
+    tree = ast.parse((LAUNCH / "pass3d.launch.py").read_text())
+    constants = {node.targets[0].id: ast.literal_eval(node.value) for node in tree.body
+                 if isinstance(node, ast.Assign) and isinstance(node.value, ast.Constant)}
+    assert constants["PROFILE_VARIABLE"] == PROFILE_VARIABLE
+    calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)]
+    set_env = [c for c in calls if c.func.id == "SetEnvironmentVariable"]
+    assert len(set_env) == 1
+    name, value = set_env[0].args
+    assert name.id == "PROFILE_VARIABLE" and ast.unparse(value) == "LaunchConfiguration('fastdds_profile')"
+    assert set_env[0].lineno < min(c.lineno for c in calls if c.func.id == "Node")
+    declared = {c.args[0].value: {k.arg: k.value for k in c.keywords} for c in calls
+                if c.func.id == "DeclareLaunchArgument"}
+    default = declared["fastdds_profile"]["default_value"]
+    assert ast.unparse(default) == "EnvironmentVariable(PROFILE_VARIABLE, default_value=shipped_profile)"
+    shipped = next(n.value for n in ast.walk(tree) if isinstance(n, ast.Assign)
+                   and getattr(n.targets[0], "id", "") == "shipped_profile")
+    assert ast.unparse(shipped) == f"PathJoinSubstitution([config_dir, '{PROFILE_NAME}'])"

@@ -19,7 +19,7 @@ from test_point_order import no_laser_lines_scan
 
 from pass3d_ros.bench.stage1 import same_partition
 from pass3d_ros.core.stage1 import proposal_members, propose, synthetic_scan
-from pass3d_ros.core.stage2 import load_classifier, resolve_weights
+from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode, proposals_cloud
@@ -134,6 +134,13 @@ def test_codec_rejects_wide_id_and_label_fields(name: str) -> None:
                   "wide": np.zeros((3, 2), np.int32)})
     msg.fields[-1].name = name
     with pytest.raises(PointCloud2Error, match=rf"field '{name}': count 2 not supported, must be 1"):
+        decode(msg)
+
+
+def test_codec_names_a_point_step_numpy_cannot_hold() -> None:
+    msg = encode({"x": np.zeros(1, np.float32), "y": np.zeros(1, np.float32), "z": np.zeros(1, np.float32)})
+    msg.point_step = msg.row_step = 2**31
+    with pytest.raises(PointCloud2Error, match=r"point_step 2147483648 too large \(at most 2147483647"):
         decode(msg)
 
 
@@ -258,7 +265,7 @@ def test_shipped_weights_label_a_live_frame(ros: Ros, people_frame: Frame) -> No
     got = np.bincount(columns(labeled.wait(1)[0])["label"], minlength=4)
 
     members = proposal_members(cloud["cluster_id"], cloud["cluster_id2"])
-    offline = load_classifier(*resolve_weights("network", "")).segment(frame.points, members)
+    offline = open_classifier("").segment(frame.points, members)
     expected = np.bincount(offline.labels, minlength=4)
     assert np.abs(got - expected).max() <= 0.02 * len(frame.points), (got, expected)
     proposed = {int(np.bincount(frame.labels[m][frame.labels[m] < 4], minlength=4).argmax())
@@ -304,6 +311,19 @@ def test_implausible_scans_warn_and_are_still_processed(
     assert "intensity: values " in err and "after intensity_scale 1, expected 0..1" in err
     assert "ring: values up to 65535, expected 0..127" in err
     assert "x/y/z: dropping 4 points with non-finite or absurd coordinates" in err
+
+
+def test_ring_field_past_the_named_sensor_warns(ros: Ros, frame: Frame, capfd: pytest.CaptureFixture[str]) -> None:
+    """stage1.sensor vlp16 on a 64-laser scan: its ring field cannot be a VLP-16's; the node says so, naming the
+    parameter, and recovers the rings from the points instead of trusting them."""
+    ros.add(ClusterProposalNode(context=ros.context, parameter_overrides=[Parameter("stage1.sensor", value="vlp16")]))
+    clouds = Collector(ros, PointCloud2, "/pass3d/proposals")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, clouds)
+    pub.publish(scan_message(frame, STAMP0))
+    clouds.wait(1)
+    err = capfd.readouterr().err
+    assert f"ring: values up to {int(frame.ring.max())}, expected 0..15 (stage1.sensor vlp16)" in err, err
 
 
 def stream_with_counted_searches(ros: Ros) -> tuple[Any, Collector, list[int], Callable[..., Any]]:

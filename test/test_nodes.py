@@ -28,7 +28,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from pass3d_ros.classes import BACKGROUND, NUM_CLASSES, packed_rgb
 from pass3d_ros.core.size_rules import SizeRuleClassifier
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
-from pass3d_ros.core.stage2 import load_classifier
+from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.data.bag import read_bag
 from pass3d_ros.data.bag_convert import convert, frame_cloud
 from pass3d_ros.data.frame import Frame
@@ -232,6 +232,18 @@ def test_parameters_are_validated_at_run_time(ros: Ros, frame: Frame) -> None:
     np.testing.assert_array_equal(columns(clouds.wait(1)[0])["cluster_id"], changed.cluster_id)
 
 
+def test_a_run_time_change_is_validated_once_by_the_config(ros: Ros, monkeypatch: pytest.MonkeyPatch) -> None:
+    node = ros.add(ClusterProposalNode(context=ros.context))
+    checked: list[Stage1Config] = []
+    validate = Stage1Config.validate
+    monkeypatch.setattr(Stage1Config, "validate", lambda self: checked.append(self) or validate(self))
+    assert node.set_parameters([Parameter("stage1.th_prop", value=0.75)])[0].successful
+    assert checked == [node.config] and node.config.th_prop == 0.75
+    refused = node.set_parameters([Parameter("stage1.enlarge", value=[0.1, 0.1])])[0]
+    assert not refused.successful and refused.reason == "Stage1Config: enlarge needs 3 values (x, y, z), got 2"
+    assert len(checked) == 2 and node.config.enlarge == (0.1, 0.1, 0.4)
+
+
 # ---- segmentation_node ----
 
 @pytest.mark.parametrize("kind", ["size_rules", "network"])
@@ -255,7 +267,7 @@ def test_labeled_cloud_matches_offline(ros: Ros, frame: Frame, lite_weights: Pat
 
     stage1 = propose(frame.points, frame.ring)
     members = proposal_members(stage1.cluster_id, stage1.cluster_id2)
-    classifier = load_classifier(kind, weights or None)
+    classifier = open_classifier(weights, kind)
     expected = classifier.segment(frame.points, members)
     np.testing.assert_array_equal(cloud["label"], expected.labels)
     np.testing.assert_allclose(cloud["confidence"], expected.confidence, rtol=1e-5, atol=1e-6)
@@ -369,8 +381,8 @@ def test_demo_small_drive(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     assert metrics["live"]["frames_in"] == metrics["live"]["frames_out"] == 2
     assert metrics["classifier"] == {"kind": "size_rules", "weights": None}
     assert len(list(read_bag(out / "labeled_bag"))) == 2
-    assert sorted(p.name for p in (out / "bev").iterdir()) == [
-        "000000_predicted.png", "000000_truth.png", "000001_predicted.png", "000001_truth.png"]
+    assert sorted(p.name for p in (out / "bev").iterdir()) == ["000000.png", "000001.png"]
+    assert "4 bird's-eye views" in printed, "two panels (ground truth | prediction) per picture"
     assert demo.main(["--frames=1", f"--out={out}", "--classifier=size_rules"]) == 0, "its own folder is reused"
     assert len(list(read_bag(out / "labeled_bag"))) == 1
 

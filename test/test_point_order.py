@@ -54,7 +54,7 @@ def test_firing_order_path_unchanged_and_reported():
 def test_fallback_is_reported_when_rings_cannot_be_recovered():
     rng = np.random.default_rng(1)
     pts = rng.uniform(-20.0, 20.0, size=(5000, 4)).astype(np.float32)
-    result = ring.recover_rings(pts)
+    result = ring.recover_rings(pts, Stage1Config())
     assert result.source == "elevation_bins"
     assert propose(pts).ring_source == "elevation_bins"
 
@@ -73,17 +73,17 @@ def test_every_other_ring_scan_shuffled_recovers_32_rings():
     keep = truth % 2 == 0
     pts, truth = full[keep], truth[keep] // 2
     perm = np.random.default_rng(0).permutation(len(pts))
-    result = ring.recover_rings(pts[perm])
+    result = ring.recover_rings(pts[perm], Stage1Config())
     assert result.source == "elevation_lines" and result.n_rings == 32
     assert np.mean(result.ring == truth[perm]) > 0.99
 
 
 def test_real_camera_crop_keeps_the_full_scans_rings(kitti_dev):
     pts = kitti_scan(kitti_dev)
-    full = ring.recover_rings(pts)
+    full = ring.recover_rings(pts, Stage1Config())
     az = np.degrees(np.arctan2(pts[:, 1], pts[:, 0]))
     crop = (pts[:, 0] > 0.0) & (np.abs(az) < 45.0)
-    cropped = ring.recover_rings(pts[crop])
+    cropped = ring.recover_rings(pts[crop], Stage1Config())
     assert cropped.source in ring.FIRING_ORDER_SOURCES
     for k in range(64):
         assert np.array_equal(cropped.ring[full.ring[crop] == k], np.full(np.sum(full.ring[crop] == k), k))
@@ -185,7 +185,7 @@ def test_motion_corrected_scan_recovers_its_rings(speed):
     truth = np.repeat(np.arange(64), 900)
     pts[:, 0] += speed * np.arctan2(pts[:, 1], pts[:, 0]) / (2.0 * np.pi)
     perm = np.random.default_rng(0).permutation(len(pts))
-    result = ring.recover_rings(pts[perm])
+    result = ring.recover_rings(pts[perm], Stage1Config())
     assert result.source == "elevation_lines_moving" and result.n_rings == 64
     assert np.array_equal(result.ring, truth[perm])
     vx, vy = ring.estimate_motion(ring.search_sample(pts))
@@ -250,7 +250,8 @@ def test_unordered_variants_give_the_same_keys_sample_and_ground():
     for x, y in np.concatenate([corners, shuffled[:2000, :2]]):
         assert scanline.pseudo_azimuth_unordered(x, y) == scanline.pseudo_azimuth(x, y), (x, y)
     np.testing.assert_array_equal(ground._sample(shuffled, 4, False), ground._sample(shuffled, 4, True))
-    fast, plain = ground.fit_ground(shuffled, in_scan_order=False), ground.fit_ground(shuffled)
+    config = Stage1Config()
+    fast, plain = ground.fit_ground(shuffled, config, in_scan_order=False), ground.fit_ground(shuffled, config)
     np.testing.assert_array_equal(fast.ground, plain.ground)
     np.testing.assert_array_equal(fast.planes, plain.planes)
 

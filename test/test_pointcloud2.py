@@ -333,7 +333,7 @@ def test_fuzz_corrupted_messages() -> None:
 
 
 def test_codec_benchmark_runs(capsys: pytest.CaptureFixture[str]) -> None:
-    from pass3d_ros.tools.benchmark import main
+    from pass3d_ros.bench.benchmark import main
 
     assert main(["codec", "--points", "2000", "--repeat", "3"]) == 0
     out = capsys.readouterr().out

@@ -16,6 +16,7 @@ import pytest
 from conftest import private_ros
 from rosbags.rosbag2 import Reader
 
+import pass3d_ros.synthetic  # noqa: F401  (registers the synthetic: format)
 from pass3d_ros.data.bag import TYPESTORE, BagError, read_bag, topic_types, topics_of_type
 from pass3d_ros.data.bag_convert import convert
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, encode, header_stamp_ns

@@ -15,10 +15,12 @@ from pass3d_ros.core.segmentation import Segmenter, make_checkpoint
 from pass3d_ros.core.size_rules import SizeRuleClassifier
 from pass3d_ros.core.stage1 import proposal_members, propose
 from pass3d_ros.data.semantickitti import read_semantickitti
+from pass3d_ros.evaluation import bev
 from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.tools import segment
 
 SPEC = "synthetic:frames=2,seed=4"
+FIGURE_HEIGHT = bev.TITLE_PX + bev.PANEL_PX + bev.LEGEND_PX
 
 
 def offline(points: np.ndarray, ring: np.ndarray | None, classifier) -> np.ndarray:
@@ -54,7 +56,8 @@ def test_size_rules_labels_pngs_and_summary(tmp_path: Path, frames: list, capsys
         expected = offline(frame.points, frame.ring, SizeRuleClassifier())
         assert np.count_nonzero(expected) > 0
         np.testing.assert_array_equal(words, segment.SEMANTIC_KITTI_IDS[expected])
-        assert png_size(out / "bev" / f"{frame.name}.png") == (800, 800)
+        assert png_size(out / "bev" / f"{frame.name}.png") == (2 * bev.PANEL_PX + bev.GAP_PX, FIGURE_HEIGHT), \
+            "labeled data: ground truth | prediction"
     report = json.loads((out / "summary.json").read_text())
     assert report["frames"] == 2 and report["classifier"] == "size_rules" and report["weights"] is None
     assert report["labeled_frames"] == 2 and 0.0 <= report["per_class"]["car"]["iou"] <= 1.0
@@ -101,6 +104,7 @@ def test_network_weights_and_nan_points(tmp_path: Path, frames: list) -> None:
     report = json.loads((out / "summary.json").read_text())
     assert report["classifier"] == "network" and report["weights"] == str(weights)
     assert report["per_class"] is None and report["labeled_frames"] == 0
+    assert png_size(out / "bev" / "000007.png") == (bev.PANEL_PX, FIGURE_HEIGHT), "no labels: the prediction alone"
 
 
 def test_several_inputs_get_their_own_folders(tmp_path: Path) -> None:
@@ -145,8 +149,7 @@ def test_refusals_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
 
 def test_default_weights_missing_is_a_clear_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
-    monkeypatch.setattr(stage2, "default_weights", lambda: (_ for _ in ()).throw(
-        FileNotFoundError("shipped stage-2 weights missing: /x/pass3d_lite.pt")))
+    monkeypatch.setattr(stage2, "DEFAULT_WEIGHTS", tmp_path / "pass3d_lite.pt")
     assert segment.main([f"--data={SPEC}", f"--out={tmp_path / 'o'}", "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "pass3d_lite.pt" in err and "--classifier size_rules" in err

@@ -68,6 +68,20 @@ def test_32_rings_get_a_smaller_th_num_and_a_higher_recall(frames: list[Frame]) 
     assert scaled > unscaled, (scaled, unscaled, total)
 
 
+def test_a_scaled_config_is_derived_without_a_second_validation(frames: list[Frame],
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    config = Stage1Config(n_rings=32)
+    frame = every_other_ring(frames[0])
+    checked: list[Stage1Config] = []
+    monkeypatch.setattr(Stage1Config, "validate", lambda self: checked.append(self))
+    effective, scale = effective_config(config, frame.points, frame.ring, 32)
+    assert scale.density < 0.6 and effective is not config and checked == [], "validated once, where it was made"
+    assert (effective.th_num_near, effective.th_num_floor) == (scale.th_num_near, scale.th_num_floor)
+    assert effective.th_num_near < config.th_num_near == 30.0 and config.th_num_floor == 5, "the given one is kept"
+    assert {k: v for k, v in effective.to_dict().items() if v != config.to_dict()[k]}.keys() == {
+        "th_num_near", "th_num_floor"}
+
+
 def test_resolutions_of_an_empty_or_tiny_scan_are_unknown() -> None:
     vertical, horizontal = resolutions(np.zeros((1, 4), np.float32), np.zeros(1, np.uint16))
     assert np.isnan(vertical) and np.isnan(horizontal)
@@ -192,7 +206,8 @@ def test_node_reports_sensor_and_warns_on_intensity_and_binned_rings(
         ros.close()
     err = capfd.readouterr().err
     assert "divided by 65535" in err
-    assert "every point reads 1; stage 2 will have no intensity information" in err
+    # the flat scan came after a 16-bit one on the same stream, so it is read at the stream's 16-bit scale
+    assert f"every point reads {1 / 65535:g}; stage 2 will have no intensity information" in err
     assert "rings from field: 64 rings" in err and "th_num_near 30" in err, err
     assert "rings could not be recovered" in err and "rings from elevation_bins" in err
 

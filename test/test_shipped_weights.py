@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import pytest
 
+import pass3d_ros.synthetic  # noqa: F401  (registers the synthetic: format that UNSEEN names)
 from pass3d_ros.classes import CLASS_NAMES
 from pass3d_ros.core.segmentation import Segmenter
 from pass3d_ros.core.stage1 import Stage1Config
-from pass3d_ros.core.stage2 import load_classifier
+from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.evaluation.offline import evaluate_full, iter_frames
 from pass3d_ros.weights import default_weights
 
@@ -30,6 +31,6 @@ def test_shipped_weights_are_the_lite_config_with_our_classes(shipped: Segmenter
 def test_shipped_weights_beat_size_rules_on_unseen_synthetic_scans(shipped: Segmenter) -> None:
     config = Stage1Config()
     network = evaluate_full(iter_frames([UNSEEN], None, False), config, shipped)
-    rules = evaluate_full(iter_frames([UNSEEN], None, False), config, load_classifier("size_rules"))
+    rules = evaluate_full(iter_frames([UNSEEN], None, False), config, open_classifier(None, "size_rules"))
     assert network["classes"]["car"]["iou"] > 0.75
     assert network["mean_iou"] > rules["mean_iou"] + 0.1, (network["mean_iou"], rules["mean_iou"])

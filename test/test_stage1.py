@@ -70,7 +70,7 @@ def car_at(x: float, y: float, yaw: float = 0.0, slope: float = 0.0) -> Solid:
 
 def test_rings_recovered_from_firing_order():
     points, rings, _ = raycast([car_at(10.0, 3.0)])
-    result = ring.recover_rings(points)
+    result = ring.recover_rings(points, Stage1Config())
     assert result.source == "azimuth_wrap"
     assert np.array_equal(result.ring, rings)
 
@@ -79,7 +79,7 @@ def test_rings_recovered_on_camera_crop_in_firing_order():
     points, rings, _ = raycast([car_at(10.0, 3.0)])
     az = np.degrees(np.arctan2(points[:, 1], points[:, 0]))
     crop = (np.abs(az) < 40.0) & (points[:, 0] > 0.0)
-    result = ring.recover_rings(points[crop])
+    result = ring.recover_rings(points[crop], Stage1Config())
     assert len(np.unique(result.ring)) == 64
     assert np.array_equal(result.ring, rings[crop])
 
@@ -91,17 +91,17 @@ def test_rings_recovered_on_frontal_arcs_cut_behind_the_sensor():
     order = np.lexsort((np.mod(az + np.pi, 2 * np.pi), rings))  # each ring from -180 to 180 degrees
     points, rings, az = points[order], rings[order], az[order]
     crop = np.abs(np.degrees(az)) < 40.0
-    result = ring.recover_rings(points[crop])
+    result = ring.recover_rings(points[crop], Stage1Config())
     assert result.source == "azimuth_jump"
     assert np.array_equal(result.ring, rings[crop])
-    full = ring.recover_rings(points)  # the whole scan cut behind: the -x crossing starts rings
+    full = ring.recover_rings(points, Stage1Config())  # the whole scan cut behind: the -x crossing starts rings
     assert full.source == "azimuth_wrap" and np.array_equal(full.ring, rings)
 
 
 def test_shuffled_scan_rings_come_from_laser_lines():
     points, rings, _ = raycast([])
     shuffled = np.random.default_rng(0).permutation(len(points))
-    result = ring.recover_rings(points[shuffled])
+    result = ring.recover_rings(points[shuffled], Stage1Config())
     assert result.source == "elevation_lines" and result.n_rings == 64
     assert result.ring.dtype == np.uint16 and result.ring.max() <= 63
     assert np.mean(result.ring == rings[shuffled]) > 0.99
@@ -109,7 +109,7 @@ def test_shuffled_scan_rings_come_from_laser_lines():
 
 def test_ring_fallback_is_reported():
     points = np.random.default_rng(0).uniform(-30.0, 30.0, size=(20000, 4)).astype(np.float32)
-    result = ring.recover_rings(points)
+    result = ring.recover_rings(points, Stage1Config())
     assert result.source == "elevation_bins"
     assert result.ring.dtype == np.uint16 and result.ring.max() <= 63
 
@@ -129,7 +129,7 @@ def test_given_ring_field_is_used():
 def test_ground_found_under_boxes(slope: float):
     solids = [car_at(12.0, -4.0, 0.3, slope), car_at(-9.0, 5.0, 1.2, slope), car_at(25.0, 6.0, 0.0, slope)]
     points, _, hit = raycast(solids, slope=slope)
-    fit = ground.fit_ground(points)
+    fit = ground.fit_ground(points, Stage1Config())
     truth = hit == -1
     assert np.count_nonzero(fit.ground & truth) / np.count_nonzero(truth) > 0.99
     high = points[:, 2] > -SENSOR_HEIGHT + slope * points[:, 0] + 0.35  # box points above the ground band
@@ -143,7 +143,7 @@ def test_ground_ignores_a_pit_and_reflections_below_the_road():
     rng = np.random.default_rng(1)
     pit = np.column_stack([rng.uniform(4, 6, 300), rng.uniform(-8, -6, 300), rng.uniform(-3.2, -2.6, 300),
                            np.full(300, 0.5)]).astype(np.float32)
-    fit = ground.fit_ground(np.concatenate([points, pit]))
+    fit = ground.fit_ground(np.concatenate([points, pit]), Stage1Config())
     truth = np.concatenate([hit == -1, np.zeros(300, dtype=bool)])
     assert np.count_nonzero(fit.ground & truth) / np.count_nonzero(truth) > 0.99
     assert abs(fit.planes[1, 3] - SENSOR_HEIGHT) < 0.05
@@ -195,8 +195,8 @@ def test_ground_fit_reads_the_same_points_in_any_order():
     the order of the sums) and the same ground points."""
     points, _, _ = raycast([car_at(12.0, -4.0)], slope=0.03)
     perm = np.random.default_rng(3).permutation(len(points))
-    fired = ground.fit_ground(points)
-    shuffled = ground.fit_ground(points[perm])
+    fired = ground.fit_ground(points, Stage1Config())
+    shuffled = ground.fit_ground(points[perm], Stage1Config())
     np.testing.assert_allclose(shuffled.planes, fired.planes, atol=1e-9)
     np.testing.assert_array_equal(shuffled.ground, fired.ground[perm])
     sample = ground._sample(points, 4)

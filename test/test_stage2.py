@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, NUM_CLASSES, PEDESTRIAN
-from pass3d_ros.core import canonical
+from pass3d_ros.core import canonical, stage2
 from pass3d_ros.core.pointnet2 import (
     ModelConfig,
     PointNet2Seg,
@@ -28,7 +30,7 @@ from pass3d_ros.core.segmentation import (
     scatter_predictions,
 )
 from pass3d_ros.core.size_rules import SizeRuleClassifier
-from pass3d_ros.core.stage2 import load_classifier
+from pass3d_ros.core.stage2 import ClassifierError, open_classifier
 
 
 def box_points(size, yaw, centre, count, rng, zmin=-1.7):
@@ -403,7 +405,7 @@ def test_size_rules_classify_by_box_and_segment():
     starts = np.cumsum([0, 500, 600, 100, 150, 800])
     members = [np.arange(starts[i], starts[i + 1]) for i in range(1, 5)]
     members[0] = np.concatenate([members[0], np.arange(0, 20)])  # a few ground points in the car's box
-    classifier = load_classifier("size_rules")
+    classifier = open_classifier(None, "size_rules")
     assert isinstance(classifier, SizeRuleClassifier)
     result = classifier.segment(points, [*members, np.zeros(0, np.int64)])
     assert result.proposal_class.tolist() == [CAR, PEDESTRIAN, CYCLIST, BACKGROUND, -1]
@@ -414,8 +416,30 @@ def test_size_rules_classify_by_box_and_segment():
     assert result.labels.dtype == np.uint8 and result.confidence.shape == (len(points),)
 
 
-def test_load_classifier_errors():
-    with pytest.raises(ValueError, match="needs weights"):
-        load_classifier("network")
-    with pytest.raises(ValueError, match="unknown classifier"):
-        load_classifier("magic")
+def test_open_classifier_checks_once_and_names_the_file(tmp_path, lite_checkpoint, monkeypatch):
+    with pytest.raises(ClassifierError, match="unknown classifier"):
+        open_classifier(None, "magic")
+    with pytest.raises(ClassifierError, match="--weights applies to the network classifier"):
+        open_classifier("w.pt", "size_rules")
+    with pytest.raises(ClassifierError, match=r"none\.pt: no such checkpoint file"):
+        open_classifier(tmp_path / "none.pt")
+    with pytest.raises(ClassifierError, match="device 'gpu': Expected one of cpu"):
+        open_classifier(lite_checkpoint, device="gpu")
+    with pytest.raises(ClassifierError, match=r"device 'cuda:\d+': no such CUDA device here"):
+        open_classifier(lite_checkpoint, device=f"cuda:{torch.cuda.device_count()}")
+    monkeypatch.setattr(stage2, "DEFAULT_WEIGHTS", tmp_path / "pass3d_lite.pt")
+    for default in (None, ""):
+        with pytest.raises(ClassifierError, match=r"shipped stage-2 weights missing: .*pass3d_lite\.pt.*--classifier "
+                                                  r"size_rules"):
+            open_classifier(default)
+    path = tmp_path / "pass3d_lite.pt"
+    torch.save(lite_checkpoint, path)
+    checks = []
+    real_is_file = Path.is_file
+    monkeypatch.setattr(Path, "is_file", lambda self: checks.append(self) or real_is_file(self))
+    classifier = open_classifier(None, device="cpu", max_proposals=5)
+    assert (classifier.kind, classifier.weights, classifier.max_proposals) == ("network", str(path), 5)
+    assert checks == [path], "the file is checked once, by open_classifier"
+    rules = open_classifier("", "size_rules")
+    assert (rules.kind, rules.weights) == ("size_rules", None)
+    assert open_classifier(lite_checkpoint).weights is None  # a checkpoint dict has no file

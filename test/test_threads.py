@@ -77,7 +77,7 @@ def test_benchmark_one_thread_keeps_one_core_busy() -> None:
     Other load on the machine only lowers the ratio (it stretches wall time, not this process's CPU time)."""
     env = {k: v for k, v in os.environ.items() if k not in THREAD_ENV_VARS}
     out = subprocess.run(
-        [sys.executable, "-m", "pass3d_ros.tools.benchmark", "stage2", "--config", "lite", "--threads", "1",
+        [sys.executable, "-m", "pass3d_ros.bench.benchmark", "stage2", "--config", "lite", "--threads", "1",
          "--repeats", "8", "--proposals", "20", "--max-points", "1000"],
         capture_output=True, text=True, env=env, timeout=300, check=True,
     )

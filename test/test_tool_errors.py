@@ -191,3 +191,196 @@ def test_random_bytes_are_not_a_checkpoint(tmp_path: Path, capsys: pytest.Captur
     assert evaluate.main(["--data", "synthetic:frames=1,seed=0", "--weights", str(garbage), "--no-progress"]) == 2
     line = one_error_line(capsys.readouterr().err, "pass3d_evaluate", garbage)
     assert "weights_only" not in line and "pickle" not in line.lower()
+
+
+# ------------------------------------------------------------------------------------------- bugs are not user errors
+
+
+def test_a_bug_keeps_its_traceback(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """A plain ValueError or TypeError from inside the work is a bug: it is raised (exit 1 with a traceback from the
+    interpreter), not printed as one line with exit 2 the way the project's own errors are."""
+    from pass3d_ros.core.size_rules import SizeRuleClassifier
+    from pass3d_ros.evaluation import offline
+    from pass3d_ros.tools import segment
+
+    def numpy_slip(*_args, **_kwargs):
+        raise ValueError("operands could not be broadcast together with shapes (3,) (4,)")
+
+    monkeypatch.setattr(offline, "propose", numpy_slip)
+    with pytest.raises(ValueError, match="broadcast"):
+        evaluate.main(["--stage1-only", "--data", "synthetic:frames=1,seed=0", "--no-progress"])
+    monkeypatch.setattr(SizeRuleClassifier, "segment", lambda *_: None + 1)
+    with pytest.raises(TypeError):
+        segment.main(["--data", "synthetic:frames=1,seed=0", "--out", str(tmp_path / "out"), "--classifier",
+                      "size_rules", "--no-progress", "--no-png"], log=lambda _: None)
+    for bug in (ValueError("bad shape"), TypeError("None + 1"), OSError(5, "Input/output error"), KeyError("k")):
+        with pytest.raises(type(bug)):
+            cli.run_tool("prog", lambda bug=bug: (_ for _ in ()).throw(bug))
+    assert "error:" not in capsys.readouterr().err
+
+    # what the user can fix still ends in one line and exit 2: the project's errors and a path the user named
+    assert evaluate.main(["--stage1-only", "--data", "synthetic:frames=1,seed=0", "--param", "th_ring"]) == 2
+    one_error_line(capsys.readouterr().err, "pass3d_evaluate", "--param 'th_ring'", "KEY=VALUE")
+    assert evaluate.main(["--stage1-only", "--data", "synthetic:frames=1,seed=0", "--param", "th_ring=9"]) == 2
+    one_error_line(capsys.readouterr().err, "pass3d_evaluate", "th_ring=9 outside")
+    assert cli.run_tool("prog", lambda: len((tmp_path / "nowhere.txt").read_text())) == 2
+    one_error_line(capsys.readouterr().err, "prog", tmp_path / "nowhere.txt")
+
+
+# -------------------------------------------------------------------------------- issue 26: attacks that must fail well
+
+
+def dead_pid() -> int:
+    """The id of a process that has ended (a finished child's)."""
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+@pytest.mark.parametrize("device", ["cuda:99", "bogus"])
+def test_bad_device_is_one_line(device: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.tools import segment
+
+    assert evaluate.main(["--data", SPEC, "--device", device, "--no-progress"]) == 2
+    one_error_line(capsys.readouterr().err, "pass3d_evaluate", repr(device))
+    assert segment.main(["--data", SPEC, "--out", str(tmp_path / "out"), "--device", device, "--no-progress"]) == 2
+    one_error_line(capsys.readouterr().err, "pass3d_segment", repr(device))
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("item", ["th_dist='abc'", "th_dist=[1]", "th_dist=None", "enlarge=0.1", "n_seg=3.5",
+                                  "max_top=0.5", "th_dist=abc"])
+def test_bad_param_is_one_line(item: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert evaluate.main(["--stage1-only", "--data", SPEC, "--param", item, "--no-progress"]) == 2
+    one_error_line(capsys.readouterr().err, "pass3d_evaluate", item.partition("=")[0])
+
+
+def test_check_writable_tries_instead_of_trusting_access(tmp_path: Path) -> None:
+    """/proc takes no new files, even from root (for whom os.access says yes to everything)."""
+    with pytest.raises(cli.OutputError, match="cannot create --json file in /proc"):
+        cli.check_writable("/proc/nowrite/x", folder=False, what="--json file")
+    existing = tmp_path / "old.json"
+    existing.write_text("kept")
+    cli.check_writable(existing, folder=False)
+    assert existing.read_text() == "kept" and sorted(tmp_path.iterdir()) == [existing]
+
+
+def test_evaluate_json_under_proc_fails_before_evaluating(monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(evaluate, "run", lambda _args: pytest.fail("evaluated although the result cannot be saved"))
+    assert evaluate.main(["--stage1-only", "--data", SPEC, "--json", "/proc/nowrite/x", "--no-progress"]) == 2
+    one_error_line(capsys.readouterr().err, "pass3d_evaluate", "/proc/nowrite/x")
+
+
+# ------------------------------------------------------------------------------------------------------ pass3d_view
+
+
+def test_view_spawn_without_the_viewer_binary(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.tools import view
+
+    pytest.importorskip("rerun")
+    monkeypatch.setenv("PATH", str(tmp_path))
+    assert view.main(["--data", "synthetic:frames=1,seed=1", "--spawn"]) == 2
+    one_error_line(capsys.readouterr().err, "pass3d_view", "rerun viewer", "--out")
+
+
+def test_view_keeps_an_existing_recording_without_force(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.tools import view
+
+    pytest.importorskip("rerun")
+    out = tmp_path / "x.rrd"
+    out.write_text("an earlier recording")
+    assert view.main(["--data", "synthetic:frames=1,seed=1", "--out", str(out)]) == 2
+    one_error_line(capsys.readouterr().err, "pass3d_view", out, "--force")
+    assert out.read_text() == "an earlier recording"
+    assert view.main(["--data", "synthetic:frames=1,seed=1", "--out", str(out), "--force"]) == 0
+    assert out.stat().st_size > 1_000 and sorted(p.name for p in tmp_path.iterdir()) == ["x.rrd"]
+
+
+def test_view_removes_partials_of_killed_runs_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.tools import view
+
+    pytest.importorskip("rerun")
+    killed = tmp_path / f".x.rrd.partial-{dead_pid()}"
+    killed.write_bytes(b"half a recording")
+    running = tmp_path / f".x.rrd.partial-{os.getppid()}"
+    running.write_bytes(b"another run, still writing")
+    assert view.main(["--data", "synthetic:frames=1,seed=1", "--out", str(tmp_path / "x.rrd")]) == 0
+    assert not killed.exists() and running.exists()
+    assert killed.name in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------------------- pass3d_segment
+
+
+def test_segment_failure_leaves_no_half_output(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """A run that fails or is interrupted after some frames leaves --out as it was; the rerun needs no --force."""
+    from pass3d_ros.tools import segment
+
+    out = tmp_path / "out"
+    write_png = segment.write_png
+    for error, status, says in ((PermissionError(13, "Permission denied", "bev/000002.png"), 2, "Permission denied"),
+                                (cli.Interrupted(130), 130, f"interrupted; {out} left as it was")):
+        calls: list[Path] = []
+
+        def failing(path: Path, image: np.ndarray, error: BaseException = error, calls: list[Path] = calls) -> None:
+            calls.append(path)
+            if len(calls) == 3:
+                raise error
+            write_png(path, image)
+
+        monkeypatch.setattr(segment, "write_png", failing)
+        assert segment.main(["--data", SPEC, "--out", str(out), "--classifier", "size_rules", "--no-progress"],
+                            log=lambda _: None) == status
+        one_error_line(capsys.readouterr().err, "pass3d_segment", says)
+        assert list(tmp_path.iterdir()) == [], "nothing half-written, no hidden build folder"
+    monkeypatch.setattr(segment, "write_png", write_png)
+    assert segment.main(["--data", SPEC, "--out", str(out), "--classifier", "size_rules", "--no-progress"],
+                        log=lambda _: None) == 0
+    assert len(list((out / "labels").iterdir())) == 5 and (out / "summary.json").is_file()
+
+
+def test_segment_force_failure_keeps_the_old_output(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.tools import segment
+
+    out = tmp_path / "out"
+    args = ["--data", "synthetic:frames=2,seed=1", "--out", str(out), "--classifier", "size_rules", "--no-progress"]
+    assert segment.main(args, log=lambda _: None) == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    monkeypatch.setattr(segment, "write_png", lambda *_: (_ for _ in ()).throw(PermissionError(13, "denied")))
+    assert segment.main([*args, "--force"], log=lambda _: None) == 2
+    capsys.readouterr()
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_segment_removes_the_build_folder_of_a_killed_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.tools import segment
+
+    stale = tmp_path / f".out.partial-{dead_pid()}"
+    (stale / "labels").mkdir(parents=True)
+    (stale / "labels" / "000000.label").write_bytes(b"\0" * 8)
+    assert segment.main(["--data", "synthetic:frames=1,seed=1", "--out", str(tmp_path / "out"), "--classifier",
+                         "size_rules", "--no-progress", "--no-png"], log=lambda _: None) == 0
+    assert [p.name for p in tmp_path.iterdir()] == ["out"] and stale.name in capsys.readouterr().err
+
+
+def test_segment_param_reaches_stage1(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.tools import segment
+
+    seen = []
+    propose = segment.propose
+    monkeypatch.setattr(segment, "propose", lambda pts, ring, config: seen.append(config) or propose(pts, ring, config))
+    base = ["--data", "synthetic:frames=1,seed=1", "--classifier", "size_rules", "--no-progress", "--no-png"]
+    assert segment.main([*base, "--out", str(tmp_path / "a"), "--param", "th_dist=0.25", "--param", "n_seg=4"],
+                        log=lambda _: None) == 0
+    assert [(c.th_dist, c.n_seg) for c in seen] == [(0.25, 4)]
+    for item in ("n_seg=3.5", "max_top=0.5", "th_dsit=0.2"):
+        assert segment.main([*base, "--out", str(tmp_path / "b"), "--param", item]) == 2
+        one_error_line(capsys.readouterr().err, "pass3d_segment", item.partition("=")[0])
+    assert not (tmp_path / "b").exists()

@@ -3,6 +3,7 @@ smoke run."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 
@@ -12,7 +13,7 @@ import torch
 
 from pass3d_ros.classes import BACKGROUND, CAR, NUM_CLASSES, PEDESTRIAN
 from pass3d_ros.core.pointnet2 import PointNet2Seg, make_config
-from pass3d_ros.core.segmentation import Segmenter, load_model
+from pass3d_ros.core.segmentation import CheckpointError, Segmenter, load_model, make_checkpoint
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.tools import train
 from pass3d_ros.training.losses import class_alpha, cross_entropy, focal_loss, make_loss
@@ -284,7 +285,8 @@ def test_train_smoke_writes_loadable_checkpoints_and_resumes(tmp_path, capsys):
 def test_command_line_defaults_are_the_library_defaults(tmp_path):
     """pass3d_train's flags map one to one onto TrainOptions, with the same defaults."""
     args = train.build_parser().parse_args(["--data", "constructed:a", "--out", str(tmp_path)])
-    assert TrainOptions(**vars(args)) == TrainOptions(data=["constructed:a"], out=tmp_path)
+    assert train.options(args) == TrainOptions(data=["constructed:a"], out=tmp_path)
+    assert set(vars(args)) == {f.name for f in dataclasses.fields(TrainOptions)} | {"nproc"}
 
 
 def test_samples_from_synthetic_scan_with_real_stage1():
@@ -386,3 +388,96 @@ def test_ctrl_c_names_the_last_checkpoint(tmp_path, capsys, monkeypatch, stop_at
     assert not [p for p in out.iterdir() if ".partial-" in p.name]
     if stop_at:
         assert torch.load(out / "last.pt", weights_only=True)["epoch"] == stop_at - 1
+
+
+# ------------------------------------------------------------------------------------- refused arguments
+
+
+@pytest.mark.parametrize(("flag", "value"), [
+    ("--epochs", "0"), ("--epochs", "-1"), ("--batch-size", "0"), ("--background-keep", "2"),
+    ("--background-keep", "nan"), ("--max-steps", "-1"), ("--threads", "-1"), ("--nproc", "0"), ("--lr", "-1"),
+    ("--focal-alpha", "1.5"), ("--epochs", "two"),
+])
+def test_out_of_range_numbers_are_refused_with_one_line(tmp_path, capsys, flag, value):
+    """A count or share outside its range stops before any work: exit 2, one line naming the flag, no output."""
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as stopped:
+        train.main(["--data", "constructed:a", "--out", str(out), flag, value])
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and err.count("\n") == 1 and f"argument {flag}: " in err, err
+    assert not out.exists()
+
+
+def nan_checkpoint(path):
+    """A loadable-looking lite checkpoint whose weights are all NaN, saved at `path`."""
+    model = PointNet2Seg(make_config("lite"))
+    with torch.no_grad():
+        for value in model.state_dict().values():
+            if value.is_floating_point():
+                value.fill_(float("nan"))
+    torch.save(make_checkpoint(model, epoch=0, history=[], best_score=0.0), path)
+    return path
+
+
+def test_nan_weights_are_refused_naming_the_file(tmp_path, capsys):
+    """A checkpoint of NaN weights is refused by every loader (load_model: inference and --init) and by --resume."""
+    bad = nan_checkpoint(tmp_path / "diverged.pt")
+    with pytest.raises(CheckpointError, match=r"diverged\.pt: weights are not finite"):
+        load_model(bad)
+    assert train.main(["--data", "constructed:a", "--out", str(tmp_path / "a"), "--init", str(bad), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{bad}: weights are not finite" in err, err
+
+    rng = np.random.default_rng(1)
+    frames = [constructed_frame(rng, f"t{i}") for i in range(2)]
+    out = tmp_path / "b"
+    out.mkdir()
+    state = torch.load(bad, weights_only=True)
+    state.update(optimizer={}, scheduler={})
+    torch.save(state, out / "last.pt")
+    args = train.build_parser().parse_args(["--data", "constructed:a", "--out", str(out), "--resume", "--quiet"])
+    with pytest.raises(CheckpointError, match=r"last\.pt: weights are not finite"):
+        train.run(args, proposer=instance_proposer, frame_source=lambda specs: iter(frames))
+
+
+# ---------------------------------------------------------------------------------- stage-1 parameters
+
+
+def test_stage1_parameters_name_their_own_cache(tmp_path):
+    """--param values are part of the sample cache name; the defaults (given or not) keep the plain name."""
+    from pass3d_ros.core.config import Stage1Config
+    from pass3d_ros.training.samples import cache_path
+
+    def name(stage1):
+        return cache_path(["kitti_object:x"], tmp_path, 0.3, 0, False, stage1=stage1).name
+
+    plain = name(None)
+    assert name(Stage1Config()) == plain
+    assert name(Stage1Config(th_dist=0.25)) != plain
+    assert name(Stage1Config(th_dist=0.25)) != name(Stage1Config(th_dist=0.2))
+
+
+def test_param_reaches_the_stage1_run_that_builds_the_samples(tmp_path, capsys):
+    """pass3d_train --param: the stage-1 run that builds the samples uses it (max_range=1 leaves no proposal at
+    all); a bad one is one line, exit 2."""
+    common = ["--data", "synthetic:frames=1,seed=7", "--epochs", "1", "--batch-size", "4", "--max-steps", "1",
+              "--quiet"]
+    assert train.main([*common, "--out", str(tmp_path / "a"), "--param", "max_range=1.0"]) == 1
+    assert "no proposals in synthetic:frames=1,seed=7" in capsys.readouterr().err
+    assert train.main([*common, "--out", str(tmp_path / "b"), "--param", "no_such=1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no_such" in err, err
+
+
+def test_best_without_validation_is_the_lowest_loss_even_above_one(tmp_path):
+    """Without validation data the score is minus the training loss: a loss above 1 (4 classes start near ln 4)
+    still counts, so best.pt is the epoch of the lowest loss, not whichever epoch came first."""
+    rng = np.random.default_rng(3)
+    frames = [constructed_frame(rng, f"t{i}") for i in range(3)]
+    argv = ["--data", "constructed:a", "--epochs", "3", "--out", str(tmp_path), "--batch-size", "4",
+            "--max-steps", "1", "--quiet", "--lr", "0.001", "--seed", "1"]
+    assert train.run(train.build_parser().parse_args(argv), proposer=instance_proposer,
+                     frame_source=lambda specs: iter(frames)) == 0
+    losses = [h["train_loss"] for h in json.loads((tmp_path / "history.json").read_text())]
+    best = torch.load(tmp_path / "best.pt", weights_only=True)
+    assert best["epoch"] == int(np.argmin(losses)) and best["best_score"] == pytest.approx(-min(losses)), losses

@@ -2,7 +2,7 @@
 
 `pass3d_benchmark live [--frames N] [--hz F | --rate R] [--seconds S] [--soak] [--warmup S] [--load N]
                        [--layout one-process|in-memory|two-process] [--overlap] [--process]
-                       [--input-qos sensor|reliable]
+                       [--input-qos auto|sensor|reliable]
                        [--classifier network|size_rules] [--weights W] [--threads N] [--seed K] [--json PATH]`
 
 Sustain test: N synthetic HDL-64E frames (about 120k points each) are written to a temporary bag and
@@ -50,6 +50,7 @@ import numpy as np
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 
 if TYPE_CHECKING:
+    from pass3d_ros.core.stage2 import Classifier
     from pass3d_ros.evaluation.live import LiveResult
 
 SENSOR_HZ = 10.0
@@ -205,17 +206,15 @@ class CpuLoad:
                 child.wait()
 
 
-def offline_compute_ms(bag: Path, kind: str, weights: str | None, limit: int) -> dict | None:
+def offline_compute_ms(bag: Path, classifier: Classifier, limit: int) -> dict | None:
     """Median / p95 ms of stage 1 + stage 2 (the nodes' compute, no codec, no ROS) over the bag's frames,
     each run twice (the first pass warms caches), at most `limit` frames."""
     from pass3d_ros.core.stage1 import proposal_members, propose, warm_up
-    from pass3d_ros.core.stage2 import load_classifier
-    from pass3d_ros.data.spec import open_dataset
+    from pass3d_ros.data.bag import read_bag
 
     warm_up()
-    classifier = load_classifier(kind, weights)
     classifier.warm_up()
-    frames = [f for _, f in zip(range(limit), open_dataset(f"bag:{bag}"), strict=False)]
+    frames = [f for _, f in zip(range(limit), read_bag(bag), strict=False)]
     times, stage1 = [], []
     for _ in range(2):
         for frame in frames:
@@ -262,8 +261,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--process", action="store_true",
                         help="segmentation_node's `process`: the classifier in a child process (its CPU counts as "
                              "another process's below)")
-    parser.add_argument("--input-qos", choices=("sensor", "reliable"),
-                        help="the cluster node's input QoS (default: its parameter default, sensor)")
+    parser.add_argument("--input-qos", choices=("auto", "sensor", "reliable"),
+                        help="the cluster node's input QoS (default: its parameter default, auto)")
     parser.add_argument("--seconds", type=float, metavar="S",
                         help=f"replay length (default {SUSTAIN_SECONDS:.0f}; {SOAK_SECONDS:.0f} with --soak)")
     parser.add_argument("--soak", action="store_true", help="long run watching resident memory")
@@ -284,7 +283,7 @@ def _line(stats: dict | None) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the replay and print what it measured; 2 on bad options or weights."""
-    from pass3d_ros.core.stage2 import resolve_weights
+    from pass3d_ros.core.stage2 import open_classifier
 
     seconds = args.seconds if args.seconds is not None else (SOAK_SECONDS if args.soak else SUSTAIN_SECONDS)
     try:
@@ -292,7 +291,8 @@ def run(args: argparse.Namespace) -> int:
             args.rate = args.hz / SENSOR_HZ
         if args.frames < 1 or seconds <= 0 or args.rate <= 0 or args.threads < 1 or args.load < 0:
             raise ValueError("--frames, --seconds, --rate, --hz and --threads must be positive, --load >= 0")
-        kind, weights = resolve_weights(args.classifier, args.weights)
+        classifier = open_classifier(args.weights, args.classifier)
+        kind, weights = classifier.kind, classifier.weights
     except ValueError as exc:
         print(f"pass3d_benchmark live: error: {exc}", file=sys.stderr)
         return 2
@@ -318,7 +318,7 @@ def run(args: argparse.Namespace) -> int:
               f"(~{repeat * bag_seconds:.0f} s)", flush=True)
         try:
             with CpuLoad(args.load):
-                before = offline_compute_ms(bag, kind, weights, limit=args.frames)
+                before = offline_compute_ms(bag, classifier, limit=args.frames)
                 cpu_before, own_before, wall_before = cpu_times(), time.process_time(), time.perf_counter()
                 with RssSampler() as sampler:
                     result = run_live(
@@ -329,7 +329,7 @@ def run(args: argparse.Namespace) -> int:
                         log_level="warn", layout=args.layout,
                     )
                 cpu_after, own_after, wall_after = cpu_times(), time.process_time(), time.perf_counter()
-                compute = bracket(before, offline_compute_ms(bag, kind, weights, limit=args.frames))
+                compute = bracket(before, offline_compute_ms(bag, classifier, limit=args.frames))
         except ValueError as exc:
             print(f"pass3d_benchmark live: error: {exc}", file=sys.stderr)
             return 2

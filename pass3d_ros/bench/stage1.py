@@ -22,7 +22,7 @@ import numpy as np
 from pass3d_ros.core.ring import LaserLines
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, propose, synthetic_scan, warm_up
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.spec import DatasetError, open_dataset, parse_spec
+from pass3d_ros.data.spec import DatasetError, resolve_datasets
 
 PATCHWORK_HINT = "pip install pypatchworkpp"
 REORDERINGS: tuple[str, ...] = ("column", "shuffled")
@@ -70,9 +70,8 @@ def load_frames(specs: list[str], limit: int) -> list[Frame]:
     if not specs:
         return [Frame("synthetic-builtin", synthetic_scan(points_per_ring=1800))]
     frames: list[Frame] = []
-    for spec in specs:
-        parse_spec(spec)
-        for index, frame in enumerate(open_dataset(spec)):
+    for dataset in resolve_datasets(specs):
+        for index, frame in enumerate(dataset.frames()):
             if index >= limit:
                 break
             frames.append(frame)

@@ -5,11 +5,45 @@ declares one parameter per field.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import difflib
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+import numpy as np
+
 from pass3d_ros.core.lasers import SENSORS
+
+
+class ConfigError(ValueError):
+    """A parameter or option value the user gave is invalid (out of range, unknown, malformed); the message names it."""
+
+
+def _is_number(value: Any) -> bool:
+    """A real number that is not a bool (True is an int to Python, never a length to us)."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+# annotation -> (check, what the message says the value must be)
+_TYPE_CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "int": (_is_int, "an integer"),
+    "float": (_is_number, "a number"),
+    "bool": (lambda v: isinstance(v, (bool, np.bool_)), "true or false"),
+    "str": (lambda v: isinstance(v, str), "a string"),
+}
+
+
+_NORMAL_TYPES: dict[str, type] = {"int": int, "float": float, "bool": bool}  # numpy scalars become Python's
+
+
+def closest(name: str, known: Iterable[str]) -> str | None:
+    """The known name nearest a misspelt one (difflib), or None when none is close."""
+    match = difflib.get_close_matches(name, list(known), n=1)
+    return match[0] if match else None
 
 
 def _param(default: Any, description: str, lo: float, hi: float) -> Any:
@@ -20,6 +54,10 @@ def _param(default: Any, description: str, lo: float, hi: float) -> Any:
 def _choice(default: str, description: str, choices: tuple[str, ...]) -> Any:
     """A string config field whose metadata carries its description and allowed values (no range)."""
     return field(default=default, metadata={"description": description, "range": None, "choices": choices})
+
+
+# (lower, upper): parameters whose values must not cross; each pair bounds one quantity from both sides.
+ORDERED_PAIRS: tuple[tuple[str, str], ...] = (("min_top", "max_top"), ("th_num_floor", "th_num_near"))
 
 
 @dataclass
@@ -93,12 +131,34 @@ class Stage1Config:
     )
 
     def __post_init__(self) -> None:
+        problems = self._type_problems()
+        if problems:
+            raise ConfigError("Stage1Config: " + "; ".join(problems))
+        for f in fields(self):
+            if f.type in _NORMAL_TYPES:
+                setattr(self, f.name, _NORMAL_TYPES[f.type](getattr(self, f.name)))
         self.enlarge = tuple(float(v) for v in self.enlarge)
         self.validate()
 
-    def validate(self) -> None:
-        """Raise ValueError naming every parameter outside its allowed range."""
+    def _type_problems(self) -> list[str]:
+        """One line per field whose value has the wrong type (an int field given 3.5, a tuple given a number)."""
         problems = []
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.type.startswith("tuple") and not (
+                isinstance(value, (tuple, list)) and all(_is_number(v) for v in value)
+            ):
+                problems.append(f"{f.name}={value!r} must be a list of numbers")
+            elif f.type in _TYPE_CHECKS and not _TYPE_CHECKS[f.type][0](value):
+                problems.append(f"{f.name}={value!r} must be {_TYPE_CHECKS[f.type][1]}")
+        return problems
+
+    def validate(self) -> None:
+        """Raise ConfigError naming every parameter of the wrong type, outside its allowed range, or out of order
+        with its pair (max_top below min_top)."""
+        problems = self._type_problems()
+        if problems:
+            raise ConfigError("Stage1Config: " + "; ".join(problems))
         if len(self.enlarge) != 3:
             problems.append(f"enlarge needs 3 values (x, y, z), got {len(self.enlarge)}")
         for f in fields(self):
@@ -108,11 +168,14 @@ class Stage1Config:
                 continue
             lo, hi = f.metadata["range"]
             values = getattr(self, f.name)
-            for v in values if isinstance(values, tuple) else (values,):
+            for v in values if isinstance(values, (tuple, list)) else (values,):
                 if not lo <= v <= hi:
-                    problems.append(f"{f.name}={v} outside [{lo}, {hi}]")
+                    problems.append(f"{f.name}={v:g} outside [{lo:g}, {hi:g}]")
+        for low, high in ORDERED_PAIRS:
+            if getattr(self, low) > getattr(self, high):
+                problems.append(f"{high}={getattr(self, high):g} is below {low}={getattr(self, low):g}")
         if problems:
-            raise ValueError("Stage1Config: " + "; ".join(problems))
+            raise ConfigError("Stage1Config: " + "; ".join(problems))
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> Stage1Config:
@@ -120,7 +183,8 @@ class Stage1Config:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - known)
         if unknown:
-            raise ValueError(f"Stage1Config: unknown parameter(s) {', '.join(unknown)}")
+            named = [name + (f" (did you mean {near}?)" if (near := closest(name, known)) else "") for name in unknown]
+            raise ConfigError(f"Stage1Config: unknown parameter(s) {', '.join(named)}")
         return cls(**dict(values))
 
     def to_dict(self) -> dict[str, Any]:

@@ -287,27 +287,27 @@ def _ground_kernel(pts: np.ndarray, sample: np.ndarray, edges: np.ndarray, n_lpr
     return ground, planes
 
 
-def fit_ground(points: np.ndarray, config: Stage1Config | None = None, in_scan_order: bool = True) -> GroundFit:
-    """Ground mask and planes of a scan (N x >=3, sensor frame, z up) under `config` (default: Stage1Config());
-    see the module docstring. `in_scan_order` False: the points are likely in no scan order (the same result,
-    drawn without branches the CPU would mispredict on them).
+def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = True) -> GroundFit:
+    """Ground mask and planes of a scan (N x >=3, sensor frame, z up) under `config`; see the module docstring.
+    `in_scan_order` False: the points are likely in no scan order (the same result, drawn without branches the CPU
+    would mispredict on them).
 
     Segments span x in [-ground_x_extent, ground_x_extent] (points beyond fall into the end segments); a plane
     steeper than `ground_max_slope_deg` or stepping more than `ground_max_step` at its inner edge takes its inner
     neighbour's plane (the centre segment's falls back to a horizontal plane at its LPR).
     """
-    cfg = config or Stage1Config()
     pts = np.ascontiguousarray(points, dtype=np.float32)
-    n_seg = int(cfg.n_seg)
-    width = 2.0 * cfg.ground_x_extent / n_seg
-    edges = -cfg.ground_x_extent + width * np.arange(n_seg + 1)
+    n_seg = int(config.n_seg)
+    width = 2.0 * config.ground_x_extent / n_seg
+    edges = -config.ground_x_extent + width * np.arange(n_seg + 1)
     if len(pts) == 0:
-        return GroundFit(np.zeros(0, dtype=bool), np.tile([0.0, 0.0, 1.0, cfg.sensor_height], (n_seg, 1)), edges)
-    sample = _sample(pts, int(cfg.fit_stride), in_scan_order)  # apart: inside the kernel, the fit took 3.7 ms, not 2.5
+        return GroundFit(np.zeros(0, dtype=bool), np.tile([0.0, 0.0, 1.0, config.sensor_height], (n_seg, 1)), edges)
+    sample = _sample(pts, int(config.fit_stride), in_scan_order)  # apart: in the kernel, the fit took 3.7 ms, not 2.5
     ground, planes = _ground_kernel(
-        pts, np.take(pts, sample, axis=0), edges, int(cfg.n_lpr), int(cfg.n_iter), cfg.th_seeds, cfg.th_dist,
-        -(cfg.sensor_height + cfg.below_ground_margin), float(np.cos(np.deg2rad(cfg.ground_max_slope_deg))),
-        cfg.ground_seed_band, cfg.ground_lpr_outlier_share, cfg.ground_max_step, int(cfg.fit_stride),
+        pts, np.take(pts, sample, axis=0), edges, int(config.n_lpr), int(config.n_iter), config.th_seeds,
+        config.th_dist,
+        -(config.sensor_height + config.below_ground_margin), float(np.cos(np.deg2rad(config.ground_max_slope_deg))),
+        config.ground_seed_band, config.ground_lpr_outlier_share, config.ground_max_step, int(config.fit_stride),
     )
     return GroundFit(ground, planes, edges)
 
@@ -317,4 +317,4 @@ def warm_up() -> None:
     rng = np.random.default_rng(0)
     pts = rng.uniform(-10.0, 10.0, size=(200, 4)).astype(np.float32)
     pts[:100, 2] = -1.73
-    fit_ground(pts)
+    fit_ground(pts, Stage1Config())

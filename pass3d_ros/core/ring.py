@@ -799,7 +799,7 @@ def rings_from_lines(points: np.ndarray, sensor: str = "auto") -> Rings | None:
 
 def recover_rings(
     points: np.ndarray,
-    config: Stage1Config | None = None,
+    config: Stage1Config,
     *,
     min_jump_deg: float = 45.0,
     min_ring_points: int = 8,
@@ -822,16 +822,15 @@ def recover_rings(
     lasers may be absent; `min_range`: points nearer than this are left out of validation statistics
     (lasers sit off the sensor origin, so close points have distorted elevations).
     """
-    cfg = config or Stage1Config()
-    n_rings = cfg.n_rings
+    n_rings = config.n_rings
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if len(pts) == 0:
         return Rings(np.zeros(0, dtype=np.uint16), "azimuth_wrap", 0)
-    if cfg.sensor != "auto":
+    if config.sensor != "auto":
         known = _from_known(pts, lines, "laser_table", helper)
         if known is not None:
             return known
-        found = rings_from_lines(pts, cfg.sensor)
+        found = rings_from_lines(pts, config.sensor)
         assert found is not None
         return found
     known = _from_known(pts, lines, "elevation_lines", helper)
@@ -863,7 +862,7 @@ def _from_known(pts: np.ndarray, lines: LaserLines | None, source: str, helper: 
     return None if lines is None else rings_from_known_lines(pts, lines, source, helper)
 
 
-def rings_for(points: np.ndarray, ring: np.ndarray | None, config: Stage1Config | None = None,
+def rings_for(points: np.ndarray, ring: np.ndarray | None, config: Stage1Config,
               lines: LaserLines | None = None, helper: Executor | None = None) -> Rings:
     """The given ring field when there is one (checked for length), else the rings recovered under `config`
     (trying an earlier scan's laser `lines` before a line search, half of them assigned on `helper`)."""

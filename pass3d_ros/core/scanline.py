@@ -15,7 +15,7 @@ Bridges (`run_skip`, not in the paper): two runs of a ring whose facing ends lie
 most `run_skip` points of another run between them join. Those points are farther surfaces seen through a gap
 (between a walker's arm and body, through a bike frame or a car window); without the bridge they cut the object's
 run in pieces, and on a 16-laser scan, where a person at 20 m is 5-10 points on 2-3 rings, the pieces fall below
-the point-count gate one by one (stage-1 recall with and without: README, "Measured").
+the point-count gate one by one (stage-1 recall with and without: docs/results.md).
 """
 
 from __future__ import annotations
@@ -379,18 +379,17 @@ def in_canonical_order(points: np.ndarray, ring: np.ndarray) -> tuple[np.ndarray
 
 
 def cluster_scanlines(
-    points: np.ndarray, ring: np.ndarray, use: np.ndarray, config: Stage1Config | None = None
+    points: np.ndarray, ring: np.ndarray, use: np.ndarray, config: Stage1Config
 ) -> tuple[np.ndarray, int]:
-    """Cluster id per point ((N,) int32, -1 where `use` is False) and the cluster count, with `th_ring`, `th_prop`
-    and `n_prev_rings` from `config` (default: Stage1Config()); see the module docstring."""
-    cfg = config or Stage1Config()
+    """Cluster id per point ((N,) int32, -1 where `use` is False) and the cluster count, with `th_ring`, `th_prop`,
+    `n_prev_rings` and `run_skip` from `config`; see the module docstring."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if len(pts) == 0 or not np.any(use):
         return np.full(len(pts), -1, dtype=np.int32), 0
     ring = np.ascontiguousarray(ring, dtype=np.uint16)
     n_rings = int(ring.max()) + 1
-    return _cluster_kernel(pts, ring, np.ascontiguousarray(use, dtype=np.bool_), n_rings, float(cfg.th_ring),
-                           float(cfg.th_prop), int(cfg.n_prev_rings), int(cfg.run_skip))
+    return _cluster_kernel(pts, ring, np.ascontiguousarray(use, dtype=np.bool_), n_rings, float(config.th_ring),
+                           float(config.th_prop), int(config.n_prev_rings), int(config.run_skip))
 
 
 def warm_up() -> None:
@@ -401,5 +400,5 @@ def warm_up() -> None:
     pts[:, 1] = np.tile(5.0 * np.sin(az), 2)
     pts[32:, 2] = -0.1
     ring = np.repeat(np.arange(2), 32).astype(np.uint16)
-    cluster_scanlines(pts, ring, np.ones(64, dtype=bool))
+    cluster_scanlines(pts, ring, np.ones(64, dtype=bool), Stage1Config())
     canonical_order(pts[::-1], ring)

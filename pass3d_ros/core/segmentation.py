@@ -210,13 +210,24 @@ def read_checkpoint(source: str | os.PathLike | dict) -> tuple[dict, str]:
         return source, "checkpoint dict"
     path = Path(source)
     where = str(path)
-    if not path.is_file():
-        raise CheckpointError(f"{where}: no such checkpoint file")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
+    except (FileNotFoundError, IsADirectoryError):
+        raise CheckpointError(f"{where}: no such checkpoint file") from None
     except Exception:
         raise CheckpointError(f"not a pass3d checkpoint: {where}") from None
     return data, where
+
+
+def check_finite(state: dict, where: str) -> None:
+    """CheckpointError naming `where` when a floating-point tensor of the state dict holds NaN or infinity (a
+    diverged training run wrote it: such a network labels nothing sensibly)."""
+    bad = sorted(k for k, v in state.items()
+                 if isinstance(v, torch.Tensor) and v.is_floating_point() and not bool(torch.isfinite(v).all()))
+    if bad:
+        raise CheckpointError(f"{where}: weights are not finite (NaN or infinity) in {len(bad)} of {len(state)} "
+                              f"tensors ({', '.join(bad[:3])}{' ...' if len(bad) > 3 else ''}); the training that "
+                              "wrote it diverged")
 
 
 def load_model(source: str | os.PathLike | dict) -> tuple[PointNet2Seg, dict]:
@@ -251,12 +262,15 @@ def load_model(source: str | os.PathLike | dict) -> tuple[PointNet2Seg, dict]:
             if keys:
                 problems.append(f"{title}: {', '.join(keys[:4])}{' ...' if len(keys) > 4 else ''} ({len(keys)})")
         raise CheckpointError(f"{where}: weights do not fit the '{config.name}' model config; " + "; ".join(problems))
+    check_finite(state, where)
     model.load_state_dict(state)
     return model.eval(), data
 
 
 class Segmenter:
     """Stage-2 network classifier loaded from a checkpoint file or dict."""
+
+    kind = "network"
 
     def __init__(
         self,
@@ -266,6 +280,7 @@ class Segmenter:
         fuse: bool = True,
     ) -> None:
         model, checkpoint = load_model(weights)
+        self.weights: str | None = None if isinstance(weights, dict) else str(weights)
         self.device = torch.device(device)
         self.config: ModelConfig = model.config
         self.classes: list[str] = list(checkpoint["classes"])

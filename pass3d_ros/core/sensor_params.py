@@ -23,7 +23,7 @@ With `Stage1Config.sensor_scaling` off, the config is used as it is.
 
 from __future__ import annotations
 
-import dataclasses
+import copy
 from dataclasses import dataclass
 
 import numba as nb
@@ -170,10 +170,9 @@ def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
     if config.sensor_scaling:
         density = min(1.0, _ratio(REFERENCE_DV_DEG, vertical) * _ratio(REFERENCE_DH_DEG, horizontal))
     cfg = config
-    if density != 1.0:
-        cfg = dataclasses.replace(
-            config, th_num_near=max(1.0, config.th_num_near * density),
-            th_num_floor=max(min(MIN_FLOOR, config.th_num_floor), round(config.th_num_floor * density)),
-        )
+    if density != 1.0:  # both values stay in their ranges (density <= 1), so the copy is not validated again
+        cfg = copy.copy(config)
+        cfg.th_num_near = max(1.0, config.th_num_near * density)
+        cfg.th_num_floor = max(min(MIN_FLOOR, config.th_num_floor), round(config.th_num_floor * density))
     scale = SensorScale(n_rings, vertical, horizontal, density, cfg.th_num_near, cfg.th_num_floor, cfg.th_prop)
     return cfg, scale

@@ -59,6 +59,9 @@ class SizeRules:
 class SizeRuleClassifier:
     """Stage-2 classifier with the network's segment() shape, deciding by box size alone."""
 
+    kind = "size_rules"
+    weights: str | None = None
+
     def __init__(self, rules: SizeRules | None = None, max_proposals: int = DEFAULT_MAX_PROPOSALS) -> None:
         self.rules = rules or SizeRules()
         self.max_proposals = max_proposals

@@ -56,6 +56,7 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
     """Run stage 1 on one scan: cluster proposals with per-point primary/secondary proposal ids.
 
     Points with a non-finite coordinate (a driver's no-return) take no part: ring 0, not ground, no proposal.
+    `config`: the stage-1 parameters; None gives `Stage1Config()` (defaulted here only: the steps below require one).
     `lines`: the previous scan's `Stage1Result.lines` on a stream of one sensor; a scan in no firing order then skips
     the laser-line search when they still fit it, or (`NO_LINES`, from a search that found none) altogether
     (pass3d_ros.core.ring.recover_rings).

@@ -1,6 +1,6 @@
-"""Stage 2's front door: the classifier interface, the registry of classifiers, which weights one uses, and
-loading it. The node and every tool go through here, so "network without weights = the shipped weights"
-is decided once.
+"""Stage 2's front door: the classifier interface, the registry of classifiers, and `open_classifier`, the one way
+the node and every tool get a classifier, so "network without weights = the shipped weights" and the check that
+the checkpoint exists are written once.
 """
 
 from __future__ import annotations
@@ -10,10 +10,11 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
+import torch
 
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, SegmentResult
 from pass3d_ros.core.size_rules import SizeRuleClassifier
-from pass3d_ros.weights import default_weights
+from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 CLASSIFIERS: tuple[str, ...] = ("network", "size_rules")
 DEFAULT_CLASSIFIER = "network"
@@ -26,6 +27,8 @@ class ClassifierError(ValueError):
 class Classifier(Protocol):
     """What the evaluation and the ROS node need from a stage-2 classifier."""
 
+    kind: str  # one of CLASSIFIERS
+    weights: str | None  # the checkpoint file it was loaded from (None: size rules, or a checkpoint dict)
     max_proposals: int
 
     def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult: ...
@@ -33,9 +36,16 @@ class Classifier(Protocol):
     def warm_up(self) -> None: ...
 
 
-def resolve_weights(kind: str | None, weights: str | os.PathLike | None) -> tuple[str, str | None]:
-    """(kind, weights path or None): the network by default, with the shipped weights unless `weights` is given."""
-    kind = kind or DEFAULT_CLASSIFIER
+def open_classifier(
+    weights: str | os.PathLike | dict | None,
+    classifier: str | None = DEFAULT_CLASSIFIER,
+    device: str = "cpu",
+    max_proposals: int = DEFAULT_MAX_PROPOSALS,
+) -> Classifier:
+    """The loaded classifier: 'network' (the default) from `weights`, a checkpoint file or dict (None or '': the
+    shipped weights), or 'size_rules' (geometry only, no weights). ClassifierError names a missing file or a device
+    torch cannot use here."""
+    kind = classifier or DEFAULT_CLASSIFIER
     if kind not in CLASSIFIERS:
         raise ClassifierError(f"unknown classifier {kind!r}: choose {' or '.join(CLASSIFIERS)}")
     if kind == "size_rules":
@@ -43,30 +53,24 @@ def resolve_weights(kind: str | None, weights: str | os.PathLike | None) -> tupl
             raise ClassifierError(
                 "--weights applies to the network classifier, not size_rules (node parameter: weights)"
             )
-        return kind, None
-    if weights:
-        if not Path(weights).is_file():
-            raise ClassifierError(f"{weights}: no such checkpoint file")
-        return kind, str(weights)
-    try:
-        return kind, str(default_weights())
-    except FileNotFoundError as exc:
-        raise ClassifierError(
-            f"{exc}; pass --weights W or --classifier size_rules (node parameters: weights, classifier)"
-        ) from None
-
-
-def load_classifier(
-    kind: str,
-    weights: str | os.PathLike | dict | None = None,
-    device: str = "cpu",
-    max_proposals: int = DEFAULT_MAX_PROPOSALS,
-) -> Classifier:
-    """'network' (needs weights: a checkpoint path or dict) or 'size_rules' (geometry only)."""
-    if kind == "network":
-        if weights is None:
-            raise ClassifierError("the network classifier needs weights (a stage-2 checkpoint)")
-        return Segmenter(weights, device=device, max_proposals=max_proposals)
-    if kind == "size_rules":
         return SizeRuleClassifier(max_proposals=max_proposals)
-    raise ClassifierError(f"unknown classifier {kind!r}: choose {' or '.join(CLASSIFIERS)}")
+    _check_device(device)
+    if isinstance(weights, dict):
+        return Segmenter(weights, device=device, max_proposals=max_proposals)
+    path = Path(weights) if weights else DEFAULT_WEIGHTS
+    if not path.is_file():
+        raise ClassifierError(f"{path}: no such checkpoint file" if weights else (
+            f"shipped stage-2 weights missing: {path} (train them with pass3d_train); pass --weights W or "
+            "--classifier size_rules (node parameters: weights, classifier)"))
+    return Segmenter(path, device=device, max_proposals=max_proposals)
+
+
+def _check_device(device: str) -> None:
+    """ClassifierError for a torch device name that is malformed or names hardware this machine lacks."""
+    try:
+        chosen = torch.device(device)
+    except RuntimeError as exc:
+        raise ClassifierError(f"device {device!r}: {exc} (option --device, node parameter device)") from None
+    if chosen.type == "cuda" and (chosen.index or 0) >= torch.cuda.device_count():
+        raise ClassifierError(f"device {device!r}: no such CUDA device here (torch {torch.__version__} sees "
+                              f"{torch.cuda.device_count()}); use cpu")

@@ -34,8 +34,8 @@ from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from pass3d_ros.data.errors import DatasetError
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.spec import DatasetError
 from pass3d_ros.msgs.pointcloud2 import (
     POINTCLOUD2_TYPE,
     PointCloud2Error,
@@ -79,6 +79,34 @@ def _open_reader(path: Path) -> Reader:
     return reader
 
 
+def _type_counts(reader: Reader, msgtype: str) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for conn in reader.connections:
+        if conn.msgtype == msgtype:
+            counts[conn.topic] = counts.get(conn.topic, 0) + conn.msgcount
+    return counts
+
+
+def _contents(reader: Reader) -> str:
+    """What the bag holds, for an error message: `topic (type), ...` or `no topics`."""
+    types = {conn.topic: conn.msgtype for conn in reader.connections}
+    return ", ".join(f"{topic} ({types[topic]})" for topic in sorted(types)) or "no topics"
+
+
+def _select(reader: Reader, path: Path, topic: str | None, msgtype: str) -> str:
+    counts = _type_counts(reader, msgtype)
+    if topic is not None:
+        if topic not in counts:
+            raise DatasetError(f"{path}: no {msgtype} topic {topic!r}; the bag has {_contents(reader)}")
+        return topic
+    if not counts:
+        raise DatasetError(f"{path}: no {msgtype} topic; the bag has {_contents(reader)}")
+    if len(counts) != 1:
+        listing = ", ".join(sorted(counts))
+        raise DatasetError(f"{path}: {len(counts)} {msgtype} topics ({listing}); choose one with bag:PATH#/topic")
+    return next(iter(counts))
+
+
 def topic_types(path: Path) -> dict[str, str]:
     """Topic -> message type of every topic in the bag."""
     reader = _open_reader(path)
@@ -92,35 +120,19 @@ def topics_of_type(path: Path, msgtype: str = POINTCLOUD2_TYPE) -> dict[str, int
     """Topic -> message count of the bag's topics of `msgtype`."""
     reader = _open_reader(path)
     try:
-        counts: dict[str, int] = {}
-        for conn in reader.connections:
-            if conn.msgtype == msgtype:
-                counts[conn.topic] = counts.get(conn.topic, 0) + conn.msgcount
-        return counts
+        return _type_counts(reader, msgtype)
     finally:
         reader.close()
-
-
-def _bag_contents(path: Path) -> str:
-    """What the bag holds, for an error message: `topic (type), ...` or `no topics`."""
-    types = topic_types(path)
-    return ", ".join(f"{topic} ({types[topic]})" for topic in sorted(types)) or "no topics"
 
 
 def select_topic(path: Path, topic: str | None, msgtype: str = POINTCLOUD2_TYPE) -> str:
     """`topic` if the bag has it with `msgtype`, else the bag's only topic of that type; DatasetError otherwise
     (listing what the bag has: every topic and its type when none fits)."""
-    counts = topics_of_type(path, msgtype)
-    if topic is not None:
-        if topic not in counts:
-            raise DatasetError(f"{path}: no {msgtype} topic {topic!r}; the bag has {_bag_contents(path)}")
-        return topic
-    if not counts:
-        raise DatasetError(f"{path}: no {msgtype} topic; the bag has {_bag_contents(path)}")
-    if len(counts) != 1:
-        listing = ", ".join(sorted(counts))
-        raise DatasetError(f"{path}: {len(counts)} {msgtype} topics ({listing}); choose one with bag:PATH#/topic")
-    return next(iter(counts))
+    reader = _open_reader(path)
+    try:
+        return _select(reader, path, topic, msgtype)
+    finally:
+        reader.close()
 
 
 def iter_raw(path: Path, topic: str) -> Iterator[tuple[Connection, int, bytes]]:
@@ -131,6 +143,42 @@ def iter_raw(path: Path, topic: str) -> Iterator[tuple[Connection, int, bytes]]:
         yield from reader.messages(connections=connections)
     finally:
         reader.close()
+
+
+class BagFile:
+    """A bag opened once (`PATH` or `PATH#/topic`): its topic of `msgtype` chosen as `select_topic` does, the
+    message count from its metadata, and its messages, as many passes as asked. Close it (or use `with`)."""
+
+    def __init__(self, spec: str | Path, msgtype: str = POINTCLOUD2_TYPE) -> None:
+        self.path, topic = parse_bag_spec(spec)
+        self._reader = _open_reader(self.path)
+        try:
+            self.topic = _select(self._reader, self.path, topic, msgtype)
+        except BaseException:
+            self._reader.close()
+            raise
+        self._connections = [conn for conn in self._reader.connections if conn.topic == self.topic]
+        self.count = sum(conn.msgcount for conn in self._connections)
+
+    def __str__(self) -> str:
+        return f"{self.path}#{self.topic}"
+
+    def messages(self) -> Iterator[tuple[Connection, int, bytes]]:
+        """(connection, bag time ns, CDR bytes) of every message on the topic, in bag order."""
+        return self._reader.messages(connections=self._connections)
+
+    def close(self) -> None:
+        """Release the file; closing twice is harmless."""
+        if self._reader.is_open:
+            self._reader.close()
+
+    def __enter__(self) -> BagFile:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
 
 
 def is_output_cloud(names: Collection[str]) -> bool:
@@ -173,35 +221,47 @@ def read_bag(path: str | Path, labels: LabelSource = "truth") -> Iterator[Frame]
     `cloud_to_frame` (an output bag read for truth has none, and says so once on stderr)."""
     if labels not in ("truth", "predicted"):
         raise ValueError(f"labels must be 'truth' or 'predicted', got {labels!r}")
-    bag, topic = parse_bag_spec(path)
-    topic = select_topic(bag, topic)
-    return _frames(bag, topic, labels)
+    return _frames(BagFile(path), labels)
 
 
-def _frames(bag: Path, topic: str, labels: LabelSource = "truth") -> Iterator[Frame]:
-    for index, (conn, _, raw) in enumerate(iter_raw(bag, topic)):
-        try:
-            msg = TYPESTORE.deserialize_cdr(raw, conn.msgtype)
-        except Exception as exc:  # truncated or foreign CDR surfaces as struct, index or value errors
-            raise DatasetError(f"{bag}#{topic}: message {index} does not deserialize: {exc}") from exc
-        try:
-            frame = cloud_to_frame(f"{index:06d}", msg, labels)
-        except PointCloud2Error as exc:
-            raise DatasetError(f"{bag}#{topic}: message {index}: {exc}") from exc
-        if index == 0 and labels == "truth" and frame.labels is None:
-            names = {field.name for field in msg.fields}
-            if LABEL_FIELD in names and is_output_cloud(names):
-                _to_stderr(f"warning: {bag}#{topic} holds pass3d outputs: their `{LABEL_FIELD}` field is the "
-                           f"prediction, not ground truth, so these frames have no labels (ground truth goes in "
-                           f"`{TRUTH_FIELD}`)")
-        yield frame
+def _frames(bag: BagFile, labels: LabelSource = "truth") -> Iterator[Frame]:
+    try:
+        for index, (conn, _, raw) in enumerate(bag.messages()):
+            yield _message_frame(bag, index, conn.msgtype, raw, labels)
+    finally:
+        bag.close()
+
+
+def _message_frame(bag: BagFile, index: int, msgtype: str, raw: bytes, labels: LabelSource) -> Frame:
+    try:
+        msg = TYPESTORE.deserialize_cdr(raw, msgtype)
+    except Exception as exc:  # truncated or foreign CDR surfaces as struct, index or value errors
+        raise DatasetError(f"{bag}: message {index} does not deserialize: {exc}") from exc
+    try:
+        frame = cloud_to_frame(f"{index:06d}", msg, labels)
+    except PointCloud2Error as exc:
+        raise DatasetError(f"{bag}: message {index}: {exc}") from exc
+    if index == 0 and labels == "truth" and frame.labels is None:
+        names = {field.name for field in msg.fields}
+        if LABEL_FIELD in names and is_output_cloud(names):
+            _to_stderr(f"warning: {bag} holds pass3d outputs: their `{LABEL_FIELD}` field is the "
+                       f"prediction, not ground truth, so these frames have no labels (ground truth goes in "
+                       f"`{TRUTH_FIELD}`)")
+    return frame
+
+
+def first_frame(bag: BagFile, labels: LabelSource = "truth") -> Frame | None:
+    """The first frame of an open bag (None when its topic is empty); the bag stays open."""
+    for conn, _, raw in bag.messages():
+        return _message_frame(bag, 0, conn.msgtype, raw, labels)
+    return None
 
 
 def count_frames(path: str | Path) -> int | None:
     """Message count of the chosen PointCloud2 topic, from the bag's metadata."""
-    bag, topic = parse_bag_spec(path)
     try:
-        return topics_of_type(bag)[select_topic(bag, topic)]
+        with BagFile(path) as bag:
+            return bag.count
     except DatasetError:
         return None
 

@@ -20,7 +20,7 @@ from tqdm import tqdm
 
 from pass3d_ros.data.bag import TRUTH_FIELD, TYPESTORE, BagWriter
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset, parse_spec
+from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, columns_to_cloud, encode
 
 SYNTHETIC_START_NS = 1_577_836_800 * 1_000_000_000  # 2020-01-01T00:00:00Z
@@ -57,7 +57,7 @@ def frame_cloud(frame: Frame, with_labels: bool = False) -> np.ndarray:
 
 
 def convert(
-    specs: Sequence[str],
+    specs: Sequence[str | Dataset],
     out: str | Path,
     *,
     storage: str = "mcap",
@@ -72,27 +72,27 @@ def convert(
     """Write the frames of `specs` into the bag `out`; nothing is left at `out` if anything fails."""
     if not specs:
         raise DatasetError("no --data given")
-    parsed = [parse_spec(spec) for spec in specs]
-    counts = [count_frames(spec) for spec in parsed]
+    datasets = resolve_datasets(specs)
+    counts = [dataset.count() for dataset in datasets]
     total = None if None in counts else sum(c for c in counts if c is not None)
     stats = ConvertStats()
     synthesized: list[str] = []
     writer = BagWriter(out, storage=storage, version=version, force=force, log=log)
     bar = tqdm(total=total, unit="frame", desc=Path(out).name, disable=None if progress else True)  # None: TTY only
     with writer, bar:
-        for spec in parsed:
+        for dataset in datasets:
             offset: int | None = None
-            for frame in open_dataset(spec):
+            for frame in dataset.frames():
                 if offset is None:
                     offset = 0
                     if frame.stamp_ns == 0:
                         offset = stats.last_stamp_ns + FRAME_GAP_NS if stats.frames else SYNTHETIC_START_NS
-                        synthesized.append(str(spec))
+                        synthesized.append(str(dataset))
                 stamp = frame.stamp_ns + offset
                 try:
                     cloud = frame_cloud(frame, with_labels)
                 except DatasetError as exc:
-                    raise DatasetError(f"{spec}: {exc}") from None
+                    raise DatasetError(f"{dataset}: {exc}") from None
                 msg = encode(cloud, frame_id=frame_id, stamp_ns=stamp, typestore=TYPESTORE)
                 writer.write_raw(topic, POINTCLOUD2_TYPE, stamp, TYPESTORE.serialize_cdr(msg, POINTCLOUD2_TYPE))
                 if stats.frames == 0:
@@ -104,7 +104,7 @@ def convert(
                 stats.last_stamp_ns = stamp
                 bar.update(1)
         if stats.frames == 0:
-            raise DatasetError(f"{', '.join(specs)}: no frames to write")
+            raise DatasetError(f"{', '.join(map(str, datasets))}: no frames to write")
     stats.synthesized = tuple(synthesized)
     for spec in synthesized:
         log(f"note: {spec} has no absolute time (first stamp 0): stamped from its frame times + a fixed start")

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
+from pass3d_ros.data.errors import DatasetError
 from pass3d_ros.data.frame import Box3D, Frame
 from pass3d_ros.data.kitti_io import (
     FRAME_PERIOD_NS,
@@ -34,7 +35,6 @@ from pass3d_ros.data.kitti_io import (
     sorted_files,
     write_bin,
 )
-from pass3d_ros.data.spec import DatasetError
 
 KITTI_TYPE_TO_LABEL: dict[str, int] = {"Car": CAR, "Pedestrian": PEDESTRIAN, "Cyclist": CYCLIST}
 LABEL_TO_KITTI_TYPE: dict[int, str] = {CAR: "Car", PEDESTRIAN: "Pedestrian", CYCLIST: "Cyclist", BACKGROUND: "Misc"}

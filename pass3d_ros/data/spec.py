@@ -1,90 +1,158 @@
-"""`FORMAT:PATH` dataset specs, the one way every tool names its input (`--data`, repeatable)."""
+"""`FORMAT:PATH` dataset specs, the one way every tool names its input (`--data`, repeatable).
+
+`resolve_dataset(text)` parses a spec once and looks its reader up once; the `Dataset` it returns opens, counts
+and shards the frames. Formats live in a registry: the data layer's readers are registered here (imported on first
+use: the bag reader needs rosbags), and a package above registers its own when imported (`import
+pass3d_ros.synthetic` adds `synthetic:`; every command-line tool does), so this layer never loads one by name.
+"""
 
 from __future__ import annotations
 
-import importlib
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
 
+from pass3d_ros.data.errors import DatasetError
 from pass3d_ros.data.frame import Frame
 
-# format name -> "module:function"; the function takes the text after the colon and yields Frames.
-READERS: dict[str, str] = {
-    "kitti_object": "pass3d_ros.data.kitti_object:read_kitti_object",
-    "kitti_raw": "pass3d_ros.data.kitti_raw:read_kitti_raw",
-    "semantickitti": "pass3d_ros.data.semantickitti:read_semantickitti",
-    "squeezeseg": "pass3d_ros.data.squeezeseg:read_squeezeseg",
-    "synthetic": "pass3d_ros.synthetic.dataset:read_synthetic",
-    "bag": "pass3d_ros.data.bag:read_bag",
-}
-
-
-class DatasetError(ValueError):
-    """A dataset spec or a file it names is unusable; the message names the spec or file and the problem."""
+Keep = Callable[[int], bool]  # a frame's position in its spec -> whether this shard makes it
 
 
 @dataclass(frozen=True)
-class DatasetSpec:
+class DatasetFormat:
+    """A format's reader: `read(path)` yields Frames; `count(path)` is the frame count when it is cheap to tell;
+    `read_shard(path, keep)` yields None for the frames `keep` refuses, without making them."""
+
+    read: Callable[[str], Iterator[Frame]]
+    count: Callable[[str], int | None] | None = None
+    read_shard: Callable[[str, Keep], Iterator[Frame | None]] | None = None
+
+
+def _kitti_object() -> DatasetFormat:
+    from pass3d_ros.data import kitti_object
+
+    return DatasetFormat(kitti_object.read_kitti_object, kitti_object.count_frames)
+
+
+def _kitti_raw() -> DatasetFormat:
+    from pass3d_ros.data import kitti_raw
+
+    return DatasetFormat(kitti_raw.read_kitti_raw, kitti_raw.count_frames)
+
+
+def _semantickitti() -> DatasetFormat:
+    from pass3d_ros.data import semantickitti
+
+    return DatasetFormat(semantickitti.read_semantickitti, semantickitti.count_frames)
+
+
+def _squeezeseg() -> DatasetFormat:
+    from pass3d_ros.data import squeezeseg
+
+    return DatasetFormat(squeezeseg.read_squeezeseg, squeezeseg.count_frames)
+
+
+def _bag() -> DatasetFormat:
+    from pass3d_ros.data import bag
+
+    return DatasetFormat(bag.read_bag, bag.count_frames)
+
+
+# format name -> loader (imports the reader module when a spec of that format is first resolved)
+_LOADERS: dict[str, Callable[[], DatasetFormat]] = {
+    "kitti_object": _kitti_object,
+    "kitti_raw": _kitti_raw,
+    "semantickitti": _semantickitti,
+    "squeezeseg": _squeezeseg,
+    "bag": _bag,
+}
+_LOADED: dict[str, DatasetFormat] = {}
+
+
+def register_format(name: str, loader: Callable[[], DatasetFormat]) -> None:
+    """Make `name:PATH` specs resolvable; `loader` is called once, when the first such spec is resolved."""
+    _LOADERS[name] = loader
+    _LOADED.pop(name, None)
+
+
+def _format(name: str) -> DatasetFormat:
+    if name not in _LOADED:
+        _LOADED[name] = _LOADERS[name]()
+    return _LOADED[name]
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """One `FORMAT:PATH` spec, parsed and its reader looked up: its frames, their count, a shard of them."""
+
     format: str
     path: str
+    reader: DatasetFormat = field(repr=False, compare=False)
 
     def __str__(self) -> str:
         return f"{self.format}:{self.path}"
 
+    def frames(self) -> Iterator[Frame]:
+        """The frames, in order."""
+        return self.reader.read(self.path)
 
-def parse_spec(text: str) -> DatasetSpec:
-    """Split `FORMAT:PATH`, checking the format is known."""
-    fmt, sep, rest = text.partition(":")
+    def count(self) -> int | None:
+        """The frame count for progress bars when the reader can tell cheaply, else None."""
+        return None if self.reader.count is None else self.reader.count(self.path)
+
+    def shard(self, keep: Keep) -> Iterator[Frame | None]:
+        """The frames in order, None in place of each whose position k fails `keep(k)` (made only if the reader
+        cannot skip it)."""
+        if self.reader.read_shard is not None:
+            return self.reader.read_shard(self.path, keep)
+        return (frame if keep(k) else None for k, frame in enumerate(self.frames()))
+
+
+def resolve_dataset(spec: str | Dataset) -> Dataset:
+    """Parse `FORMAT:PATH` and look its reader up (a Dataset is returned as it is); DatasetError names the
+    spec and the known formats when the format is unknown."""
+    if isinstance(spec, Dataset):
+        return spec
+    fmt, sep, rest = spec.partition(":")
+    known = ", ".join(_LOADERS)
     if not sep or not rest:
-        raise DatasetError(f"dataset spec {text!r}: expected FORMAT:PATH, formats: {', '.join(READERS)}")
-    if fmt not in READERS:
-        raise DatasetError(f"dataset spec {text!r}: unknown format {fmt!r}, formats: {', '.join(READERS)}")
-    return DatasetSpec(fmt, rest)
+        raise DatasetError(f"dataset spec {spec!r}: expected FORMAT:PATH, formats: {known}")
+    if fmt not in _LOADERS:
+        raise DatasetError(f"dataset spec {spec!r}: unknown format {fmt!r}, formats: {known}")
+    return Dataset(fmt, rest, _format(fmt))
 
 
-def _reader(fmt: str) -> Callable[[str], Iterator[Frame]]:
-    module, func = READERS[fmt].split(":")
-    return getattr(importlib.import_module(module), func)
+def resolve_datasets(specs: Iterable[str | Dataset]) -> list[Dataset]:
+    """`resolve_dataset` of each spec, in order."""
+    return [resolve_dataset(spec) for spec in specs]
 
 
-def open_dataset(spec: str | DatasetSpec) -> Iterator[Frame]:
+def open_dataset(spec: str | Dataset) -> Iterator[Frame]:
     """Yield the frames of one dataset spec, in order."""
-    if isinstance(spec, str):
-        spec = parse_spec(spec)
-    return _reader(spec.format)(spec.path)
+    return resolve_dataset(spec).frames()
 
 
-def open_datasets(specs: list[str]) -> Iterator[Frame]:
+def open_datasets(specs: Iterable[str | Dataset]) -> Iterator[Frame]:
     """Yield the frames of several specs, one after the other."""
-    for spec in specs:
-        yield from open_dataset(spec)
+    for dataset in resolve_datasets(specs):
+        yield from dataset.frames()
 
 
-def open_datasets_shard(specs: list[str], rank: int, world: int) -> Iterator[Frame | None]:
+def open_datasets_shard(specs: Iterable[str | Dataset], rank: int, world: int) -> Iterator[Frame | None]:
     """The frames of several specs in order, with None in place of every frame whose position is not
-    rank (mod world): data-parallel training builds only its own share. A reader with a `read_shard(path, keep)`
-    skips the others without making them (synthetic scans cost far more to generate than to skip)."""
+    rank (mod world): data-parallel training builds only its own share. A reader with a `read_shard` skips the
+    others without making them (synthetic scans cost far more to generate than to skip)."""
     position = 0
-    for text in specs:
-        spec = parse_spec(text)
-        module, _ = READERS[spec.format].split(":")
-        shard_reader = getattr(importlib.import_module(module), "read_shard", None)
+    for dataset in resolve_datasets(specs):
         offset = position
 
         def keep(k: int, offset: int = offset) -> bool:
             return (offset + k) % world == rank
 
-        frames = shard_reader(spec.path, keep) if shard_reader else (
-            frame if keep(k) else None for k, frame in enumerate(open_dataset(spec)))
-        for frame in frames:
+        for frame in dataset.shard(keep):
             yield frame
             position += 1
 
 
-def count_frames(spec: str | DatasetSpec) -> int | None:
+def count_frames(spec: str | Dataset) -> int | None:
     """Frame count for progress bars when the reader can tell cheaply, else None."""
-    if isinstance(spec, str):
-        spec = parse_spec(spec)
-    module, _ = READERS[spec.format].split(":")
-    counter = getattr(importlib.import_module(module), "count_frames", None)
-    return counter(spec.path) if counter else None
+    return resolve_dataset(spec).count()

@@ -37,17 +37,15 @@ from typing import Any
 import numpy as np
 
 from pass3d_ros.classes import IGNORE, NUM_CLASSES
+from pass3d_ros.core.config import ConfigError
 from pass3d_ros.core.metrics import ConfusionAccumulator
 from pass3d_ros.data.bag import (
     LABEL_FIELD,
     TYPESTORE,
+    BagFile,
     BagWriter,
-    count_frames,
     is_output_cloud,
-    iter_raw,
     message_stamp_ns,
-    parse_bag_spec,
-    select_topic,
     truth_field,
 )
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, finite_mask, header_stamp_ns
@@ -133,8 +131,8 @@ def with_stamp(raw: bytes | memoryview, stamp_ns: int) -> bytes:
     return bytes(out)
 
 
-def _replay(path: Path, topic: str, repeat: int) -> Iterator[tuple[int, str, int, bytes]]:
-    """(replay index, message type, bag time ns, CDR bytes) of the topic's messages, `repeat` times over.
+def _replay(bag: BagFile, repeat: int) -> Iterator[tuple[int, str, int, bytes]]:
+    """(replay index, message type, bag time ns, CDR bytes) of the bag's messages, `repeat` times over.
 
     Pass k shifts the header stamps and bag times by k x (span of the topic + its mean message spacing,
     100 ms for a single message), so stamps keep increasing from pass to pass and the pace stays the bag's.
@@ -144,7 +142,7 @@ def _replay(path: Path, topic: str, repeat: int) -> Iterator[tuple[int, str, int
     count = index = 0
     shift = (0, 0)
     for lap in range(repeat):
-        for conn, bag_ns, raw in iter_raw(path, topic):
+        for conn, bag_ns, raw in bag.messages():
             if lap == 0:
                 try:
                     stamp = cdr_stamp_ns(raw)
@@ -222,13 +220,14 @@ def _check_declared(node: Any, overrides: list) -> None:
 
 
 def _make_node(node_class: type, context: Any, overrides: list, nodes: list[Any]) -> Any:
-    """Construct one node with its parameter overrides; a refused or unknown parameter is a ValueError."""
+    """Construct one node with its parameter overrides; a refused parameter is a ConfigError, an unknown one a
+    ValueError (the caller's mistake)."""
     from rclpy.exceptions import ParameterException
 
     try:
         node = node_class(context=context, parameter_overrides=overrides)
     except ParameterException as exc:
-        raise ValueError(f"{node_class.__name__}: {exc}") from exc
+        raise ConfigError(f"{node_class.__name__}: {exc}") from exc
     nodes.append(node)
     _check_declared(node, overrides)
     return node
@@ -353,24 +352,25 @@ class LiveOptions:
     layout: str = "one-process"
 
     def check(self) -> None:
-        """Refuse values that cannot run (ValueError naming the option)."""
+        """Refuse values that cannot run (ConfigError naming the option)."""
         if self.layout not in LAYOUTS:
-            raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {self.layout!r}")
+            raise ConfigError(f"layout must be one of {', '.join(LAYOUTS)}, got {self.layout!r}")
         if self.rate < 0:
-            raise ValueError(f"rate must be >= 0, got {self.rate}")
+            raise ConfigError(f"rate must be >= 0, got {self.rate}")
         if self.timeout_s <= 0:
-            raise ValueError(f"timeout_s must be > 0, got {self.timeout_s}")
+            raise ConfigError(f"timeout_s must be > 0, got {self.timeout_s}")
         if self.repeat < 1:
-            raise ValueError(f"repeat must be >= 1, got {self.repeat}")
+            raise ConfigError(f"repeat must be >= 1, got {self.repeat}")
         if self.log_level is not None and self.log_level.lower() not in LOG_LEVELS:
-            raise ValueError(f"log_level must be one of {', '.join(LOG_LEVELS)}, got {self.log_level!r}")
+            raise ConfigError(f"log_level must be one of {', '.join(LOG_LEVELS)}, got {self.log_level!r}")
 
 
 LOG_LEVELS: dict[str, str] = {"debug": "DEBUG", "info": "INFO", "warn": "WARN", "warning": "WARN", "error": "ERROR"}
 
 
-def run_live(bag: str | Path, options: LiveOptions | None = None, **fields: Any) -> LiveResult:
-    """Play `bag` (`PATH` or `PATH#/topic`) through both live nodes and collect what comes out.
+def run_live(bag: str | Path | BagFile, options: LiveOptions | None = None, **fields: Any) -> LiveResult:
+    """Play `bag` (`PATH` or `PATH#/topic`, or a BagFile the caller opened and closes) through both live nodes
+    and collect what comes out.
 
     Options (a LiveOptions, or its fields as keywords): lockstep publishes the next frame only once the
     previous one's labeled output arrived or `timeout_s` passed (counted in `timeouts`); otherwise publish
@@ -402,12 +402,9 @@ class LiveHarness:
     """One live run in steps: `start` (private context, both nodes, discovery), `play` (publish the bag),
     `drain` (wait for the last outputs, read the node counters), `stop` (tear down, close the recording)."""
 
-    def __init__(self, bag: str | Path, options: LiveOptions) -> None:
+    def __init__(self, bag: str | Path | BagFile, options: LiveOptions) -> None:
         options.check()
         self.options = options
-        self.bag = bag
-        self.path, topic = parse_bag_spec(bag)
-        self.topic = select_topic(self.path, topic)
         self.overrides = _overrides(options.node_parameters)
         self.result = LiveResult(lockstep=options.lockstep, rate=options.rate,
                                  record_out=Path(options.record_out) if options.record_out else None)
@@ -421,6 +418,8 @@ class LiveHarness:
         self.child: subprocess.Popen | None = None
         self.child_dir: tempfile.TemporaryDirectory | None = None
         self.diagnostics: dict[str, dict[str, float | None]] = {}
+        self.owns_bag = not isinstance(bag, BagFile)  # opened here (once: topic, count and messages), closed in stop
+        self.bag = BagFile(bag) if self.owns_bag else bag
 
     def start(self) -> None:
         """Both nodes and a probe node on a single-threaded executor in a private context, all discovered."""
@@ -513,16 +512,15 @@ class LiveHarness:
         options, result, session = self.options, self.result, self.session
         assert session is not None, "start() first"
         self.started = time.perf_counter()
-        total = count_frames(self.bag)
-        bar = tqdm(total=None if total is None else total * options.repeat, unit="frame", desc="live",
+        bar = tqdm(total=self.bag.count * options.repeat, unit="frame", desc="live",
                    disable=None if options.progress else True)  # None: only on a terminal
         pace_start, first_bag_ns, last_stamp = None, 0, None
-        for index, msgtype, bag_ns, raw in _replay(self.path, self.topic, options.repeat):
+        for index, msgtype, bag_ns, raw in _replay(self.bag, options.repeat):
             bar.update(1)
             try:
                 stamp, points, truth = _input_frame(raw, msgtype)
             except LiveEvalError as exc:
-                raise LiveEvalError(f"{self.path}#{self.topic}: message {index}: {exc}") from None
+                raise LiveEvalError(f"{self.bag}: message {index}: {exc}") from None
             except (PointCloud2Error, ValueError, IndexError, struct.error):
                 result.skipped += 1  # the node would skip it too: nothing to wait for
                 continue
@@ -658,6 +656,8 @@ class LiveHarness:
                 self.child.wait()
         if self.child_dir is not None:
             self.child_dir.cleanup()
+        if self.owns_bag:
+            self.bag.close()
         if self.writer is not None:
             if complete:
                 self.writer.close()

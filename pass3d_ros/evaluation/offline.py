@@ -9,18 +9,19 @@ from __future__ import annotations
 import ast
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from pass3d_ros.classes import BACKGROUND, IGNORE
+from pass3d_ros.core.config import ConfigError
 from pass3d_ros.core.metrics import SegmentationMetrics, Stage1Metrics
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose, warm_up
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset
+from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 
 
 def parse_params(items: list[str]) -> Stage1Config:
@@ -29,24 +30,25 @@ def parse_params(items: list[str]) -> Stage1Config:
     for item in items:
         key, sep, text = item.partition("=")
         if not sep or not key:
-            raise ValueError(f"--param {item!r}: expected KEY=VALUE")
+            raise ConfigError(f"--param {item!r}: expected KEY=VALUE")
         try:
             values[key.strip()] = ast.literal_eval(text.strip())
         except (ValueError, SyntaxError) as exc:
-            raise ValueError(f"--param {item!r}: {text!r} is not a number or tuple") from exc
+            raise ConfigError(f"--param {item!r}: {text!r} is not a number or tuple") from exc
     return Stage1Config.from_mapping(values)
 
 
-def iter_frames(specs: list[str], limit: int | None, progress: bool) -> Iterator[tuple[str, Frame]]:
+def iter_frames(specs: Sequence[str | Dataset], limit: int | None, progress: bool) -> Iterator[tuple[str, Frame]]:
     """(spec, frame) over all specs, at most `limit` frames from each, with a progress bar on stderr."""
-    for spec in specs:
-        total = count_frames(spec)
+    for dataset in resolve_datasets(specs):
+        spec = str(dataset)
+        total = dataset.count()
         if limit is not None:
             total = limit if total is None else min(total, limit)
         bar = tqdm(total=total, desc=spec, unit="frame", disable=None if progress else True, file=sys.stderr,
                    leave=False)
         try:
-            for index, frame in enumerate(open_dataset(spec)):
+            for index, frame in enumerate(dataset.frames()):
                 if limit is not None and index >= limit:
                     break
                 yield spec, frame

@@ -56,6 +56,9 @@ class XYZI(NamedTuple):
     ring: np.ndarray | None
 
 
+MAX_POINT_STEP = 2**31 - 1  # numpy's largest itemsize (a C int)
+
+
 def _as_count(value: Any, what: str) -> int:
     """A non-negative Python int from a message attribute, else PointCloud2Error."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
@@ -70,6 +73,8 @@ def fields_dtype(fields: Any, point_step: int, is_bigendian: bool = False) -> np
     point_step = _as_count(point_step, "point_step")
     if point_step == 0:
         raise PointCloud2Error("point_step is 0")
+    if point_step > MAX_POINT_STEP:
+        raise PointCloud2Error(f"point_step {point_step} too large (at most {MAX_POINT_STEP} bytes per point)")
     order = ">" if is_bigendian else "<"
     names: list[str] = []
     formats: list[Any] = []

@@ -19,9 +19,10 @@ from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, propose, warm_up
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
 from pass3d_ros.msgs.pointcloud2 import warm_up as warm_up_codec
 from pass3d_ros.ros import params, scan_checks
+from pass3d_ros.ros.intensity_scale import StreamIntensityScale
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
-from pass3d_ros.ros.qos import QOS_NAMES
+from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES
 from pass3d_ros.ros.run import run_nodes
 
 LINE_SEARCH_RETRY_S = 10.0  # a stream whose laser-line search found none searches again after this long
@@ -32,7 +33,7 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "input_topic": ("/velodyne_points", "PointCloud2 topic of the LiDAR driver", None),
     "proposals_topic": ("/pass3d/proposals", "output: all valid points with ring, ground, cluster_id(2)", None),
     "boxes_topic": ("/pass3d/proposal_boxes", "output: MarkerArray of the proposal boxes", None),
-    "input_qos": ("sensor", f"QoS of the input subscription: {' or '.join(QOS_NAMES)}", None),
+    "input_qos": ("auto", INPUT_QOS_HELP, None),
     "output_qos": ("reliable", f"QoS of the outputs: {' or '.join(QOS_NAMES)}", None),
     "intensity_scale": (
         1.0, "multiplies the input intensity into [0,1] (1/255 for a 0..255 driver, 1/65535 for 16-bit "
@@ -83,6 +84,7 @@ class ClusterProposalNode(PointCloudNode):
         super().__init__(PARAMETERS, **kwargs)
         self.sink = sink
         self.config = params.read_config(self, Stage1Config, STAGE1_PREFIX)
+        self._intensity = StreamIntensityScale()
         self._sensor_source: tuple[str, int] | None = None
         self._lines: LaserLines | None = None  # the stream's laser lines: a scan in no firing order skips the search
         self._searched_at = 0.0  # when a line search last found none (time.monotonic)
@@ -171,13 +173,14 @@ class ClusterProposalNode(PointCloudNode):
             points[:, 3] *= scale
             summary = summary.scaled(scale)
         problem = summary.intensity_problem()
-        if problem:
-            divisor = scan_checks.intensity_divisor(summary.intensity_high)
-            self.get_logger().warning(
-                f"intensity: {problem} after intensity_scale {scale:g}, expected 0..1 (a 0..255 driver needs "
-                "intensity_scale 1/255, 16-bit reflectivity 1/65535); divided by "
-                f"{divisor:g} and clipped into 0..1 for this frame", throttle_duration_sec=LOG_PERIOD_S)
-            points[:, 3] = scan_checks.unit_intensity(points[:, 3], divisor)
+        if problem or self._intensity.divisor not in (None, 1.0):
+            change = self._intensity.update(points[:, 3])
+            if change is not None:
+                self.get_logger().warning(
+                    f"intensity: {problem or 'values within 0..1'} after intensity_scale {scale:g}, expected 0..1; "
+                    f"this stream is divided by {change.new:g} from now on ({change}; a 0..255 driver wants "
+                    "intensity_scale 1/255, 16-bit reflectivity 1/65535)")
+            points[:, 3] = scan_checks.unit_intensity(points[:, 3], self._intensity.divisor or 1.0)
             summary = scan_checks.scan_summary(points)
         if summary.constant_intensity():
             self.get_logger().warning(

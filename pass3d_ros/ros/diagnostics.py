@@ -118,15 +118,17 @@ class StepClock:
         self._last = now
 
 
-def to_status(name: str, counters: Mapping[str, int], stats: NodeStats, message: str = "") -> DiagnosticStatus:
-    """One DiagnosticStatus: OK, or WARN when frames were dropped, failed or lost before the node."""
+def to_status(name: str, counters: Mapping[str, int], stats: NodeStats, message: str = "",
+              warning: str = "") -> DiagnosticStatus:
+    """One DiagnosticStatus: OK, or WARN when frames were dropped, failed or lost before the node, or when a
+    `warning` (what is wrong now, e.g. with the input) is given; the warning is then the message."""
     values: dict[str, float | int | None] = dict(counters)
     values.update(stats.snapshot())
-    trouble = any(values.get(k) for k in ("dropped", "failed", "input_gaps"))
+    trouble = bool(warning) or any(values.get(k) for k in ("dropped", "failed", "input_gaps"))
     return DiagnosticStatus(
         level=DiagnosticStatus.WARN if trouble else DiagnosticStatus.OK,
         name=name,
-        message=message or ("frames dropped or lost" if trouble else "ok"),
+        message=warning or message or ("frames dropped or lost" if trouble else "ok"),
         hardware_id="pass3d",
         values=[KeyValue(key=k, value="" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v)))
                 for k, v in values.items()],

@@ -1,32 +1,50 @@
 """What both PASS3D nodes share: parameters declared from their table, QoS names checked at start-up, one
 latest-frame worker fed by the input subscription (or in memory by the node before it), counters on
-`/diagnostics` at 1 Hz, frame errors logged (throttled), the worker stopped on destroy."""
+`/diagnostics` at 1 Hz, frame errors logged (throttled), the worker stopped on destroy. An `auto` input QoS follows
+the publishers (re-checked every second), and an input that stays silent or loses scans is reported."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from sensor_msgs.msg import PointCloud2
 
 from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
+from pass3d_ros.ros.dds_profile import shipped_profile
 from pass3d_ros.ros.diagnostics import DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, NodeStats, StepClock, to_status
+from pass3d_ros.ros.input_watch import InputWatch, OverlapFilter
 from pass3d_ros.ros.latest_frame import FrameCounters, LatestFrameWorker
 from pass3d_ros.ros.params import NodeParameters
-from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
+from pass3d_ros.ros.qos import (
+    AUTO,
+    INPUT_QOS_NAMES,
+    QOS_NAMES,
+    RELIABILITY_WORDS,
+    endpoint_qos,
+    offered_qos,
+    qos_profile,
+)
 
 LOG_PERIOD_S = 5.0
-QOS_PARAMETERS = ("input_qos", "output_qos")
+QOS_PARAMETERS = {"input_qos": INPUT_QOS_NAMES, "output_qos": QOS_NAMES}
+INPUT_CHECK_PERIOD_S = 1.0  # auto QoS and the silent-input watch look at the input's publishers this often
+INPUT_WARNING_PERIOD_S = 30.0  # the input warning repeats at most this often
+RESUBSCRIBE_OVERLAP_S = 2.0  # an auto resubscription keeps the old subscription this long (duplicates dropped)
 
 
 class PointCloudNode(Node):
     """A node that processes the newest PointCloud2 of `input_topic` on a worker thread.
 
-    Its parameter table must hold `input_topic`, `input_qos` and `output_qos`; a QoS name outside QOS_NAMES
-    ends start-up with a ValueError.
+    Its parameter table must hold `input_topic`, `input_qos` and `output_qos`; a QoS name QOS_PARAMETERS does
+    not allow ends start-up with a ValueError.
     """
 
     # Stamp gaps are counted where the input is the sensor; a node fed by another node leaves them to that one.
@@ -35,9 +53,9 @@ class PointCloudNode(Node):
     def __init__(self, parameters: NodeParameters, **kwargs: Any) -> None:
         super().__init__(parameters.node_name, **kwargs)
         parameters.declare(self)
-        for name in QOS_PARAMETERS:
-            if self.get_parameter(name).value not in QOS_NAMES:
-                raise ValueError(f"parameter {name} must be one of {QOS_NAMES}")
+        for name, allowed in QOS_PARAMETERS.items():
+            if self.get_parameter(name).value not in allowed:
+                raise ValueError(f"parameter {name} must be one of {allowed}")
         self.stats = NodeStats(count_gaps=self.COUNTS_INPUT_GAPS)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
@@ -52,16 +70,74 @@ class PointCloudNode(Node):
         or only through `submit` when `subscribe` is False (an in-memory hand-off in one process)."""
         self.worker: LatestFrameWorker[Any] = LatestFrameWorker(process, self._on_error, name)
         self.subscription = None
-        if subscribe:
-            self.subscription = self.create_subscription(
-                PointCloud2,
-                self.get_parameter("input_topic").value,
-                self._on_message,
-                qos_profile(self.get_parameter("input_qos").value),
-            )
+        self.input_watch: InputWatch | None = None
+        self._retiring: tuple[Any, float] | None = None  # the subscription an auto switch replaced, and until when
+        self._source = 0  # which of two overlapping subscriptions is the current one
+        self._overlap = OverlapFilter()  # drops what both reach during a switch
+        if not subscribe:
+            return
+        topic = self.get_parameter("input_topic").value
+        self.input_qos = self.get_parameter("input_qos").value
+        self.subscribed_qos = self.input_qos
+        if self.input_qos == AUTO:
+            self.subscribed_qos = offered_qos(self.get_publishers_info_by_topic(topic))
+        self.subscription = self._subscribe(topic, self.subscribed_qos)
+        self.input_watch = InputWatch(self.subscription.topic_name, str(shipped_profile() or ""),
+                                      count_missing=self.COUNTS_INPUT_GAPS)
+        if self.input_qos == AUTO:
+            self.get_logger().info(f"input_qos auto: {self.subscription.topic_name} subscribed "
+                                   f"{RELIABILITY_WORDS[self.subscribed_qos]}; follows what its publishers offer "
+                                   "(reliable when all of them are)")
+        self.input_timer = self.create_timer(INPUT_CHECK_PERIOD_S, self._check_input,
+                                             clock=Clock(clock_type=ClockType.STEADY_TIME))
 
-    def _on_message(self, msg: PointCloud2) -> None:
-        self.submit(msg, header_stamp_ns(msg))
+    def _subscribe(self, topic: str, qos: str) -> Any:
+        """The input subscription (as source `self._source`); a publisher matching, leaving or offering an
+        incompatible QoS has the input looked at at once, not at the next tick."""
+        events = SubscriptionEventCallbacks(matched=self._on_input_event, incompatible_qos=self._on_input_event)
+        return self.create_subscription(PointCloud2, topic, partial(self._on_message, self._source), qos_profile(qos),
+                                        event_callbacks=events)
+
+    def _on_input_event(self, _status: Any) -> None:
+        self._check_input()
+
+    def _check_input(self) -> None:
+        """Timer and input events: resubscribe an `auto` input when its publishers' QoS asks for another
+        reliability; warn (throttled) when the input has publishers but stays silent or loses scans."""
+        if self.subscription is None or self.input_watch is None:
+            return
+        topic = self.subscription.topic_name
+        publishers = self.get_publishers_info_by_topic(topic)
+        now = time.monotonic()
+        wanted = offered_qos(publishers)
+        if self._retiring is not None and now >= self._retiring[1]:
+            self.destroy_subscription(self._retiring[0])
+            self._retiring = None
+            self._overlap.stop()
+        if self.input_qos == AUTO and wanted != self.subscribed_qos:
+            if self._retiring is not None:
+                self.destroy_subscription(self._retiring[0])
+            # the new one matches while the old one still delivers: no scan is lost in the switch
+            self._retiring = (self.subscription, now + RESUBSCRIBE_OVERLAP_S)
+            self._source = 1 - self._source
+            self._overlap.start()
+            self.subscription = self._subscribe(topic, wanted)
+            self.get_logger().info(f"input_qos auto: {topic} resubscribed {RELIABILITY_WORDS[wanted]} (was "
+                                   f"{RELIABILITY_WORDS[self.subscribed_qos]}): what its {len(publishers)} "
+                                   "publisher(s) offer")
+            self.subscribed_qos = wanted
+            self.input_watch.restart(now)
+        problem = self.input_watch.check(now, [endpoint_qos(info) for info in publishers], self.subscribed_qos)
+        if problem:
+            self.get_logger().warning(problem, throttle_duration_sec=INPUT_WARNING_PERIOD_S)
+
+    def _on_message(self, source: int, msg: PointCloud2) -> None:
+        stamp = header_stamp_ns(msg)
+        if not self._overlap.accept(source, stamp):
+            return  # the same scan through the other subscription of an auto switch
+        if self.input_watch is not None:
+            self.input_watch.received(time.monotonic(), stamp)
+        self.submit(msg, stamp)
 
     def submit(self, item: Any, stamp_ns: int) -> None:
         """Queue one input (a message, or an in-memory frame): the stamp feeds the gap counter."""
@@ -88,7 +164,8 @@ class PointCloudNode(Node):
         counters = vars(self.counters())
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [to_status(self.get_name(), counters, self.stats)]
+        warning = self.input_watch.problem if self.input_watch is not None else ""
+        msg.status = [to_status(self.get_name(), counters, self.stats, warning=warning)]
         self.diagnostics_pub.publish(msg)
 
     def _on_error(self, exc: BaseException) -> None:

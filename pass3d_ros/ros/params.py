@@ -13,6 +13,8 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from pass3d_ros.core.config import closest
+
 C = TypeVar("C")
 
 # name -> (default, description, allowed closed range or None)
@@ -34,6 +36,31 @@ class NodeParameters:
             node.declare_parameter(name, default, describe(description, value_range, default))
         for prefix, config_type in self.configs.items():
             declare_config(node, config_type(), prefix)
+
+
+# Overrides ROS itself reads when asked (rclpy's QoS overriding options), not parameters a node declares.
+ROS_OVERRIDE_PREFIXES = ("qos_overrides.",)
+
+
+def unknown_overrides(nodes: Sequence[Node]) -> list[tuple[Node, str]]:
+    """(node, name) for each parameter given to a node (`-p`, `--params-file`) that no node of this process declares:
+    a misspelt name ROS would ignore without a word. A name a sibling declares is a global override meant for it."""
+    declared = {name for node in nodes for name in node._parameters}
+    found: dict[str, Node] = {}  # a global override reaches every node: name it once
+    for node in nodes:
+        for name in sorted(node._parameter_overrides):
+            if name not in declared and not name.startswith(ROS_OVERRIDE_PREFIXES):
+                found.setdefault(name, node)
+    return [(node, name) for name, node in found.items()]
+
+
+def warn_unknown_overrides(nodes: Sequence[Node]) -> None:
+    """Warn once per parameter given but declared by none of `nodes`, naming the nearest declared one."""
+    declared = {name for node in nodes for name in node._parameters}
+    for node, name in unknown_overrides(nodes):
+        near = closest(name, declared)
+        node.get_logger().warning(f"parameter {name!r} is declared by no node here and is ignored"
+                                  + (f" (did you mean {near!r}?)" if near else ""))
 
 
 def describe(description: str, value_range: tuple[float, float] | None, default: Any) -> ParameterDescriptor:
@@ -61,12 +88,13 @@ def declare_config(node: Node, config: Any, prefix: str = "") -> None:
 
 
 def read_config(node: Node, config_type: type[C], prefix: str = "", overrides: dict[str, Any] | None = None) -> C:
-    """Build the dataclass from the node's current parameter values (plus pending `overrides`)."""
+    """Build the dataclass from the node's current parameter values (plus pending `overrides`); its constructor
+    is the one check of the values."""
     values: dict[str, Any] = {}
     for field in dataclasses.fields(config_type):  # type: ignore[arg-type]
         name = prefix + field.name
         value = (overrides or {}).get(name, node.get_parameter(name).value)
-        default = getattr(config_type(), field.name)
+        default = field.default
         if isinstance(default, tuple):
             value = tuple(value)
         elif isinstance(default, float) and isinstance(value, int):
@@ -78,16 +106,13 @@ def read_config(node: Node, config_type: type[C], prefix: str = "", overrides: d
 def validate_changes(
     node: Node, config_type: type[C], params: list[Parameter], prefix: str = ""
 ) -> tuple[C | None, str]:
-    """The config the changed parameters would give, or None and the reason it is invalid."""
+    """The config the changed parameters would give, or None and the reason it is invalid (the config's own check,
+    which its constructor runs)."""
     overrides = {p.name: p.value for p in params if p.name.startswith(prefix)}
     try:
-        config = read_config(node, config_type, prefix, overrides)
-        check = getattr(config, "validate", None)
-        if check is not None:
-            check()
+        return read_config(node, config_type, prefix, overrides), ""
     except (TypeError, ValueError) as exc:
         return None, str(exc)
-    return config, ""
 
 
 def result(ok: bool, reason: str = "") -> SetParametersResult:

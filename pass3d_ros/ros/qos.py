@@ -1,10 +1,31 @@
-"""QoS profiles by name: `sensor` (best effort, what LiDAR drivers publish) and `reliable` (what rviz2 wants)."""
+"""QoS profiles by name: `sensor` (best effort, what LiDAR drivers publish) and `reliable` (what rviz2 wants);
+an input may also be `auto`: whatever its publishers offer."""
 
 from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 QOS_NAMES: tuple[str, ...] = ("sensor", "reliable")
+AUTO = "auto"
+INPUT_QOS_NAMES: tuple[str, ...] = (AUTO, *QOS_NAMES)
+RELIABILITY_WORDS = {"sensor": "best effort", "reliable": "reliable"}
+INPUT_QOS_HELP = ("QoS of the input subscription: auto (reliable when every publisher offers reliable, else best "
+                  "effort; re-checked every second), sensor (best effort) or reliable")
+
+
+def offered_qos(publishers: Iterable[Any]) -> str:
+    """The QoS name that takes everything `publishers` (TopicEndpointInfo) send: `reliable` when every one offers
+    reliable, else `sensor` (best effort matches any publisher, also none yet)."""
+    names = [endpoint_qos(info) for info in publishers]
+    return "reliable" if names and all(name == "reliable" for name in names) else "sensor"
+
+
+def endpoint_qos(info: Any) -> str:
+    """A publisher's or subscription's (TopicEndpointInfo) reliability as a QoS name: `reliable` or `sensor`."""
+    return "reliable" if info.qos_profile.reliability == ReliabilityPolicy.RELIABLE else "sensor"
 
 
 def qos_profile(name: str, depth: int = 5) -> QoSProfile:

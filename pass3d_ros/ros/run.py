@@ -3,18 +3,24 @@ exit 2 on bad set-up."""
 
 from __future__ import annotations
 
+import itertools
 import re
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import rclpy
+import rclpy.logging
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
+from pass3d_ros.ros.dds_profile import apply_shipped_profile
 from pass3d_ros.ros.node_base import PointCloudNode
+from pass3d_ros.ros.params import warn_unknown_overrides
 
 HELP_FLAGS = ("-h", "--help")
+_SOURCE_LOCATION = re.compile(r",? at /\S+:\d+")
 
 
 def usage(program: str, factories: Sequence[Callable[[], Node]]) -> str:
@@ -37,6 +43,28 @@ def usage(program: str, factories: Sequence[Callable[[], Node]]) -> str:
     return "\n".join(lines)
 
 
+def ros_message(exc: BaseException) -> str:
+    """An rcl error as one line: without the C source locations (`, at /project/src/parse.c:841`) and newlines."""
+    text = f"unknown ROS arguments {exc}" if type(exc).__name__ == "UnknownROSArgsError" else str(exc)
+    return " ".join(_SOURCE_LOCATION.sub("", text).split())
+
+
+def params_file_problem(args: Sequence[str]) -> str:
+    """Why a `--params-file` among the ROS arguments cannot be read (missing, a folder, unreadable), or ''."""
+    ros = list(args)[list(args).index("--ros-args"):] if "--ros-args" in args else []
+    for flag, value in itertools.pairwise(ros):
+        if flag != "--params-file":
+            continue
+        path = Path(value)
+        if not path.is_file():
+            return f"--params-file {value}: {'is a folder' if path.is_dir() else 'no such file'}"
+        try:
+            path.read_bytes()
+        except OSError as exc:
+            return f"--params-file {value}: cannot read it ({exc.strerror})"
+    return ""
+
+
 def wants_help(args: Sequence[str]) -> bool:
     """Whether -h/--help comes before any --ros-args (after it, the arguments are ROS's)."""
     for arg in args:
@@ -54,24 +82,37 @@ def run_nodes(program: str, factories: Sequence[Callable[[], Node]], argv: list[
 
     Ctrl-C shuts the context down at once; a worker whose publish then fails stops quietly (no error line).
     One single-threaded executor is enough: callbacks only hand frames to each node's worker thread, and rclpy
-    7.1.6's MultiThreadedExecutor stalls on long runs (ros2/rclpy#1452).
+    7.1.6's MultiThreadedExecutor stalls on long runs (ros2/rclpy#1452). The shipped Fast DDS profile is applied
+    first unless the user chose one (`apply_shipped_profile`), and the line about it logged.
     """
     args = argv if argv is not None else sys.argv
     if wants_help(args):
         print(usage(program, factories))
         return 0
-    rclpy.init(args=args)
+    problem = params_file_problem(args)
+    if problem:
+        print(f"{program}: {problem}", file=sys.stderr)
+        return 2
+    profile_note = apply_shipped_profile()
+    try:
+        rclpy.init(args=args)
+    except RuntimeError as exc:  # rclpy's RCLError, UnknownROSArgsError: unparsable or unknown ROS arguments
+        print(f"{program}: {ros_message(exc)}", file=sys.stderr)
+        return 2
+    if profile_note:
+        rclpy.logging.get_logger(program).info(profile_note)
     nodes: list[Node] = []
     executor = SingleThreadedExecutor()
     try:
         for factory in factories:
             nodes.append(factory())
             executor.add_node(nodes[-1])
+        warn_unknown_overrides(nodes)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, OSError, ParameterException) as exc:
-        print(f"{program}: {exc}", file=sys.stderr)
+        print(f"{program}: {ros_message(exc)}", file=sys.stderr)
         return 2
     finally:
         for node in nodes:  # workers first: a frame in hand must not publish into a finished executor or context

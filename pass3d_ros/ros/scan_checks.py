@@ -1,5 +1,5 @@
 """What the cluster node checks in every input scan before stage 1: coordinates a LiDAR could return, and
-intensities the core can read as 0..1.
+intensities the core can read as 0..1. The segmentation node applies the same coordinate limits to its input.
 
 A normal scan passes every check, so the node reads one `ScanSummary` (a single pass over the points, about a
 tenth of the separate NumPy reductions it replaces) and only a scan that fails one looks further.
@@ -76,6 +76,12 @@ def plausible_points(points: np.ndarray) -> np.ndarray:
     """True for points whose x, y, z are finite and within MAX_COORDINATE_M."""
     with np.errstate(invalid="ignore"):
         return (np.abs(points[:, :3]) <= MAX_COORDINATE_M).all(axis=1)
+
+
+def dropped_points_warning(dropped: int) -> str:
+    """The warning for a scan whose `dropped` implausible points (see `plausible_points`) were left out."""
+    return (f"x/y/z: dropping {dropped} points with non-finite or absurd coordinates (expected finite, |value| <= "
+            f"{MAX_COORDINATE_M:g} m)")
 
 
 def intensity_divisor(high: float) -> float:

@@ -7,26 +7,27 @@ import time
 from typing import Any, NamedTuple
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN, packed_rgb
 from pass3d_ros.core.canonical import fit_box_members
-from pass3d_ros.core.classifier_process import ProcessClassifier
+from pass3d_ros.core.classifier_process import ClassifierProcessDownError, ProcessClassifier
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult
 from pass3d_ros.core.stage1 import proposal_members
-from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, load_classifier, resolve_weights
+from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, open_classifier
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.frame import Box3D
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode, header_stamp_ns, to_xyzi
-from pass3d_ros.ros import params
+from pass3d_ros.ros import params, scan_checks
 from pass3d_ros.ros.cluster_proposal_node import ProposalFrame
-from pass3d_ros.ros.diagnostics import StepClock
+from pass3d_ros.ros.diagnostics import StepClock, to_status
 from pass3d_ros.ros.latest_frame import FrameCounters, LatestFrameWorker
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
-from pass3d_ros.ros.qos import QOS_NAMES
+from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES
 from pass3d_ros.ros.run import run_nodes
 
 REQUIRED_FIELDS = ("cluster_id",)
@@ -36,7 +37,7 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "input_topic": ("/pass3d/proposals", "proposals cloud from cluster_proposal_node", None),
     "labeled_topic": ("/pass3d/labeled", "output: labeled cloud (label, confidence, rgb)", None),
     "objects_topic": ("/pass3d/objects", "output: MarkerArray, one box and text per labeled proposal", None),
-    "input_qos": ("reliable", f"QoS of the input subscription: {' or '.join(QOS_NAMES)}", None),
+    "input_qos": ("auto", INPUT_QOS_HELP, None),
     "output_qos": ("reliable", f"QoS of the outputs: {' or '.join(QOS_NAMES)}", None),
     "classifier": (DEFAULT_CLASSIFIER, f"{' or '.join(CLASSIFIERS)}: the PointNet++ or the geometric baseline", None),
     "weights": ("", "stage-2 checkpoint; empty = the weights shipped with the package", None),
@@ -141,12 +142,36 @@ def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:
 
 def members_from_ids(first: np.ndarray, second: np.ndarray) -> list[np.ndarray]:
     """Point indices of each proposal from checked primary and secondary ids (see members_from_cloud)."""
+    first, second, count = dense_ids(first, second)
+    return proposal_members(first, second, n_proposals=count)
+
+
+def dense_ids(first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Checked primary and secondary ids renumbered 0..K-1 in ascending order (unchanged for stage 1's), and K."""
     ids = np.concatenate([first, second])
     present = np.flatnonzero(np.bincount(ids[ids >= 0]))  # ids are checked below N: linear, no sort
     if len(present) and present[-1] != len(present) - 1:
         first = np.where(first >= 0, np.searchsorted(present, first), -1)
         second = np.where(second >= 0, np.searchsorted(present, second), -1)
-    return proposal_members(first, second, n_proposals=len(present))
+    return first, second, len(present)
+
+
+def nearest_proposals(points: np.ndarray, first: np.ndarray, second: np.ndarray, count: int, limit: int
+                      ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Dense ids (`dense_ids`) cut to the `limit` proposals nearest the sensor (x-y of the mean point, as the
+    classifiers choose), renumbered in order; the others' points get -1. Linear in the points, however many ids."""
+    if count <= limit:
+        return first, second, count
+    ids = np.concatenate([first, second])
+    inside = ids >= 0
+    ids = ids[inside]
+    xy = np.concatenate([points[:, :2], points[:, :2]])[inside].astype(np.float64)
+    size = np.bincount(ids, minlength=count)
+    distance = np.hypot(np.bincount(ids, xy[:, 0], count) / size, np.bincount(ids, xy[:, 1], count) / size)
+    kept = np.sort(np.argsort(distance, kind="stable")[:limit])
+    renumber = np.full(count + 1, -1, np.int64)  # index -1 (no proposal) reads the last entry: -1
+    renumber[kept] = np.arange(limit)
+    return renumber[first], renumber[second], limit
 
 
 class Labeled(NamedTuple):
@@ -165,11 +190,16 @@ class SegmentationNode(PointCloudNode):
     `submit_proposals`.
     """
 
+    COUNTS_INPUT_GAPS = False  # its input is the cluster node's output: those drops are counted there
     publisher: LatestFrameWorker[Labeled] | None = None  # the publishing thread (overlap and process); a class
     # default, because diagnostics may ask for the counters before __init__ has decided
 
     def __init__(self, in_memory: bool = False, **kwargs: Any) -> None:
         super().__init__(PARAMETERS, **kwargs)
+        self.points_dropped = 0  # input points with implausible coordinates, left out
+        self.proposals_cut = 0  # input proposals beyond max_proposals, labeled background
+        self.frames_down = 0  # frames dropped because the stage-2 process was down
+        scan_checks.warm_up()
         self.classifier = self._load_classifier()
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -189,7 +219,7 @@ class SegmentationNode(PointCloudNode):
 
         In line, a frame's latency is its compute and the cluster node's slot drops stale scans. On its own thread
         stage 2 overlaps the next scan's stage 1, but the two contend for the GIL at every torch op: measured
-        (README) +15-19 % frames at 20 Hz with a core to spare, and 8.0 instead of 9.9 Hz beside a CPU hog.
+        (docs/performance.md) +15-19 % frames at 20 Hz with a core to spare, and 8.0 instead of 9.9 Hz beside a CPU hog.
         """
         if self.overlap:
             self.submit(frame, header_stamp_ns(frame))
@@ -199,32 +229,61 @@ class SegmentationNode(PointCloudNode):
 
     def _load_classifier(self) -> Classifier:
         """Load and warm up the classifier; missing or incompatible weights end start-up with the reason."""
-        kind, weights = resolve_weights(self.get_parameter("classifier").value, self.get_parameter("weights").value)
         threads = self.get_parameter("threads").value
         if threads > 0:
             self.get_logger().info(limit_threads(threads).describe())
         started = time.perf_counter()
+        weights, kind = self.get_parameter("weights").value, self.get_parameter("classifier").value
         device, max_proposals = self.get_parameter("device").value, self.get_parameter("max_proposals").value
         if self.get_parameter("process").value:
-            classifier: Classifier = ProcessClassifier(kind, weights, device=device, max_proposals=max_proposals,
-                                                       threads=threads)
+            classifier: Classifier = ProcessClassifier(weights, kind, device=device, max_proposals=max_proposals,
+                                                       threads=threads, report=self._on_stage2_report)
             where = f" in process {classifier.pid}"
         else:
-            classifier = load_classifier(kind, weights, device=device, max_proposals=max_proposals)
+            classifier = open_classifier(weights, kind, device=device, max_proposals=max_proposals)
             classifier.warm_up()
             where = ""
         took = 1e3 * (time.perf_counter() - started)
-        self.get_logger().info(f"stage 2 ready{where}: {kind} {weights or ''} (load + warm-up {took:.0f} ms)")
+        self.get_logger().info(f"stage 2 ready{where}: {classifier.kind} {classifier.weights or ''} "
+                               f"(load + warm-up {took:.0f} ms)")
         return classifier
+
+    def _on_stage2_report(self, level: str, message: str) -> None:
+        """The stage-2 process's supervisor: each death and failed restart is an error, a restart is news."""
+        if level == "error":
+            self.get_logger().error(message)
+        else:
+            self.get_logger().info(message)
 
     def counters(self) -> FrameCounters:
         """The stage-2 worker's counters; with a publishing thread, a frame counts as processed once published, and
-        a result that thread dropped for a newer one counts as dropped."""
+        a result that thread dropped for a newer one counts as dropped. A frame that found the stage-2 process down
+        counts as dropped."""
+        stage2, down = self.worker.counters, self.frames_down
         if self.publisher is None:
-            return self.worker.counters
-        stage2, publish = self.worker.counters, self.publisher.counters
+            return FrameCounters(received=stage2.received, processed=stage2.processed - down,
+                                 dropped=stage2.dropped + down, failed=stage2.failed)
+        publish = self.publisher.counters
         return FrameCounters(received=stage2.received, processed=publish.processed,
-                             dropped=stage2.dropped + publish.dropped, failed=stage2.failed + publish.failed)
+                             dropped=stage2.dropped + publish.dropped + down, failed=stage2.failed + publish.failed)
+
+    def publish_diagnostics(self) -> None:
+        """The node's status (see PointCloudNode) plus what its input checks and the stage-2 process did; WARN while
+        that process is down."""
+        if getattr(self, "worker", None) is None or not hasattr(self, "classifier"):
+            return
+        values: dict[str, int] = dict(vars(self.counters()), points_dropped=self.points_dropped,
+                                      proposals_cut=self.proposals_cut)
+        warnings = [self.input_watch.problem] if self.input_watch is not None else []
+        if isinstance(self.classifier, ProcessClassifier):
+            values["stage2_restarts"] = self.classifier.restarts
+            down = self.classifier.down_for()
+            if down is not None:
+                warnings.append(f"stage-2 process down for {down:.0f} s, restarting; frames are dropped")
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [to_status(self.get_name(), values, self.stats, warning="; ".join(w for w in warnings if w))]
+        self.diagnostics_pub.publish(msg)
 
     def idle(self) -> bool:
         """True when neither the stage-2 thread nor the publishing thread has a frame."""
@@ -255,11 +314,11 @@ class SegmentationNode(PointCloudNode):
         return params.result(True)
 
     def _process(self, item: PointCloud2 | ProposalFrame) -> None:
-        """One frame: decode (a message), segment every proposal, publish; malformed input is logged and skipped."""
+        """One frame: decode (a message: implausible points left out), segment up to max_proposals proposals,
+        publish; malformed input is logged and skipped, a frame that finds the stage-2 process down is dropped."""
         clock = self.step_clock()
         try:
-            frame = item if isinstance(item, ProposalFrame) else proposal_frame(item)
-            members = members_from_ids(frame.cluster_id, frame.cluster_id2)
+            frame = item if isinstance(item, ProposalFrame) else self._plausible(proposal_frame(item))
         except PointCloud2Error as exc:
             self.get_logger().warning(f"skipping malformed proposals cloud: {exc}", throttle_duration_sec=LOG_PERIOD_S)
             return
@@ -267,14 +326,45 @@ class SegmentationNode(PointCloudNode):
         if len(points) == 0:
             self.get_logger().warning("skipping empty proposals cloud", throttle_duration_sec=LOG_PERIOD_S)
             return
+        members = self._budget_members(frame)
         clock.mark("decode")
-        result = self.classifier.segment(points, members)
+        try:
+            result = self.classifier.segment(points, members)
+        except ClassifierProcessDownError:  # its death was logged once by the supervisor; this frame is dropped
+            self.frames_down += 1
+            return
         clock.mark("compute")
         labeled = Labeled(frame, members, result, clock)
         if self.publisher is None:
             self._publish(labeled)
         else:
             self.publisher.submit(labeled)
+
+    def _plausible(self, frame: ProposalFrame) -> ProposalFrame:
+        """The frame without points whose coordinates no LiDAR returns (as the cluster node drops them), warned
+        about (throttled) and counted."""
+        if scan_checks.scan_summary(frame.points).plausible:
+            return frame
+        keep = scan_checks.plausible_points(frame.points)
+        dropped = int(np.count_nonzero(~keep))
+        self.points_dropped += dropped
+        self.get_logger().warning(scan_checks.dropped_points_warning(dropped), throttle_duration_sec=LOG_PERIOD_S)
+        return ProposalFrame(frame.header, frame.points[keep], None if frame.ring is None else frame.ring[keep],
+                             frame.cluster_id[keep], frame.cluster_id2[keep])
+
+    def _budget_members(self, frame: ProposalFrame) -> list[np.ndarray]:
+        """Member points of the frame's proposals, at most max_proposals of them (the nearest): the cut ones are
+        not classified, so their points are background; a cut is counted and warned about (throttled)."""
+        first, second, count = dense_ids(frame.cluster_id, frame.cluster_id2)
+        limit = int(self.get_parameter("max_proposals").value)
+        if count > limit:
+            first, second, _ = nearest_proposals(frame.points, first, second, count, limit)
+            self.proposals_cut += count - limit
+            self.get_logger().warning(
+                f"{count} proposals in one frame, max_proposals {limit}: the nearest {limit} are classified, the "
+                f"points of the other {count - limit} labeled background", throttle_duration_sec=LOG_PERIOD_S)
+            count = limit
+        return proposal_members(first, second, n_proposals=count)
 
     def _publish(self, labeled: Labeled) -> None:
         """Encode and publish one segmented frame (and its object boxes when someone listens)."""

@@ -1,0 +1,15 @@
+"""Synthetic KITTI-like scans. Importing the package registers the `synthetic:` dataset format (see
+`pass3d_ros.synthetic.dataset`); the generator itself loads when the first such spec is resolved."""
+
+from __future__ import annotations
+
+from pass3d_ros.data.spec import DatasetFormat, register_format
+
+
+def _synthetic_format() -> DatasetFormat:
+    from pass3d_ros.synthetic import dataset
+
+    return DatasetFormat(dataset.read_synthetic, dataset.count_frames, dataset.read_shard)
+
+
+register_format("synthetic", _synthetic_format)

@@ -18,10 +18,10 @@ import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, CLASS_NAMES, CYCLIST, FOREGROUND, IGNORE, PEDESTRIAN
 from pass3d_ros.core.ring import rings_for
-from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.semantickitti import read_label_file
-from pass3d_ros.data.spec import open_dataset, parse_spec
+from pass3d_ros.data.spec import Dataset, resolve_datasets
 
 RANGE_BINS_M = (0.0, 5.0, 10.0, 20.0, 40.0, 80.0, np.inf)
 OBJECT_BINS_M = (0.0, 10.0, 20.0, 40.0, np.inf)
@@ -53,7 +53,7 @@ class ScanStats:
         self.points.append(len(pts))
         if len(pts) == 0:
             return
-        ring = rings_for(pts, frame.ring).ring
+        ring = rings_for(pts, frame.ring, Stage1Config()).ring
         per_ring = np.bincount(ring.astype(np.int64), minlength=64)
         self.ring_min.append(int(per_ring.min()))
         self.ring_median.append(float(np.median(per_ring)))
@@ -331,7 +331,7 @@ class Sample:
         pts = frame.points
         if len(pts) < 3:
             return
-        ring = rings_for(pts, frame.ring).ring.astype(np.int64)
+        ring = rings_for(pts, frame.ring, Stage1Config()).ring.astype(np.int64)
         rng = np.linalg.norm(pts[:, :3].astype(np.float64), axis=1)
         az = np.degrees(np.arctan2(pts[:, 1], pts[:, 0]).astype(np.float64))
         a, m, b = slice(0, -2), slice(1, -1), slice(2, None)
@@ -344,11 +344,10 @@ class Sample:
         self.jumps[1] += int(np.count_nonzero(between))
 
 
-def _real_material(spec: str, frame: Frame) -> np.ndarray | None:
+def _real_material(dataset: Dataset, frame: Frame) -> np.ndarray | None:
     """Per-point MATERIAL_CLASSES index + 1 of a SemanticKITTI frame, from its raw .label file (None elsewhere)."""
-    parsed = parse_spec(spec)
-    path = Path(parsed.path) / "labels" / f"{frame.name}.label"
-    if parsed.format != "semantickitti" or not path.is_file():
+    path = Path(dataset.path) / "labels" / f"{frame.name}.label"
+    if dataset.format != "semantickitti" or not path.is_file():
         return None
     semantic = read_label_file(path, len(frame.points)) & 0xFFFF
     material = np.zeros(len(frame.points), dtype=np.int16)
@@ -407,13 +406,13 @@ def synthetic_frames(frames: int, seed: int = 0, start: int = 0) -> Iterator[tup
         yield frame, synthetic_material(frame, seed, index)
 
 
-def real_sample(real_specs: Iterable[str]) -> Sample:
+def real_sample(real_specs: Iterable[str | Dataset]) -> Sample:
     """The real side of the scorecard: every frame of every spec (labels, boxes, materials where known)."""
     sample = Sample()
-    for spec in real_specs:
-        track = spec if parse_spec(spec).format in TRACKED_FORMATS else None
-        for frame in open_dataset(spec):
-            sample.add(frame, _real_material(spec, frame), track=track)
+    for dataset in resolve_datasets(real_specs):
+        track = str(dataset) if dataset.format in TRACKED_FORMATS else None
+        for frame in dataset.frames():
+            sample.add(frame, _real_material(dataset, frame), track=track)
     return sample
 
 
@@ -480,7 +479,8 @@ def compare(synth: Sample, real: Sample) -> list[Row]:
     return out
 
 
-def scorecard(synth_frames: Iterable[Frame | tuple[Frame, np.ndarray | None]], real_specs: Iterable[str]) -> list[Row]:
+def scorecard(synth_frames: Iterable[Frame | tuple[Frame, np.ndarray | None]],
+              real_specs: Iterable[str | Dataset]) -> list[Row]:
     """Scorecard rows of synthetic frames (or (frame, material) pairs, see `synthetic_frames`) against the frames
     of the real specs (labelled dev frames and unlabelled scans alike; each statistic uses the frames that know
     what it needs)."""

@@ -378,7 +378,7 @@ def _add_hidden_pedestrians(b: SceneBuilder, rng: np.random.Generator) -> None:
     fragment, bin, mailbox, bench, utility box or another pedestrian as the sensor sees it, so only their upper body
     shows.
 
-    Measured on the dev data (real VLP-32C boxes corrected, see the weights README): 15 of 22 real pedestrians of
+    Measured on the dev data (real VLP-32C boxes corrected, see docs/experiments.md): 15 of 22 real pedestrians of
     >= 10 points at 8-35 m show only the upper body (a crowded street), the one KITTI pedestrian its whole body,
     against 3 of 46 synthetic ones placed by `_add_people` alone. These placements bring the synthetic share to about
     a third.

@@ -7,8 +7,10 @@ A tool's `main` parses its arguments and hands the work to `run_tool`; nothing h
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import sys
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
@@ -16,6 +18,7 @@ from typing import TextIO
 
 from rosbags.rosbag2 import ReaderError, WriterError
 
+from pass3d_ros.core.config import ConfigError
 from pass3d_ros.core.segmentation import CheckpointError
 from pass3d_ros.core.stage2 import ClassifierError
 from pass3d_ros.data.bag import BagError
@@ -31,10 +34,12 @@ class OutputError(ValueError):
     """An output path that cannot be created or written; found before the work starts."""
 
 
-# The project's error types, plus what a bad path or value raises: each is the user's to fix, not a bug.
+# The project's error types for bad input (and rosbags' for unreadable or unwritable bags), plus what the system
+# says about a path the user named: each is the user's to fix. Anything else is a bug and keeps its traceback.
 USER_ERRORS: tuple[type[BaseException], ...] = (
-    DatasetError, BagError, PointCloud2Error, CheckpointError, ClassifierError, ReaderError, WriterError,
-    ValueError, OSError,
+    DatasetError, BagError, PointCloud2Error, CheckpointError, ClassifierError, ConfigError, OutputError,
+    ReaderError, WriterError,
+    FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError, FileExistsError,
 )
 
 _received: list[int] = []  # exit statuses of the signals caught while `work` runs
@@ -81,21 +86,68 @@ def show_progress(no_progress: bool = False, stream: TextIO | None = None) -> bo
 
 def check_writable(path: str | Path, *, folder: bool, what: str = "output") -> None:
     """OutputError unless `path` (a folder when `folder`, else a file) can be created or written; call it before
-    the work starts, so a long run never ends unable to save its result."""
+    the work starts, so a long run never ends unable to save its result. It tries: an existing file is opened for
+    appending (nothing written), elsewhere a probe file is created and removed (root passes every os.access)."""
     path = Path(path)
     if path.exists() and folder != path.is_dir():
         raise OutputError(f"{path}: cannot write {what}, it exists and is not a {'folder' if folder else 'file'}")
-    if path.exists() and not os.access(path, os.W_OK | (os.X_OK if folder else 0)):
-        raise OutputError(f"{path}: {what} is not writable (permission denied)")
-    if path.exists():
+    if path.is_file():
+        try:
+            with path.open("ab"):
+                pass
+        except OSError as exc:
+            raise OutputError(f"{path}: {what} is not writable ({exc.strerror})") from None
         return
-    ancestor = path.absolute().parent
+    ancestor = path.absolute() if path.exists() else path.absolute().parent
     while not (ancestor.exists() or ancestor == ancestor.parent):
         ancestor = ancestor.parent
     if not ancestor.is_dir():
         raise OutputError(f"{path}: cannot create {what}, {ancestor} is not a folder")
-    if not os.access(ancestor, os.W_OK | os.X_OK):
-        raise OutputError(f"{path}: cannot create {what}, {ancestor} is not writable (permission denied)")
+    try:
+        handle, probe = tempfile.mkstemp(prefix=".pass3d-write-test-", dir=ancestor)
+    except OSError as exc:
+        verb = "write" if path.exists() else "create"
+        raise OutputError(f"{path}: cannot {verb} {what} in {ancestor} ({exc.strerror})") from None
+    os.close(handle)
+    os.unlink(probe)
+
+
+def partial_path(out: Path) -> Path:
+    """The hidden sibling this process builds `out` in (`.NAME.partial-PID`), renamed into place when complete."""
+    return out.with_name(f".{out.name}.partial-{os.getpid()}")
+
+
+def remove_stale_partials(out: Path, log: Callable[[str], None] | None = None) -> list[Path]:
+    """Delete the `.NAME.partial-PID` siblings of `out` whose process is gone (a killed run), files or folders;
+    say so in one line on stderr (or through `log`). Returns what it removed."""
+    prefix = f".{out.name}.partial-"
+    parent = out.parent if out.parent.is_dir() else None
+    stale = [p for p in (parent.iterdir() if parent else ())
+             if p.name.startswith(prefix) and not p.is_symlink() and _owner_gone(p.name[len(prefix):])]
+    for path in stale:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+    if stale:
+        names = ", ".join(sorted(p.name for p in stale))
+        (log or (lambda text: print(text, file=sys.stderr)))(
+            f"note: removed {len(stale)} unfinished output(s) of {out} left by an earlier killed run: {names}")
+    return stale
+
+
+def _owner_gone(pid_text: str) -> bool:
+    """Whether the process `pid_text` names has ended (False for this process, one of another user's, or a name
+    that is no process id)."""
+    if not pid_text.isdigit() or int(pid_text) == os.getpid():
+        return False
+    try:
+        os.kill(int(pid_text), 0)
+    except ProcessLookupError:
+        return True
+    except (PermissionError, OverflowError):
+        return False
+    return False
 
 
 def run_tool(

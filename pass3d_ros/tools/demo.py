@@ -7,9 +7,9 @@
 Steps: generate a synthetic drive of the chosen LiDAR (default KITTI's HDL-64E) with exact labels and write it as a
 rosbag2 (MCAP) bag; play it in lockstep through cluster_proposal_node and segmentation_node running in this process
 (private DDS domain), recording /pass3d/labeled into a second bag; score it (per-class precision / recall / IoU,
-mean IoU, latency, time per stage); draw bird's-eye views of some recorded output frames beside their ground truth.
-The classifier is the PASS3D network with the shipped weights when they exist; otherwise the geometric size-rules
-baseline, and the output says so.
+mean IoU, latency, time per stage); draw bird's-eye pictures of some recorded output frames (`bev/NAME.png`: ground
+truth | prediction, legend, range rings, object boxes). The classifier is the PASS3D network with the shipped weights
+when they exist; otherwise the geometric size-rules baseline, and the output says so.
 
 Everything lands in --out (default ./demo_out, git-ignored). A folder the demo made before (it holds a
 `.pass3d_demo` marker) is reused; any other non-empty folder needs --force.
@@ -28,12 +28,13 @@ import numpy as np
 
 from pass3d_ros.core.metrics import Stage1Metrics
 from pass3d_ros.core.stage1 import propose
+from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.data.bag import read_bag
 from pass3d_ros.data.bag_convert import convert
-from pass3d_ros.evaluation.bev import render_bev, write_png
+from pass3d_ros.evaluation.bev import frame_picture, output_cluster_ids, write_png
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 from pass3d_ros.tools.cli import USER_ERRORS, run_tool
-from pass3d_ros.weights import DEFAULT_WEIGHTS_NAME, WEIGHTS_DIR
+from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 MARKER = ".pass3d_demo"
 OUTPUTS = ("input_bag", "labeled_bag", "bev", "metrics.json")
@@ -45,24 +46,18 @@ class DemoError(ValueError):
 
 
 def choose_classifier(kind: str, weights: str | None) -> tuple[str, str, str]:
-    """(classifier, weights or "", note for the user): auto = network with the shipped weights, else size_rules."""
-    shipped = WEIGHTS_DIR / DEFAULT_WEIGHTS_NAME
-    if kind == "size_rules":
-        if weights:
-            raise DemoError("--weights applies to the network classifier, not size_rules")
+    """(classifier, weights or "", note for the user): auto = network with the shipped weights, else size_rules.
+    The classifier is opened here once, so bad weights stop the demo before it starts the nodes."""
+    if kind == "auto" and not weights and not DEFAULT_WEIGHTS.is_file():
+        return "size_rules", "", (
+            f"NOTE: shipped weights {DEFAULT_WEIGHTS} are absent, so this demo uses the size_rules classifier "
+            "(a geometric baseline, NOT the PASS3D network). Train weights with pass3d_train to demo the network."
+        )
+    classifier = open_classifier(weights, "network" if kind == "auto" else kind)
+    if classifier.weights is None:
         return "size_rules", "", "classifier: size_rules (geometric baseline, chosen with --classifier)"
-    if weights:
-        if not Path(weights).is_file():
-            raise DemoError(f"{weights}: no such checkpoint file")
-        return "network", str(weights), f"classifier: PASS3D network, weights {weights}"
-    if shipped.is_file():
-        return "network", str(shipped), f"classifier: PASS3D network, shipped weights {shipped}"
-    if kind == "network":
-        raise DemoError(f"shipped stage-2 weights missing: {shipped}; pass --weights W or --classifier size_rules")
-    return "size_rules", "", (
-        f"NOTE: shipped weights {shipped} are absent, so this demo uses the size_rules classifier "
-        "(a geometric baseline, NOT the PASS3D network). Train weights with pass3d_train to demo the network."
-    )
+    which = "weights" if weights else "shipped weights"
+    return "network", classifier.weights, f"classifier: PASS3D network, {which} {classifier.weights}"
 
 
 def prepare_out(out: Path, force: bool) -> None:
@@ -90,26 +85,27 @@ def stage1_offline(bag: Path) -> dict:
     return metrics.summary()["stage1"]
 
 
-def draw_frames(input_bag: Path, labeled_bag: Path, out: Path, count: int = BEV_FRAMES) -> list[Path]:
-    """Bird's-eye PNGs of `count` evenly spaced recorded output frames and of their ground truth."""
+def draw_frames(input_bag: Path, labeled_bag: Path, out: Path, count: int = BEV_FRAMES) -> tuple[list[Path], int]:
+    """Bird's-eye pictures of `count` evenly spaced recorded output frames, each beside its ground truth:
+    (the PNGs written, the number of panels in them)."""
     truth = {frame.stamp_ns: frame for frame in read_bag(input_bag)}
-    outputs = list(read_bag(labeled_bag, labels="predicted"))
+    outputs = list(zip(read_bag(labeled_bag, labels="predicted"), output_cluster_ids(labeled_bag), strict=True))
     chosen = sorted({int(k) for k in np.linspace(0, len(outputs) - 1, min(count, len(outputs)))}) if outputs else []
     folder = out / "bev"
     folder.mkdir(exist_ok=True)
-    written = []
+    written, views = [], 0
     for position in chosen:
-        frame = outputs[position]
+        frame, cluster_id = outputs[position]
         reference = truth.get(frame.stamp_ns)
+        known = reference is not None and reference.labels is not None
         name = reference.name if reference is not None else frame.name
-        path = folder / f"{name}_predicted.png"
-        write_png(path, render_bev(frame.points, frame.labels))
+        path = folder / f"{name}.png"
+        write_png(path, frame_picture(name, frame.points, frame.labels, cluster_id,
+                                      truth=reference.labels if known else None,
+                                      truth_points=reference.points if known else None))
         written.append(path)
-        if reference is not None and reference.labels is not None:
-            path = folder / f"{name}_truth.png"
-            write_png(path, render_bev(reference.points, reference.labels))
-            written.append(path)
-    return written
+        views += 2 if known else 1
+    return written, views
 
 
 def run(args: argparse.Namespace) -> int:
@@ -155,8 +151,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"[3/4] evaluated in {time.perf_counter() - step:.1f} s", flush=True)
 
     step = time.perf_counter()
-    pictures = draw_frames(input_bag, labeled_bag, out)
-    print(f"[4/4] {len(pictures)} bird's-eye views in {time.perf_counter() - step:.1f} s", flush=True)
+    _, views = draw_frames(input_bag, labeled_bag, out)
+    print(f"[4/4] {views} bird's-eye views in {time.perf_counter() - step:.1f} s", flush=True)
 
     steps = ", ".join(f"{name} {ms:.1f}" for name, ms in stage1["ms_per_step"].items())
     recall = stage1["foreground_recall"]

@@ -67,14 +67,14 @@ import json
 import sys
 from pathlib import Path
 
-from pass3d_ros.core.stage2 import CLASSIFIERS, load_classifier, resolve_weights
+from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-from pass3d_ros.data.spec import DatasetError, parse_spec
+from pass3d_ros.data.spec import DatasetError, resolve_datasets
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
 from pass3d_ros.evaluation.offline import evaluate_full, evaluate_stage1, iter_frames, parse_params
 from pass3d_ros.evaluation.report import PRINTERS
-from pass3d_ros.tools.cli import check_writable, run_tool
+from pass3d_ros.tools.cli import USER_ERRORS, check_writable, run_tool
 
 
 class EvaluationError(ValueError):
@@ -114,8 +114,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _check_args(args: argparse.Namespace) -> str:
     """The mode of this run, after checking option combinations."""
-    for spec in args.data:
-        parse_spec(spec)
     if args.limit is not None and args.limit < 1:
         raise EvaluationError("--limit must be >= 1")
     if args.threads < 1:
@@ -135,20 +133,21 @@ def _check_args(args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> tuple[str, dict, int]:
     """Evaluate as `args` ask: (mode, summary, exit status)."""
+    datasets = resolve_datasets(args.data)
     mode = _check_args(args)
     config = parse_params(args.param)
-    frames = iter_frames(args.data, args.limit, not args.no_progress)
     if mode == "stage1":
-        return mode, evaluate_stage1(frames, config), 0
-    kind, weights = resolve_weights(args.classifier, args.weights)
+        return mode, evaluate_stage1(iter_frames(datasets, args.limit, not args.no_progress), config), 0
     limit_threads(args.threads)
+    classifier = open_classifier(args.weights, args.classifier, device=args.device)  # --live: checked before the run
+    kind, weights = classifier.kind, classifier.weights
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
     if mode == "full":
-        classifier = load_classifier(kind, weights, device=args.device)
+        frames = iter_frames(datasets, args.limit, not args.no_progress)
         return mode, {**evaluate_full(frames, config, classifier), **settings}, 0
     options = LiveOptions(lockstep=args.lockstep, rate=args.rate, record_out=args.record_out, timeout_s=args.timeout,
                           keep_labels=False, force=args.force, log_level="warn", progress=not args.no_progress)
-    summary, result = evaluate_live(args.data, config, kind, weights, args.device, options)
+    summary, result = evaluate_live(datasets, config, kind, weights, args.device, options)
     status = 0
     lost = (result.dropped if args.lockstep else 0) + result.mismatched
     if lost:
@@ -161,7 +160,7 @@ def run(args: argparse.Namespace) -> tuple[str, dict, int]:
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: 0 done, 1 frames lost on a live run, 2 user error, 130 / 143 interrupted."""
     args = build_parser().parse_args(argv)
-    return run_tool("pass3d_evaluate", lambda: _evaluate(args))
+    return run_tool("pass3d_evaluate", lambda: _evaluate(args), errors=(EvaluationError, *USER_ERRORS))
 
 
 def _evaluate(args: argparse.Namespace) -> int:

@@ -1,11 +1,14 @@
 """`pass3d_replay`: publish a bag's clouds at recorded pace, or record live topics into a bag.
 
     pass3d_replay BAG [--rate R] [--loop] [--topic T] [--publish-topic P] [--qos sensor|reliable]
+                  [--wait-subscribers N] [--wait-timeout S]
     pass3d_replay --record TOPIC[:TYPE] [--record ...] --out BAG [--duration S | --count N]
                   [--discovery-timeout S] [--qos sensor|reliable]
 
 Replay publishes the stored CDR bytes unchanged (headers and stamps as recorded), paced by the bag's
-times divided by R (R = 0: as fast as possible). Recording writes each message at its header stamp; with
+times divided by R (R = 0: as fast as possible), once N subscribers (default 1) match or S s (default 10)
+passed. Both modes start DDS with the shipped Fast DDS large-cloud profile unless FASTRTPS_DEFAULT_PROFILES_FILE
+is set (see `pass3d_ros.ros.dds_profile`). Recording writes each message at its header stamp; with
 --count it stops after N messages on the first topic. A topic's type comes from the ROS graph (waiting up to
 --discovery-timeout s for it; a topic never seen is an error unless TOPIC:TYPE names the type). Like
 `ros2 bag record`, each topic is subscribed with the QoS its publishers offer: best effort if any publisher is
@@ -35,6 +38,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
+from pass3d_ros.core.config import ConfigError
 from pass3d_ros.data.bag import (
     STORAGES,
     TYPESTORE,
@@ -46,11 +50,14 @@ from pass3d_ros.data.bag import (
     select_topic,
 )
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE
-from pass3d_ros.ros.qos import QOS_NAMES, qos_profile
+from pass3d_ros.ros.dds_profile import apply_shipped_profile
+from pass3d_ros.ros.qos import QOS_NAMES, offered_qos, qos_profile
 from pass3d_ros.tools.cli import EXIT_SIGINT, Interrupted, run_tool
 
 EXIT_EMPTY = 1  # a recording that received no message
 DISCOVERY_TIMEOUT_S = 10.0
+WAIT_SUBSCRIBERS = 1  # a replay waits for this many subscribers (--wait-subscribers) ...
+WAIT_TIMEOUT_S = 10.0  # ... for at most this long (--wait-timeout)
 
 
 def ros_message_class(msgtype: str) -> type:
@@ -86,6 +93,20 @@ def wait_for_subscribers(publisher: Any, count: int, timeout: float, stop: threa
     return True
 
 
+def _wait_for_subscribers(node: Any, publisher: Any, topic: str, count: int, timeout: float,
+                          stop: threading.Event) -> None:
+    """`wait_for_subscribers`, with a line before and one after that say what it waits for and what it got."""
+    logger = node.get_logger()
+    logger.info(f"{topic}: waiting up to {timeout:g} s for {count} subscriber(s) before publishing")
+    started = time.monotonic()
+    if wait_for_subscribers(publisher, count, timeout, stop):
+        logger.info(f"{topic}: {publisher.get_subscription_count()} subscriber(s) after "
+                    f"{time.monotonic() - started:.1f} s; publishing")
+    elif not stop.is_set():
+        logger.warning(f"{topic}: {publisher.get_subscription_count()} of {count} subscriber(s) after {timeout:g} s; "
+                       "publishing anyway (is the subscriber running, on this ROS_DOMAIN_ID?)")
+
+
 def replay(
     bag: str | Path,
     node: Any,
@@ -108,7 +129,7 @@ def replay(
     Waits for `min_subscribers` (+ `settle` s for their side of discovery); no spinning needed.
     """
     if rate < 0:
-        raise ValueError(f"rate must be >= 0, got {rate}")
+        raise ConfigError(f"rate must be >= 0, got {rate}")
     path = Path(bag)
     chosen = select_topic(path, topic)
     stop = stop or threading.Event()
@@ -124,8 +145,7 @@ def replay(
                     profile = qos_profile(qos, depth)
                     publisher = node.create_publisher(ros_message_class(conn.msgtype), out_topic, profile)
                     if min_subscribers:
-                        if not wait_for_subscribers(publisher, min_subscribers, wait_timeout, stop):
-                            node.get_logger().warning(f"{out_topic}: fewer than {min_subscribers} subscribers matched")
+                        _wait_for_subscribers(node, publisher, out_topic, min_subscribers, wait_timeout, stop)
                         # the subscriber side may match a moment later; best effort would drop the first cloud
                         stop.wait(settle)
                     start = time.monotonic()
@@ -329,8 +349,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--publish-topic", help="publish under this name instead")
     parser.add_argument("--qos", choices=QOS_NAMES,
                         help="QoS (default: sensor to replay; to record, what the publishers offer)")
-    parser.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
-                        help="wait (up to 10 s) for N subscribers before publishing")
+    parser.add_argument("--wait-subscribers", type=int, default=WAIT_SUBSCRIBERS, metavar="N",
+                        help=f"wait for N subscribers before publishing (default {WAIT_SUBSCRIBERS}; 0: don't wait)")
+    parser.add_argument("--wait-timeout", type=float, default=WAIT_TIMEOUT_S, metavar="S",
+                        help=f"publish anyway after S s without them (default {WAIT_TIMEOUT_S:g})")
     parser.add_argument("--record", action="append", metavar="TOPIC[:TYPE]",
                         help="record this topic (repeatable); TYPE defaults to what the ROS graph says")
     parser.add_argument("--discovery-timeout", type=float, default=DISCOVERY_TIMEOUT_S, metavar="S",
@@ -387,10 +409,7 @@ def _domain_id() -> str:
 def recording_qos(node: Any, topic: str) -> str:
     """The QoS name to record `topic` with, as `ros2 bag record` adapts: `sensor` (best effort) when any known
     publisher is best effort or none is known yet (best effort matches every publisher), else `reliable`."""
-    infos = node.get_publishers_info_by_topic(topic)
-    if not infos or any(info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for info in infos):
-        return "sensor"
-    return "reliable"
+    return offered_qos(node.get_publishers_info_by_topic(topic))
 
 
 def _publishers_note(node: Any, topics: Mapping[str, str]) -> str:
@@ -450,7 +469,8 @@ def _replay(args: argparse.Namespace, node: Any) -> int:
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:  # Ctrl-C / SIGTERM end a replay cleanly, with its summary
         stats = replay(args.bag, node, topic=args.topic, publish_topic=args.publish_topic, rate=args.rate,
-                       loop=args.loop, qos=args.qos or "sensor", min_subscribers=args.wait_subscribers, stop=stop)
+                       loop=args.loop, qos=args.qos or "sensor", min_subscribers=args.wait_subscribers,
+                       wait_timeout=args.wait_timeout, stop=stop)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -476,10 +496,15 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--discovery-timeout must be >= 0")
     elif not args.bag:
         parser.error("give a BAG to replay or --record TOPIC --out BAG")
+    if args.wait_subscribers < 0 or args.wait_timeout < 0:
+        parser.error("--wait-subscribers and --wait-timeout must be >= 0")
     return run_tool("pass3d_replay", lambda: _run(args))
 
 
 def _run(args: argparse.Namespace) -> int:
+    profile_note = apply_shipped_profile()
+    if profile_note:
+        print(f"pass3d_replay: {profile_note}", file=sys.stderr)
     rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("pass3d_replay")
     executor = SingleThreadedExecutor()

@@ -1,27 +1,35 @@
 """`pass3d_segment`: label every point of every frame offline (stage 1 + stage 2), no ROS needed.
 
     pass3d_segment --data SPEC [--data ...] --out DIR [--weights W] [--classifier network|size_rules]
-                   [--threads N] [--no-png] [--force] [--no-progress]
+                   [--param KEY=VALUE ...] [--threads N] [--no-png] [--force] [--no-progress]
 
 Writes, per frame, `labels/NAME.label` in SemanticKITTI's format (one little-endian uint32 per point, in
-the scan's point order, instance bits 0) and, unless --no-png, `bev/NAME.png`, a bird's-eye view coloured
-by class. NAME is the reader's frame name. With several --data, each gets its own folder `OUT/NN/` (NN =
-position of the --data, from 00) so equal frame names cannot collide. `OUT/summary.json` records the
+the scan's point order, instance bits 0) and, unless --no-png, `bev/NAME.png`, a bird's-eye picture: the
+prediction coloured by class with its object boxes, beside the ground truth when the data has labels. NAME is
+the reader's frame name. With several --data, each gets its own folder `OUT/NN/` (NN = position of the --data,
+from 00) so equal frame names cannot collide. `OUT/summary.json` records the
 inputs, the classifier, times per stage and, when the data has ground-truth labels, per-class precision,
-recall and IoU.
+recall and IoU. `--param KEY=VALUE` (repeatable) overrides a stage-1 parameter, as in pass3d_evaluate.
+
+The output is built in a hidden sibling folder (`.DIR.partial-PID`) and moved into DIR only when every frame and
+the summary are written, so a failed or interrupted run leaves DIR as it was (one left by a killed run is removed by
+the next). With --force into a non-empty DIR, the run's own entries (labels/, bev/, NN/, summary.json) replace those
+of the same name; other files stay.
 
 Label ids: car 10, pedestrian 30 (person), cyclist 31 (bicyclist), background 0 (unlabeled): PASS3D
 only tells the three object classes from everything else, so background is left unnamed rather than
 guessed as road or building. The `semantickitti:` reader maps these back to the project's classes.
 
 Default classifier: `network` with the shipped weights (pass3d_ros/weights/pass3d_lite.pt), or --weights.
-Exit status: 0 done, 2 user error (bad spec, weights, non-empty --out without --force), 130 interrupted.
+Exit status: 0 done, 2 user error (bad spec, weights, --param, non-empty --out without --force), 130 / 143
+interrupted.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -33,14 +41,16 @@ from tqdm import tqdm
 
 from pass3d_ros.classes import NUM_CLASSES
 from pass3d_ros.core.metrics import ConfusionAccumulator, format_metrics
-from pass3d_ros.core.stage1 import proposal_members, propose
-from pass3d_ros.core.stage2 import CLASSIFIERS, Classifier, load_classifier, resolve_weights
+from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
+from pass3d_ros.core.stage2 import CLASSIFIERS, Classifier, open_classifier
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset, parse_spec
-from pass3d_ros.evaluation.bev import render_bev, write_png
-from pass3d_ros.tools.cli import run_tool
+from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
+from pass3d_ros.evaluation.bev import frame_picture, write_png
+from pass3d_ros.evaluation.offline import parse_params
+from pass3d_ros.tools.cli import USER_ERRORS, check_writable, partial_path, remove_stale_partials, run_tool
 
 SEMANTIC_KITTI_IDS: np.ndarray = np.array([0, 10, 30, 31], dtype=np.uint32)  # by class id: bg, car, ped, cyc
+SUMMARY = "summary.json"
 
 
 class SegmentError(ValueError):
@@ -81,41 +91,68 @@ def _safe_name(name: str) -> str:
 
 
 def segment(
-    specs: Sequence[str],
+    specs: Sequence[str | Dataset],
     out: str | Path,
     *,
     classifier: Classifier,
+    config: Stage1Config | None = None,
     png: bool = True,
     force: bool = False,
     progress: bool = True,
 ) -> SegmentStats:
-    """Stage 1 + `classifier` on every frame of `specs`; writes labels (and PNGs) under `out`."""
+    """Stage 1 (`config`, default the paper's) + `classifier` on every frame of `specs`; writes labels, PNGs and
+    summary.json under `out`, built in a hidden sibling and moved into place only when complete."""
     if not specs:
         raise DatasetError("no --data given")
-    parsed = [parse_spec(spec) for spec in specs]
+    datasets = resolve_datasets(specs)
     out = Path(out)
     check_out_dir(out, force)
-    counts = [count_frames(spec) for spec in parsed]
+    build = build_folder(out)
+    remove_stale_partials(out.resolve())
+    build.mkdir(parents=True)
+    try:
+        stats = _segment_all(datasets, out, build, classifier, config or Stage1Config(), png, progress)
+        report = summary(stats, [str(spec) for spec in specs], classifier.kind, classifier.weights)
+        (build / SUMMARY).write_text(json.dumps(report, indent=2) + "\n")
+        _move_into_place(build, out)
+    except BaseException:
+        shutil.rmtree(build, ignore_errors=True)
+        raise
+    return stats
+
+
+def build_folder(out: Path) -> Path:
+    """The hidden sibling of `out` this run builds in (`.NAME.partial-PID`)."""
+    resolved = out.resolve()
+    if not resolved.name:
+        raise SegmentError(f"--out {out}: name a folder below the file-system root")
+    return partial_path(resolved)
+
+
+def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Classifier, config: Stage1Config,
+                 png: bool, progress: bool) -> SegmentStats:
+    """Every frame's labels (and PNG) into `build`; `stats.folders` names where they will be, under `out`."""
+    counts = [dataset.count() for dataset in datasets]
     total = None if None in counts else sum(c for c in counts if c is not None)
     stats = SegmentStats()
     with tqdm(total=total, unit="frame", desc="segment", disable=None if progress else True) as bar:
-        for position, spec in enumerate(parsed):
-            folder = out if len(parsed) == 1 else out / f"{position:02d}"
+        for position, dataset in enumerate(datasets):
+            sub = "." if len(datasets) == 1 else f"{position:02d}"
+            folder = build / sub
             (folder / "labels").mkdir(parents=True, exist_ok=True)
             if png:
                 (folder / "bev").mkdir(exist_ok=True)
-            stats.folders.append(str(folder))
+            stats.folders.append(str(out if len(datasets) == 1 else out / sub))
             seen: set[str] = set()
-            for frame in open_dataset(spec):
+            for frame in dataset.frames():
                 name = _safe_name(frame.name)
                 if name in seen:
-                    raise DatasetError(f"{spec}: frame name {frame.name!r} repeats; outputs would overwrite")
+                    raise DatasetError(f"{dataset}: frame name {frame.name!r} repeats; outputs would overwrite")
                 seen.add(name)
-                labels = _segment_frame(frame.points, frame.ring, classifier, stats)
+                labels, cluster_id = _segment_frame(frame.points, frame.ring, classifier, stats, config)
                 to_semantic_kitti(labels).astype("<u4").tofile(folder / "labels" / f"{name}.label")
                 if png:
-                    finite = np.isfinite(frame.points[:, :3]).all(axis=1)
-                    image = render_bev(frame.points[finite], labels[finite])
+                    image = frame_picture(frame.name, frame.points, labels, cluster_id, frame.labels, frame.instance)
                     write_png(folder / "bev" / f"{name}.png", image)
                 if frame.labels is not None:
                     stats.confusion.update(frame.labels, labels)
@@ -124,32 +161,56 @@ def segment(
                 stats.points += len(frame.points)
                 bar.update(1)
     if stats.frames == 0:
-        raise DatasetError(f"{', '.join(specs)}: no frames")
+        raise DatasetError(f"{', '.join(map(str, datasets))}: no frames")
     return stats
 
 
+def _move_into_place(build: Path, out: Path) -> None:
+    """Move the finished `build` to `out`: a rename when `out` is missing or empty, else entry by entry, replacing
+    those of the same name; an old summary.json goes first and the new one comes last, so only a complete
+    output has one."""
+    if out.is_dir() and not any(out.iterdir()):
+        out.rmdir()
+    if not out.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        build.rename(out)
+        return
+    (out / SUMMARY).unlink(missing_ok=True)
+    for entry in sorted(build.iterdir(), key=lambda p: p.name == SUMMARY):
+        target = out / entry.name
+        if target.is_dir() and not target.is_symlink():
+            shutil.rmtree(target)
+        elif target.exists() or target.is_symlink():
+            target.unlink()
+        entry.rename(target)
+    build.rmdir()
+
+
 def _segment_frame(
-    points: np.ndarray, ring: np.ndarray | None, classifier: Classifier, stats: SegmentStats
-) -> np.ndarray:
-    """Labels of one scan; NaN points (as KITTI raw may hold) are background and never reach the core."""
+    points: np.ndarray, ring: np.ndarray | None, classifier: Classifier, stats: SegmentStats, config: Stage1Config
+) -> tuple[np.ndarray, np.ndarray]:
+    """Labels and proposal ids (-1 none) of one scan; NaN points (as KITTI raw may hold) are background in no
+    proposal and never reach the core."""
     finite = np.isfinite(points[:, :3]).all(axis=1)
     keep = None if finite.all() else finite
     pts = points if keep is None else points[keep]
     rng = ring if ring is None or keep is None else ring[keep]
     labels = np.zeros(len(points), dtype=np.uint8)
+    cluster_id = np.full(len(points), -1, dtype=np.int32)
     if len(pts) == 0:
         stats.stage1_ms.append(0.0)
         stats.stage2_ms.append(0.0)
-        return labels
-    result = propose(pts, rng)
+        return labels, cluster_id
+    result = propose(pts, rng, config)
     started = time.perf_counter()
     predicted = classifier.segment(pts, proposal_members(result.cluster_id, result.cluster_id2)).labels
     stats.stage2_ms.append(1e3 * (time.perf_counter() - started))
     stats.stage1_ms.append(result.timings_ms["total"])
     if keep is None:
-        return predicted.astype(np.uint8)
+        return predicted.astype(np.uint8), result.cluster_id
     labels[keep] = predicted
-    return labels
+    cluster_id[keep] = result.cluster_id
+    return labels, cluster_id
 
 
 def _median(values: list[float]) -> float | None:
@@ -183,10 +244,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--classifier", choices=CLASSIFIERS, help="stage-2 classifier (default network)")
     parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
     parser.add_argument("--device", default="cpu", help="torch device for the network (default cpu)")
+    parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a Stage1Config parameter, repeatable (e.g. th_dist=0.25)")
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS, metavar="N",
                         help=f"CPU threads: torch, OpenMP, OpenBLAS (default {DEFAULT_THREADS})")
     parser.add_argument("--no-png", action="store_true", help="skip the bird's-eye-view PNGs")
-    parser.add_argument("--force", action="store_true", help="write into a non-empty --out")
+    parser.add_argument("--force", action="store_true",
+                        help="write into a non-empty --out (this run's labels/, bev/, summary.json replace the old)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -194,25 +258,26 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None, log: Callable[[str], None] = print) -> int:
     """Console entry point: exit 0 on success, 2 on a user error, 130 / 143 when interrupted."""
     args = build_parser().parse_args(argv)
-    return run_tool("pass3d_segment", lambda: _run(args, log),
-                    interrupted=f"interrupted; frames written so far stay in {args.out}")
+    return run_tool("pass3d_segment", lambda: _run(args, log), errors=(SegmentError, *USER_ERRORS),
+                    interrupted=f"interrupted; {args.out} left as it was")
 
 
 def _run(args: argparse.Namespace, log: Callable[[str], None]) -> int:
     out = Path(args.out)
-    for spec in args.data:
-        parse_spec(spec)
+    resolve_datasets(args.data)
     check_out_dir(out, args.force)
-    kind, weights = resolve_weights(args.classifier, args.weights)
+    check_writable(out, folder=True, what="--out folder")
+    check_writable(build_folder(out).parent, folder=True, what="the folder --out is built in")
+    config = parse_params(args.param)
     if args.threads < 1:
         raise SegmentError(f"--threads must be >= 1, got {args.threads}")
     limit_threads(args.threads)
-    classifier = load_classifier(kind, weights, device=args.device)
+    classifier = open_classifier(args.weights, args.classifier, device=args.device)
+    kind, weights = classifier.kind, classifier.weights
     started = time.perf_counter()
-    stats = segment(args.data, out, classifier=classifier, png=not args.no_png, force=True,
+    stats = segment(args.data, out, classifier=classifier, config=config, png=not args.no_png, force=True,
                     progress=not args.no_progress)
     report = summary(stats, args.data, kind, weights)
-    (out / "summary.json").write_text(json.dumps(report, indent=2) + "\n")
     took = time.perf_counter() - started
     stage1, stage2 = report["ms_per_frame"]["stage1"], report["ms_per_frame"]["stage2"]
     log(f"segmented {stats.frames} frames ({stats.points} points) in {took:.1f} s with {kind}"
@@ -221,7 +286,7 @@ def _run(args: argparse.Namespace, log: Callable[[str], None]) -> int:
         log("\n".join(format_metrics(report["per_class"], report["mean_iou"])))
     log(f"labels: {', '.join(f + '/labels' for f in stats.folders)}"
         + ("" if args.no_png else f"; bird's-eye views: {', '.join(f + '/bev' for f in stats.folders)}")
-        + f"; summary: {out / 'summary.json'}")
+        + f"; summary: {out / SUMMARY}")
     return 0
 
 

@@ -19,18 +19,21 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from tqdm import tqdm
 
-from pass3d_ros.data.spec import DatasetError, open_dataset, parse_spec
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.kitti_object import write_kitti_object_frame
+from pass3d_ros.data.semantickitti import write_semantickitti_frame
+from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 from pass3d_ros.tools.cli import check_writable, run_tool
 
-WRITERS: dict[str, str] = {
-    "semantickitti": "pass3d_ros.data.semantickitti:write_semantickitti_frame",
-    "kitti_object": "pass3d_ros.data.kitti_object:write_kitti_object_frame",
+WRITERS: dict[str, Callable[[Path, Frame], None]] = {
+    "semantickitti": write_semantickitti_frame,
+    "kitti_object": write_kitti_object_frame,
 }
 
 
@@ -56,13 +59,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _writer(fmt: str):
-    import importlib
-
-    module, func = WRITERS[fmt].split(":")
-    return getattr(importlib.import_module(module), func)
-
-
 def generate(args: argparse.Namespace) -> int:
     """Write the frames; refuse a non-empty folder unless --force."""
     from pass3d_ros.synthetic.dataset import generate_frame
@@ -73,7 +69,7 @@ def generate(args: argparse.Namespace) -> int:
     if out.is_dir() and any(out.iterdir()) and not args.force:
         raise DatasetError(f"{out}: folder is not empty (use --force to write into it)")
     out.mkdir(parents=True, exist_ok=True)
-    write = _writer(args.format)
+    write = WRITERS[args.format]
     frames = 10 if args.frames is None else args.frames
     points = 0
     sensor = sensor_model(args.sensor)
@@ -88,9 +84,8 @@ def generate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _short_name(spec: str) -> str:
-    parsed = parse_spec(spec)
-    return f"{parsed.format}:{Path(parsed.path).name}"
+def _short_name(dataset: Dataset) -> str:
+    return f"{dataset.format}:{Path(dataset.path).name}"
 
 
 def report(args: argparse.Namespace) -> int:
@@ -107,9 +102,7 @@ def report(args: argparse.Namespace) -> int:
     )
 
     frames = 10 if args.frames is None else args.frames
-    real = default_real_specs() + default_unlabeled_specs() if args.real is None else args.real
-    for spec in real:
-        parse_spec(spec)
+    real = resolve_datasets(default_real_specs() + default_unlabeled_specs() if args.real is None else args.real)
     if not real:
         print("no real dataset given or found (--real SPEC, or ../shared/data/kitti_dev)", file=sys.stderr)
     synth_stats = ScanStats(f"synthetic(seed {args.seed})")
@@ -120,10 +113,11 @@ def report(args: argparse.Namespace) -> int:
             synth_stats.add(frame)
             yield frame, material
 
-    print(f"realism scorecard: {frames} synthetic frame(s) of seed {args.seed} vs {', '.join(real) or 'nothing'}")
+    names = ", ".join(map(str, real)) or "nothing"
+    print(f"realism scorecard: {frames} synthetic frame(s) of seed {args.seed} vs {names}")
     print(format_scorecard(scorecard(synth(), real)))
     print()
-    print(format_report([synth_stats] + [collect(open_dataset(spec), _short_name(spec)) for spec in real]))
+    print(format_report([synth_stats] + [collect(dataset.frames(), _short_name(dataset)) for dataset in real]))
     return 0
 
 

@@ -6,36 +6,74 @@ per-class IoU is counted over every point of every validation frame, so it inclu
 The best checkpoint is the one with the highest mean IoU over car, pedestrian and cyclist.
 The training itself is pass3d_ros.training.trainer; this module only parses the command line.
 
-Data-parallel: `torchrun --nproc_per_node N -m pass3d_ros.tools.train ...` (or `torchrun ... $(which pass3d_train)`)
-trains in N processes (gloo on CPU, nccl with --device cuda); --batch-size stays the global batch per step.
+Data-parallel: `pass3d_train --nproc N ...` trains in N processes on this machine (gloo on CPU, nccl with --device
+cuda); --batch-size stays the global batch per step. The workers stop with it: Ctrl-C gives 130, SIGTERM 143, a
+user error 2, each with one line. `torchrun --nproc_per_node N -m pass3d_ros.tools.train ...` does the same training
+(multi-node too), with torchrun's own messages and exit statuses around it.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
+import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import NoReturn
 
+from pass3d_ros.core.stage1 import Stage1Config
+from pass3d_ros.evaluation.offline import parse_params
 from pass3d_ros.tools.cli import check_writable, run_tool
+from pass3d_ros.training import distributed, launcher
 from pass3d_ros.training.samples import Proposer
-from pass3d_ros.training.trainer import FrameSource, Trainer, TrainingError, TrainOptions
+from pass3d_ros.training.trainer import FrameSource, PeerLostError, Trainer, TrainingError, TrainOptions
+
+PROG = "pass3d_train"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (exit 2), silent on ranks that do not report (under torchrun every rank parses
+    the same command line)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n" if distributed.reports() else None)
+
+
+def _number(kind: type, low: float, high: float | None = None, low_open: bool = False) -> Callable[[str], float]:
+    """An argparse type: a `kind` (int or float) at least `low` (above it when `low_open`), at most `high`."""
+    bound = f"{'>' if low_open else '>='} {low}" + ("" if high is None else f" and <= {high}")
+
+    def parse(text: str) -> float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if value != value or value < low or (low_open and value == low) or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"{text!r}: must be {bound}")
+        return value
+
+    parse.__name__ = kind.__name__
+    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of pass3d_train."""
-    p = argparse.ArgumentParser(prog="pass3d_train", description=__doc__.splitlines()[0])
+    p = _Parser(prog=PROG, description=__doc__.splitlines()[0])
     p.add_argument("--data", action="append", required=True, metavar="SPEC", help="training data FORMAT:PATH")
     p.add_argument("--val-data", action="append", default=[], metavar="SPEC", help="validation data FORMAT:PATH")
     p.add_argument("--config", choices=["paper", "lite"], default="lite", help="model configuration")
-    p.add_argument("--epochs", type=int, default=40)
+    p.add_argument("--epochs", type=_number(int, 1), default=40)
     p.add_argument("--out", type=Path, required=True, help="output folder: checkpoints, sample caches, log")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--init", type=Path, metavar="CHECKPOINT",
                    help="start from these weights (fine-tuning; fresh optimizer and schedule)")
     p.add_argument("--loss", choices=["ce", "focal"], default="ce")
-    p.add_argument("--focal-alpha", type=float, default=0.25, help="focal alpha: foreground weight, background 1-a")
-    p.add_argument("--focal-gamma", type=float, default=2.0)
+    p.add_argument("--focal-alpha", type=_number(float, 0.0, 1.0), default=0.25,
+                   help="focal alpha: foreground weight, background 1-a")
+    p.add_argument("--focal-gamma", type=_number(float, 0.0), default=2.0)
     p.add_argument("--no-augment", action="store_true", help="train on the inference view only (no 8 views)")
     p.add_argument("--no-n-feature", action="store_true", help="set the point-count feature n to 0")
     p.add_argument("--n-mode", choices=["ratio", "log"], default="log",
@@ -45,30 +83,48 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-intensity", action="store_true",
                    help="feed intensity as 0 (stored in the checkpoint: inference does the same)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--batch-size", type=int, default=32, help="proposals per step (in all, under torchrun)")
-    p.add_argument("--lr", type=float, default=1e-3)
-    p.add_argument("--weight-decay", type=float, default=1e-4)
-    p.add_argument("--background-keep", type=float, default=0.3, help="share of background proposals kept")
-    p.add_argument("--max-steps", type=int, default=0, help="cap on batches per epoch (0: all)")
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch default)")
+    p.add_argument("--batch-size", type=_number(int, 1), default=32,
+                   help="proposals per step (in all, when data-parallel)")
+    p.add_argument("--lr", type=_number(float, 0.0), default=1e-3)
+    p.add_argument("--weight-decay", type=_number(float, 0.0), default=1e-4)
+    p.add_argument("--background-keep", type=_number(float, 0.0, 1.0), default=0.3,
+                   help="share of background proposals kept")
+    p.add_argument("--max-steps", type=_number(int, 0), default=0, help="cap on batches per epoch (0: all)")
+    p.add_argument("--threads", type=_number(int, 0), default=0, help="torch CPU threads (0: torch default)")
+    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a Stage1Config parameter for the stage-1 run that builds the samples, repeatable "
+                        "(e.g. th_dist=0.25; part of the sample cache name)")
+    p.add_argument("--nproc", type=_number(int, 1), default=1, metavar="N",
+                   help="data-parallel: train in N processes started here (the alternative is torchrun)")
     p.add_argument("--rebuild-cache", action="store_true", help="rerun stage 1 even if a sample cache exists")
     p.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
                    help="no progress bars (as in the other tools; --quiet is the old name)")
     return p
 
 
+def options(args: argparse.Namespace) -> TrainOptions:
+    """The TrainOptions of parsed arguments (all flags but --nproc, which only says how to start)."""
+    return TrainOptions(**{k: v for k, v in vars(args).items() if k != "nproc"})
+
+
 def run(args: argparse.Namespace, proposer: Proposer | None = None, frame_source: FrameSource | None = None) -> int:
     """Train as the arguments say; `proposer` and `frame_source` replace stage 1 and the dataset readers."""
-    return _train(Trainer(TrainOptions(**vars(args)), proposer, frame_source, command=sys.argv))
+    return _train(Trainer(options(args), proposer, frame_source, command=sys.argv, stage1=parse_params(args.param)))
 
 
 def _train(trainer: Trainer) -> int:
-    """Run `trainer` once its output folder is known to be writable; exit 1 when it cannot go on."""
+    """Run `trainer` once its output folder is known to be writable; exit 1 when it cannot go on (silently when
+    another worker under pass3d_train's launcher stopped first: the launcher shows that worker's report)."""
     check_writable(trainer.out, folder=True, what="--out folder")
     try:
         trainer.run()
+    except PeerLostError as exc:
+        if distributed.LAUNCHER_ENV in os.environ:
+            return launcher.EXIT_PEER_LOST
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 1
     except TrainingError as exc:
-        print(f"pass3d_train: {exc}", file=sys.stderr)
+        print(f"{PROG}: {exc}", file=sys.stderr)
         return 1
     return 0
 
@@ -80,12 +136,40 @@ def _interrupted(trainer: Trainer) -> str:
     return f"interrupted; last checkpoint written: {trainer.last_path} (epoch {trainer.saved_epoch})"
 
 
+def _stage1(args: argparse.Namespace) -> Stage1Config:
+    """The stage-1 parameters of --param; ConfigError for a bad one."""
+    return parse_params(args.param)
+
+
+def _launch(args: argparse.Namespace, argv: list[str]) -> int:
+    """--nproc N: check what can be checked once, then run N workers of this command line (see launcher)."""
+    _stage1(args)
+    check_writable(args.out, folder=True, what="--out folder")
+    return launcher.launch("pass3d_ros.tools.train", argv, args.nproc, PROG)
+
+
+def _work(args: argparse.Namespace, holder: list[Trainer]) -> int:
+    """Build the trainer (kept in `holder` for the interruption line) and train."""
+    holder.append(Trainer(options(args), command=sys.argv, stage1=_stage1(args)))
+    return _train(holder[0])
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the pass3d_train console script: 0 done, 1 nothing to train on, 2 unusable data, output
-    or checkpoint, 130 / 143 interrupted."""
-    args = build_parser().parse_args(argv)
-    trainer = Trainer(TrainOptions(**vars(args)), command=sys.argv)
-    return run_tool("pass3d_train", lambda: _train(trainer), interrupted=lambda: _interrupted(trainer))
+    """Entry point of the pass3d_train console script: 0 done, 1 nothing to train on, 2 unusable data, output,
+    checkpoint or argument, 130 / 143 interrupted. Data-parallel, only rank 0 reports (see --nproc)."""
+    distributed.die_with_parent()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.nproc > 1 and distributed.world_size() > 1 and distributed.LAUNCHER_ENV not in os.environ:
+        parser.error("--nproc starts its own workers; under torchrun leave it out")
+    if args.nproc > 1 and distributed.world_size() == 1:
+        return run_tool(PROG, lambda: _launch(args, argv))
+    holder: list[Trainer] = []
+    quiet = contextlib.nullcontext() if distributed.reports() else contextlib.redirect_stderr(io.StringIO())
+    with quiet:
+        return run_tool(PROG, lambda: _work(args, holder),
+                        interrupted=lambda: _interrupted(holder[0]) if holder else "interrupted")
 
 
 if __name__ == "__main__":

@@ -5,7 +5,9 @@
 
 A pass3d output bag shows its predictions (`label`), any other source its ground truth (`label_gt`, dataset labels).
 Needs rerun-sdk (`pip install rerun-sdk`; installed with the test dependencies of this repository).
-Exit status: 0 done, 2 bad input or rerun-sdk missing, 130 / 143 interrupted (no partial .rrd is left).
+An existing --out recording is replaced only with --force. The recording is built in a hidden sibling
+(`.NAME.partial-PID`) and renamed into place when complete; one left by a killed run is removed by the next.
+Exit status: 0 done, 2 bad input, rerun-sdk or its viewer missing, 130 / 143 interrupted (no partial .rrd is left).
 """
 
 from __future__ import annotations
@@ -16,19 +18,15 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-from pass3d_ros.data.bag import (
-    TYPESTORE,
-    LabelSource,
-    is_output_cloud,
-    iter_raw,
-    parse_bag_spec,
-    read_bag,
-    select_topic,
-)
+from pass3d_ros.data.bag import TYPESTORE, BagFile, LabelSource, is_output_cloud, read_bag
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.spec import DatasetError, open_dataset, parse_spec
+from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.msgs.pointcloud2 import decode
-from pass3d_ros.tools.cli import check_writable, run_tool
+from pass3d_ros.tools.cli import USER_ERRORS, check_writable, partial_path, remove_stale_partials, run_tool
+
+
+class ViewError(ValueError):
+    """The recording cannot be made as asked (an existing --out, no viewer to spawn); the message says why."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,13 +38,14 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--out", type=Path, metavar="RRD", help="write a .rrd recording (open it with `rerun RRD`)")
     where.add_argument("--spawn", action="store_true", help="start the rerun viewer and stream to it")
     parser.add_argument("--limit", type=int, metavar="N", help="at most N frames from each spec")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out recording")
     return parser
 
 
-def _frames(specs: list[str], limit: int | None) -> Iterator[Frame]:
-    for text in specs:
-        spec = parse_spec(text)
-        frames = read_bag(spec.path, labels=_bag_labels(spec.path)) if spec.format == "bag" else open_dataset(text)
+def _frames(datasets: list[Dataset], limit: int | None) -> Iterator[Frame]:
+    for dataset in datasets:
+        frames = (read_bag(dataset.path, labels=_bag_labels(dataset.path)) if dataset.format == "bag"
+                  else dataset.frames())
         for index, frame in enumerate(frames):
             if limit is not None and index >= limit:
                 break
@@ -55,10 +54,10 @@ def _frames(specs: list[str], limit: int | None) -> Iterator[Frame]:
 
 def _bag_labels(path: str) -> LabelSource:
     """'predicted' for a pass3d output bag (its `label` field is the prediction), else 'truth'."""
-    bag, topic = parse_bag_spec(path)
-    for conn, _, raw in iter_raw(bag, select_topic(bag, topic)):
-        names = decode(TYPESTORE.deserialize_cdr(raw, conn.msgtype)).dtype.names or ()
-        return "predicted" if is_output_cloud(names) else "truth"
+    with BagFile(path) as bag:
+        for conn, _, raw in bag.messages():
+            names = decode(TYPESTORE.deserialize_cdr(raw, conn.msgtype)).dtype.names or ()
+            return "predicted" if is_output_cloud(names) else "truth"
     return "truth"
 
 
@@ -71,23 +70,31 @@ def _view(args: argparse.Namespace) -> int:
 
     if args.limit is not None and args.limit < 1:
         raise DatasetError("--limit must be >= 1")
-    for spec in args.data:
-        parse_spec(spec)
+    datasets = resolve_datasets(args.data)
     recording = rr.RecordingStream("pass3d_view")
     partial = None
     if args.out is not None:
         check_writable(args.out, folder=False, what="the recording")
+        if (args.out.exists() or args.out.is_symlink()) and not args.force:
+            raise ViewError(f"{args.out} exists; pass --force to replace it")
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        partial = args.out.with_name(f".{args.out.name}.partial-{os.getpid()}")
+        remove_stale_partials(args.out)
+        partial = partial_path(args.out)
         try:
             recording.save(partial)
         except RuntimeError as exc:  # rerun reports file errors as RuntimeError
             raise DatasetError(f"{args.out}: cannot write the recording ({exc})") from None
     else:
-        recording.spawn()
+        if args.force:
+            raise ViewError("--force applies to --out only")
+        try:
+            recording.spawn()
+        except RuntimeError as exc:  # rerun: "Failed to find Rerun Viewer executable in PATH."
+            raise ViewError(f"cannot start the rerun viewer ({str(exc).splitlines()[0]}); install it "
+                            "(pip install rerun-sdk puts `rerun` on PATH) or write a recording with --out") from None
     try:
         count = 0
-        for count, frame in enumerate(_frames(args.data, args.limit), 1):
+        for count, frame in enumerate(_frames(datasets, args.limit), 1):
             log_frame(recording, frame, count - 1)
         if count == 0:
             raise DatasetError(f"no frames in {', '.join(args.data)}")
@@ -105,7 +112,7 @@ def _view(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: 0 done, 2 user error, 130 / 143 interrupted."""
     args = build_parser().parse_args(argv)
-    return run_tool("pass3d_view", lambda: _view(args))
+    return run_tool("pass3d_view", lambda: _view(args), errors=(ViewError, *USER_ERRORS))
 
 
 if __name__ == "__main__":

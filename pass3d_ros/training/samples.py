@@ -7,9 +7,10 @@ scores the whole pipeline point by point (points outside every proposal count as
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,20 +19,21 @@ from tqdm import tqdm
 
 from pass3d_ros.classes import BACKGROUND, IGNORE, NUM_CLASSES
 from pass3d_ros.core import canonical
+from pass3d_ros.core.config import Stage1Config
 from pass3d_ros.core.pointnet2 import ModelConfig
 from pass3d_ros.core.segmentation import prepare_proposals, uses_intensity
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.spec import DatasetError
+from pass3d_ros.data.spec import Dataset, DatasetError
 
 CACHE_VERSION = 1
 Proposer = Callable[[Frame], list[np.ndarray]]
 
 
-def stage1_proposer(frame: Frame) -> list[np.ndarray]:
-    """Member indices of the stage-1 proposals of a frame (the real pipeline)."""
+def stage1_proposer(frame: Frame, config: Stage1Config | None = None) -> list[np.ndarray]:
+    """Member indices of the stage-1 proposals of a frame (the real pipeline, with `config` or the defaults)."""
     from pass3d_ros.core.stage1 import proposal_members, propose
 
-    result = propose(frame.points, ring=frame.ring)
+    result = propose(frame.points, ring=frame.ring, config=config)
     return proposal_members(result.cluster_id, result.cluster_id2)
 
 
@@ -155,11 +157,12 @@ def build_samples(
     progress: bool = True,
     total: int | None = None,
     shard: tuple[int, int] = (0, 1),
+    stage1: Stage1Config | None = None,
 ) -> SampleSet:
-    """Run the proposer on every frame and collect its proposals; a proposal without any foreground point
-    is kept with probability `background_keep` (seeded). shard=(i, n): only frames i, i + n, i + 2n, ...
-    (still read in turn), with the background draws seeded by (seed, i)."""
-    proposer = proposer or stage1_proposer
+    """Run the proposer (default: stage 1 with the `stage1` parameters) on every frame and collect its proposals; a
+    proposal without any foreground point is kept with probability `background_keep` (seeded). shard=(i, n): only
+    frames i, i + n, i + 2n, ... (still read in turn), with the background draws seeded by (seed, i)."""
+    proposer = proposer or functools.partial(stage1_proposer, config=stage1)
     index_in_shard, shards = shard
     rng = np.random.default_rng(seed if shards == 1 else [seed, index_in_shard])
     if shards > 1:
@@ -227,6 +230,14 @@ def stage1_identity() -> str:
     return _digest([core / name for name in _STAGE1_SOURCES])
 
 
+def stage1_overrides(config: Stage1Config | None) -> dict:
+    """The parameters of `config` that differ from the defaults (empty for None)."""
+    if config is None:
+        return {}
+    defaults = Stage1Config().to_dict()
+    return {k: v for k, v in config.to_dict().items() if v != defaults.get(k)}
+
+
 def synthetic_identity() -> str:
     """A hash of the synthetic generator's source files, so a changed world rebuilds the caches of synthetic data."""
     root = Path(__file__).resolve().parents[1] / "synthetic"
@@ -234,16 +245,22 @@ def synthetic_identity() -> str:
 
 
 def cache_path(
-    specs: list[str], cache_dir: Path, background_keep: float, seed: int, keep_frame_labels: bool,
+    specs: Sequence[str | Dataset], cache_dir: Path, background_keep: float, seed: int, keep_frame_labels: bool,
     proposer: Proposer | None = None, proposer_name: str | None = None, shards: int = 1,
+    stage1: Stage1Config | None = None,
 ) -> Path:
-    """The sample cache file of these settings; a set built in `shards` shards (data-parallel) has its own."""
+    """The sample cache file of these settings; a set built in `shards` shards (data-parallel) has its own, and so
+    does one built with other stage-1 parameters (`stage1`; the defaults keep the plain name)."""
+    texts = [str(spec) for spec in specs]
     name = proposer_name or ("stage1-" + stage1_identity() if proposer is None else "custom")
-    if any(spec.startswith("synthetic") for spec in specs):
+    overrides = stage1_overrides(stage1)
+    if overrides:
+        name += "-params-" + json.dumps(overrides, sort_keys=True)
+    if any(text.startswith("synthetic") for text in texts):
         name += "-world-" + synthetic_identity()
     if shards > 1:
         name += f"-shards{shards}"
-    return Path(cache_dir) / f"samples_{cache_key(specs, background_keep, seed, keep_frame_labels, name)}.npz"
+    return Path(cache_dir) / f"samples_{cache_key(texts, background_keep, seed, keep_frame_labels, name)}.npz"
 
 
 def load_cached(path: Path) -> SampleSet | None:
@@ -257,9 +274,9 @@ def load_cached(path: Path) -> SampleSet | None:
 
 
 def cached_samples(
-    specs: list[str],
+    specs: Sequence[str | Dataset],
     cache_dir: Path,
-    frames: Callable[[list[str]], Iterable[Frame]],
+    frames: Callable[[Sequence[str | Dataset]], Iterable[Frame]],
     background_keep: float,
     seed: int,
     keep_frame_labels: bool,
@@ -268,13 +285,17 @@ def cached_samples(
     rebuild: bool = False,
     progress: bool = True,
     total: int | None = None,
+    stage1: Stage1Config | None = None,
 ) -> tuple[SampleSet, Path]:
-    """The samples of `specs`, from the cache in `cache_dir` when present, else built (and cached)."""
-    path = cache_path(specs, cache_dir, background_keep, seed, keep_frame_labels, proposer, proposer_name)
+    """The samples of `specs`, from the cache in `cache_dir` when present, else built (and cached); `stage1`: the
+    stage-1 parameters of the default proposer."""
+    path = cache_path(specs, cache_dir, background_keep, seed, keep_frame_labels, proposer, proposer_name,
+                      stage1=stage1)
     loaded = None if rebuild else load_cached(path)
     if loaded is not None:
         return loaded, path
-    samples = build_samples(frames(specs), background_keep, seed, keep_frame_labels, proposer, progress, total)
+    samples = build_samples(frames(specs), background_keep, seed, keep_frame_labels, proposer, progress, total,
+                            stage1=stage1)
     path.parent.mkdir(parents=True, exist_ok=True)
     samples.save(path)
     return samples, path

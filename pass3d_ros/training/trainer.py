@@ -20,6 +20,7 @@ sharded sample cache is named apart from the single-process one. Without torchru
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -31,10 +32,17 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from pass3d_ros.core.config import Stage1Config
 from pass3d_ros.core.pointnet2 import ModelConfig, PointNet2Seg, count_parameters, make_config
-from pass3d_ros.core.segmentation import CheckpointError, load_model, make_checkpoint, read_checkpoint
+from pass3d_ros.core.segmentation import (
+    CheckpointError,
+    check_finite,
+    load_model,
+    make_checkpoint,
+    read_checkpoint,
+)
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.spec import open_datasets_shard
+from pass3d_ros.data.spec import Dataset, open_datasets, open_datasets_shard, resolve_datasets
 from pass3d_ros.training import distributed
 from pass3d_ros.training.losses import make_loss
 from pass3d_ros.training.samples import (
@@ -44,6 +52,7 @@ from pass3d_ros.training.samples import (
     cache_path,
     cached_samples,
     load_cached,
+    stage1_overrides,
     training_batch,
 )
 from pass3d_ros.training.validation import format_scores, validate
@@ -53,6 +62,10 @@ FrameSource = Callable[[list[str]], Iterable[Frame]]
 
 class TrainingError(RuntimeError):
     """A run that cannot go on: no proposals to train on, or a checkpoint to resume from that does not fit."""
+
+
+class PeerLostError(TrainingError):
+    """Data-parallel: another process of the run stopped (its own report says why), so this one cannot go on."""
 
 
 @dataclass(kw_only=True)
@@ -85,6 +98,7 @@ class TrainOptions:
     threads: int = 0  # torch CPU threads (0: torch default)
     rebuild_cache: bool = False  # rerun stage 1 even if a sample cache exists
     quiet: bool = False  # no progress bars
+    param: list[str] = field(default_factory=list)  # stage-1 overrides KEY=VALUE as given (the Trainer's `stage1`)
 
     def record(self) -> dict:
         """The options as a checkpoint stores them: plain values, paths as strings."""
@@ -105,7 +119,8 @@ class TrainResult:
 
 class Trainer:
     """One training run of the stage-2 network. `proposer` and `frame_source` replace stage 1 and the dataset
-    readers (tests, constructed data); `command` is the command line a checkpoint records (default sys.argv)."""
+    readers (tests, constructed data); `command` is the command line a checkpoint records (default sys.argv);
+    `stage1` the stage-1 parameters that build the samples (default: Stage1Config())."""
 
     config: ModelConfig
     train_set: SampleSet
@@ -122,15 +137,17 @@ class Trainer:
         proposer: Proposer | None = None,
         frame_source: FrameSource | None = None,
         command: Sequence[str] | None = None,
+        stage1: Stage1Config | None = None,
     ) -> None:
         self.options = options
+        self.stage1 = stage1
         self.proposer = proposer
         self.frame_source = frame_source
         self.command = list(sys.argv if command is None else command)
         self.out = Path(options.out)
         self.last_path, self.best_path = self.out / "last.pt", self.out / "best.pt"
         self.progress = not options.quiet
-        self.start_epoch, self.best_score, self.history = 0, -1.0, []
+        self.start_epoch, self.best_score, self.history = 0, -math.inf, []
         self.data_info: dict = {}
         self.init_model: PointNet2Seg | None = None  # the network `init` names, loaded before any work
         self.saved_epoch: int | None = None  # the last epoch this run wrote into last.pt (1-based)
@@ -142,6 +159,10 @@ class Trainer:
         self.dist = distributed.setup(self.options.device)
         try:
             return self._run()
+        except RuntimeError as exc:
+            if not (self.dist.enabled and distributed.is_peer_loss(exc)):
+                raise
+            raise PeerLostError(f"another process of this data-parallel run stopped ({type(exc).__name__})") from exc
         finally:
             distributed.shutdown(self.dist)
 
@@ -204,6 +225,7 @@ class Trainer:
             "seed": o.seed,
             "proposer": self.proposer,
             "rebuild": o.rebuild_cache,
+            "stage1": self.stage1,
         }
         self.train_set, train_cache = self._samples(
             o.data, background_keep=o.background_keep, keep_frame_labels=False, common=common
@@ -222,6 +244,7 @@ class Trainer:
             "train_samples": self.train_set.describe(),
             "val_samples": self.val_set.describe() if self.val_set is not None else None,
             "background_keep": o.background_keep,
+            "stage1_params": stage1_overrides(self.stage1),
         }
 
     def _samples(
@@ -229,21 +252,23 @@ class Trainer:
     ) -> tuple[SampleSet, Path]:
         """The samples of `specs` from the cache or stage 1; data-parallel, each rank builds its share of the
         frames and all ranks gather the whole set, which rank 0 caches."""
-        total = self._frame_total(specs)
+        datasets = None if self.frame_source is not None else resolve_datasets(specs)  # each spec parsed once
+        data = specs if datasets is None else datasets
+        total = None if datasets is None else _total_frames(datasets)  # for the progress bar
         if not self.dist.enabled:
-            return cached_samples(specs, self.out, background_keep=background_keep,
+            return cached_samples(data, self.out, background_keep=background_keep,
                                   keep_frame_labels=keep_frame_labels, progress=self.progress, total=total, **common)
-        path = cache_path(specs, self.out, background_keep, common["seed"], keep_frame_labels, common["proposer"],
-                          shards=self.dist.world)
+        path = cache_path(data, self.out, background_keep, common["seed"], keep_frame_labels, common["proposer"],
+                          shards=self.dist.world, stage1=common["stage1"])
         cached = distributed.broadcast(self.dist, path.is_file() and not common["rebuild"])
         if cached:
             loaded = load_cached(path)
             if all(distributed.all_gather(self.dist, loaded is not None)):
                 return loaded, path
-        frames = (common["frames"](specs) if self.frame_source is not None
-                  else open_datasets_shard(specs, self.dist.rank, self.dist.world))
-        part = build_samples(frames, background_keep, common["seed"], keep_frame_labels,
-                             common["proposer"], self.progress, total, shard=(self.dist.rank, self.dist.world))
+        frames = (common["frames"](data) if self.frame_source is not None
+                  else open_datasets_shard(data, self.dist.rank, self.dist.world))
+        part = build_samples(frames, background_keep, common["seed"], keep_frame_labels, common["proposer"],
+                             self.progress, total, shard=(self.dist.rank, self.dist.world), stage1=common["stage1"])
         samples = SampleSet.concatenate(distributed.all_gather(self.dist, part))
         if self.dist.main:
             samples.save(path)
@@ -280,6 +305,7 @@ class Trainer:
             raise CheckpointError(f"{self.last_path}: not a pass3d training checkpoint (last.pt); cannot resume")
         if state["config"] != self.config.to_dict():
             raise TrainingError(f"{self.last_path} was trained with another config; not resuming")
+        check_finite(state["state_dict"], str(self.last_path))
         self.model.load_state_dict(distributed.strip_module_prefix(state["state_dict"]))
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
@@ -393,10 +419,6 @@ class Trainer:
         _save_atomically(self.out / "history.json", lambda path: path.write_text(text))
         distributed.barrier(self.dist)
 
-    def _frame_total(self, specs: list[str]) -> int | None:
-        """Frame count for the progress bar; unknown with a custom frame source."""
-        return None if self.frame_source else _total_frames(specs)
-
 
 def _save_atomically(path: Path, write: Callable[[Path], object]) -> None:
     """Write `path` through a hidden sibling renamed into place, so an interruption never leaves half a file."""
@@ -408,17 +430,13 @@ def _save_atomically(path: Path, write: Callable[[Path], object]) -> None:
         tmp.unlink(missing_ok=True)
 
 
-def _default_frames(specs: list[str]) -> Iterable[Frame]:
-    from pass3d_ros.data.spec import open_datasets
-
-    return open_datasets(specs)
+def _default_frames(datasets: Sequence[Dataset]) -> Iterable[Frame]:
+    return open_datasets(datasets)
 
 
-def _total_frames(specs: list[str]) -> int | None:
-    from pass3d_ros.data.spec import count_frames
-
+def _total_frames(datasets: Sequence[Dataset]) -> int | None:
     try:
-        counts = [count_frames(s) for s in specs]
+        counts = [dataset.count() for dataset in datasets]
     except Exception:
         return None
     return None if any(c is None for c in counts) else sum(counts)

@@ -6,7 +6,8 @@ import argparse
 import importlib
 import sys
 
-# suite name -> module with `add_arguments(parser)` and `run(args) -> int`.
+# suite name -> module with `add_arguments(parser)` and `run(args) -> int`; loaded by name so that a suite missing
+# from an install is left out. This entry point lives in bench, the top layer, because it loads the suites.
 SUITES: dict[str, str] = {
     "codec": "pass3d_ros.bench.codec",
     "fuzz": "pass3d_ros.bench.codec_fuzz",
@@ -18,6 +19,7 @@ SUITES: dict[str, str] = {
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Console entry point: run the chosen suite and return its exit status."""
     parser = argparse.ArgumentParser(prog="pass3d_benchmark", description=__doc__)
     sub = parser.add_subparsers(dest="suite", required=True)
     modules = {}

@@ -1,0 +1,50 @@
+"""Stage1Config refuses values of the wrong type and crossed pairs with a ConfigError naming the parameter (the
+`--param` parser and the ROS parameters both build one), and names the nearest known key for a misspelt one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pass3d_ros.core.config import ConfigError, Stage1Config, closest
+from pass3d_ros.evaluation.offline import parse_params
+
+
+@pytest.mark.parametrize(("item", "says"), [
+    ("th_dist='abc'", "th_dist='abc' must be a number"),
+    ("th_dist=[1]", "th_dist=[1] must be a number"),
+    ("th_dist=None", "th_dist=None must be a number"),
+    ("th_dist=True", "th_dist=True must be a number"),
+    ("enlarge=0.1", "enlarge=0.1 must be a list of numbers"),
+    ("enlarge=(0.1, 'a', 0.4)", "enlarge=(0.1, 'a', 0.4) must be a list of numbers"),
+    ("n_seg=3.5", "n_seg=3.5 must be an integer"),
+    ("n_seg=True", "n_seg=True must be an integer"),
+    ("sensor=16", "sensor=16 must be a string"),
+    ("ground_thread=1", "ground_thread=1 must be true or false"),
+    ("max_top=0.5", "max_top=0.5 is below min_top=0.9"),
+    ("th_num_floor=40", "th_num_near=30 is below th_num_floor=40"),
+    ("th_dsit=0.2", "th_dsit (did you mean th_dist?)"),
+])
+def test_bad_param_is_a_config_error_naming_it(item: str, says: str) -> None:
+    with pytest.raises(ConfigError) as caught:
+        parse_params([item])
+    assert says in str(caught.value)
+
+
+def test_numbers_are_normalised() -> None:
+    config = Stage1Config(th_dist=np.float32(0.25), n_seg=np.int64(4), th_num_near=40, enlarge=[1, 1, 1])
+    assert type(config.th_dist) is float and type(config.n_seg) is int and type(config.th_num_near) is float
+    assert config.enlarge == (1.0, 1.0, 1.0)
+    assert parse_params(["max_top=1.0", "min_top=1.0"]).max_top == 1.0, "equal ends are allowed"
+
+
+def test_validate_after_a_change_sees_the_crossed_pair() -> None:
+    config = Stage1Config()
+    config.max_top = 0.1
+    with pytest.raises(ConfigError, match=r"max_top=0\.1 is below min_top"):
+        config.validate()
+
+
+def test_closest_name() -> None:
+    assert closest("stage1.th_dsit", ["stage1.th_dist", "input_topic"]) == "stage1.th_dist"
+    assert closest("zzz", ["input_topic"]) is None

@@ -1,0 +1,36 @@
+"""The user-facing docs: README and docs/ link only to files that exist and name no path outside the repository."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = [ROOT / "README.md", ROOT / "pass3d_ros" / "weights" / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+LINK = re.compile(r"\]\(([^)#\s]+)(?:#[^)]*)?\)")
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_relative_links_resolve(doc: Path) -> None:
+    targets = [t for t in LINK.findall(doc.read_text()) if "://" not in t]
+    missing = [t for t in targets if not (doc.parent / t).exists()]
+    assert not missing, f"{doc.name} links to missing files: {missing}"
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_paths_outside_the_repository(doc: Path) -> None:
+    assert "../shared" not in doc.read_text(), f"{doc.name} names a path users do not have"
+
+
+def test_readme_is_a_short_guide_with_the_launch_line_early() -> None:
+    text = (ROOT / "README.md").read_text()
+    assert len(text) <= 8000
+    half = text[: len(text) // 2]
+    assert "ros2 launch pass3d_ros pass3d.launch.py" in half
+    assert "`/pass3d/labeled`" in half and "`/pass3d/proposals`" in half
+
+
+def test_model_card_is_short() -> None:
+    assert len((ROOT / "pass3d_ros" / "weights" / "README.md").read_text()) <= 4000
