@@ -161,12 +161,17 @@ class PointCloudNode(Node):
         worker = getattr(self, "worker", None)
         if worker is None:
             return
-        counters = vars(self.counters())
+        values, warnings = self.diagnostic_extras()
+        warnings = [self.input_watch.problem if self.input_watch is not None else "", *warnings]
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        warning = self.input_watch.problem if self.input_watch is not None else ""
-        msg.status = [to_status(self.get_name(), counters, self.stats, warning=warning)]
+        msg.status = [to_status(self.get_name(), {**vars(self.counters()), **values}, self.stats,
+                                warning="; ".join(w for w in warnings if w))]
         self.diagnostics_pub.publish(msg)
+
+    def diagnostic_extras(self) -> tuple[dict[str, int], list[str]]:
+        """A subclass's own `/diagnostics` values, and warnings that turn its status WARN (none here)."""
+        return {}, []
 
     def _on_error(self, exc: BaseException) -> None:
         """A frame that raised: one throttled error line, and the node goes on with the next frame.

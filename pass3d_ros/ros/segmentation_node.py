@@ -7,7 +7,6 @@ import time
 from typing import Any, NamedTuple
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
@@ -23,7 +22,7 @@ from pass3d_ros.data.frame import Box3D
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode, header_stamp_ns, to_xyzi
 from pass3d_ros.ros import params, scan_checks
 from pass3d_ros.ros.cluster_proposal_node import ProposalFrame
-from pass3d_ros.ros.diagnostics import StepClock, to_status
+from pass3d_ros.ros.diagnostics import StepClock
 from pass3d_ros.ros.latest_frame import FrameCounters, LatestFrameWorker
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
@@ -268,22 +267,20 @@ class SegmentationNode(PointCloudNode):
                              dropped=stage2.dropped + publish.dropped + down, failed=stage2.failed + publish.failed)
 
     def publish_diagnostics(self) -> None:
-        """The node's status (see PointCloudNode) plus what its input checks and the stage-2 process did; WARN while
-        that process is down."""
-        if getattr(self, "worker", None) is None or not hasattr(self, "classifier"):
-            return
-        values: dict[str, int] = dict(vars(self.counters()), points_dropped=self.points_dropped,
-                                      proposals_cut=self.proposals_cut)
-        warnings = [self.input_watch.problem] if self.input_watch is not None else []
+        """The base status, once the classifier exists (diagnostics may fire during start-up)."""
+        if hasattr(self, "classifier"):
+            super().publish_diagnostics()
+
+    def diagnostic_extras(self) -> tuple[dict[str, int], list[str]]:
+        """What the input checks and the stage-2 process did; a warning while that process is down."""
+        values = {"points_dropped": self.points_dropped, "proposals_cut": self.proposals_cut}
+        warnings = []
         if isinstance(self.classifier, ProcessClassifier):
             values["stage2_restarts"] = self.classifier.restarts
             down = self.classifier.down_for()
             if down is not None:
                 warnings.append(f"stage-2 process down for {down:.0f} s, restarting; frames are dropped")
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [to_status(self.get_name(), values, self.stats, warning="; ".join(w for w in warnings if w))]
-        self.diagnostics_pub.publish(msg)
+        return values, warnings
 
     def idle(self) -> bool:
         """True when neither the stage-2 thread nor the publishing thread has a frame."""
