@@ -19,7 +19,15 @@ from pass3d_ros.evaluation.offline import parse_params
     ("enlarge=(0.1, 'a', 0.4)", "enlarge=(0.1, 'a', 0.4) must be a list of numbers"),
     ("n_seg=3.5", "n_seg=3.5 must be an integer"),
     ("n_seg=True", "n_seg=True must be an integer"),
-    ("sensor=16", "sensor=16 must be a string"),
+    ("sensor=16", "sensor='16' not one of auto"),  # a string field reads its text as it is
+    ("sensor=vlp99", "sensor='vlp99' not one of auto"),
+    ("th_dist=abc", "th_dist=abc must be a number"),
+    ("n_seg=abc", "n_seg=abc must be an integer"),
+    ("enlarge=a,b,c", "enlarge=a,b,c must be a list of numbers"),
+    ("enlarge=0.1,0.1", "enlarge needs 3 values"),
+    ("ground_thread=maybe", "ground_thread=maybe must be true or false"),
+    ("stage1.th_dsit=0.2", "stage1.th_dsit (did you mean stage1.th_dist?)"),
+    ("stage2.th_dist=0.2", "unknown parameter(s) stage2.th_dist"),
     ("ground_thread=1", "ground_thread=1 must be true or false"),
     ("max_top=0.5", "max_top=0.5 is below min_top=0.9"),
     ("th_num_floor=40", "th_num_near=30 is below th_num_floor=40"),
@@ -48,3 +56,34 @@ def test_validate_after_a_change_sees_the_crossed_pair() -> None:
 def test_closest_name() -> None:
     assert closest("stage1.th_dsit", ["stage1.th_dist", "input_topic"]) == "stage1.th_dist"
     assert closest("zzz", ["input_topic"]) is None
+
+
+def test_a_string_field_still_refuses_a_value_of_another_type() -> None:
+    with pytest.raises(ConfigError, match="sensor=16 must be a string"):
+        Stage1Config(sensor=16)
+
+
+@pytest.mark.parametrize(("items", "expected"), [
+    (["stage1.sensor=pandar64"], {"sensor": "pandar64"}),
+    (["sensor=pandar64"], {"sensor": "pandar64"}),
+    (["sensor='pandar64'"], {"sensor": "pandar64"}),
+    (['sensor="os1-64"'], {"sensor": "os1-64"}),
+    (["stage1.th_dist=0.25", "n_seg=4"], {"th_dist": 0.25, "n_seg": 4}),
+    (["enlarge=0.1,0.2,0.5"], {"enlarge": (0.1, 0.2, 0.5)}),
+    (["stage1.enlarge=[0.1,0.2,0.5]"], {"enlarge": (0.1, 0.2, 0.5)}),
+    (["enlarge=(0.1, 0.2, 0.5)"], {"enlarge": (0.1, 0.2, 0.5)}),
+    (["enlarge=0.1 0.2 0.5"], {"enlarge": (0.1, 0.2, 0.5)}),
+    (["enlarge=1,1,1"], {"enlarge": (1.0, 1.0, 1.0)}),
+    (["ground_thread=false"], {"ground_thread": False}),
+    (["stage1.sensor_scaling=False"], {"sensor_scaling": False}),
+    (["ground_thread=TRUE"], {"ground_thread": True}),
+    (["th_num_near=40"], {"th_num_near": 40.0}),
+    ([" th_dist = 0.2 "], {"th_dist": 0.2}),
+    (["th_dist=0.2", "stage1.th_dist=0.35"], {"th_dist": 0.35}),  # the later one wins
+])
+def test_param_names_and_values_as_the_node_or_bare(items: list[str], expected: dict) -> None:
+    """`--param` takes the node's name (stage1.KEY) or the bare one, and reads each value by its field's type:
+    strings without quotes, true / false, three numbers however written; Python literals as before."""
+    config = parse_params(items)
+    for name, value in expected.items():
+        assert getattr(config, name) == value and type(getattr(config, name)) is type(value), name

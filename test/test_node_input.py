@@ -367,17 +367,16 @@ def test_stream_without_laser_lines_searches_again_only_after_the_retry_time(
         ros: Ros, monkeypatch: pytest.MonkeyPatch) -> None:
     """Scans in which no line search can find laser lines: the node searches on the first, bins the next ones by
     elevation without searching, and searches again once LINE_SEARCH_RETRY_S has passed."""
-    from pass3d_ros.core import ring
-    from pass3d_ros.ros import cluster_proposal_node
+    from pass3d_ros.core import held_lines, ring
 
     pub, clouds, searches, counted = stream_with_counted_searches(ros)
     points = no_laser_lines_scan()
     expected = propose(points)
     monkeypatch.setattr(ring, "rings_from_lines", counted)
-    monkeypatch.setattr(cluster_proposal_node, "LINE_SEARCH_RETRY_S", 3600.0)
+    monkeypatch.setattr(held_lines, "LINE_SEARCH_RETRY_S", 3600.0)
     for k in range(4):
         if k == 3:
-            monkeypatch.setattr(cluster_proposal_node, "LINE_SEARCH_RETRY_S", 0.0)
+            monkeypatch.setattr(held_lines, "LINE_SEARCH_RETRY_S", 0.0)
         pub.publish(scan_message(Frame("scan", points), STAMP0 + k))
         out = columns(clouds.wait(k + 1)[k])
         assert same_partition(out["cluster_id"], expected.cluster_id)

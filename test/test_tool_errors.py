@@ -200,16 +200,17 @@ def test_a_bug_keeps_its_traceback(tmp_path: Path, monkeypatch: pytest.MonkeyPat
                                    capsys: pytest.CaptureFixture[str]) -> None:
     """A plain ValueError or TypeError from inside the work is a bug: it is raised (exit 1 with a traceback from the
     interpreter), not printed as one line with exit 2 the way the project's own errors are."""
+    from pass3d_ros.core import stage1
     from pass3d_ros.core.size_rules import SizeRuleClassifier
-    from pass3d_ros.evaluation import offline
     from pass3d_ros.tools import segment
 
     def numpy_slip(*_args, **_kwargs):
         raise ValueError("operands could not be broadcast together with shapes (3,) (4,)")
 
-    monkeypatch.setattr(offline, "propose", numpy_slip)
-    with pytest.raises(ValueError, match="broadcast"):
-        evaluate.main(["--stage1-only", "--data", "synthetic:frames=1,seed=0", "--no-progress"])
+    with monkeypatch.context() as patch:
+        patch.setattr(stage1, "propose", numpy_slip)
+        with pytest.raises(ValueError, match="broadcast"):
+            evaluate.main(["--stage1-only", "--data", "synthetic:frames=1,seed=0", "--no-progress"])
     monkeypatch.setattr(SizeRuleClassifier, "segment", lambda *_: None + 1)
     with pytest.raises(TypeError):
         segment.main(["--data", "synthetic:frames=1,seed=0", "--out", str(tmp_path / "out"), "--classifier",
@@ -371,11 +372,13 @@ def test_segment_removes_the_build_folder_of_a_killed_run(tmp_path: Path, capsys
 
 def test_segment_param_reaches_stage1(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                       capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.core import stage1
     from pass3d_ros.tools import segment
 
     seen = []
-    propose = segment.propose
-    monkeypatch.setattr(segment, "propose", lambda pts, ring, config: seen.append(config) or propose(pts, ring, config))
+    propose = stage1.propose
+    monkeypatch.setattr(stage1, "propose", lambda pts, ring, config, lines=None: seen.append(config)
+                        or propose(pts, ring, config, lines))
     base = ["--data", "synthetic:frames=1,seed=1", "--classifier", "size_rules", "--no-progress", "--no-png"]
     assert segment.main([*base, "--out", str(tmp_path / "a"), "--param", "th_dist=0.25", "--param", "n_seg=4"],
                         log=lambda _: None) == 0

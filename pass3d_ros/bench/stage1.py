@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pass3d_ros.core.held_lines import LineHolder
 from pass3d_ros.core.ring import LaserLines
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, propose, synthetic_scan, warm_up
 from pass3d_ros.data.frame import Frame
@@ -65,29 +66,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the numbers as JSON here")
 
 
-def load_frames(specs: list[str], limit: int) -> list[Frame]:
-    """Frames to time: the specs' first `limit` frames each, or the built-in synthetic scan."""
+def load_frames(specs: list[str], limit: int) -> tuple[list[Frame], list[int]]:
+    """Frames to time: the specs' first `limit` frames each, or the built-in synthetic scan; and each frame's stream
+    (the position of its spec): laser lines are held within one."""
     if not specs:
-        return [Frame("synthetic-builtin", synthetic_scan(points_per_ring=1800))]
+        return [Frame("synthetic-builtin", synthetic_scan(points_per_ring=1800))], [0]
     frames: list[Frame] = []
-    for dataset in resolve_datasets(specs):
+    streams: list[int] = []
+    for position, dataset in enumerate(resolve_datasets(specs)):
         for index, frame in enumerate(dataset.frames()):
             if index >= limit:
                 break
             frames.append(frame)
-    return frames
+            streams.append(position)
+    return frames, streams
 
 
-def time_stage1(frames: list[Frame], repeat: int, config: Stage1Config) -> dict[str, list[float]]:
+def time_stage1(frames: list[Frame], repeat: int, config: Stage1Config,
+                streams: list[int] | None = None) -> dict[str, list[float]]:
     """Wall-clock milliseconds per step of every run (frames x repeats), after a warm-up, and the thread's
-    CPU milliseconds per run ("cpu"): on a shared machine wall time also counts waiting for a core."""
+    CPU milliseconds per run ("cpu"): on a shared machine wall time also counts waiting for a core.
+
+    The frames of one stream (`streams`: one number per frame, default all one) are timed as a live node sees them
+    (pass3d_ros.core.held_lines): every run of a frame is given the laser lines held after the frames before it
+    (none for a stream's first frame, which searches on every run), never those read off the frame itself."""
     warm_up()
     times: dict[str, list[float]] = {step: [] for step in (*STEPS, "cpu")}
-    for frame in frames:
-        propose(frame.points, frame.ring, config)
+    holder = LineHolder()
+    for frame, stream in zip(frames, streams or [0] * len(frames), strict=True):
+        holder.follow(stream)
+        given = holder.lines()
+        holder.hold(given, propose(frame.points, frame.ring, config, given).lines)
         for _ in range(repeat):
             cpu = time.thread_time()
-            result = propose(frame.points, frame.ring, config)
+            result = propose(frame.points, frame.ring, config, given)
             times["cpu"].append(1e3 * (time.thread_time() - cpu))
             for step in STEPS:
                 times[step].append(result.timings_ms[step])
@@ -146,15 +158,16 @@ def _stream_lines(frames: list[Frame], results: list[Stage1Result], config: Stag
     """The laser lines a live node holds after each frame, as the cluster node carries them: the frame's own (its
     firing-order result has none, so the frame shuffled is searched, given the lines held before it), else those
     held before."""
-    held: LaserLines | None = None
+    holder = LineHolder()
     out: list[LaserLines | None] = []
     for frame, result in zip(frames, results, strict=True):
-        lines = result.lines
-        if lines is None:
+        if result.lines is None:
+            given = holder.lines()
             shuffled = np.ascontiguousarray(frame.points[reorder(frame.points, result.ring, "shuffled")])
-            lines = propose(shuffled, None, config, held).lines
-        held = lines or held
-        out.append(held)
+            holder.hold(given, propose(shuffled, None, config, given).lines)
+        else:
+            holder.hold(None, result.lines)
+        out.append(holder.held)
     return out
 
 
@@ -185,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
         print("pass3d_benchmark stage1: --repeat and --limit must be >= 1", file=sys.stderr)
         return 2
     try:
-        frames = load_frames(args.data, args.limit)
+        frames, streams = load_frames(args.data, args.limit)
     except (DatasetError, FileNotFoundError, NotADirectoryError) as exc:
         print(f"pass3d_benchmark stage1: error: {exc}", file=sys.stderr)
         return 2
@@ -193,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
         print("pass3d_benchmark stage1: error: no frames to time", file=sys.stderr)
         return 2
     config = Stage1Config()
-    times = time_stage1(frames, args.repeat, config)
+    times = time_stage1(frames, args.repeat, config, streams)
     points = int(np.median([len(f.points) for f in frames]))
     medians = {step: statistics.median(values) for step, values in times.items()}
     print(f"stage 1: {len(frames)} frame(s), median {points} points, {args.repeat} run(s) each, median ms per step")

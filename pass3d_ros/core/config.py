@@ -5,6 +5,7 @@ declares one parameter per field.
 
 from __future__ import annotations
 
+import ast
 import difflib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields
@@ -97,6 +98,15 @@ class Stage1Config:
     max_top: float = _param(2.3, "refinement: highest point at most this above the ground plane (m)", 0.0, 20.0)
     min_extent: float = _param(0.2, "refinement: the larger of length and height reaches this (m)", 0.0, 10.0)
     max_range: float = _param(70.0, "refinement: largest horizontal range of a cluster centre (m)", 1.0, 500.0)
+    # Split instead of drop (pass3d_ros.core.split): cars parked end to end 0.5-1 m apart chain into one cluster.
+    split_merged: bool = _param(
+        True, "refinement: cut a cluster failing only the footprint gate at the gaps along its long axis, and "
+        "gate each part again", 0, 1,
+    )
+    split_gap: float = _param(
+        0.4, "refinement: an empty stretch of the long axis this long between dense surfaces is a gap to cut at (m; "
+        "below the 0.5 m between cars parked end to end)", 0.05, 5.0,
+    )
     # Enlargement of kept boxes, added on each side (paper: 0.1, 0.1, 0.4 m).
     enlarge: tuple[float, float, float] = _param(
         (0.1, 0.1, 0.4), "refinement: kept boxes grow by this on each side in x, y, z (m)", 0.0, 5.0
@@ -190,3 +200,65 @@ class Stage1Config:
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all parameters (for logs and JSON)."""
         return asdict(self)
+
+
+# ------------------------------------------------------------------------------ KEY=VALUE text (tools' --param)
+
+PREFIX = "stage1."  # the ROS parameters' namespace of these fields; `--param` takes a key with or without it
+
+_TRUE, _FALSE = ("true", "yes", "on"), ("false", "no", "off")
+
+
+def field_name(key: str) -> str:
+    """A Stage1Config field name from a `--param` key: `th_dist` or, as the node names it, `stage1.th_dist`;
+    ConfigError naming the nearest known key when there is no such field."""
+    key = key.strip()
+    name = key[len(PREFIX):] if key.startswith(PREFIX) else key
+    known = {f.name: f for f in fields(Stage1Config)}
+    if name not in known:
+        near = closest(name, known)
+        prefix = PREFIX if key.startswith(PREFIX) else ""
+        raise ConfigError(f"Stage1Config: unknown parameter(s) {key}"
+                          + (f" (did you mean {prefix}{near}?)" if near else ""))
+    return name
+
+
+def parse_value(name: str, text: str) -> Any:
+    """The value of field `name` written as `text`, read by the field's type: a number, true / false, a string
+    without quotes (`pandar64`), three numbers for a tuple (`0.1,0.1,0.4`, `[0.1, 0.1, 0.4]` or `0.1 0.1 0.4`).
+    Python literals ('pandar64', (0.1, 0.1, 0.4), True) are read as before. A value that is no value of the type is
+    returned as written for Stage1Config to name; text that is not one at all is a ConfigError naming it."""
+    kind = next(f.type for f in fields(Stage1Config) if f.name == name)
+    text = text.strip()
+    try:
+        literal: Any = ast.literal_eval(text)
+    except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
+        literal = _NOT_LITERAL
+    if kind == "str":
+        return literal if isinstance(literal, str) else text
+    if literal is not _NOT_LITERAL:
+        return literal
+    if kind == "bool" and text.lower() in _TRUE + _FALSE:
+        return text.lower() in _TRUE
+    if kind.startswith("tuple"):
+        parts = [p for p in text.strip("[]()").replace(",", " ").split() if p]
+        try:
+            return tuple(float(p) for p in parts)
+        except ValueError:
+            raise ConfigError(f"Stage1Config: {name}={text} must be a list of numbers (e.g. {name}=0.1,0.1,0.4)"
+                              ) from None
+    what = _TYPE_CHECKS[kind][1] if kind in _TYPE_CHECKS else kind
+    raise ConfigError(f"Stage1Config: {name}={text} must be {what}")
+
+
+_NOT_LITERAL = object()
+
+
+def config_from_text(items: Iterable[tuple[str, str]]) -> Stage1Config:
+    """Stage1Config from (key, text) pairs (`field_name`, `parse_value`; a later key wins); ConfigError names the
+    first problem."""
+    values: dict[str, Any] = {}
+    for key, text in items:
+        name = field_name(key)
+        values[name] = parse_value(name, text)
+    return Stage1Config.from_mapping(values)

@@ -219,6 +219,50 @@ def _cluster_rects(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -
     return out
 
 
+def gate_clusters(
+    points: np.ndarray,
+    label: np.ndarray,
+    n_clusters: int,
+    planes: np.ndarray,
+    segment_edges: np.ndarray,
+    config: Stage1Config,
+    fit_all: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The gates of `select_proposals`: (z low, z high per cluster, fitted clusters, their rectangles (cx, cy, length,
+    width, yaw), kept (mask over the fitted), footprint passed (mask over the fitted)).
+
+    Fitted: the clusters that pass every gate but the footprint one, less (unless `fit_all`) those whose x-y extent
+    no footprint rectangle can hold, which fail it without a fit.
+    """
+    count, sums, lo, hi, bottom, top = _cluster_stats(points, label, n_clusters, planes, segment_edges)
+    centre = sums / np.maximum(count, 1)[:, None]
+    rng = np.hypot(centre[:, 0], centre[:, 1])
+    need = np.maximum(
+        config.th_num_floor, config.th_num_near * config.th_num_range / np.maximum(rng, config.th_num_range)
+    )
+    extent = hi - lo
+    ok = (count >= need) & (rng <= config.max_range) & (extent[:, 2] <= config.max_height)
+    ok &= (bottom <= config.max_bottom) & (top >= config.min_top) & (top <= config.max_top)
+    # The footprint rectangle's diagonal bounds the x-y extent: clusters too long for any rectangle go now.
+    fits = np.maximum(extent[:, 0], extent[:, 1]) <= np.hypot(config.max_length, config.max_width)
+    candidates = np.flatnonzero(ok if fit_all else ok & fits)
+    if len(candidates) == 0:
+        empty = np.zeros(0, dtype=bool)
+        return lo[:, 2], hi[:, 2], candidates, np.zeros((0, 5)), empty, empty
+    rects = _cluster_rects(points, label, candidates)
+    footprint = (rects[:, 2] <= config.max_length) & (rects[:, 3] <= config.max_width) & fits[candidates]
+    keep = footprint & (np.maximum(rects[:, 2], extent[candidates, 2]) >= config.min_extent)
+    return lo[:, 2], hi[:, 2], candidates, rects, keep, footprint
+
+
+def boxes_of(rects: np.ndarray, z_lo: np.ndarray, z_hi: np.ndarray) -> list[Box3D]:
+    """Box3D per rectangle row (cx, cy, length, width, yaw) over its z range."""
+    return [
+        Box3D(center=np.array([cx, cy, 0.5 * (z0 + z1)]), size=np.array([length, width, z1 - z0]), yaw=float(yaw))
+        for (cx, cy, length, width, yaw), z0, z1 in zip(rects, z_lo, z_hi, strict=True)
+    ]
+
+
 def select_proposals(
     points: np.ndarray,
     label: np.ndarray,
@@ -231,32 +275,9 @@ def select_proposals(
     (index = proposal id)."""
     if n_clusters == 0:
         return [], np.zeros(0, dtype=np.int64)
-    count, sums, lo, hi, bottom, top = _cluster_stats(points, label, n_clusters, planes, segment_edges)
-    centre = sums / np.maximum(count, 1)[:, None]
-    rng = np.hypot(centre[:, 0], centre[:, 1])
-    need = np.maximum(
-        config.th_num_floor, config.th_num_near * config.th_num_range / np.maximum(rng, config.th_num_range)
-    )
-    extent = hi - lo
-    ok = (count >= need) & (rng <= config.max_range) & (extent[:, 2] <= config.max_height)
-    ok &= (bottom <= config.max_bottom) & (top >= config.min_top) & (top <= config.max_top)
-    # The footprint rectangle's diagonal bounds the x-y extent: clusters too long for any rectangle go now.
-    ok &= np.maximum(extent[:, 0], extent[:, 1]) <= np.hypot(config.max_length, config.max_width)
-    candidates = np.flatnonzero(ok)
-    if len(candidates) == 0:
-        return [], candidates
-    rects = _cluster_rects(points, label, candidates)
-    z_extent = extent[candidates, 2]
-    keep = (rects[:, 2] <= config.max_length) & (rects[:, 3] <= config.max_width)
-    keep &= np.maximum(rects[:, 2], z_extent) >= config.min_extent
+    z_lo, z_hi, candidates, rects, keep, _ = gate_clusters(points, label, n_clusters, planes, segment_edges, config)
     kept = candidates[keep]
-    boxes = []
-    for (cx, cy, length, width, yaw), c in zip(rects[keep], kept, strict=True):
-        z0, z1 = lo[c, 2], hi[c, 2]
-        boxes.append(
-            Box3D(center=np.array([cx, cy, 0.5 * (z0 + z1)]), size=np.array([length, width, z1 - z0]), yaw=float(yaw))
-        )
-    return boxes, kept
+    return boxes_of(rects[keep], z_lo[kept], z_hi[kept]), kept
 
 
 @nb.njit(cache=True, nogil=True)

@@ -21,6 +21,7 @@ from pass3d_ros.core import refinement as _refinement
 from pass3d_ros.core import ring as _ring
 from pass3d_ros.core import scanline as _scanline
 from pass3d_ros.core import sensor_params as _sensor
+from pass3d_ros.core import split as _split
 from pass3d_ros.core.config import Stage1Config
 from pass3d_ros.core.sensor_params import SensorScale
 from pass3d_ros.data.frame import Box3D
@@ -40,7 +41,8 @@ class Stage1Result:
     timings_ms: dict[str, float]  # ring, ground, clustering, refinement, total
     ring_source: str = "field"  # how rings were obtained: see pass3d_ros.core.ring.RING_SOURCES
     ground_planes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (n_seg, 4): a x+b y+c z+d=0
-    n_clusters: int = 0  # clusters before the gates
+    n_clusters: int = 0  # clusters before the gates (and before the split)
+    n_split: int = 0  # clusters cut into parts at their gaps before the gates (Stage1Config.split_merged)
     sensor: SensorScale | None = None  # the scan's resolution and the effective th_num / th_prop it ran with
     lines: _ring.LaserLines | None = None  # laser lines the rings were read from (NO_LINES: a search found none):
     # pass to the next scan's propose()
@@ -117,7 +119,12 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     t2 = time.perf_counter()
     label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~work_ground, cfg)
     t3 = time.perf_counter()
-    boxes, kept = _refinement.select_proposals(work, label, n_clusters, fit.planes, fit.segment_edges, cfg)
+    n_split = 0
+    if cfg.split_merged:
+        boxes, kept, label, n_split = _split.select_with_split(work, label, n_clusters, fit.planes, fit.segment_edges,
+                                                               cfg)
+    else:
+        boxes, kept = _refinement.select_proposals(work, label, n_clusters, fit.planes, fit.segment_edges, cfg)
     cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge)
     if order is not None:
         cluster_id, cluster_id2 = _in_input_order(order, cluster_id, cluster_id2)
@@ -126,7 +133,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     return Stage1Result(
         ring=rings.ring, ground=fit.ground, cluster_id=cluster_id, cluster_id2=cluster_id2, boxes=boxes,
         timings_ms={k: 1e3 * v for k, v in timings.items()}, ring_source=rings.source, ground_planes=fit.planes,
-        n_clusters=n_clusters, sensor=sensor, lines=rings.lines,
+        n_clusters=n_clusters, n_split=n_split, sensor=sensor, lines=rings.lines,
     )
 
 
@@ -224,5 +231,6 @@ def warm_up() -> None:
     _ground.warm_up()
     _scanline.warm_up()
     _refinement.warm_up()
+    _split.warm_up()
     result = propose(synthetic_scan(n_rings=16, points_per_ring=90), config=Stage1Config(n_rings=16))
     proposal_members(result.cluster_id, result.cluster_id2)

@@ -6,36 +6,36 @@ Points with a non-finite coordinate never reach the core: they are predicted bac
 
 from __future__ import annotations
 
-import ast
 import sys
 import time
 from collections.abc import Iterator, Sequence
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 from tqdm import tqdm
 
 from pass3d_ros.classes import BACKGROUND, IGNORE
-from pass3d_ros.core.config import ConfigError
+from pass3d_ros.core.config import ConfigError, config_from_text
+from pass3d_ros.core.held_lines import LineHolder
 from pass3d_ros.core.metrics import SegmentationMetrics, Stage1Metrics
-from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose, warm_up
+from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, proposals_cut
+from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 
 
 def parse_params(items: list[str]) -> Stage1Config:
-    """Stage1Config from `KEY=VALUE` overrides (values as Python literals: 0.2, 3, (0.1, 0.1, 0.4))."""
-    values: dict[str, Any] = {}
+    """Stage1Config from `KEY=VALUE` overrides: KEY as the node names it (`stage1.th_dist`) or bare (`th_dist`); VALUE
+    read by the field's type (pass3d_ros.core.config.parse_value): 0.25, 3, true, pandar64, 0.1,0.1,0.4, or a
+    Python literal as before ('pandar64', (0.1, 0.1, 0.4)). ConfigError names the first problem."""
+    pairs = []
     for item in items:
         key, sep, text = item.partition("=")
-        if not sep or not key:
+        if not sep or not key.strip():
             raise ConfigError(f"--param {item!r}: expected KEY=VALUE")
-        try:
-            values[key.strip()] = ast.literal_eval(text.strip())
-        except (ValueError, SyntaxError) as exc:
-            raise ConfigError(f"--param {item!r}: {text!r} is not a number or tuple") from exc
-    return Stage1Config.from_mapping(values)
+        pairs.append((key, text))
+    return config_from_text(pairs)
 
 
 def iter_frames(specs: Sequence[str | Dataset], limit: int | None, progress: bool) -> Iterator[tuple[str, Frame]]:
@@ -57,15 +57,43 @@ def iter_frames(specs: Sequence[str | Dataset], limit: int | None, progress: boo
             bar.close()
 
 
-def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config) -> dict:
-    """Run stage 1 on every frame and accumulate its metrics; returns the summary with per-frame rows."""
+@dataclass
+class BudgetCuts:
+    """Proposals a stage-2 budget (`max_proposals`, nearest first) leaves unclassified over a run, and in how many
+    frames: counted as the segmentation node counts them (pass3d_ros.core.segmentation.proposals_cut)."""
+
+    max_proposals: int = DEFAULT_MAX_PROPOSALS
+    proposals: int = 0
+    frames: int = 0
+
+    def add(self, count: int) -> int:
+        """Count the cut of one frame with `count` non-empty proposals; returns it."""
+        cut = proposals_cut(count, self.max_proposals)
+        self.proposals += cut
+        self.frames += cut > 0
+        return cut
+
+    def summary(self) -> dict:
+        return {"max_proposals": self.max_proposals, "proposals_cut": self.proposals, "frames_cut": self.frames}
+
+
+def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
+                    max_proposals: int = DEFAULT_MAX_PROPOSALS) -> dict:
+    """Run stage 1 on every frame and accumulate its metrics; returns the summary with per-frame rows. Laser lines
+    are held across the frames of one spec (pass3d_ros.core.held_lines), as the cluster node holds them. "budget":
+    the proposals a stage-2 budget of `max_proposals` would cut."""
     warm_up()
     metrics = Stage1Metrics()
+    lines = LineHolder()
+    budget = BudgetCuts(max_proposals)
     for spec, frame in frames:
-        result = propose(frame.points, frame.ring, config)
+        lines.follow(spec)
+        result = lines.propose(frame.points, frame.ring, config)
         row = metrics.update_result(f"{spec}#{frame.name}", result, frame.labels, frame.ground)
         row["ring_source"] = result.ring_source
+        row["proposals_cut"] = budget.add(result.n_proposals)  # a kept proposal has points
     summary = metrics.summary()
+    summary["budget"] = budget.summary()
     summary["per_frame"] = metrics.per_frame
     return summary
 
@@ -100,7 +128,10 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     segmentation = SegmentationMetrics()
     stage1 = Stage1Metrics()
     background = np.zeros(2, dtype=np.int64)
+    lines = LineHolder()
+    budget = BudgetCuts(classifier.max_proposals)
     for spec, frame in frames:
+        lines.follow(spec)
         if frame.labels is None:
             raise DatasetError(f"{spec}: frame {frame.name} has no point labels; full evaluation needs labelled data")
         finite = np.isfinite(frame.points[:, :3]).all(axis=1)
@@ -110,9 +141,10 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
         truth = frame.labels if keep is None else frame.labels[keep]
         ground = frame.ground if keep is None or frame.ground is None else frame.ground[keep]
         started = time.perf_counter()
-        result = propose(points, ring, config)
+        result = lines.propose(points, ring, config)
         split = time.perf_counter()
         members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
+        cut = budget.add(sum(1 for m in members if len(m) > 0))
         segmented = classifier.segment(points, members)
         done = time.perf_counter()
         labels = segmented.labels
@@ -124,9 +156,11 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
         name = f"{spec}#{frame.name}"
         row = segmentation.update(name, frame.labels, predicted, 1e3 * (split - started), 1e3 * (done - split))
         row["proposals"] = result.n_proposals
+        row["proposals_cut"] = cut
         stage1.update_result(name, result, truth, ground)
     summary = segmentation.summary()
     summary["stage1"] = stage1.summary()["stage1"]
     summary["background_proposals"] = {"front_view": int(background[0]), "called_object": int(background[1])}
+    summary["budget"] = budget.summary()
     summary["per_frame"] = segmentation.per_frame
     return summary

@@ -78,6 +78,15 @@ def _fmt(value: float | None, digits: int = 3) -> str:
     return "n/a" if value is None else f"{value:.{digits}f}"
 
 
+def _budget_line(budget: dict | None, would: bool = False) -> list[str]:
+    """The line saying how many proposals stage 2's budget cut (stage 1 alone: would cut)."""
+    if not budget:
+        return []
+    what = "stage 2's budget would cut" if would else "cut by the budget"
+    return [f"proposals {what} (max_proposals {budget['max_proposals']}, nearest first): "
+            f"{budget['proposals_cut']} in {budget['frames_cut']} frame(s)"]
+
+
 def format_stage1(summary: dict, per_frame: bool = False) -> str:
     """Human-readable table of a stage 1 summary."""
     s = summary["stage1"]
@@ -94,6 +103,7 @@ def format_stage1(summary: dict, per_frame: bool = False) -> str:
     ]
     width = max(len(name) for name, _ in rows)
     lines += [f"  {name:<{width}}  {value}" for name, value in rows]
+    lines += [f"  {line}" for line in _budget_line(summary.get("budget"), would=True)]
     if per_frame:
         lines.append("")
         lines.append(f"  {'frame':<48} {'points':>7} {'props':>5} {'ms':>6} {'fg rec':>6} {'gnd P':>6} {'gnd R':>6}")
@@ -129,6 +139,7 @@ def format_full(summary: dict, per_frame: bool = False) -> str:
     if background:
         lines.append(f"background-only front-view proposals called an object: {background['called_object']} of "
                      f"{background['front_view']}")
+    lines += _budget_line(summary.get("budget"))
     if per_frame:
         lines.append("")
         lines.append(f"  {'frame':<48} {'points':>7} {'props':>5} {'s1 ms':>7} {'s2 ms':>7} {'mIoU':>6}")

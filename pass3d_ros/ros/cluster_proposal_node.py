@@ -13,9 +13,9 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
+from pass3d_ros.core.held_lines import LineHolder
 from pass3d_ros.core.lasers import ring_limit
-from pass3d_ros.core.ring import LaserLines
-from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, propose, warm_up
+from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, warm_up
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
 from pass3d_ros.msgs.pointcloud2 import warm_up as warm_up_codec
 from pass3d_ros.ros import params, scan_checks
@@ -24,8 +24,6 @@ from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
 from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES
 from pass3d_ros.ros.run import run_nodes
-
-LINE_SEARCH_RETRY_S = 10.0  # a stream whose laser-line search found none searches again after this long
 
 STAGE1_PREFIX = "stage1."
 
@@ -86,8 +84,8 @@ class ClusterProposalNode(PointCloudNode):
         self.config = params.read_config(self, Stage1Config, STAGE1_PREFIX)
         self._intensity = StreamIntensityScale()
         self._sensor_source: tuple[str, int] | None = None
-        self._lines: LaserLines | None = None  # the stream's laser lines: a scan in no firing order skips the search
-        self._searched_at = 0.0  # when a line search last found none (time.monotonic)
+        self._lines = LineHolder(clock=time.monotonic)  # the stream's laser lines: a scan in no firing order skips
+        # the search (pass3d_ros.core.held_lines)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         started = time.perf_counter()
@@ -112,7 +110,7 @@ class ClusterProposalNode(PointCloudNode):
         if config is None:
             return params.result(False, reason)
         self.config = config
-        self._lines = None
+        self._lines.reset()
         return params.result(True)
 
     def _report_sensor(self, result: Stage1Result) -> None:
@@ -129,21 +127,6 @@ class ClusterProposalNode(PointCloudNode):
                 "ring: rings could not be recovered (no ring field, no firing order, no laser lines found); binned by "
                 "elevation, which splits or merges lasers: publish the driver's ring field or set stage1.sensor",
                 throttle_duration_sec=LOG_PERIOD_S)
-
-    def _held_lines(self) -> LaserLines | None:
-        """The laser lines to give the next scan: those held, but none (a new search) once a failed search
-        (`NO_LINES`) is LINE_SEARCH_RETRY_S old."""
-        failed = self._lines is not None and self._lines.empty
-        if failed and time.monotonic() - self._searched_at >= LINE_SEARCH_RETRY_S:
-            return None
-        return self._lines
-
-    def _hold_lines(self, given: LaserLines | None, found: LaserLines | None) -> None:
-        """Keep what a scan's ring recovery found (a firing-order scan finds nothing and keeps what was held), and
-        when a search that ran found no lines."""
-        if found is not None and found.empty and not (given is not None and given.empty):
-            self._searched_at = time.monotonic()
-        self._lines = found or self._lines
 
     def _process(self, msg: PointCloud2) -> None:
         """One frame: decode, propose, publish; a malformed or empty frame is logged and skipped."""
@@ -194,9 +177,7 @@ class ClusterProposalNode(PointCloudNode):
                 throttle_duration_sec=LOG_PERIOD_S)
             ring = None
         clock.mark("decode")
-        lines = self._held_lines()
-        result = propose(points, ring, self.config, lines)
-        self._hold_lines(lines, result.lines)
+        result = self._lines.propose(points, ring, self.config)
         clock.mark("compute")
         self._report_sensor(result)
         if self.sink is not None:

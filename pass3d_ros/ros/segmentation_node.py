@@ -14,7 +14,7 @@ from visualization_msgs.msg import MarkerArray
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN, packed_rgb
 from pass3d_ros.core.canonical import fit_box_members
 from pass3d_ros.core.classifier_process import ClassifierProcessDownError, ProcessClassifier
-from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult
+from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult, proposals_cut
 from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, open_classifier
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
@@ -354,9 +354,10 @@ class SegmentationNode(PointCloudNode):
         not classified, so their points are background; a cut is counted and warned about (throttled)."""
         first, second, count = dense_ids(frame.cluster_id, frame.cluster_id2)
         limit = int(self.get_parameter("max_proposals").value)
-        if count > limit:
+        cut = proposals_cut(count, limit)
+        if cut:
             first, second, _ = nearest_proposals(frame.points, first, second, count, limit)
-            self.proposals_cut += count - limit
+            self.proposals_cut += cut
             self.get_logger().warning(
                 f"{count} proposals in one frame, max_proposals {limit}: the nearest {limit} are classified, the "
                 f"points of the other {count - limit} labeled background", throttle_duration_sec=LOG_PERIOD_S)

@@ -42,10 +42,12 @@ the lite network faster than two).
   "skipped"; low / high are null when every resample was); one frame gives a degenerate interval (low = high,
   "degenerate": true), which the table says. The table prints each IoU as "car 76.6 [68.1, 83.0]". Live
   runs carry the per-class intervals too.
-  full adds "stage1" (as below), "background_proposals": {"front_view": n, "called_object": n} and
-  "per_frame": [{"frame", "points", "proposals", "stage1_ms",
-  "stage2_ms", "total_ms", "iou": {class: iou}, "mean_iou"}]; live adds "bag" (the bag played; null when
-  it was a deleted temporary), "record_out", and "live": {"frames_in", "frames_out", "dropped",
+  full adds "stage1" (as below), "background_proposals": {"front_view": n, "called_object": n},
+  "budget": {"max_proposals": N, "proposals_cut": n, "frames_cut": k} (proposals beyond the classifier's
+  max_proposals, the nearest first kept: the cut ones are not classified, their points count as background; the
+  table says "proposals cut by the budget: N in K frame(s)") and "per_frame": [{"frame", "points", "proposals",
+  "proposals_cut", "stage1_ms", "stage2_ms", "total_ms", "iou": {class: iou}, "mean_iou"}]; live adds "bag" (the
+  bag played; null when it was a deleted temporary), "record_out", and "live": {"frames_in", "frames_out", "dropped",
   "latency_ms": {"median", "mean", "p95", "max"}, "stage_ms", "output_hz", "mismatched", "timeouts", ...}.
   stage1-only: {"mode": "stage1", "frames": N, "data": [specs],
    "stage1": {"foreground_recall": r | null, "foreground_points": n,
@@ -54,8 +56,16 @@ the lite network faster than two).
               "ms_per_frame": {"median": m, "mean": m},
               "ms_per_step": {"ring": m, "ground": m, "clustering": m, "refinement": m, "total": m},
               "ground": {"precision": p | null, "recall": r | null}, "ground_frames": n},
-   "config": {every Stage1Config parameter}, "per_frame": [{"frame", "points", "proposals", "ms", ...}]}
+   "budget": {"max_proposals", "proposals_cut", "frames_cut"} (what stage 2's default budget would cut),
+   "config": {every Stage1Config parameter}, "per_frame": [{"frame", "points", "proposals", "proposals_cut", "ms",
+   "ring_source", ...}]}
 A metric without data is null (no ground truth of that kind, no foreground points).
+
+--param KEY=VALUE: KEY as the cluster node names it (stage1.sensor) or bare (sensor); VALUE read by the parameter's
+type: a number, true / false, a name without quotes (sensor=pandar64), three numbers (enlarge=0.1,0.1,0.4 or
+[0.1,0.1,0.4]); Python literals ('pandar64', (0.1, 0.1, 0.4)) still work. Frames of one --data are a stream: a scan
+in no firing order and without a ring field searches its laser lines once and the following frames reuse them (as
+the cluster node does), so stage-1 times from the second frame on are a live stream's.
 Exit status: 0 done; 1 a live run lost frames it should not have (lockstep drops, mismatched outputs);
 2 bad arguments, unusable data or weights.
 """
@@ -67,6 +77,7 @@ import json
 import sys
 from pathlib import Path
 
+from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
@@ -98,7 +109,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the summary as JSON here")
     parser.add_argument("--limit", type=int, metavar="N", help="at most N frames from each spec (not with --live)")
     parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a Stage1Config parameter, repeatable (e.g. th_dist=0.25)")
+                        help="override a Stage1Config parameter, repeatable (e.g. th_dist=0.25, "
+                             "stage1.sensor=pandar64, enlarge=0.1,0.1,0.4)")
+    parser.add_argument("--max-proposals", type=int, default=DEFAULT_MAX_PROPOSALS, metavar="N",
+                        help=f"stage 2's budget: at most N proposals per frame, the nearest first; the others are "
+                             f"cut, counted and reported (default {DEFAULT_MAX_PROPOSALS}, the node's max_proposals; "
+                             "not with --live)")
     parser.add_argument("--per-frame", action="store_true", help="print one row per frame too")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     live = parser.add_argument_group("live mode")
@@ -118,12 +134,16 @@ def _check_args(args: argparse.Namespace) -> str:
         raise EvaluationError("--limit must be >= 1")
     if args.threads < 1:
         raise EvaluationError(f"--threads must be >= 1, got {args.threads}")
+    if args.max_proposals < 1:
+        raise EvaluationError(f"--max-proposals must be >= 1, got {args.max_proposals}")
     mode = "live" if args.live else "stage1" if args.stage1_only else "full"
     live_only = [name for name, given in (("--lockstep", args.lockstep), ("--record-out", args.record_out),
                                           ("--rate", args.rate != 1.0), ("--timeout", args.timeout != 30.0),
                                           ("--force", args.force)) if given]
     if mode != "live" and live_only:
         raise EvaluationError(f"{', '.join(live_only)} only apply with --live")
+    if mode == "live" and args.max_proposals != DEFAULT_MAX_PROPOSALS:
+        raise EvaluationError("--max-proposals does not apply with --live (the node's parameter max_proposals)")
     if mode == "live" and args.limit is not None:
         raise EvaluationError("--limit does not apply with --live (choose the frames in the spec or bag)")
     if mode == "stage1" and (args.classifier or args.weights):
@@ -137,9 +157,11 @@ def run(args: argparse.Namespace) -> tuple[str, dict, int]:
     mode = _check_args(args)
     config = parse_params(args.param)
     if mode == "stage1":
-        return mode, evaluate_stage1(iter_frames(datasets, args.limit, not args.no_progress), config), 0
+        frames = iter_frames(datasets, args.limit, not args.no_progress)
+        return mode, evaluate_stage1(frames, config, args.max_proposals), 0
     limit_threads(args.threads)
-    classifier = open_classifier(args.weights, args.classifier, device=args.device)  # --live: checked before the run
+    classifier = open_classifier(args.weights, args.classifier, device=args.device,
+                                 max_proposals=args.max_proposals)  # --live: checked before the run
     kind, weights = classifier.kind, classifier.weights
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
     if mode == "full":

@@ -1,7 +1,7 @@
 """`pass3d_segment`: label every point of every frame offline (stage 1 + stage 2), no ROS needed.
 
     pass3d_segment --data SPEC [--data ...] --out DIR [--weights W] [--classifier network|size_rules]
-                   [--param KEY=VALUE ...] [--threads N] [--no-png] [--force] [--no-progress]
+                   [--param KEY=VALUE ...] [--max-proposals N] [--threads N] [--no-png] [--force] [--no-progress]
 
 Writes, per frame, `labels/NAME.label` in SemanticKITTI's format (one little-endian uint32 per point, in
 the scan's point order, instance bits 0) and, unless --no-png, `bev/NAME.png`, a bird's-eye picture: the
@@ -9,7 +9,10 @@ prediction coloured by class with its object boxes, beside the ground truth when
 the reader's frame name. With several --data, each gets its own folder `OUT/NN/` (NN = position of the --data,
 from 00) so equal frame names cannot collide. `OUT/summary.json` records the
 inputs, the classifier, times per stage and, when the data has ground-truth labels, per-class precision,
-recall and IoU. `--param KEY=VALUE` (repeatable) overrides a stage-1 parameter, as in pass3d_evaluate.
+recall and IoU, and how many proposals stage 2's budget (max_proposals, nearest first) cut ("budget"). `--param
+KEY=VALUE` (repeatable) overrides a stage-1 parameter, as in pass3d_evaluate (stage1.sensor=pandar64 or
+sensor=pandar64). The frames of one --data are a stream: laser lines found on one scan are reused by the next
+(pass3d_ros.core.held_lines).
 
 The output is built in a hidden sibling folder (`.DIR.partial-PID`) and moved into DIR only when every frame and
 the summary are written, so a failed or interrupted run leaves DIR as it was (one left by a killed run is removed by
@@ -40,13 +43,15 @@ import numpy as np
 from tqdm import tqdm
 
 from pass3d_ros.classes import NUM_CLASSES
+from pass3d_ros.core.held_lines import LineHolder
 from pass3d_ros.core.metrics import ConfusionAccumulator, format_metrics
-from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
+from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS
+from pass3d_ros.core.stage1 import Stage1Config, proposal_members
 from pass3d_ros.core.stage2 import CLASSIFIERS, Classifier, open_classifier
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.evaluation.bev import frame_picture, write_png
-from pass3d_ros.evaluation.offline import parse_params
+from pass3d_ros.evaluation.offline import BudgetCuts, parse_params
 from pass3d_ros.tools.cli import USER_ERRORS, check_writable, partial_path, remove_stale_partials, run_tool
 
 SEMANTIC_KITTI_IDS: np.ndarray = np.array([0, 10, 30, 31], dtype=np.uint32)  # by class id: bg, car, ped, cyc
@@ -68,6 +73,8 @@ class SegmentStats:
     stage2_ms: list[float] = field(default_factory=list)
     confusion: ConfusionAccumulator = field(default_factory=ConfusionAccumulator)
     labeled_frames: int = 0
+    budget: BudgetCuts = field(default_factory=BudgetCuts)  # proposals stage 2's max_proposals cut
+    lines: LineHolder = field(default_factory=LineHolder)  # laser lines held across the frames of one --data
 
 
 def to_semantic_kitti(labels: np.ndarray) -> np.ndarray:
@@ -134,7 +141,7 @@ def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Cl
     """Every frame's labels (and PNG) into `build`; `stats.folders` names where they will be, under `out`."""
     counts = [dataset.count() for dataset in datasets]
     total = None if None in counts else sum(c for c in counts if c is not None)
-    stats = SegmentStats()
+    stats = SegmentStats(budget=BudgetCuts(classifier.max_proposals))
     with tqdm(total=total, unit="frame", desc="segment", disable=None if progress else True) as bar:
         for position, dataset in enumerate(datasets):
             sub = "." if len(datasets) == 1 else f"{position:02d}"
@@ -144,6 +151,7 @@ def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Cl
                 (folder / "bev").mkdir(exist_ok=True)
             stats.folders.append(str(out if len(datasets) == 1 else out / sub))
             seen: set[str] = set()
+            stats.lines.follow(position)
             for frame in dataset.frames():
                 name = _safe_name(frame.name)
                 if name in seen:
@@ -201,9 +209,11 @@ def _segment_frame(
         stats.stage1_ms.append(0.0)
         stats.stage2_ms.append(0.0)
         return labels, cluster_id
-    result = propose(pts, rng, config)
+    result = stats.lines.propose(pts, rng, config)
     started = time.perf_counter()
-    predicted = classifier.segment(pts, proposal_members(result.cluster_id, result.cluster_id2)).labels
+    members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
+    stats.budget.add(sum(1 for m in members if len(m) > 0))
+    predicted = classifier.segment(pts, members).labels
     stats.stage2_ms.append(1e3 * (time.perf_counter() - started))
     stats.stage1_ms.append(result.timings_ms["total"])
     if keep is None:
@@ -229,6 +239,7 @@ def summary(stats: SegmentStats, specs: Sequence[str], kind: str, weights: str |
         "frames": stats.frames,
         "points": stats.points,
         "ms_per_frame": {"stage1": _median(stats.stage1_ms), "stage2": _median(stats.stage2_ms)},
+        "budget": stats.budget.summary(),
         "labeled_frames": stats.labeled_frames,
         "per_class": metrics["per_class"] if metrics else None,
         "mean_iou": metrics["mean_iou"] if metrics else None,
@@ -245,7 +256,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
     parser.add_argument("--device", default="cpu", help="torch device for the network (default cpu)")
     parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a Stage1Config parameter, repeatable (e.g. th_dist=0.25)")
+                        help="override a Stage1Config parameter, repeatable (e.g. th_dist=0.25, "
+                             "stage1.sensor=pandar64)")
+    parser.add_argument("--max-proposals", type=int, default=DEFAULT_MAX_PROPOSALS, metavar="N",
+                        help=f"stage 2's budget: at most N proposals per frame, the nearest first; the others are cut "
+                             f"(their points background), counted and reported (default {DEFAULT_MAX_PROPOSALS})")
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS, metavar="N",
                         help=f"CPU threads: torch, OpenMP, OpenBLAS (default {DEFAULT_THREADS})")
     parser.add_argument("--no-png", action="store_true", help="skip the bird's-eye-view PNGs")
@@ -271,8 +286,10 @@ def _run(args: argparse.Namespace, log: Callable[[str], None]) -> int:
     config = parse_params(args.param)
     if args.threads < 1:
         raise SegmentError(f"--threads must be >= 1, got {args.threads}")
+    if args.max_proposals < 1:
+        raise SegmentError(f"--max-proposals must be >= 1, got {args.max_proposals}")
     limit_threads(args.threads)
-    classifier = open_classifier(args.weights, args.classifier, device=args.device)
+    classifier = open_classifier(args.weights, args.classifier, device=args.device, max_proposals=args.max_proposals)
     kind, weights = classifier.kind, classifier.weights
     started = time.perf_counter()
     stats = segment(args.data, out, classifier=classifier, config=config, png=not args.no_png, force=True,
@@ -282,6 +299,10 @@ def _run(args: argparse.Namespace, log: Callable[[str], None]) -> int:
     stage1, stage2 = report["ms_per_frame"]["stage1"], report["ms_per_frame"]["stage2"]
     log(f"segmented {stats.frames} frames ({stats.points} points) in {took:.1f} s with {kind}"
         + (f" ({weights})" if weights else "") + f"; median ms per frame: stage 1 {stage1:.1f}, stage 2 {stage2:.1f}")
+    budget = report["budget"]
+    if budget["proposals_cut"]:
+        log(f"proposals cut by the budget (max_proposals {budget['max_proposals']}, nearest first; their points "
+            f"labelled background): {budget['proposals_cut']} in {budget['frames_cut']} frame(s)")
     if report["per_class"]:
         log("\n".join(format_metrics(report["per_class"], report["mean_iou"])))
     log(f"labels: {', '.join(f + '/labels' for f in stats.folders)}"

@@ -23,9 +23,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.evaluation.offline import parse_params
-from pass3d_ros.tools.cli import check_writable, run_tool
+from pass3d_ros.tools.cli import EXIT_SIGINT, EXIT_SIGTERM, check_writable, run_tool
 from pass3d_ros.training import distributed, launcher
 from pass3d_ros.training.samples import Proposer
 from pass3d_ros.training.trainer import FrameSource, PeerLostError, Trainer, TrainingError, TrainOptions
@@ -136,21 +135,16 @@ def _interrupted(trainer: Trainer) -> str:
     return f"interrupted; last checkpoint written: {trainer.last_path} (epoch {trainer.saved_epoch})"
 
 
-def _stage1(args: argparse.Namespace) -> Stage1Config:
-    """The stage-1 parameters of --param; ConfigError for a bad one."""
-    return parse_params(args.param)
-
-
 def _launch(args: argparse.Namespace, argv: list[str]) -> int:
     """--nproc N: check what can be checked once, then run N workers of this command line (see launcher)."""
-    _stage1(args)
+    parse_params(args.param)  # a bad --param is reported once, before any worker starts
     check_writable(args.out, folder=True, what="--out folder")
     return launcher.launch("pass3d_ros.tools.train", argv, args.nproc, PROG)
 
 
 def _work(args: argparse.Namespace, holder: list[Trainer]) -> int:
     """Build the trainer (kept in `holder` for the interruption line) and train."""
-    holder.append(Trainer(options(args), command=sys.argv, stage1=_stage1(args)))
+    holder.append(Trainer(options(args), command=sys.argv, stage1=parse_params(args.param)))
     return _train(holder[0])
 
 
@@ -166,10 +160,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.nproc > 1 and distributed.world_size() == 1:
         return run_tool(PROG, lambda: _launch(args, argv))
     holder: list[Trainer] = []
-    quiet = contextlib.nullcontext() if distributed.reports() else contextlib.redirect_stderr(io.StringIO())
-    with quiet:
+
+    def work() -> int:
         return run_tool(PROG, lambda: _work(args, holder),
                         interrupted=lambda: _interrupted(holder[0]) if holder else "interrupted")
+
+    if distributed.reports():
+        return work()
+    silenced = io.StringIO()  # under torchrun a rank > 0 says nothing; its error goes to torchrun's summary
+    with contextlib.redirect_stderr(silenced):
+        status = work()
+    if status not in (0, EXIT_SIGINT, EXIT_SIGTERM):
+        distributed.record_error(silenced.getvalue())
+    return status
 
 
 if __name__ == "__main__":

@@ -1,23 +1,24 @@
-"""Data-parallel training under torchrun: the process group, who is who, and the few collectives the trainer uses.
+"""Data-parallel training: the process group, who is who, the few collectives the trainer uses, and a worker's life.
 
-`torchrun --nproc_per_node N -m pass3d_ros.tools.train ...` starts N processes with RANK, WORLD_SIZE and
-LOCAL_RANK set; `setup` joins them into one process group (gloo for a CPU device, nccl for CUDA). Without
-torchrun (no WORLD_SIZE, or WORLD_SIZE=1) nothing is initialised and every helper is the single-process no-op,
-so a plain run is unchanged. A worker dies with its launcher (`die_with_parent`), and only rank 0 reports
-(`reports`), unless pass3d_train's own launcher (`--nproc`) collects every rank's report itself.
-"""
+`pass3d_train --nproc N` (pass3d_ros.training.launcher) or `torchrun --nproc_per_node N -m pass3d_ros.tools.train
+...` starts N processes with RANK, WORLD_SIZE and LOCAL_RANK set; `setup` joins them into one process group (gloo for
+a CPU device, nccl for CUDA). Without a launcher (no WORLD_SIZE, or WORLD_SIZE=1) nothing is initialised and every
+helper is the single-process no-op, so a plain run is unchanged. A worker dies with its launcher (`die_with_parent`),
+and only rank 0 reports (`reports`), unless pass3d_train's own launcher collects every rank's report itself."""
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
 import datetime
+import json
 import os
 import signal
 import sys
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -84,6 +85,15 @@ def is_peer_loss(exc: BaseException) -> bool:
     if isinstance(exc, dist.DistError):
         return True
     return isinstance(exc, RuntimeError) and any(marker in str(exc) for marker in PEER_LOSS_MARKERS)
+
+
+def record_error(text: str) -> None:
+    """Under torchrun, hand a silent rank's report to torchrun's failure summary (its TORCHELASTIC_ERROR_FILE)."""
+    path = os.environ.get("TORCHELASTIC_ERROR_FILE")
+    lines = text.strip().splitlines()
+    if path and lines:
+        with contextlib.suppress(OSError):
+            Path(path).write_text(json.dumps({"message": lines[-1], "timestamp": int(time.time())}))
 
 
 def die_with_parent() -> None:

@@ -20,6 +20,7 @@ from tqdm import tqdm
 from pass3d_ros.classes import BACKGROUND, IGNORE, NUM_CLASSES
 from pass3d_ros.core import canonical
 from pass3d_ros.core.config import Stage1Config
+from pass3d_ros.core.held_lines import LineHolder
 from pass3d_ros.core.pointnet2 import ModelConfig
 from pass3d_ros.core.segmentation import prepare_proposals, uses_intensity
 from pass3d_ros.data.frame import Frame
@@ -29,11 +30,14 @@ CACHE_VERSION = 1
 Proposer = Callable[[Frame], list[np.ndarray]]
 
 
-def stage1_proposer(frame: Frame, config: Stage1Config | None = None) -> list[np.ndarray]:
-    """Member indices of the stage-1 proposals of a frame (the real pipeline, with `config` or the defaults)."""
-    from pass3d_ros.core.stage1 import proposal_members, propose
+def stage1_proposer(frame: Frame, config: Stage1Config | None = None, lines: LineHolder | None = None
+                    ) -> list[np.ndarray]:
+    """Member indices of the stage-1 proposals of a frame (the real pipeline, with `config` or the defaults).
+    `lines`: the laser lines held across the frames (pass3d_ros.core.held_lines), so a stream in no firing order and
+    without a ring field searches them once, not on every frame."""
+    from pass3d_ros.core.stage1 import proposal_members
 
-    result = propose(frame.points, ring=frame.ring, config=config)
+    result = (lines or LineHolder()).propose(frame.points, frame.ring, config)
     return proposal_members(result.cluster_id, result.cluster_id2)
 
 
@@ -162,7 +166,7 @@ def build_samples(
     """Run the proposer (default: stage 1 with the `stage1` parameters) on every frame and collect its proposals; a
     proposal without any foreground point is kept with probability `background_keep` (seeded). shard=(i, n): only
     frames i, i + n, i + 2n, ... (still read in turn), with the background draws seeded by (seed, i)."""
-    proposer = proposer or functools.partial(stage1_proposer, config=stage1)
+    proposer = proposer or functools.partial(stage1_proposer, config=stage1, lines=LineHolder())
     index_in_shard, shards = shard
     rng = np.random.default_rng(seed if shards == 1 else [seed, index_in_shard])
     if shards > 1:

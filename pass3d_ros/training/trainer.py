@@ -5,16 +5,16 @@ output folder the sample caches, `last.pt` (with optimizer and scheduler state, 
 (the highest validation mean IoU over car, pedestrian and cyclist; without validation data, the lowest
 training loss) and `history.json`.
 
-Data-parallel (under torchrun, see pass3d_ros.training.distributed): every process runs stage 1 on its share of
-the frames (frame i goes to rank i mod N) and the shares are all-gathered, so every rank holds the whole sample set
-and every epoch visits each sample once. `batch_size` is global, proposals per optimizer step over all processes:
-each rank takes every N-th proposal of the step's batch and DistributedDataParallel averages the gradients, so
-a step is the single-process step up to augmentation noise and BatchNorm statistics. BatchNorm stays per-process
-(no SyncBatchNorm: it does not run on CPU/gloo, and a process's share of a batch still holds thousands of points
-per channel); DDP broadcasts rank 0's running statistics at every forward, and checkpoints hold rank 0's. The
+Data-parallel (pass3d_train --nproc or torchrun, see pass3d_ros.training.distributed): every process runs stage 1
+on its share of the frames (frame i goes to rank i mod N) and the shares are all-gathered, so every rank holds the
+whole sample set and every epoch visits each sample once. `batch_size` is global, proposals per optimizer step over
+all processes: each rank takes every N-th proposal of the step's batch and DistributedDataParallel averages the
+gradients, so a step is the single-process step up to augmentation noise and BatchNorm statistics. BatchNorm stays
+per-process (no SyncBatchNorm: it does not run on CPU/gloo, and a process's share of a batch still holds thousands of
+points per channel); DDP broadcasts rank 0's running statistics at every forward, and checkpoints hold rank 0's. The
 shuffle order is seeded by (seed, epoch) on every rank; augmentation and dropout by seed + rank. Rank 0 alone
 validates, logs, draws progress bars and writes checkpoints (plain, without the `module.` prefix) and history; a
-sharded sample cache is named apart from the single-process one. Without torchrun nothing of this happens.
+sharded sample cache is named apart from the single-process one. In a plain run nothing of this happens.
 """
 
 from __future__ import annotations

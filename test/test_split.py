@@ -1,0 +1,126 @@
+"""Split instead of drop (pass3d_ros.core.split): clusters failing only the footprint gate are cut at their gaps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_stage1 import SENSOR_HEIGHT, Solid, raycast
+
+from pass3d_ros.core import split
+from pass3d_ros.core.refinement import min_area_rectangle
+from pass3d_ros.core.stage1 import Stage1Config, propose
+
+KITTI_CAR = (3.88, 1.63, 1.53)  # mean KITTI car box (DESIGN.md)
+
+
+def parked_row(gap: float, y: float, n: int = 3, x0: float = 3.0) -> list[Solid]:
+    """n KITTI-sized cars parked end to end along x, `gap` metres apart, their near side at |y| - width / 2."""
+    length, _, height = KITTI_CAR
+    return [Solid((x0 + i * (length + gap) + length / 2, y, -SENSOR_HEIGHT + height / 2), KITTI_CAR)
+            for i in range(n)]
+
+
+def car_sized(result) -> list[np.ndarray]:
+    """Box sizes of the proposals as long as a car (2-6.5 m, SizeRules' car length)."""
+    return [b.size for b in result.boxes if 2.0 <= b.size[0] <= 6.5]
+
+
+def car_recall(points: np.ndarray, ring: np.ndarray, hit: np.ndarray, on: bool):
+    result = propose(points, ring, Stage1Config(split_merged=on))
+    return result, float((result.cluster_id[hit >= 0] >= 0).mean())
+
+
+@pytest.mark.parametrize(("gap", "y"), [(0.5, -3.0), (0.5, -4.0), (0.75, -3.0), (0.75, -4.0)])
+def test_cars_end_to_end_become_separate_proposals(gap: float, y: float) -> None:
+    points, ring, hit = raycast(parked_row(gap, y), n_az=2000)
+    before, recall_before = car_recall(points, ring, hit, on=False)
+    after, recall_after = car_recall(points, ring, hit, on=True)
+    # Without the split the row chains into one cluster too long for any road user: (nearly) all dropped.
+    assert recall_before < 0.1
+    assert before.n_split == 0
+    # With it the row is cut at both gaps: three car-long proposals, one per car, holding all car points.
+    assert after.n_split == 1
+    assert recall_after > 0.99
+    assert len(car_sized(after)) == 3
+    for box in car_sized(after):
+        assert abs(box[0] - KITTI_CAR[0]) < 0.3
+    owners = []
+    for i in range(3):  # each car is (nearly all) one proposal of its own
+        ids, counts = np.unique(after.cluster_id[hit == i], return_counts=True)
+        assert ids[np.argmax(counts)] >= 0 and counts.max() >= 0.95 * counts.sum()
+        owners.append(ids[np.argmax(counts)])
+    assert len(set(owners)) == 3
+
+
+def test_single_car_untouched() -> None:
+    points, ring, hit = raycast(parked_row(0.5, -4.0, n=1), n_az=2000)
+    before, _ = car_recall(points, ring, hit, on=False)
+    after, _ = car_recall(points, ring, hit, on=True)
+    assert after.n_split == 0
+    assert len(after.boxes) == len(before.boxes) == 1
+    np.testing.assert_array_equal(after.cluster_id, before.cluster_id)
+
+
+@pytest.mark.parametrize("height", [1.2, 1.5, 2.0])
+def test_long_wall_yields_no_new_car_sized_proposal(height: float) -> None:
+    """A 15 m wall of car height has no gap: it stays one cluster, dropped as before."""
+    wall = Solid((4.0 + 7.5, -4.0, -SENSOR_HEIGHT + height / 2), (15.0, 0.2, height))
+    points, ring, _ = raycast([wall], n_az=2000)
+    before = propose(points, ring, Stage1Config(split_merged=False))
+    after = propose(points, ring, Stage1Config(split_merged=True))
+    assert after.n_split == 0
+    assert len(car_sized(after)) == len(car_sized(before))
+    np.testing.assert_array_equal(after.cluster_id, before.cluster_id)
+
+
+def cut_whole(pts: np.ndarray, label: np.ndarray, n_clusters: int) -> tuple:
+    """split.cut_at_gaps on the last cluster, with its minimal-area rectangle."""
+    c = n_clusters - 1
+    rect = np.array([min_area_rectangle(pts[label == c, :2])])
+    return split.cut_at_gaps(pts, label, n_clusters, np.array([c]), rect, Stage1Config())
+
+
+def test_sparse_far_surface_is_not_cut() -> None:
+    """Holes as wide as split_gap from point spacing alone (a surface far away) are no gap: one cluster of points
+    0.45 m apart along a 12 m line stays whole."""
+    x = np.arange(0.0, 12.0, 0.45) + 30.0
+    pts = np.zeros((2 * len(x), 4), dtype=np.float32)
+    pts[:, 0] = np.repeat(x, 2)
+    pts[:, 1] = 5.0
+    pts[:, 2] = np.tile([-1.6, -0.5], len(x))
+    label = np.zeros(len(pts), dtype=np.int32)
+    out, n, cut = cut_whole(pts, label, 1)
+    assert cut == 0 and n == 1
+    np.testing.assert_array_equal(out, label)
+
+
+def test_split_parts_get_new_ids_and_count() -> None:
+    """Two dense 4 m walls 1 m apart in one cluster: cut once, each part takes a new id after the old ones."""
+    x = np.concatenate([np.linspace(5.0, 9.0, 200), np.linspace(10.0, 14.0, 200)])
+    pts = np.zeros((400, 4), dtype=np.float32)
+    pts[:, 0] = x
+    pts[:, 1] = 3.0
+    pts[:, 2] = np.tile([-1.6, -0.4], 200)
+    label = np.full(400, 4, dtype=np.int32)
+    label[:3] = -1  # unclustered points stay so
+    out, n, cut = cut_whole(pts, label, 5)
+    assert cut == 1 and n == 7
+    assert (out[:3] == -1).all()
+    assert (out[3:200] == 5).all() and (out[200:] == 6).all()
+
+
+def test_old_proposals_stay_first_and_unchanged() -> None:
+    """On a synthetic street (frame 3 of seed 7, where a cut part passes the gates), the proposals without the split
+    come first with the split, the same boxes; the cut parts' proposals follow."""
+    from pass3d_ros.synthetic.dataset import generate_frame
+
+    frame = generate_frame(7, 3)
+    before = propose(frame.points, frame.ring, Stage1Config(split_merged=False))
+    after = propose(frame.points, frame.ring, Stage1Config(split_merged=True))
+    assert after.n_split >= 1 and len(after.boxes) > len(before.boxes)
+    for a, b in zip(before.boxes, after.boxes, strict=False):
+        np.testing.assert_allclose(a.center, b.center)
+        np.testing.assert_allclose(a.size, b.size)
+        assert a.yaw == b.yaw
+    old = before.cluster_id >= 0
+    np.testing.assert_array_equal(after.cluster_id[old], before.cluster_id[old])
