@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.logging import LoggingSeverity
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from test_nodes import STAMP0, Collector, Ros, connect, wait_until
@@ -116,6 +117,7 @@ def test_a_killed_stage2_process_is_restarted_and_frames_labeled_again(
     ros: Ros, columns: dict[str, np.ndarray], capfd: pytest.CaptureFixture[str]
 ) -> None:
     node, labeled, pub = start(ros, classifier="size_rules", process=True)
+    node.get_logger().set_level(LoggingSeverity.INFO)  # another test may have raised the shared logger's level
     diagnostics = Collector(ros, DiagnosticArray, "/diagnostics")
     name = node.get_name()
 

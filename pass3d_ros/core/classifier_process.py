@@ -260,10 +260,11 @@ class ProcessClassifier:
                     _stop(child.process, child.conn)
                     return None
                 down = self.down_for() or 0.0
+                # reported before the child serves, so that the log line comes before its first frame
+                self._report("info", f"stage 2 restarted in process {child.pid} (restart {self.restarts + 1}, down "
+                                     f"{down:.1f} s, load + warm-up {1e3 * (time.perf_counter() - started):.0f} ms)")
                 self._child, self._down_since = child, None
                 self.pid, self.restarts = child.pid, self.restarts + 1
-            self._report("info", f"stage 2 restarted in process {child.pid} (restart {self.restarts}, down "
-                                 f"{down:.1f} s, load + warm-up {1e3 * (time.perf_counter() - started):.0f} ms)")
             return child
 
     def close(self) -> None:
