@@ -36,6 +36,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from pass3d_ros.data.errors import DatasetError
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
 from pass3d_ros.msgs.pointcloud2 import (
     POINTCLOUD2_TYPE,
     PointCloud2Error,
@@ -299,8 +300,8 @@ class BagWriter:
     def open(self) -> BagWriter:
         """Create the hidden build folder and open the rosbags writer in it."""
         self.out.parent.mkdir(parents=True, exist_ok=True)
-        self._remove_stale_partials()
-        self._tmp = Path(tempfile.mkdtemp(prefix=self._partial_prefix, dir=self.out.parent))
+        remove_stale(self.out, lambda p: p.is_dir() and _is_stale(p), self.log, "unfinished build folder(s)")
+        self._tmp = Path(tempfile.mkdtemp(prefix=partial_prefix(self.out), dir=self.out.parent))
         try:
             (self._tmp / OWNER_FILE).write_text(f"{os.getpid()}\n")
             plugin = STORAGES[self.storage]
@@ -310,21 +311,6 @@ class BagWriter:
             self.abort()
             raise
         return self
-
-    @property
-    def _partial_prefix(self) -> str:
-        return f".{self.out.name}.partial-"
-
-    def _remove_stale_partials(self) -> None:
-        """Delete build folders of this bag left by a writer that no longer runs; say so in one line."""
-        stale = [p for p in self.out.parent.iterdir()
-                 if p.name.startswith(self._partial_prefix) and p.is_dir() and not p.is_symlink() and _is_stale(p)]
-        for path in stale:
-            shutil.rmtree(path, ignore_errors=True)
-        if stale:
-            names = ", ".join(sorted(p.name for p in stale))
-            self.log(f"note: removed {len(stale)} unfinished build folder(s) of {self.out} left by an earlier "
-                     f"interrupted run: {names}")
 
     def write_raw(self, topic: str, msgtype: str, stamp_ns: int, data: bytes | memoryview) -> None:
         """Append one CDR-serialized message at bag time `stamp_ns`."""
@@ -407,12 +393,4 @@ def _is_stale(partial: Path) -> bool:
             return time.time() - partial.stat().st_mtime > OWNERLESS_GRACE_S
         except OSError:
             return False
-    if pid == os.getpid():
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except PermissionError:
-        return False
-    return False
+    return process_gone(pid)

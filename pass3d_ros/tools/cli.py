@@ -7,7 +7,6 @@ A tool's `main` parses its arguments and hands the work to `run_tool`; nothing h
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import sys
 import tempfile
@@ -22,6 +21,7 @@ from pass3d_ros.core.config import ConfigError
 from pass3d_ros.core.segmentation import CheckpointError
 from pass3d_ros.core.stage2 import ClassifierError
 from pass3d_ros.data.bag import BagError
+from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
 from pass3d_ros.data.spec import DatasetError
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error
 
@@ -114,40 +114,18 @@ def check_writable(path: str | Path, *, folder: bool, what: str = "output") -> N
 
 def partial_path(out: Path) -> Path:
     """The hidden sibling this process builds `out` in (`.NAME.partial-PID`), renamed into place when complete."""
-    return out.with_name(f".{out.name}.partial-{os.getpid()}")
+    return out.with_name(f"{partial_prefix(out)}{os.getpid()}")
 
 
-def remove_stale_partials(out: Path, log: Callable[[str], None] | None = None) -> list[Path]:
-    """Delete the `.NAME.partial-PID` siblings of `out` whose process is gone (a killed run), files or folders;
-    say so in one line on stderr (or through `log`). Returns what it removed."""
-    prefix = f".{out.name}.partial-"
-    parent = out.parent if out.parent.is_dir() else None
-    stale = [p for p in (parent.iterdir() if parent else ())
-             if p.name.startswith(prefix) and not p.is_symlink() and _owner_gone(p.name[len(prefix):])]
-    for path in stale:
-        if path.is_dir():
-            shutil.rmtree(path, ignore_errors=True)
-        else:
-            path.unlink(missing_ok=True)
-    if stale:
-        names = ", ".join(sorted(p.name for p in stale))
-        (log or (lambda text: print(text, file=sys.stderr)))(
-            f"note: removed {len(stale)} unfinished output(s) of {out} left by an earlier killed run: {names}")
-    return stale
+def remove_stale_partials(out: Path) -> list[Path]:
+    """Delete the `partial_path` siblings of `out` whose process is gone (a killed run), saying so on stderr."""
+    prefix = partial_prefix(out)
 
+    def stale(path: Path) -> bool:
+        pid = path.name[len(prefix):]
+        return pid.isdigit() and process_gone(int(pid))
 
-def _owner_gone(pid_text: str) -> bool:
-    """Whether the process `pid_text` names has ended (False for this process, one of another user's, or a name
-    that is no process id)."""
-    if not pid_text.isdigit() or int(pid_text) == os.getpid():
-        return False
-    try:
-        os.kill(int(pid_text), 0)
-    except ProcessLookupError:
-        return True
-    except (PermissionError, OverflowError):
-        return False
-    return False
+    return remove_stale(out, stale, lambda text: print(text, file=sys.stderr))
 
 
 def run_tool(
