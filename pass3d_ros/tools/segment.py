@@ -118,7 +118,7 @@ def segment(
     remove_stale_partials(out.resolve())
     build.mkdir(parents=True)
     try:
-        stats = _segment_all(datasets, out, build, classifier, config or Stage1Config(), png, progress)
+        stats = _segment_all(datasets, out, build, classifier, config, png, progress)
         report = summary(stats, [str(spec) for spec in specs], classifier.kind, classifier.weights)
         (build / SUMMARY).write_text(json.dumps(report, indent=2) + "\n")
         _move_into_place(build, out)
@@ -136,8 +136,8 @@ def build_folder(out: Path) -> Path:
     return partial_path(resolved)
 
 
-def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Classifier, config: Stage1Config,
-                 png: bool, progress: bool) -> SegmentStats:
+def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Classifier,
+                 config: Stage1Config | None, png: bool, progress: bool) -> SegmentStats:
     """Every frame's labels (and PNG) into `build`; `stats.folders` names where they will be, under `out`."""
     counts = [dataset.count() for dataset in datasets]
     total = None if None in counts else sum(c for c in counts if c is not None)
@@ -195,7 +195,8 @@ def _move_into_place(build: Path, out: Path) -> None:
 
 
 def _segment_frame(
-    points: np.ndarray, ring: np.ndarray | None, classifier: Classifier, stats: SegmentStats, config: Stage1Config
+    points: np.ndarray, ring: np.ndarray | None, classifier: Classifier, stats: SegmentStats,
+    config: Stage1Config | None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Labels and proposal ids (-1 none) of one scan; NaN points (as KITTI raw may hold) are background in no
     proposal and never reach the core."""
