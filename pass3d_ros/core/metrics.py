@@ -82,6 +82,20 @@ def bootstrap_iou(
             "mean_iou": _interval(mean, frames, resamples, level)}
 
 
+def bootstrap_ratio(numerator: np.ndarray, denominator: np.ndarray, resamples: int = BOOTSTRAP_RESAMPLES,
+                    level: float = BOOTSTRAP_LEVEL, seed: int = BOOTSTRAP_SEED) -> dict:
+    """Frame bootstrap interval of sum(numerator) / sum(denominator) over frames (one count of each per frame),
+    drawn as `bootstrap_iou` draws frames."""
+    num, den = np.asarray(numerator, dtype=np.float64), np.asarray(denominator, dtype=np.float64)
+    frames = len(num)
+    if frames == 0:
+        return _interval(np.full(resamples, np.nan), 0, resamples, level)
+    weights = np.random.default_rng(seed).multinomial(frames, np.full(frames, 1.0 / frames), size=resamples)
+    top, bottom = weights @ num, weights @ den
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return _interval(np.where(bottom > 0, top / bottom, np.nan), frames, resamples, level)
+
+
 class ConfusionAccumulator:
     """Point-wise confusion matrix over the project's classes; rows ground truth, columns prediction."""
 
@@ -312,11 +326,11 @@ class SegmentationMetrics:
         }
 
 
-def _pct(value: float | None) -> str:
+def percent_text(value: float | None) -> str:
     return "   n/a" if value is None else f"{100 * value:6.1f}"
 
 
-def _span(interval: dict | None) -> str:
+def interval_text(interval: dict | None) -> str:
     if interval is None or interval["low"] is None:
         return "[n/a]"
     return f"[{100 * interval['low']:.1f}, {100 * interval['high']:.1f}]"
@@ -332,11 +346,11 @@ def format_metrics(per_class: dict, mean_iou: float | None, mean_interval: dict 
              + f"{'points':>10}"]
     for name in CLASS_NAMES:
         row = per_class[name]
-        span = f"  {_span(row.get('interval')):<16}" if boot else ""
-        lines.append(f"{name:<12}{_pct(row['precision']):>8}{_pct(row['recall']):>10}{_pct(row['iou']):>8}{span}"
+        span = f"  {interval_text(row.get('interval')):<16}" if boot else ""
+        lines.append(f"{name:<12}{percent_text(row['precision']):>8}{percent_text(row['recall']):>10}{percent_text(row['iou']):>8}{span}"
                      f"{row['points']:>10}")
-    mean = f"mean IoU (car, pedestrian, cyclist): {_pct(mean_iou).strip()} %"
-    lines.append(mean + (f" {_span(mean_interval)}" if mean_interval is not None else ""))
+    mean = f"mean IoU (car, pedestrian, cyclist): {percent_text(mean_iou).strip()} %"
+    lines.append(mean + (f" {interval_text(mean_interval)}" if mean_interval is not None else ""))
     if boot and level:
         note = (f"intervals: {level['method']}, {level['resamples']} resamples of {level['frames']} frame(s), "
                 f"percentile, seed {BOOTSTRAP_SEED}")

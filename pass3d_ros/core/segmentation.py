@@ -314,6 +314,22 @@ class Segmenter:
         proposal_class[chosen] = proposal_majority(batch.query_batch, pred, len(chosen), self.config.num_classes)
         return SegmentResult(labels, confidence, proposal_class)
 
+    def view_classes(self, points: np.ndarray, members: list[np.ndarray]) -> np.ndarray:
+        """The class of each non-empty proposal (P, 8) int16 in each of the 8 canonical views (the same sampled
+        points, the box seen from each bottom vertex and mirrored): a well-learned object reads the same in all 8,
+        so their agreement measures how at home the network is on data without labels."""
+        points = np.asarray(points, dtype=np.float32)
+        members = [np.asarray(m) for m in members if len(m) > 0]
+        out = np.zeros((len(members), canonical.NUM_VIEWS), dtype=np.int16)
+        if not members:
+            return out
+        boxes = canonical.fit_box_members(points, members)
+        for view in range(canonical.NUM_VIEWS):
+            batch = prepare_proposals(points, members, self.config, views=np.full(len(members), view), boxes=boxes)
+            pred = predict_probabilities(self.model, batch, self.device).argmax(axis=1)
+            out[:, view] = proposal_majority(batch.query_batch, pred, len(members), self.config.num_classes)
+        return out
+
     def warm_up(self) -> None:
         """Compile the numba kernels (on-disk cache after the first time) and run a dummy frame through the
         whole path once (allocations, lazy initialisation)."""

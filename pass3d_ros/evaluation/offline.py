@@ -17,6 +17,8 @@ from tqdm import tqdm
 from pass3d_ros.classes import BACKGROUND, IGNORE
 from pass3d_ros.core.config import ConfigError, config_from_text
 from pass3d_ros.core.held_lines import LineHolder
+from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
+from pass3d_ros.core.intensity_match import StreamIntensityMatch
 from pass3d_ros.core.metrics import SegmentationMetrics, Stage1Metrics
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, proposals_cut
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
@@ -120,9 +122,33 @@ def background_proposals(points: np.ndarray, truth: np.ndarray, members: list[np
     return total, called
 
 
-def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, classifier: Classifier) -> dict:
+class StreamIntensity:
+    """The intensity map of each spec (one sensor: pass3d_ros.core.intensity_match), as the segmentation node holds
+    one per stream; `maps` says what each spec got."""
+
+    def __init__(self, enabled: bool, classifier: Classifier) -> None:
+        self.enabled = enabled and classifier.kind != "size_rules"
+        self.maps: dict[str, str] = {}
+        self._match = StreamIntensityMatch()
+        self._spec: str | None = None
+
+    def __call__(self, spec: str, points: np.ndarray) -> np.ndarray:
+        """`points` with intensities on the training scale (the same array when nothing changes)."""
+        if not self.enabled:
+            return points
+        if spec != self._spec:
+            self._match.reset()
+            self._spec = spec
+        self._match.update(points[:, 3])
+        if self._match.map is not None:
+            self.maps[spec] = str(self._match.map)
+        return self._match.on_training_scale(points)
+
+
+def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, classifier: Classifier,
+                  intensity_match: bool = INTENSITY_MATCH) -> dict:
     """Stage 1 then stage 2 on every frame, scored against its labels: per-class metrics, stage times,
-    and the stage-1 summary."""
+    and the stage-1 summary. Each spec's intensities go to stage 2 on the training scale (`intensity_match`)."""
     warm_up()
     classifier.warm_up()
     segmentation = SegmentationMetrics()
@@ -130,6 +156,7 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     background = np.zeros(2, dtype=np.int64)
     lines = LineHolder()
     budget = BudgetCuts(classifier.max_proposals)
+    intensity = StreamIntensity(intensity_match, classifier)
     for spec, frame in frames:
         lines.follow(spec)
         if frame.labels is None:
@@ -145,7 +172,7 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
         split = time.perf_counter()
         members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
         cut = budget.add(sum(1 for m in members if len(m) > 0))
-        segmented = classifier.segment(points, members)
+        segmented = classifier.segment(intensity(spec, points), members)
         done = time.perf_counter()
         labels = segmented.labels
         background += background_proposals(points, truth, members, segmented.proposal_class)
@@ -162,5 +189,6 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     summary["stage1"] = stage1.summary()["stage1"]
     summary["background_proposals"] = {"front_view": int(background[0]), "called_object": int(background[1])}
     summary["budget"] = budget.summary()
+    summary["intensity"] = intensity.maps
     summary["per_frame"] = segmentation.per_frame
     return summary

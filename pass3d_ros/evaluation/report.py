@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from pass3d_ros.classes import FOREGROUND
-from pass3d_ros.core.metrics import format_metrics
+from pass3d_ros.core.metrics import format_metrics, interval_text, percent_text
 from pass3d_ros.core.stage1 import STEPS
 from pass3d_ros.evaluation.live import LiveResult
 
@@ -140,6 +140,7 @@ def format_full(summary: dict, per_frame: bool = False) -> str:
         lines.append(f"background-only front-view proposals called an object: {background['called_object']} of "
                      f"{background['front_view']}")
     lines += _budget_line(summary.get("budget"))
+    lines += [f"intensity of {spec}: {text}" for spec, text in (summary.get("intensity") or {}).items()]
     if per_frame:
         lines.append("")
         lines.append(f"  {'frame':<48} {'points':>7} {'props':>5} {'s1 ms':>7} {'s2 ms':>7} {'mIoU':>6}")
@@ -160,4 +161,18 @@ def format_live(summary: dict, per_frame: bool = False) -> str:
     return "\n".join(lines)
 
 
-PRINTERS: dict[str, Callable[..., str]] = {"stage1": format_stage1, "full": format_full, "live": format_live}
+def format_agreement(summary: dict, per_frame: bool = False) -> str:
+    """Human-readable view agreement: per class, the share of proposals all 8 views agree on."""
+    lines = [f"view agreement over {summary['frames']} frame(s) (labels unused)", _classifier_line(summary)]
+    for name, row in summary["agreement"].items():
+        lines.append(f"  {name:<11} {percent_text(row['agreement']):>6} % of {row['proposals']:>5} proposals  "
+                     f"{interval_text(row['interval'])}")
+    lines.append("proposals counted under the class most of their 8 views give them; 90 % frame bootstrap intervals")
+    lines += [f"intensity of {spec}: {text}" for spec, text in (summary.get("intensity") or {}).items()]
+    if per_frame:
+        lines += [f"  {row['frame'][-48:]:<48} {row['proposals']:>5}" for row in summary["per_frame"]]
+    return "\n".join(lines)
+
+
+PRINTERS: dict[str, Callable[..., str]] = {"stage1": format_stage1, "full": format_full, "live": format_live,
+                                           "view_agreement": format_agreement}

@@ -14,6 +14,8 @@ from visualization_msgs.msg import MarkerArray
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN, packed_rgb
 from pass3d_ros.core.canonical import fit_box_members
 from pass3d_ros.core.classifier_process import ClassifierProcessDownError, ProcessClassifier
+from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
+from pass3d_ros.core.intensity_match import StreamIntensityMatch
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult, proposals_cut
 from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, open_classifier
@@ -45,6 +47,9 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
                 "defaults (1 is fastest on a busy 2-core CPU)", (0, 64)),
     "max_proposals": (DEFAULT_MAX_PROPOSALS, "at most this many proposals per frame, nearest first", (1, 1024)),
     "min_confidence": (0.0, "points predicted below this confidence are labeled background", (0.0, 1.0)),
+    "intensity_match": (INTENSITY_MATCH, "map the stream's intensities onto the training scale before the network "
+                        "(a quantile map fitted on the first scans, then held; a sensor already on that scale is left "
+                        "alone)", None),
     "overlap": (False, "pass3d_pipeline only: segment on this node's own thread, so stage 1 of the next scan "
                 "overlaps stage 2 (more frames per second with a spare core; far fewer when the CPU is shared)", None),
     "process": (False, "run the classifier in a child process (with overlap: stage 2 beside stage 1 without sharing "
@@ -198,6 +203,7 @@ class SegmentationNode(PointCloudNode):
         self.points_dropped = 0  # input points with implausible coordinates, left out
         self.proposals_cut = 0  # input proposals beyond max_proposals, labeled background
         self.frames_down = 0  # frames dropped because the stage-2 process was down
+        self.intensity = StreamIntensityMatch()  # the stream's intensity map onto the training scale
         scan_checks.warm_up()
         self.classifier = self._load_classifier()
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -271,9 +277,13 @@ class SegmentationNode(PointCloudNode):
         if hasattr(self, "classifier"):
             super().publish_diagnostics()
 
-    def diagnostic_extras(self) -> tuple[dict[str, int], list[str]]:
-        """What the input checks and the stage-2 process did; a warning while that process is down."""
-        values = {"points_dropped": self.points_dropped, "proposals_cut": self.proposals_cut}
+    def diagnostic_extras(self) -> tuple[dict[str, float | int], list[str]]:
+        """What the input checks, the intensity map and the stage-2 process did; a warning while that process is
+        down."""
+        values: dict[str, float | int] = {"points_dropped": self.points_dropped, "proposals_cut": self.proposals_cut}
+        if self.intensity.map is not None:
+            values["intensity_median"] = self.intensity.map.median
+            values["intensity_matched"] = int(self.intensity.map.kind == "matched")
         warnings = []
         if isinstance(self.classifier, ProcessClassifier):
             values["stage2_restarts"] = self.classifier.restarts
@@ -324,9 +334,10 @@ class SegmentationNode(PointCloudNode):
             self.get_logger().warning("skipping empty proposals cloud", throttle_duration_sec=LOG_PERIOD_S)
             return
         members = self._budget_members(frame)
+        stage2_points = self._on_training_scale(points)
         clock.mark("decode")
         try:
-            result = self.classifier.segment(points, members)
+            result = self.classifier.segment(stage2_points, members)
         except ClassifierProcessDownError:  # its death was logged once by the supervisor; this frame is dropped
             self.frames_down += 1
             return
@@ -336,6 +347,16 @@ class SegmentationNode(PointCloudNode):
             self._publish(labeled)
         else:
             self.publisher.submit(labeled)
+
+    def _on_training_scale(self, points: np.ndarray) -> np.ndarray:
+        """The points with their intensities mapped onto the network's training scale (`intensity_match`); the
+        published cloud keeps the sensor's own. The map is reported once, when it is held."""
+        if not self.get_parameter("intensity_match").value or self.classifier.kind == "size_rules":
+            return points
+        held = self.intensity.update(points[:, 3])
+        if held is not None:
+            self.get_logger().info(f"intensity: {held}")
+        return self.intensity.on_training_scale(points)
 
     def _plausible(self, frame: ProposalFrame) -> ProposalFrame:
         """The frame without points whose coordinates no LiDAR returns (as the cluster node drops them), warned

@@ -13,6 +13,11 @@ Modes (one per run):
   --stage1-only   stage 1 cluster proposals: foreground recall (share of ground-truth car / pedestrian /
                   cyclist points inside a kept proposal), proposals per frame, milliseconds per frame and
                   per step, ground precision / recall where the dataset has a ground truth.
+  --view-agreement
+                  labels unused (unlabelled scans welcome): stage 1, then the network on every proposal in each
+                  of the 8 canonical views; per class (by the views' majority), the share of proposals all 8
+                  views agree on, with a frame bootstrap interval. Synthetic scans read 97-99 % for cars; a
+                  lower share says the network is not at home on that data (pass3d_ros.evaluation.agreement).
   --live          the live path: the data through cluster_proposal_node and segmentation_node running in
                   this process (pass3d_ros.evaluation.live.run_live, private DDS domain), outputs matched to
                   inputs by header stamp and scored against the bag's `label_gt` field. One `bag:PATH[#/topic]`
@@ -59,6 +64,10 @@ the lite network faster than two).
    "budget": {"max_proposals", "proposals_cut", "frames_cut"} (what stage 2's default budget would cut),
    "config": {every Stage1Config parameter}, "per_frame": [{"frame", "points", "proposals", "proposals_cut", "ms",
    "ring_source", ...}]}
+  view-agreement: {"mode": "view_agreement", "frames": N, "data": [specs], "agreement": {"car" | "pedestrian" |
+   "cyclist": {"proposals", "agreement", "interval"}}, "intensity": {spec: map}, "per_frame": [...]}
+Full and view-agreement runs map each spec's intensities onto the training scale (--no-intensity-match: as read);
+"intensity" says what each spec got.
 A metric without data is null (no ground truth of that kind, no foreground points).
 
 --param KEY=VALUE: KEY as the cluster node names it (stage1.sensor) or bare (sensor); VALUE read by the parameter's
@@ -77,10 +86,12 @@ import json
 import sys
 from pathlib import Path
 
+from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
+from pass3d_ros.evaluation.agreement import evaluate_agreement
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
 from pass3d_ros.evaluation.offline import evaluate_full, evaluate_stage1, iter_frames, parse_params
@@ -100,6 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="dataset spec, repeatable (kitti_object:DIR, semantickitti:DIR/sequences/00, bag:B, ...)")
     modes = parser.add_mutually_exclusive_group()
     modes.add_argument("--stage1-only", action="store_true", help="evaluate stage 1 cluster proposals only")
+    modes.add_argument("--view-agreement", action="store_true",
+                       help="label-free: how often the network's class of a proposal agrees across the 8 views")
     modes.add_argument("--live", action="store_true", help="evaluate the live ROS path (both nodes, in process)")
     parser.add_argument("--classifier", choices=CLASSIFIERS, help="stage-2 classifier (default network)")
     parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
@@ -115,6 +128,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"stage 2's budget: at most N proposals per frame, the nearest first; the others are "
                              f"cut, counted and reported (default {DEFAULT_MAX_PROPOSALS}, the node's max_proposals; "
                              "not with --live)")
+    parser.add_argument("--intensity-match", action=argparse.BooleanOptionalAction, default=INTENSITY_MATCH,
+                        help="map each --data's intensities onto the network's training scale, as the segmentation "
+                        "node does (default on; the map is fitted on a spec's first frames, then held)")
     parser.add_argument("--per-frame", action="store_true", help="print one row per frame too")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     live = parser.add_argument_group("live mode")
@@ -136,7 +152,8 @@ def _check_args(args: argparse.Namespace) -> str:
         raise EvaluationError(f"--threads must be >= 1, got {args.threads}")
     if args.max_proposals < 1:
         raise EvaluationError(f"--max-proposals must be >= 1, got {args.max_proposals}")
-    mode = "live" if args.live else "stage1" if args.stage1_only else "full"
+    mode = "live" if args.live else "stage1" if args.stage1_only else "view_agreement" if args.view_agreement \
+        else "full"
     live_only = [name for name, given in (("--lockstep", args.lockstep), ("--record-out", args.record_out),
                                           ("--rate", args.rate != 1.0), ("--timeout", args.timeout != 30.0),
                                           ("--force", args.force)) if given]
@@ -144,10 +161,14 @@ def _check_args(args: argparse.Namespace) -> str:
         raise EvaluationError(f"{', '.join(live_only)} only apply with --live")
     if mode == "live" and args.max_proposals != DEFAULT_MAX_PROPOSALS:
         raise EvaluationError("--max-proposals does not apply with --live (the node's parameter max_proposals)")
+    if mode == "live" and args.intensity_match != INTENSITY_MATCH:
+        raise EvaluationError("--no-intensity-match does not apply with --live (the node's parameter intensity_match)")
     if mode == "live" and args.limit is not None:
         raise EvaluationError("--limit does not apply with --live (choose the frames in the spec or bag)")
     if mode == "stage1" and (args.classifier or args.weights):
         raise EvaluationError("--classifier and --weights do not apply with --stage1-only")
+    if mode == "view_agreement" and args.classifier == "size_rules":
+        raise EvaluationError("--view-agreement needs the network classifier (size_rules has no views)")
     return mode
 
 
@@ -166,7 +187,10 @@ def run(args: argparse.Namespace) -> tuple[str, dict, int]:
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
     if mode == "full":
         frames = iter_frames(datasets, args.limit, not args.no_progress)
-        return mode, {**evaluate_full(frames, config, classifier), **settings}, 0
+        return mode, {**evaluate_full(frames, config, classifier, args.intensity_match), **settings}, 0
+    if mode == "view_agreement":
+        frames = iter_frames(datasets, args.limit, not args.no_progress)
+        return mode, {**evaluate_agreement(frames, config, classifier, args.intensity_match), **settings}, 0
     options = LiveOptions(lockstep=args.lockstep, rate=args.rate, record_out=args.record_out, timeout_s=args.timeout,
                           keep_labels=False, force=args.force, log_level="warn", progress=not args.no_progress)
     summary, result = evaluate_live(datasets, config, kind, weights, args.device, options)
