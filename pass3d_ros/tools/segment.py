@@ -9,7 +9,9 @@ prediction coloured by class with its object boxes, beside the ground truth when
 the reader's frame name. With several --data, each gets its own folder `OUT/NN/` (NN = position of the --data,
 from 00) so equal frame names cannot collide. `OUT/summary.json` records the
 inputs, the classifier, times per stage and, when the data has ground-truth labels, per-class precision,
-recall and IoU, and how many proposals stage 2's budget (max_proposals, nearest first) cut ("budget"). `--param
+recall and IoU, how many proposals stage 2's budget (max_proposals, nearest first) cut ("budget"), and the
+intensity map each --data got ("intensity": stage 2 sees intensities on its training scale, as the segmentation
+node does; --no-intensity-match feeds them as read). `--param
 KEY=VALUE` (repeatable) overrides a stage-1 parameter, as in pass3d_evaluate (stage1.sensor=pandar64 or
 sensor=pandar64). The frames of one --data are a stream: laser lines found on one scan are reused by the next
 (pass3d_ros.core.held_lines).
@@ -44,6 +46,7 @@ from tqdm import tqdm
 
 from pass3d_ros.classes import NUM_CLASSES
 from pass3d_ros.core.held_lines import LineHolder
+from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.metrics import ConfusionAccumulator, format_metrics
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members
@@ -51,7 +54,7 @@ from pass3d_ros.core.stage2 import CLASSIFIERS, Classifier, open_classifier
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.evaluation.bev import frame_picture, write_png
-from pass3d_ros.evaluation.offline import BudgetCuts, parse_params
+from pass3d_ros.evaluation.offline import BudgetCuts, StreamIntensity, parse_params
 from pass3d_ros.tools.cli import USER_ERRORS, check_writable, partial_path, remove_stale_partials, run_tool
 
 SEMANTIC_KITTI_IDS: np.ndarray = np.array([0, 10, 30, 31], dtype=np.uint32)  # by class id: bg, car, ped, cyc
@@ -75,6 +78,7 @@ class SegmentStats:
     labeled_frames: int = 0
     budget: BudgetCuts = field(default_factory=BudgetCuts)  # proposals stage 2's max_proposals cut
     lines: LineHolder = field(default_factory=LineHolder)  # laser lines held across the frames of one --data
+    intensity: StreamIntensity | None = None  # each --data's intensity map onto the training scale
 
 
 def to_semantic_kitti(labels: np.ndarray) -> np.ndarray:
@@ -106,9 +110,11 @@ def segment(
     png: bool = True,
     force: bool = False,
     progress: bool = True,
+    intensity_match: bool = INTENSITY_MATCH,
 ) -> SegmentStats:
     """Stage 1 (`config`, default the paper's) + `classifier` on every frame of `specs`; writes labels, PNGs and
-    summary.json under `out`, built in a hidden sibling and moved into place only when complete."""
+    summary.json under `out`, built in a hidden sibling and moved into place only when complete. Each --data's
+    intensities reach stage 2 on the training scale (`intensity_match`), as the segmentation node does."""
     if not specs:
         raise DatasetError("no --data given")
     datasets = resolve_datasets(specs)
@@ -118,7 +124,7 @@ def segment(
     remove_stale_partials(out.resolve())
     build.mkdir(parents=True)
     try:
-        stats = _segment_all(datasets, out, build, classifier, config, png, progress)
+        stats = _segment_all(datasets, out, build, classifier, config, png, progress, intensity_match)
         report = summary(stats, [str(spec) for spec in specs], classifier.kind, classifier.weights)
         (build / SUMMARY).write_text(json.dumps(report, indent=2) + "\n")
         _move_into_place(build, out)
@@ -137,11 +143,12 @@ def build_folder(out: Path) -> Path:
 
 
 def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Classifier,
-                 config: Stage1Config | None, png: bool, progress: bool) -> SegmentStats:
+                 config: Stage1Config | None, png: bool, progress: bool, intensity_match: bool) -> SegmentStats:
     """Every frame's labels (and PNG) into `build`; `stats.folders` names where they will be, under `out`."""
     counts = [dataset.count() for dataset in datasets]
     total = None if None in counts else sum(c for c in counts if c is not None)
-    stats = SegmentStats(budget=BudgetCuts(classifier.max_proposals))
+    stats = SegmentStats(budget=BudgetCuts(classifier.max_proposals),
+                         intensity=StreamIntensity(intensity_match, classifier))
     with tqdm(total=total, unit="frame", desc="segment", disable=None if progress else True) as bar:
         for position, dataset in enumerate(datasets):
             sub = "." if len(datasets) == 1 else f"{position:02d}"
@@ -157,7 +164,7 @@ def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Cl
                 if name in seen:
                     raise DatasetError(f"{dataset}: frame name {frame.name!r} repeats; outputs would overwrite")
                 seen.add(name)
-                labels, cluster_id = _segment_frame(frame.points, frame.ring, classifier, stats, config)
+                labels, cluster_id = _segment_frame(str(dataset), frame.points, frame.ring, classifier, stats, config)
                 to_semantic_kitti(labels).astype("<u4").tofile(folder / "labels" / f"{name}.label")
                 if png:
                     image = frame_picture(frame.name, frame.points, labels, cluster_id, frame.labels, frame.instance)
@@ -195,7 +202,7 @@ def _move_into_place(build: Path, out: Path) -> None:
 
 
 def _segment_frame(
-    points: np.ndarray, ring: np.ndarray | None, classifier: Classifier, stats: SegmentStats,
+    spec: str, points: np.ndarray, ring: np.ndarray | None, classifier: Classifier, stats: SegmentStats,
     config: Stage1Config | None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Labels and proposal ids (-1 none) of one scan; NaN points (as KITTI raw may hold) are background in no
@@ -214,7 +221,8 @@ def _segment_frame(
     started = time.perf_counter()
     members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
     stats.budget.add(sum(1 for m in members if len(m) > 0))
-    predicted = classifier.segment(pts, members).labels
+    stage2_points = pts if stats.intensity is None else stats.intensity(spec, pts)
+    predicted = classifier.segment(stage2_points, members).labels
     stats.stage2_ms.append(1e3 * (time.perf_counter() - started))
     stats.stage1_ms.append(result.timings_ms["total"])
     if keep is None:
@@ -241,6 +249,7 @@ def summary(stats: SegmentStats, specs: Sequence[str], kind: str, weights: str |
         "points": stats.points,
         "ms_per_frame": {"stage1": _median(stats.stage1_ms), "stage2": _median(stats.stage2_ms)},
         "budget": stats.budget.summary(),
+        "intensity": stats.intensity.maps if stats.intensity else {},
         "labeled_frames": stats.labeled_frames,
         "per_class": metrics["per_class"] if metrics else None,
         "mean_iou": metrics["mean_iou"] if metrics else None,
@@ -264,6 +273,9 @@ def build_parser() -> argparse.ArgumentParser:
                              f"(their points background), counted and reported (default {DEFAULT_MAX_PROPOSALS})")
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS, metavar="N",
                         help=f"CPU threads: torch, OpenMP, OpenBLAS (default {DEFAULT_THREADS})")
+    parser.add_argument("--intensity-match", action=argparse.BooleanOptionalAction, default=INTENSITY_MATCH,
+                        help="map each --data's intensities onto the network's training scale, as the segmentation "
+                        "node does (default on)")
     parser.add_argument("--no-png", action="store_true", help="skip the bird's-eye-view PNGs")
     parser.add_argument("--force", action="store_true",
                         help="write into a non-empty --out (this run's labels/, bev/, summary.json replace the old)")
@@ -294,7 +306,7 @@ def _run(args: argparse.Namespace, log: Callable[[str], None]) -> int:
     kind, weights = classifier.kind, classifier.weights
     started = time.perf_counter()
     stats = segment(args.data, out, classifier=classifier, config=config, png=not args.no_png, force=True,
-                    progress=not args.no_progress)
+                    progress=not args.no_progress, intensity_match=args.intensity_match)
     report = summary(stats, args.data, kind, weights)
     took = time.perf_counter() - started
     stage1, stage2 = report["ms_per_frame"]["stage1"], report["ms_per_frame"]["stage2"]
