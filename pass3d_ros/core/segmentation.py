@@ -276,6 +276,16 @@ def load_model(source: str | os.PathLike | dict) -> tuple[PointNet2Seg, dict]:
     return model.eval(), data
 
 
+class ViewProbabilities(NamedTuple):
+    """A frame's proposals seen in all 8 views: the point index (M,) of each query, its proposal (M,), the class
+    probabilities (8, M, K) per view, and how many proposals."""
+
+    query_index: np.ndarray
+    query_batch: np.ndarray
+    probs: np.ndarray
+    proposals: int
+
+
 class Segmenter:
     """Stage-2 network classifier loaded from a checkpoint file or dict."""
 
@@ -314,21 +324,29 @@ class Segmenter:
         proposal_class[chosen] = proposal_majority(batch.query_batch, pred, len(chosen), self.config.num_classes)
         return SegmentResult(labels, confidence, proposal_class)
 
-    def view_classes(self, points: np.ndarray, members: list[np.ndarray]) -> np.ndarray:
-        """The class of each non-empty proposal (P, 8) int16 in each of the 8 canonical views (the same sampled
-        points, the box seen from each bottom vertex and mirrored): a well-learned object reads the same in all 8,
-        so their agreement measures how at home the network is on data without labels."""
+    def view_probabilities(self, points: np.ndarray, members: list[np.ndarray]) -> ViewProbabilities:
+        """Class probabilities of every member point of the non-empty `members` in each of the 8 canonical views
+        (the same sampled points, the box seen from each bottom vertex and mirrored)."""
         points = np.asarray(points, dtype=np.float32)
         members = [np.asarray(m) for m in members if len(m) > 0]
-        out = np.zeros((len(members), canonical.NUM_VIEWS), dtype=np.int16)
         if not members:
-            return out
+            empty = np.zeros(0, dtype=np.int64)
+            return ViewProbabilities(empty, empty, np.zeros((canonical.NUM_VIEWS, 0, self.config.num_classes)), 0)
         boxes = canonical.fit_box_members(points, members)
+        probs, batch = [], None
         for view in range(canonical.NUM_VIEWS):
             batch = prepare_proposals(points, members, self.config, views=np.full(len(members), view), boxes=boxes)
-            pred = predict_probabilities(self.model, batch, self.device).argmax(axis=1)
-            out[:, view] = proposal_majority(batch.query_batch, pred, len(members), self.config.num_classes)
-        return out
+            probs.append(predict_probabilities(self.model, batch, self.device))
+        return ViewProbabilities(batch.query_index, batch.query_batch, np.stack(probs), len(members))
+
+    def view_classes(self, points: np.ndarray, members: list[np.ndarray]) -> np.ndarray:
+        """The class of each non-empty proposal (P, 8) int16 in each of the 8 canonical views: a well-learned
+        object reads the same in all 8, so their agreement measures how at home the network is on data without
+        labels."""
+        views = self.view_probabilities(points, members)
+        return np.stack([proposal_majority(views.query_batch, p.argmax(axis=1), views.proposals,
+                                           self.config.num_classes) for p in views.probs], axis=1) \
+            if views.proposals else np.zeros((0, canonical.NUM_VIEWS), dtype=np.int16)
 
     def warm_up(self) -> None:
         """Compile the numba kernels (on-disk cache after the first time) and run a dummy frame through the
