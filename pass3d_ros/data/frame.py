@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -53,3 +53,48 @@ class Frame:
             value = getattr(self, key)
             if value is not None and len(value) != n:
                 raise ValueError(f"frame {self.name}: {key} has {len(value)} entries for {n} points")
+
+
+def front_view_mask(points: np.ndarray, half_angle_deg: float) -> np.ndarray:
+    """Mask of the points ahead of the sensor (x > 0) within `half_angle_deg` of the +x axis in azimuth."""
+    xyz = np.asarray(points)
+    azimuth = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
+    return (xyz[:, 0] > 0) & (np.abs(azimuth) <= half_angle_deg)
+
+
+def crop_frame(frame: Frame, keep: np.ndarray) -> Frame:
+    """The frame with only the points `keep` (a mask) selects, in their order, every per-point array cut alike.
+
+    Boxes with no kept point inside are dropped; a kept box with an instance id takes its new position in the list
+    (the readers' rule) and the points' instance ids follow their box (-1 where it was dropped; ids that name no
+    box, SemanticKITTI's, are kept as they are).
+    """
+    keep = np.asarray(keep, dtype=bool)
+    if keep.shape != (len(frame.points),):
+        raise ValueError(f"frame {frame.name}: crop mask has shape {keep.shape} for {len(frame.points)} points")
+    points = frame.points[keep]
+    instance = None if frame.instance is None else frame.instance[keep]
+    boxes: list[Box3D] = []
+    renumber: dict[int, int] = {}  # a box's instance id -> its new one, -1 when the box is dropped
+    for box in frame.boxes:
+        if box.instance >= 0:
+            renumber[box.instance] = -1
+        if not box.contains(points[:, :3]).any():
+            continue
+        if box.instance >= 0:
+            renumber[box.instance] = len(boxes)
+            box = replace(box, instance=len(boxes))
+        boxes.append(box)
+    if instance is not None and any(old != new for old, new in renumber.items()):
+        olds = np.array(sorted(renumber), dtype=np.int64)
+        news = np.array([renumber[old] for old in olds], dtype=instance.dtype)
+        named = np.isin(instance, olds)
+        instance = instance.copy()
+        instance[named] = news[np.searchsorted(olds, instance[named])]
+    return Frame(
+        name=frame.name, points=points, stamp_ns=frame.stamp_ns,
+        ring=None if frame.ring is None else frame.ring[keep],
+        labels=None if frame.labels is None else frame.labels[keep],
+        ground=None if frame.ground is None else frame.ground[keep],
+        instance=instance, boxes=boxes,
+    )

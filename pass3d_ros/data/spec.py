@@ -4,6 +4,13 @@
 and shards the frames. Formats live in a registry: the data layer's readers are registered here (imported on first
 use: the bag reader needs rosbags), and a package above registers its own when imported (`import
 pass3d_ros.synthetic` adds `synthetic:`; every command-line tool does), so this layer never loads one by name.
+
+Options every format takes ride on the spec after a comma, as the synthetic reader's own do
+(`kitti_object:DIR,crop=front`, `synthetic:frames=5,seed=1,crop=front`); they are parsed here, once, and the rest
+goes to the reader untouched. `crop=front` keeps only the points ahead of the sensor within 45 degrees of its axis
+(x > 0, |azimuth| <= 45 degrees: the front camera's field of view as the project applies it, the view KITTI's
+boxes cover), as KITTI's `velodyne_reduced` scans are cut: in firing order, per-point labels, ground, rings and
+instances cut alike, boxes without a kept point dropped (pass3d_ros.data.frame.crop_frame).
 """
 
 from __future__ import annotations
@@ -12,9 +19,13 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 from pass3d_ros.data.errors import DatasetError
-from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.frame import Frame, crop_frame, front_view_mask
+from pass3d_ros.data.kitti_io import FRONT_VIEW_HALF_ANGLE_DEG
 
 Keep = Callable[[int], bool]  # a frame's position in its spec -> whether this shard makes it
+# crop name -> the half angle (degrees) of the azimuth sector ahead of the sensor it keeps
+CROPS: dict[str, float] = {"front": FRONT_VIEW_HALF_ANGLE_DEG}
+SPEC_OPTIONS: tuple[str, ...] = ("crop",)  # options of every format, parsed by resolve_dataset
 
 
 @dataclass(frozen=True)
@@ -87,13 +98,21 @@ class Dataset:
     format: str
     path: str
     reader: DatasetFormat = field(repr=False, compare=False)
+    crop: str = ""  # a name of CROPS, "" for whole scans
 
     def __str__(self) -> str:
-        return f"{self.format}:{self.path}"
+        return f"{self.format}:{self.path}" + (f",crop={self.crop}" if self.crop else "")
+
+    def apply_crop(self, frame: Frame) -> Frame:
+        """`frame` cut as the spec asks (itself when whole)."""
+        if not self.crop:
+            return frame
+        return crop_frame(frame, front_view_mask(frame.points, CROPS[self.crop]))
 
     def frames(self) -> Iterator[Frame]:
-        """The frames, in order."""
-        return self.reader.read(self.path)
+        """The frames, in order (cropped when the spec asks)."""
+        frames = self.reader.read(self.path)
+        return frames if not self.crop else (self.apply_crop(frame) for frame in frames)
 
     def count(self) -> int | None:
         """The frame count for progress bars when the reader can tell cheaply, else None."""
@@ -103,13 +122,35 @@ class Dataset:
         """The frames in order, None in place of each whose position k fails `keep(k)` (made only if the reader
         cannot skip it)."""
         if self.reader.read_shard is not None:
-            return self.reader.read_shard(self.path, keep)
+            shard = self.reader.read_shard(self.path, keep)
+            return shard if not self.crop else (None if f is None else self.apply_crop(f) for f in shard)
         return (frame if keep(k) else None for k, frame in enumerate(self.frames()))
 
 
+def split_options(spec: str, rest: str) -> tuple[str, dict[str, str]]:
+    """(the reader's part, {option: value}) of a spec's text after `FORMAT:`: the comma-separated items named in
+    SPEC_OPTIONS are taken out wherever they stand, everything else is left to the reader as it was written.
+    DatasetError (naming `spec`) on a repeated option or a bad value."""
+    kept: list[str] = []
+    options: dict[str, str] = {}
+    for item in rest.split(","):
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or key not in SPEC_OPTIONS:
+            kept.append(item)
+            continue
+        if key in options:
+            raise DatasetError(f"dataset spec {spec!r}: {key}= given twice")
+        value = value.strip().lower()
+        if key == "crop" and value not in CROPS:
+            raise DatasetError(f"dataset spec {spec!r}: unknown crop {value!r}, crops: {', '.join(CROPS)}")
+        options[key] = value
+    return ",".join(kept), options
+
+
 def resolve_dataset(spec: str | Dataset) -> Dataset:
-    """Parse `FORMAT:PATH` and look its reader up (a Dataset is returned as it is); DatasetError names the
-    spec and the known formats when the format is unknown."""
+    """Parse `FORMAT:PATH[,crop=front]` and look its reader up (a Dataset is returned as it is); DatasetError names
+    the spec and the known formats when the format is unknown, and the known values of an option given a bad one."""
     if isinstance(spec, Dataset):
         return spec
     fmt, sep, rest = spec.partition(":")
@@ -118,7 +159,10 @@ def resolve_dataset(spec: str | Dataset) -> Dataset:
         raise DatasetError(f"dataset spec {spec!r}: expected FORMAT:PATH, formats: {known}")
     if fmt not in _LOADERS:
         raise DatasetError(f"dataset spec {spec!r}: unknown format {fmt!r}, formats: {known}")
-    return Dataset(fmt, rest, _format(fmt))
+    path, options = split_options(spec, rest)
+    if not path.strip(", "):
+        raise DatasetError(f"dataset spec {spec!r}: expected FORMAT:PATH[,crop=front], got options only")
+    return Dataset(fmt, path, _format(fmt), crop=options.get("crop", ""))
 
 
 def resolve_datasets(specs: Iterable[str | Dataset]) -> list[Dataset]:

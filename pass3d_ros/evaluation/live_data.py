@@ -19,8 +19,8 @@ from pass3d_ros.evaluation.report import score
 def live_bag(datasets: Sequence[Dataset], workdir: Path, progress: bool) -> tuple[BagFile, str | None]:
     """(the bag for run_live, opened once: the caller closes it; the `bag:` path played, None when converted):
     one `bag:` spec as it is, anything else converted to a labelled bag in `workdir` (a frame without labels is
-    an error naming its spec)."""
-    if len(datasets) == 1 and datasets[0].format == "bag":
+    an error naming its spec; a cropped `bag:` is converted too)."""
+    if len(datasets) == 1 and datasets[0].format == "bag" and not datasets[0].crop:
         bag = BagFile(datasets[0].path)
         try:
             first = first_frame(bag)

@@ -44,8 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _frames(datasets: list[Dataset], limit: int | None) -> Iterator[Frame]:
     for dataset in datasets:
-        frames = (read_bag(dataset.path, labels=_bag_labels(dataset.path)) if dataset.format == "bag"
-                  else dataset.frames())
+        frames = (map(dataset.apply_crop, read_bag(dataset.path, labels=_bag_labels(dataset.path)))
+                  if dataset.format == "bag" else dataset.frames())
         for index, frame in enumerate(frames):
             if limit is not None and index >= limit:
                 break
