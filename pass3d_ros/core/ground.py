@@ -15,6 +15,19 @@ steep, or steps away from its inner neighbour at their shared edge takes the nei
 the fits read about one point in `fit_stride` (the same planes at a fraction of the cost): the points of every
 `fit_stride`-th narrow azimuth sector, so they read the same points whatever order the scan comes in (stage 1 fits
 the ground on the points as they come, beside ring recovery); the final ground test reads every point.
+
+Local ground (`Stage1Config.local_ground`): a segment's plane is fitted on the road within |y| < ground_seed_band,
+mostly on its near part, and extrapolated to far and lateral objects, where the real ground can lie tenths of a metre
+(or, uphill, metres) off it. So the signed plane distances of the fit's sample (within LOCAL_BAND_M) are also
+binned in a coarse x-y grid (LOCAL_CELL_M cells) of height histograms built once per frame;
+`LocalGround.offsets` reads the ground's offset from the plane around any x-y position from it, in a square window
+of half-width local_ground_radius + LOCAL_GROWTH * range (the rings that reach the ground thin out with range): where
+the window holds half of LOCAL_MIN_POINTS (scaled to the sample) in the plane's ground band (|distance| < th_dist),
+the median of those; where it does not, the plane is off by more than th_dist there (none of the real ground passed
+the plane test) and the offset is the lowest dense layer: the lowest 0.1 m bin pair holding LOCAL_MIN_POINTS points
+(and, under the band, LOCAL_SHARE of the fullest pair: not a few stray returns), the mean of that bin and the two
+above it; 0 (the plane) where the window holds too few points. The median of the band, not its lowest layer: a far
+window's sparse ground returns are easily outnumbered by car bodies, walls and hedges.
 """
 
 from __future__ import annotations
@@ -27,13 +40,50 @@ import numpy as np
 from pass3d_ros.core.config import Stage1Config
 from pass3d_ros.core.scanline import pseudo_azimuth, pseudo_azimuth_unordered
 
+LOCAL_CELL_M = 2.0  # local ground: x-y cell of the height histograms (m)
+LOCAL_BIN_M = 0.1  # local ground: height bin (m)
+LOCAL_BAND_M = 2.5  # local ground: signed plane distances within +-this are binned (m)
+LOCAL_MIN_POINTS = 24  # local ground: points (of the whole scan) a dense layer needs; half of it, the plane band
+LOCAL_SHARE = 0.1  # local ground: ... and this share of the fullest pair (stray returns below the road are not it)
+LOCAL_GROWTH = 0.05  # local ground: window half-width grows by this per metre of range
+
+
+class LocalGround(NamedTuple):
+    """Per-segment planes and the x-y grid of plane-distance histograms that corrects them locally (module
+    docstring): hist[i, j, b] counts the sample's points of height bin b in cell (i, j). A window is summed when it
+    is read (a few hundred windows a frame: cheaper than a summed-area table of the whole grid)."""
+
+    planes: np.ndarray  # (n_seg, 4) float64
+    segment_edges: np.ndarray  # (n_seg + 1,) x boundaries
+    hist: np.ndarray  # (n_cells, n_cells, n_bins) uint16
+    origin: float  # x and y of the grid's first cell corner (the grid is square, centred on the sensor)
+    radius: float  # Stage1Config.local_ground_radius
+    min_points: int  # LOCAL_MIN_POINTS in the sample the histograms count (about one point in fit_stride)
+    band: float  # Stage1Config.th_dist: the plane's ground band
+
+    def offsets(self, xy: np.ndarray) -> np.ndarray:
+        """Signed distance (m, along the plane normal) of the local ground from the plane at each x-y position
+        (M x >=2); 0 where the window holds too few points."""
+        xy = np.ascontiguousarray(np.asarray(xy, dtype=np.float64)[:, :2])
+        return _local_offsets(self.hist, self.origin, xy, self.radius, self.min_points, self.band)
+
+    def heights(self, xy: np.ndarray) -> np.ndarray:
+        """z of the local ground at each x-y position: its plane's height there, moved by `offsets`."""
+        xy = np.asarray(xy, dtype=np.float64)[:, :2]
+        width = self.segment_edges[1] - self.segment_edges[0]
+        s = np.clip(((xy[:, 0] - self.segment_edges[0]) / width).astype(np.int64), 0, len(self.planes) - 1)
+        a, b, c, d = self.planes[s].T
+        return (self.offsets(xy) - a * xy[:, 0] - b * xy[:, 1] - d) / c
+
 
 class GroundFit(NamedTuple):
-    """Ground mask and one plane (a, b, c, d with a x + b y + c z + d = 0, unit normal up) per segment."""
+    """Ground mask and one plane (a, b, c, d with a x + b y + c z + d = 0, unit normal up) per segment; `local`:
+    the local correction of the planes (None when Stage1Config.local_ground is off)."""
 
     ground: np.ndarray  # (N,) bool
     planes: np.ndarray  # (n_seg, 4) float64
     segment_edges: np.ndarray  # (n_seg + 1,) x boundaries
+    local: LocalGround | None = None
 
 
 @nb.njit(cache=True, nogil=True)
@@ -249,9 +299,10 @@ def _sample(pts: np.ndarray, stride: int, in_scan_order: bool = True) -> np.ndar
 @nb.njit(cache=True, nogil=True)
 def _ground_kernel(pts: np.ndarray, sample: np.ndarray, edges: np.ndarray, n_lpr: int, n_iter: int, th_seeds: float,
                    th_dist: float, z_floor: float, min_normal_z: float, band: float, outlier_share: float,
-                   max_step: float, stride: int) -> tuple:
+                   max_step: float, stride: int, hist: np.ndarray, origin: float) -> tuple:
     """Ground mask and planes; the LPR and the plane fits read `sample` (the points `_sample` picks, about one in
-    `stride`, gathered: read in place, a shuffled scan's sample was scattered over memory), the final test all."""
+    `stride`, gathered: read in place, a shuffled scan's sample was scattered over memory), the final test all; the
+    sample's plane distances are counted into `hist` (nx, ny, n_bins; empty: none) for the local ground."""
     n = pts.shape[0]
     n_seg = edges.shape[0] - 1
     x0 = edges[0]
@@ -284,7 +335,39 @@ def _ground_kernel(pts: np.ndarray, sample: np.ndarray, edges: np.ndarray, n_lpr
         x = pts[i, 0]
         s = _segment_of(x, x0, width, n_seg)
         ground[i] = abs(planes[s, 0] * x + planes[s, 1] * pts[i, 1] + planes[s, 2] * pts[i, 2] + planes[s, 3]) < th_dist
+    if hist.shape[0] > 0:
+        _count_heights(sample, planes, x0, width, hist, origin)
     return ground, planes
+
+
+@nb.njit(cache=True, nogil=True)
+def _count_heights(sample: np.ndarray, planes: np.ndarray, x0: float, width: float, hist: np.ndarray,
+                   origin: float) -> None:
+    """Count the sample's signed plane distances into the local ground's per-cell histograms: first each point's
+    slot (branch-free, the last slot for "outside"), then the counts."""
+    n = sample.shape[0]
+    n_seg = planes.shape[0]
+    nx = hist.shape[0]
+    ny = hist.shape[1]
+    n_bins = hist.shape[2]
+    flat = hist.reshape(-1)
+    outside = flat.shape[0]
+    slot = np.empty(n, dtype=np.int64)
+    inv_cell = 1.0 / LOCAL_CELL_M
+    inv_bin = 1.0 / LOCAL_BIN_M
+    for i in range(n):
+        x = sample[i, 0]
+        y = sample[i, 1]
+        s = _segment_of(x, x0, width, n_seg)
+        d = planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * sample[i, 2] + planes[s, 3]
+        fx = (x - origin) * inv_cell
+        fy = (y - origin) * inv_cell
+        fb = (d + LOCAL_BAND_M) * inv_bin
+        inside = (fx >= 0.0) & (fy >= 0.0) & (fb >= 0.0) & (fx < nx) & (fy < ny) & (fb < n_bins)
+        slot[i] = (np.int64(fx) * ny + np.int64(fy)) * n_bins + np.int64(fb) if inside else outside
+    for i in range(n):
+        if slot[i] < outside and flat[slot[i]] < 65535:  # uint16: saturates, never wraps
+            flat[slot[i]] += 1
 
 
 def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = True) -> GroundFit:
@@ -301,15 +384,122 @@ def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = T
     width = 2.0 * config.ground_x_extent / n_seg
     edges = -config.ground_x_extent + width * np.arange(n_seg + 1)
     if len(pts) == 0:
-        return GroundFit(np.zeros(0, dtype=bool), np.tile([0.0, 0.0, 1.0, config.sensor_height], (n_seg, 1)), edges)
+        planes = np.tile([0.0, 0.0, 1.0, config.sensor_height], (n_seg, 1))
+        local = _local_ground(planes, edges, np.zeros((0, 0, 0), dtype=np.uint16), 0.0, config)
+        return GroundFit(np.zeros(0, dtype=bool), planes, edges, local)
+    # The local ground's grid covers every cluster centre the range gate keeps and its widest window.
+    half = config.max_range + config.local_ground_radius + LOCAL_GROWTH * config.max_range
+    n_cells = int(np.ceil(2.0 * half / LOCAL_CELL_M)) if config.local_ground else 0
+    n_bins = round(2.0 * LOCAL_BAND_M / LOCAL_BIN_M) if n_cells else 0
+    hist = np.zeros((n_cells, n_cells, n_bins), dtype=np.uint16)
+    origin = -0.5 * n_cells * LOCAL_CELL_M
     sample = _sample(pts, int(config.fit_stride), in_scan_order)  # apart: in the kernel, the fit took 3.7 ms, not 2.5
     ground, planes = _ground_kernel(
         pts, np.take(pts, sample, axis=0), edges, int(config.n_lpr), int(config.n_iter), config.th_seeds,
         config.th_dist,
         -(config.sensor_height + config.below_ground_margin), float(np.cos(np.deg2rad(config.ground_max_slope_deg))),
         config.ground_seed_band, config.ground_lpr_outlier_share, config.ground_max_step, int(config.fit_stride),
+        hist, origin,
     )
-    return GroundFit(ground, planes, edges)
+    return GroundFit(ground, planes, edges, _local_ground(planes, edges, hist, origin, config))
+
+
+def _local_ground(planes: np.ndarray, edges: np.ndarray, hist: np.ndarray, origin: float,
+                  config: Stage1Config) -> LocalGround | None:
+    """The LocalGround of counted histograms (None when config.local_ground is off)."""
+    if not config.local_ground:
+        return None
+    min_points = max(2, round(LOCAL_MIN_POINTS / max(int(config.fit_stride), 1)))
+    return LocalGround(planes, edges, hist, float(origin), float(config.local_ground_radius), min_points,
+                       float(config.th_dist))
+
+
+@nb.njit(cache=True, nogil=True)
+def _local_offsets(hist: np.ndarray, origin: float, xy: np.ndarray, radius: float, min_points: int,
+                   band: float) -> np.ndarray:
+    """`LocalGround.offsets`: per position, the window's summed histogram; the median of its plane band when that
+    holds min_points // 2, else its lowest dense bin pair (module docstring)."""
+    m = xy.shape[0]
+    out = np.zeros(m)
+    n_cells = hist.shape[0]
+    n_bins = hist.shape[2]
+    if n_cells <= 0 or n_bins < 3:
+        return out
+    counts = np.empty(n_bins, dtype=np.int64)
+    band_lo = min(max(int((LOCAL_BAND_M - band) / LOCAL_BIN_M + 0.5), 0), n_bins)
+    band_hi = min(max(int((LOCAL_BAND_M + band) / LOCAL_BIN_M + 0.5), band_lo), n_bins)
+    in_band = max(min_points // 2, 2)
+    for q in range(m):
+        x = xy[q, 0]
+        y = xy[q, 1]
+        half = radius + LOCAL_GROWTH * np.hypot(x, y)
+        i0 = min(max(int(np.floor((x - half - origin) / LOCAL_CELL_M)), 0), n_cells)
+        i1 = min(max(int(np.floor((x + half - origin) / LOCAL_CELL_M)) + 1, 0), n_cells)
+        j0 = min(max(int(np.floor((y - half - origin) / LOCAL_CELL_M)), 0), n_cells)
+        j1 = min(max(int(np.floor((y + half - origin) / LOCAL_CELL_M)) + 1, 0), n_cells)
+        if i1 <= i0 or j1 <= j0:
+            continue
+        counts[:] = 0
+        for i in range(i0, i1):
+            for j in range(j0, j1):
+                for b in range(n_bins):
+                    counts[b] += hist[i, j, b]
+        n_band = 0
+        for b in range(band_lo, band_hi):
+            n_band += counts[b]
+        if n_band >= in_band:  # ground near the plane: its median, within the band
+            seen = 0
+            for b in range(band_lo, band_hi):
+                seen += counts[b]
+                if 2 * seen >= n_band:
+                    out[q] = (b + 0.5) * LOCAL_BIN_M - LOCAL_BAND_M
+                    break
+            continue
+        best = 0
+        for b in range(n_bins - 1):
+            best = max(best, counts[b] + counts[b + 1])
+        below = max(min_points, LOCAL_SHARE * best)  # bins under the plane's ground band: stray returns
+        for b in range(n_bins - 1):
+            if counts[b] + counts[b + 1] >= (below if b < band_lo else min_points):
+                total = 0.0
+                weight = 0.0
+                for t in range(b, min(b + 3, n_bins)):
+                    total += counts[t] * ((t + 0.5) * LOCAL_BIN_M - LOCAL_BAND_M)
+                    weight += counts[t]
+                out[q] = total / weight
+                break
+    return out
+    counts = np.empty(n_bins, dtype=np.int64)
+    below_bins = int((LOCAL_BAND_M - band) / LOCAL_BIN_M) - 1  # pairs from these on reach the plane's ground band
+    for q in range(m):
+        x = xy[q, 0]
+        y = xy[q, 1]
+        half = radius + LOCAL_GROWTH * np.hypot(x, y)
+        i0 = min(max(int(np.floor((x - half - origin) / LOCAL_CELL_M)), 0), n_cells)
+        i1 = min(max(int(np.floor((x + half - origin) / LOCAL_CELL_M)) + 1, 0), n_cells)
+        j0 = min(max(int(np.floor((y - half - origin) / LOCAL_CELL_M)), 0), n_cells)
+        j1 = min(max(int(np.floor((y + half - origin) / LOCAL_CELL_M)) + 1, 0), n_cells)
+        if i1 <= i0 or j1 <= j0:
+            continue
+        best = 0
+        counts[:] = 0
+        for i in range(i0, i1):
+            for j in range(j0, j1):
+                for b in range(n_bins):
+                    counts[b] += hist[i, j, b]
+        for b in range(n_bins - 1):
+            best = max(best, counts[b] + counts[b + 1])
+        below = max(min_points, LOCAL_SHARE * best)  # bins under the plane's ground band: stray returns
+        for b in range(n_bins - 1):
+            if counts[b] + counts[b + 1] >= (below if b < below_bins else min_points):
+                total = 0.0
+                weight = 0.0
+                for t in range(b, min(b + 3, n_bins)):
+                    total += counts[t] * ((t + 0.5) * LOCAL_BIN_M - LOCAL_BAND_M)
+                    weight += counts[t]
+                out[q] = total / weight
+                break
+    return out
 
 
 def warm_up() -> None:
@@ -317,4 +507,5 @@ def warm_up() -> None:
     rng = np.random.default_rng(0)
     pts = rng.uniform(-10.0, 10.0, size=(200, 4)).astype(np.float32)
     pts[:100, 2] = -1.73
-    fit_ground(pts, Stage1Config())
+    fit = fit_ground(pts, Stage1Config())
+    fit.local.offsets(pts[:4, :2])

@@ -6,9 +6,13 @@ then every hull edge direction: the rotating-calipers candidates; exact, and on 
 clusters 0.12 ms against 0.41 ms for a 1-degree search over 90 angles) extruded over the cluster's z range.
 z is the sensor's up axis, perpendicular to the ground for a level-mounted sensor (KITTI's ground normal is
 within 2 degrees of it); Box3D holds a yaw only. Gates: a point count that falls as 1/distance, a bottom
-near and a top not far above the ground plane, and footprints an occluded or whole road user can have. Kept
+near and a top not far above the ground, and footprints an occluded or whole road user can have. The ground is the
+segment planes, moved by the local ground's offset around each cluster when the planes come as a
+`pass3d_ros.core.ground.LocalGround` (Stage1Config.local_ground): a plane extrapolated 60 m from the road it was
+fitted on can sit tenths of a metre off the ground under a far car, enough to call its top too low. Kept
 boxes are enlarged (per side) and take in every point inside, ground points too: wheels and feet often sit
-in the ground band.
+in the ground band; with a local ground a box also reaches down to the ground band under it (`enlarged_membership`'s
+`floors`), however high its own lowest point is.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import numba as nb
 import numpy as np
 
 from pass3d_ros.core.config import Stage1Config
+from pass3d_ros.core.ground import LocalGround, fit_ground
 from pass3d_ros.data.frame import Box3D
 
 
@@ -223,7 +228,7 @@ def gate_clusters(
     points: np.ndarray,
     label: np.ndarray,
     n_clusters: int,
-    planes: np.ndarray,
+    planes: np.ndarray | LocalGround,
     segment_edges: np.ndarray,
     config: Stage1Config,
     fit_all: bool = False,
@@ -231,10 +236,14 @@ def gate_clusters(
     """The gates of `select_proposals`: (z low, z high per cluster, fitted clusters, their rectangles (cx, cy, length,
     width, yaw), kept (mask over the fitted), footprint passed (mask over the fitted)).
 
-    Fitted: the clusters that pass every gate but the footprint one, less (unless `fit_all`) those whose x-y extent
-    no footprint rectangle can hold, which fail it without a fit.
+    `planes`: the segment planes (n_seg x 4), or a LocalGround (GroundFit.local), whose offsets around each cluster
+    centre move its bottom and top heights (module docstring). Fitted: the clusters that pass every gate but the
+    footprint one, less (unless `fit_all`) those whose x-y extent no footprint rectangle can hold, which fail it
+    without a fit.
     """
-    count, sums, lo, hi, bottom, top = _cluster_stats(points, label, n_clusters, planes, segment_edges)
+    local = planes if isinstance(planes, LocalGround) else None
+    plane_rows = local.planes if local is not None else planes
+    count, sums, lo, hi, bottom, top = _cluster_stats(points, label, n_clusters, plane_rows, segment_edges)
     centre = sums / np.maximum(count, 1)[:, None]
     rng = np.hypot(centre[:, 0], centre[:, 1])
     need = np.maximum(
@@ -242,6 +251,11 @@ def gate_clusters(
     )
     extent = hi - lo
     ok = (count >= need) & (rng <= config.max_range) & (extent[:, 2] <= config.max_height)
+    if local is not None:  # read only where the other gates pass: a few hundred of a frame's thousands of clusters
+        read = np.flatnonzero(ok)
+        offset = local.offsets(centre[read])
+        bottom[read] -= offset
+        top[read] -= offset
     ok &= (bottom <= config.max_bottom) & (top >= config.min_top) & (top <= config.max_top)
     # The footprint rectangle's diagonal bounds the x-y extent: clusters too long for any rectangle go now.
     fits = np.maximum(extent[:, 0], extent[:, 1]) <= np.hypot(config.max_length, config.max_width)
@@ -267,7 +281,7 @@ def select_proposals(
     points: np.ndarray,
     label: np.ndarray,
     n_clusters: int,
-    planes: np.ndarray,
+    planes: np.ndarray | LocalGround,
     segment_edges: np.ndarray,
     config: Stage1Config,
 ) -> tuple[list[Box3D], np.ndarray]:
@@ -282,9 +296,10 @@ def select_proposals(
 
 @nb.njit(cache=True, nogil=True)
 def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: np.ndarray, margin: np.ndarray,
-                cell: float) -> tuple:
+                cell: float, floors: np.ndarray) -> tuple:
     """Primary and secondary proposal of every point inside an enlarged box (see `enlarged_membership`);
-    `own_of` maps a cluster id to its proposal id or -1."""
+    `own_of` maps a cluster id to its proposal id or -1; a box reaches down to z = floors[b] where that is lower
+    than its enlarged bottom."""
     n = pts.shape[0]
     k = boxes.shape[0]
     primary = np.empty(n, dtype=np.int32)
@@ -351,7 +366,8 @@ def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: n
             dy = y - boxes[b, 1]
             if abs(dx * cos_y[b] + dy * sin_y[b]) > half[b, 0] or abs(dy * cos_y[b] - dx * sin_y[b]) > half[b, 1]:
                 continue
-            if abs(pts[i, 2] - boxes[b, 2]) > half[b, 2]:
+            z = pts[i, 2]
+            if abs(z - boxes[b, 2]) > half[b, 2] and not (floors[b] <= z <= boxes[b, 2]):
                 continue
             if primary[i] < 0:
                 primary[i] = b
@@ -374,14 +390,29 @@ def enlarged_membership(
     boxes: list[Box3D],
     margin: tuple[float, float, float],
     cell: float = 2.0,
+    floors: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(cluster_id, cluster_id2) per point: its own kept cluster's proposal first, then the enlarged boxes it
     falls in (lowest id first); -1 where there is none. `margin` (Stage1Config.enlarge) is added on each side, as
-    in Box3D.contains."""
+    in Box3D.contains. `floors` (one z per box, or None): a box also takes in the points of its enlarged footprint
+    from that z up to its centre, when it lies below the enlarged bottom (`ground_floors`: the ground band under
+    it)."""
     label = np.ascontiguousarray(label, dtype=np.int32)
     own_of = np.full(max(int(label.max()) + 1, 1) if len(label) else 1, -1, dtype=np.int32)
     own_of[kept] = np.arange(len(kept), dtype=np.int32)
-    return _membership(points, label, own_of, boxes_array(boxes), np.asarray(margin, dtype=np.float64), float(cell))
+    floors = np.full(len(boxes), np.inf) if floors is None else np.ascontiguousarray(floors, dtype=np.float64)
+    if len(floors) != len(boxes):
+        raise ValueError(f"{len(floors)} floors for {len(boxes)} boxes")
+    return _membership(points, label, own_of, boxes_array(boxes), np.asarray(margin, dtype=np.float64), float(cell),
+                       floors)
+
+
+def ground_floors(boxes: list[Box3D], local: LocalGround, band: float) -> np.ndarray:
+    """Per box, the bottom of the ground band under its centre: the local ground's z there less `band`
+    (Stage1Config.th_dist, the ground test's half-width), for `enlarged_membership`'s `floors`."""
+    if not boxes:
+        return np.zeros(0)
+    return local.heights(np.array([b.center[:2] for b in boxes], dtype=np.float64)) - band
 
 
 def warm_up() -> None:
@@ -395,3 +426,6 @@ def warm_up() -> None:
     config = Stage1Config(th_num_floor=1, th_num_near=1.0)
     boxes, kept = select_proposals(pts, label, 1, planes, np.array([-80.0, 80.0]), config)
     enlarged_membership(pts, label, kept, boxes, config.enlarge)
+    local = fit_ground(pts, config).local
+    boxes, kept = select_proposals(pts, label, 1, local, local.segment_edges, config)
+    enlarged_membership(pts, label, kept, boxes, config.enlarge, floors=ground_floors(boxes, local, config.th_dist))

@@ -120,12 +120,15 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~work_ground, cfg)
     t3 = time.perf_counter()
     n_split = 0
+    # With a local ground the gates read heights above it (it passes through the split as the planes argument).
+    surface = fit.local if fit.local is not None else fit.planes
     if cfg.split_merged:
-        boxes, kept, label, n_split = _split.select_with_split(work, label, n_clusters, fit.planes, fit.segment_edges,
+        boxes, kept, label, n_split = _split.select_with_split(work, label, n_clusters, surface, fit.segment_edges,
                                                                cfg)
     else:
-        boxes, kept = _refinement.select_proposals(work, label, n_clusters, fit.planes, fit.segment_edges, cfg)
-    cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge)
+        boxes, kept = _refinement.select_proposals(work, label, n_clusters, surface, fit.segment_edges, cfg)
+    floors = None if fit.local is None else _refinement.ground_floors(boxes, fit.local, cfg.th_dist)
+    cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge, floors=floors)
     if order is not None:
         cluster_id, cluster_id2 = _in_input_order(order, cluster_id, cluster_id2)
     t4 = time.perf_counter()
