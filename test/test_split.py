@@ -109,14 +109,16 @@ def test_split_parts_get_new_ids_and_count() -> None:
     assert (out[3:200] == 5).all() and (out[200:] == 6).all()
 
 
-def test_old_proposals_stay_first_and_unchanged() -> None:
-    """On a synthetic street (frame 3 of seed 7, where a cut part passes the gates), the proposals without the split
-    come first with the split, the same boxes; the cut parts' proposals follow."""
+@pytest.mark.parametrize("kind", ["split_merged", "split_protruding", "both"])
+def test_old_proposals_stay_first_and_unchanged(kind: str) -> None:
+    """On a synthetic street (frame 3 of seed 7, where cut parts pass the gates), the proposals without the splits
+    come first with them, the same boxes; the parts' proposals follow."""
     from pass3d_ros.synthetic.dataset import generate_frame
 
     frame = generate_frame(7, 3)
-    before = propose(frame.points, frame.ring, Stage1Config(split_merged=False))
-    after = propose(frame.points, frame.ring, Stage1Config(split_merged=True))
+    before = propose(frame.points, frame.ring, Stage1Config(split_merged=False, split_protruding=False))
+    on = {"split_merged": kind in ("split_merged", "both"), "split_protruding": kind in ("split_protruding", "both")}
+    after = propose(frame.points, frame.ring, Stage1Config(**on))
     assert after.n_split >= 1 and len(after.boxes) > len(before.boxes)
     for a, b in zip(before.boxes, after.boxes, strict=False):
         np.testing.assert_allclose(a.center, b.center)

@@ -118,6 +118,11 @@ class Stage1Config:
         0.4, "refinement: an empty stretch of the long axis this long between dense surfaces is a gap to cut at (m; "
         "below the 0.5 m between cars parked end to end)", 0.05, 5.0,
     )
+    split_protruding: bool = _param(
+        False, "refinement: cut what protrudes below max_top from a dropped thin taller structure (a person against a "
+        "mast or a wall) out of it as clusters of their own, and gate each again; off by default: on real KITTI scans "
+        "it nearly doubles the proposals (all background) and stage 1's time", 0, 1,
+    )
     # Enlargement of kept boxes, added on each side (paper: 0.1, 0.1, 0.4 m).
     enlarge: tuple[float, float, float] = _param(
         (0.1, 0.1, 0.4), "refinement: kept boxes grow by this on each side in x, y, z (m)", 0.0, 5.0

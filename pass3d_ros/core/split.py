@@ -11,6 +11,9 @@ other). That last check keeps the cut to real gaps between dense surfaces: a sur
 angle has holes from its point spacing alone, and a uniform wall has no gap at all, so neither is cut. Every part of
 a cut cluster gets a new cluster id and goes through every gate again; a part that fails stays dropped, as the whole
 cluster was. Clusters that pass the gates are never touched: the proposals without the split all stay, first.
+
+`select_with_split` also runs the second kind of split on what is still dropped: road users protruding from a taller
+structure (pass3d_ros.core.protrusion, `split_protruding`).
 """
 
 from __future__ import annotations
@@ -18,8 +21,10 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from pass3d_ros.core import protrusion as _protrusion
 from pass3d_ros.core import refinement as _refinement
 from pass3d_ros.core.config import Stage1Config
+from pass3d_ros.core.ground import LocalGround
 from pass3d_ros.data.frame import Box3D
 
 SIDE_WINDOW = 1.0  # metres of axis on each side of a gap whose coverage is checked
@@ -117,29 +122,86 @@ def cut_at_gaps(points: np.ndarray, label: np.ndarray, n_clusters: int, clusters
     return (out, int(n_total), int(n_cut)) if n_cut else (label, n_clusters, 0)
 
 
+def _gate_parts(points: np.ndarray, label: np.ndarray, first: int, count: int, surface: np.ndarray | LocalGround,
+                segment_edges: np.ndarray, config: Stage1Config) -> tuple[list[Box3D], np.ndarray]:
+    """Boxes and ids of the clusters `first` .. `first + count - 1` of `label` that pass every gate on their own."""
+    part_points = np.flatnonzero(label >= first)
+    sub = np.ascontiguousarray(points[part_points])
+    sub_label = (label[part_points] - first).astype(np.int32)
+    z_lo, z_hi, fitted, rects, keep, _ = _refinement.gate_clusters(sub, sub_label, count, surface, segment_edges,
+                                                                   config)
+    parts = fitted[keep]
+    return _refinement.boxes_of(rects[keep], z_lo[parts], z_hi[parts]), first + parts
+
+
+def heights_above_ground(points: np.ndarray, label: np.ndarray, chosen: np.ndarray, surface: np.ndarray | LocalGround,
+                         segment_edges: np.ndarray) -> np.ndarray:
+    """Height above the ground of the points of the clusters flagged in `chosen` (one bool per cluster id; NaN for
+    every other point), as the gates read it: the point's segment plane, moved by the local ground's offset at its
+    cluster's centre when `surface` is a LocalGround."""
+    height = np.full(len(points), np.nan)
+    inside = np.flatnonzero((label >= 0) & chosen[np.maximum(label, 0)])
+    if len(inside) == 0:
+        return height
+    planes = surface.planes if isinstance(surface, LocalGround) else surface
+    width = segment_edges[1] - segment_edges[0]
+    pts = points[inside].astype(np.float64)
+    s = np.clip(((pts[:, 0] - segment_edges[0]) / width).astype(np.int64), 0, len(planes) - 1)
+    a, b, c, d = planes[s].T
+    height[inside] = a * pts[:, 0] + b * pts[:, 1] + c * pts[:, 2] + d
+    if isinstance(surface, LocalGround):
+        _, where = np.unique(label[inside], return_inverse=True)
+        counts = np.bincount(where)
+        centre = np.stack([np.bincount(where, weights=pts[:, k]) / counts for k in (0, 1)], axis=1)
+        height[inside] -= surface.offsets(centre)[where]
+    return height
+
+
+def _protrusion_candidates(n_total: int, kept: np.ndarray, z_lo: np.ndarray, z_hi: np.ndarray,
+                           config: Stage1Config) -> np.ndarray:
+    """Per cluster id, whether the protrusion split looks at it: dropped, and tall enough to hold a point above
+    max_top and one within max_bottom of the ground (parts of a gap cut, without heights here, are all looked at)."""
+    chosen = np.ones(n_total, dtype=bool)
+    chosen[kept] = False
+    n = len(z_lo)
+    chosen[:n] &= (z_hi - z_lo) >= config.max_top - max(config.max_bottom, 0.0)
+    return chosen
+
+
 def select_with_split(
-    points: np.ndarray, label: np.ndarray, n_clusters: int, planes: np.ndarray, segment_edges: np.ndarray,
-    config: Stage1Config,
+    points: np.ndarray, label: np.ndarray, n_clusters: int, planes: np.ndarray | LocalGround,
+    segment_edges: np.ndarray, config: Stage1Config,
 ) -> tuple[list[Box3D], np.ndarray, np.ndarray, int]:
-    """`select_proposals` with the split (module docstring): (boxes, kept cluster ids, labels with the parts' new
-    ids, clusters cut). The boxes and ids of `select_proposals` come first, unchanged; kept parts follow."""
+    """`select_proposals` with the splits: (boxes, kept cluster ids, labels with the parts' new ids, clusters split).
+    The boxes and ids of `select_proposals` come first, unchanged; kept parts follow, first those cut at gaps
+    (`split_merged`, module docstring), then those protruding from dropped taller structures (`split_protruding`,
+    pass3d_ros.core.protrusion). `planes`: the segment planes or the local ground, as the gates take them."""
     if n_clusters == 0:
         return [], np.zeros(0, dtype=np.int64), label, 0
     z_lo, z_hi, fitted, rects, keep, footprint = _refinement.gate_clusters(
         points, label, n_clusters, planes, segment_edges, config, fit_all=True)
     kept = fitted[keep]
     boxes = _refinement.boxes_of(rects[keep], z_lo[kept], z_hi[kept])
-    out, n_total, n_cut = cut_at_gaps(points, label, n_clusters, fitted[~footprint], rects[~footprint], config)
-    if n_cut == 0:
-        return boxes, kept, label, 0
-    part_points = np.flatnonzero(out >= n_clusters)  # the points of the cut clusters, gated again on their own
-    sub = np.ascontiguousarray(points[part_points])
-    sub_label = (out[part_points] - n_clusters).astype(np.int32)
-    z_lo, z_hi, fitted, rects, keep, _ = _refinement.gate_clusters(
-        sub, sub_label, n_total - n_clusters, planes, segment_edges, config)
-    parts = fitted[keep]
-    boxes += _refinement.boxes_of(rects[keep], z_lo[parts], z_hi[parts])
-    return boxes, np.concatenate([kept, n_clusters + parts]), out, n_cut
+    out, n_total, n_split = label, n_clusters, 0
+    if config.split_merged:
+        out, n_total, n_split = cut_at_gaps(points, label, n_clusters, fitted[~footprint], rects[~footprint], config)
+        if n_split:
+            part_boxes, part_ids = _gate_parts(points, out, n_clusters, n_total - n_clusters, planes, segment_edges,
+                                               config)
+            boxes += part_boxes
+            kept = np.concatenate([kept, part_ids])
+    if config.split_protruding:
+        chosen = _protrusion_candidates(n_total, kept, z_lo, z_hi, config)
+        height = heights_above_ground(points, out, chosen, planes, segment_edges)
+        cut, n_parts, n_made = _protrusion.protruding_parts(points, out, height, n_total, np.flatnonzero(chosen),
+                                                            config.max_top, config.th_num_floor)
+        if n_made:
+            part_boxes, part_ids = _gate_parts(points, cut, n_total, n_parts - n_total, planes, segment_edges,
+                                               config)
+            boxes += part_boxes
+            kept = np.concatenate([kept, part_ids])
+            out, n_split = cut, n_split + n_made
+    return boxes, kept, out, n_split
 
 
 def warm_up() -> None:
@@ -152,3 +214,4 @@ def warm_up() -> None:
     label = np.zeros(160, dtype=np.int32)
     config = Stage1Config(th_num_floor=1, th_num_near=1.0)
     select_with_split(pts, label, 1, np.array([[0.0, 0.0, 1.0, 1.73]]), np.array([-80.0, 80.0]), config)
+    _protrusion.warm_up()
