@@ -411,8 +411,49 @@ def test_hidden_pedestrians_stand_behind_something_and_keep_the_rest_of_the_scen
     assert found >= 4
 
 
+def test_partial_views_put_occluders_in_front_of_cars_and_keep_the_rest_of_the_scene():
+    """Without "partial" the scene is the same but for the occluders (their own stream); each stands nearer to the
+    sensor than a car in its line of sight."""
+    found = 0
+    for seed in range(10):  # about 1.8 occluders a scene, none in some
+        def scene(without: frozenset, seed: int = seed) -> Scene:
+            return generate_scene(np.random.default_rng(np.random.SeedSequence([seed, 2])), without)
+
+        full, plain = scene(frozenset({"hidden"})), scene(frozenset({"hidden", "partial"}))
+        assert [(o.model, o.x, o.y) for o in full.objects[:len(plain.objects)]] == [
+            (o.model, o.x, o.y) for o in plain.objects]
+        cars = [o for o in plain.objects if o.label == CAR]
+        for occluder in full.objects[len(plain.objects):]:
+            dist, ray = np.hypot(occluder.x, occluder.y), np.arctan2(occluder.y, occluder.x)
+            behind = [c for c in cars if np.hypot(c.x, c.y) > dist + 1.0
+                      and abs(np.angle(np.exp(1j * (np.arctan2(c.y, c.x) - ray)))) < 0.35]
+            assert behind, (seed, occluder.model, occluder.x, occluder.y)
+            found += 1
+    assert found >= 4
+
+
+def test_hard_negatives_add_car_sized_background_and_thin_out_posts():
+    """"negatives" adds barriers, planters, low hedges and car-sized bushes (background, not touching foreground)
+    and leaves out part of the posts, short poles and trunks; without it the street is drawn as before."""
+    new_models = {"long_planter", "jersey_barrier", "low_hedge", "car_bush"}
+    with_neg, without_neg = [], []
+    for seed in range(4):
+        rng_seed = np.random.SeedSequence([seed, 6])
+        with_neg += generate_scene(np.random.default_rng(rng_seed), frozenset({"partial"})).objects
+        without_neg += generate_scene(np.random.default_rng(rng_seed), frozenset({"partial", "negatives"})).objects
+    assert {o.model for o in with_neg} >= new_models
+    assert not new_models & {o.model for o in without_neg}
+    assert all(o.label == BACKGROUND and o.clearance is None for o in with_neg if o.model in new_models)
+
+    def thin(objects: list) -> int:
+        return sum(o.model in ("post", "short_pole", "trunk") for o in objects)
+
+    assert thin(with_neg) < 0.75 * thin(without_neg)
+
+
 def test_unknown_world_change_is_refused():
-    with pytest.raises(DatasetError, match=r"unknown world change.*known: clutter, beside, hidden, dark, mixed_pixels"):
+    with pytest.raises(DatasetError, match=r"unknown world change.*known: clutter, beside, hidden, partial, negatives, "
+                                           r"dark, mixed_pixels"):
         list(open_dataset("synthetic:frames=1,seed=0,without=clutter+rain"))
     with pytest.raises(ValueError, match="rain"):
         generate_frame(0, 0, without=frozenset({"rain"}))

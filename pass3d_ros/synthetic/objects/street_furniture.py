@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pass3d_ros.synthetic.materials import M_CABIN, M_METAL, M_OTHER, M_PAINT, M_POLE, M_SIGN, M_WALL
+from pass3d_ros.synthetic.materials import M_CABIN, M_METAL, M_OTHER, M_PAINT, M_POLE, M_SIGN, M_VEGETATION, M_WALL
 from pass3d_ros.synthetic.parts import Part, box, cylinder, disc, ellipsoid
 
 
@@ -167,3 +167,32 @@ def planter_parts(rng: np.random.Generator) -> list[Part]:
     """Concrete planter or barrier block 0.5-1.0 m tall (a wide low obstacle)."""
     h, r = rng.uniform(0.5, 1.0), rng.uniform(0.4, 0.8)
     return [box([0, 0, h / 2 - 0.1], [r, r * rng.uniform(0.5, 1.0), h / 2 + 0.1], M_WALL, float(rng.uniform(0.3, 0.6)))]
+
+
+def jersey_barrier_parts(rng: np.random.Generator, length: float) -> list[Part]:
+    """Concrete (jersey) barrier run `length` along x: a 0.6 m wide foot and a narrower wall to 0.8-1.1 m, in
+    segments 2-4 m long that touch (a low wide proposal: stage 2 sees it beside parked cars as car-long)."""
+    height = rng.uniform(0.8, 1.1)
+    rho = float(rng.uniform(0.3, 0.6))
+    foot, top = rng.uniform(0.28, 0.35), rng.uniform(0.12, 0.16)
+    parts = []
+    x = -length / 2
+    while x < length / 2 - 0.5:
+        seg = min(rng.uniform(2.0, 4.0), length / 2 - x)
+        cx = x + seg / 2
+        parts.append(box([cx, 0, 0.1], [seg / 2 - 0.01, foot, 0.3], M_WALL, rho))
+        parts.append(box([cx, 0, 0.4 + (height - 0.4) / 2], [seg / 2 - 0.01, top, (height - 0.4) / 2], M_WALL, rho))
+        x += seg
+    return parts
+
+
+def long_planter_parts(rng: np.random.Generator) -> list[Part]:
+    """Long concrete planter 2.5-5 m x 0.8-1.5 m, 0.5-0.8 m high, mostly planted with shrubs that reach 0.85-1.5 m:
+    a barrier-like block about the footprint of a car, seen low."""
+    length, width, h = rng.uniform(2.5, 5.0), rng.uniform(0.8, 1.5), rng.uniform(0.5, 0.8)
+    parts = [box([0, 0, h / 2 - 0.1], [length / 2, width / 2, h / 2 + 0.1], M_WALL, float(rng.uniform(0.3, 0.6)))]
+    if rng.random() < 0.85:
+        top = rng.uniform(0.35, 0.7)
+        parts.append(box([0, 0, h + top / 2], [length / 2 - 0.1, width / 2 - 0.1, top / 2 + 0.05], M_VEGETATION,
+                         float(rng.uniform(0.35, 0.6)), rounding=(1.1, 1.4, 1.6)))
+    return parts

@@ -96,3 +96,28 @@ def hedge_fragment_parts(rng: np.random.Generator) -> list[Part]:
     length, height, thick = rng.uniform(1.0, 4.0), rng.uniform(0.9, 2.0), rng.uniform(0.5, 1.2)
     return [box([0, 0, height / 2 - 0.1], [length / 2, thick / 2, height / 2 + 0.1], M_VEGETATION,
                 float(rng.uniform(0.35, 0.6)), rounding=(1.1, 1.4, 1.4))]
+
+
+def car_bush_parts(rng: np.random.Generator, length: float | None = None, height: float | None = None) -> list[Part]:
+    """Bush or shrub clump of car size: 2.2-5 m long, 1.1-2.2 m deep, 0.9-1.9 m high (or as given), a few
+    overlapping ellipsoids along x."""
+    length = rng.uniform(2.2, 5.0) if length is None else length
+    height = rng.uniform(0.9, 1.9) if height is None else height
+    depth = rng.uniform(1.1, 2.2)
+    rho = float(rng.uniform(0.35, 0.6))
+    n = max(2, int(length / 1.2))
+    parts = []
+    for x in np.linspace(-length / 2 + depth / 3, length / 2 - depth / 3, n):
+        semi = np.array([max(length / n * rng.uniform(0.6, 0.8), 0.4), depth / 2 * rng.uniform(0.8, 1.0),
+                         height / 2 * rng.uniform(0.85, 1.0)])
+        parts.append(ellipsoid([x + rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), semi[2]], semi, M_VEGETATION, rho))
+    return parts
+
+
+def low_hedge_parts(rng: np.random.Generator, length: float | None = None, height: float | None = None) -> list[Part]:
+    """Low hedge or box shrub row 2.5-6 m long (or as given), 0.9-1.3 m high (or as given), 0.6-1.2 m thick."""
+    length = rng.uniform(2.5, 6.0) if length is None else length
+    height = rng.uniform(0.9, 1.3) if height is None else height
+    thick = rng.uniform(0.6, 1.2)
+    return [box([0, 0, height / 2 - 0.1], [length / 2, thick / 2, height / 2 + 0.1], M_VEGETATION,
+                float(rng.uniform(0.35, 0.6)), rounding=(1.05, 1.4, 1.5))]
