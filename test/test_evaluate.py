@@ -14,7 +14,7 @@ import pytest
 from pass3d_ros.bench import live as bench_live
 from pass3d_ros.classes import CLASS_NAMES, FOREGROUND, IGNORE, NUM_CLASSES
 from pass3d_ros.core import stage2
-from pass3d_ros.core.metrics import SegmentationMetrics
+from pass3d_ros.core.metrics import ObjectRecall, SegmentationMetrics, format_objects
 from pass3d_ros.data.bag import iter_raw, read_bag, select_topic
 from pass3d_ros.data.bag_convert import convert
 from pass3d_ros.evaluation.live import LiveFrame, LiveResult, cdr_stamp_ns, run_live, with_stamp
@@ -69,8 +69,13 @@ def test_full_mode_json_has_every_key_and_true_point_counts(tmp_path: Path, caps
     assert set(background) == {"front_view", "called_object"}
     assert background["called_object"] <= background["front_view"] <= sum(r["proposals"] for r in rows)
     assert background["front_view"] > 0
+    objects = data["objects"]
+    assert objects["frames_without_instances"] == 0 and objects["min_points"] == 10
+    cars = objects["classes"]["car"]
+    assert 0 < cars["found"] <= cars["objects"] and cars["recall"] == pytest.approx(cars["found"] / cars["objects"])
     printed = capsys.readouterr().out
     assert "mean IoU (car, pedestrian, cyclist)" in printed and "stage 2" in printed and "#000001" in printed
+    assert f"car {cars['found']} of {cars['objects']}" in printed
     assert f"called an object: {background['called_object']} of {background['front_view']}" in printed
 
 
@@ -242,3 +247,30 @@ def test_live_scoring_accepts_unknown_labels_from_kitti_layouts(tmp_path: Path) 
     assert (result.frames_in, result.frames_out, result.mismatched) == (1, 1, 0)
     known = frame.labels != IGNORE
     assert result.confusion.matrix.sum() == np.count_nonzero(known)
+
+
+def test_object_recall_counts_objects_found_by_half_their_points() -> None:
+    car, ped = CLASS_NAMES.index("car"), CLASS_NAMES.index("pedestrian")
+    # car 0: 20 points, 10 called car (found at exactly half); car 1: 20 points, 9 called car (missed);
+    # car 2: 5 points (too small to count); pedestrian 3: 12 points all called car (missed); 4 stray car points
+    # without an instance id (not an object).
+    truth = np.array([car] * 45 + [ped] * 12 + [car] * 4)
+    instance = np.array([0] * 20 + [1] * 20 + [2] * 5 + [3] * 12 + [-1] * 4)
+    predicted = np.zeros(len(truth), dtype=np.uint8)
+    predicted[:10] = car
+    predicted[20:29] = car
+    predicted[40:45] = car
+    predicted[45:57] = car
+    predicted[57:] = car
+    objects = ObjectRecall()
+    objects.update(truth, predicted, instance)
+    objects.update(truth, predicted, None)
+    summary = objects.summary()
+    assert summary["frames_without_instances"] == 1
+    assert summary["classes"]["car"] | {"interval": None} == {"objects": 2, "found": 1, "recall": 0.5, "interval": None}
+    assert summary["classes"]["pedestrian"]["found"] == 0 and summary["classes"]["pedestrian"]["objects"] == 1
+    assert summary["classes"]["cyclist"]["recall"] is None
+    assert "car 1 of 2 (50.0 %" in format_objects(summary)[0]
+    with pytest.raises(ValueError, match="instance ids"):
+        objects.update(truth, predicted, instance[:-1])
+    assert ObjectRecall().summary() is None and format_objects(None) == []

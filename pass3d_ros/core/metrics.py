@@ -326,6 +326,67 @@ class SegmentationMetrics:
         }
 
 
+OBJECT_MIN_POINTS = 10  # smaller labelled objects are left out of the object count (1-5 point far returns)
+OBJECT_FOUND_SHARE = 0.5  # an object is found when at least this share of its points carry its class
+
+
+class ObjectRecall:
+    """Labelled objects found, per foreground class: an object (the points of one instance id and class, at least
+    `OBJECT_MIN_POINTS`) is found when at least `OBJECT_FOUND_SHARE` of its points are labelled its class.
+    Counts objects, not points, so one large car weighs as much as one small one; frames without instance
+    ids are counted apart and add no object."""
+
+    def __init__(self, min_points: int = OBJECT_MIN_POINTS, share: float = OBJECT_FOUND_SHARE) -> None:
+        self.min_points, self.share = min_points, share
+        self.objects: list[np.ndarray] = []  # per frame, objects per class id
+        self.found: list[np.ndarray] = []
+        self.frames_without_instances = 0
+
+    def update(self, truth: np.ndarray, predicted: np.ndarray, instance: np.ndarray | None) -> None:
+        """Add one frame's labels, predictions and instance ids (-1: no instance)."""
+        objects, found = np.zeros(NUM_CLASSES, np.int64), np.zeros(NUM_CLASSES, np.int64)
+        if instance is None:
+            self.frames_without_instances += 1
+            return
+        truth, predicted, instance = np.asarray(truth), np.asarray(predicted), np.asarray(instance)
+        if not len(truth) == len(predicted) == len(instance):
+            raise ValueError(f"{len(truth)} labels, {len(predicted)} predictions, {len(instance)} instance ids")
+        for c in FOREGROUND:
+            member = (truth == c) & (instance >= 0)
+            ids, counts = np.unique(instance[member], return_counts=True)
+            hits = np.bincount(np.searchsorted(ids, instance[member & (predicted == c)]), minlength=len(ids))
+            large = counts >= self.min_points
+            objects[c] = int(large.sum())
+            found[c] = int((hits[large] >= self.share * counts[large]).sum())
+        self.objects.append(objects)
+        self.found.append(found)
+
+    def summary(self) -> dict | None:
+        """{"min_points", "share", "frames_without_instances", "classes": {name: {"objects", "found", "recall",
+        "interval"}}} (frame bootstrap intervals, as `bootstrap_ratio`); None when no frame had instance ids."""
+        if not self.objects:
+            return None
+        objects, found = np.stack(self.objects), np.stack(self.found)
+        classes = {CLASS_NAMES[c]: {"objects": int(objects[:, c].sum()), "found": int(found[:, c].sum()),
+                                    "recall": _ratio(found[:, c].sum(), objects[:, c].sum()),
+                                    "interval": bootstrap_ratio(found[:, c], objects[:, c])} for c in FOREGROUND}
+        return {"min_points": self.min_points, "share": self.share,
+                "frames_without_instances": self.frames_without_instances, "classes": classes}
+
+
+def format_objects(objects: dict | None) -> list[str]:
+    """The object-count line: per class, labelled objects found, with their interval."""
+    if not objects:
+        return []
+    parts = []
+    for name, row in objects["classes"].items():
+        share = ("" if row["recall"] is None
+                 else f" ({percent_text(row['recall']).strip()} % {interval_text(row['interval'])})")
+        parts.append(f"{name} {row['found']} of {row['objects']}{share}")
+    return [f"objects found (>= {round(100 * objects['share'])} % of their points, objects of >= "
+            f"{objects['min_points']} points): " + "; ".join(parts)]
+
+
 def percent_text(value: float | None) -> str:
     return "   n/a" if value is None else f"{100 * value:6.1f}"
 

@@ -19,7 +19,7 @@ from pass3d_ros.core.config import ConfigError, config_from_text
 from pass3d_ros.core.held_lines import LineHolder
 from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.intensity_match import StreamIntensityMatch
-from pass3d_ros.core.metrics import SegmentationMetrics, Stage1Metrics
+from pass3d_ros.core.metrics import ObjectRecall, SegmentationMetrics, Stage1Metrics
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, proposals_cut
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
 from pass3d_ros.core.stage2 import Classifier
@@ -147,11 +147,13 @@ class StreamIntensity:
 
 def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, classifier: Classifier,
                   intensity_match: bool = INTENSITY_MATCH) -> dict:
-    """Stage 1 then stage 2 on every frame, scored against its labels: per-class metrics, stage times,
-    and the stage-1 summary. Each spec's intensities go to stage 2 on the training scale (`intensity_match`)."""
+    """Stage 1 then stage 2 on every frame, scored against its labels: per-class metrics, labelled objects
+    found, stage times, and the stage-1 summary. Each spec's intensities go to stage 2 on the training scale
+    (`intensity_match`)."""
     warm_up()
     classifier.warm_up()
     segmentation = SegmentationMetrics()
+    objects = ObjectRecall()
     stage1 = Stage1Metrics()
     background = np.zeros(2, dtype=np.int64)
     lines = LineHolder()
@@ -182,11 +184,13 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
             predicted[keep] = labels
         name = f"{spec}#{frame.name}"
         row = segmentation.update(name, frame.labels, predicted, 1e3 * (split - started), 1e3 * (done - split))
+        objects.update(frame.labels, predicted, frame.instance)
         row["proposals"] = result.n_proposals
         row["proposals_cut"] = cut
         stage1.update_result(name, result, truth, ground)
     summary = segmentation.summary()
     summary["stage1"] = stage1.summary()["stage1"]
+    summary["objects"] = objects.summary()
     summary["background_proposals"] = {"front_view": int(background[0]), "called_object": int(background[1])}
     summary["budget"] = budget.summary()
     summary["intensity"] = intensity.maps

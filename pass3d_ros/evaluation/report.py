@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from pass3d_ros.classes import FOREGROUND
-from pass3d_ros.core.metrics import format_metrics, interval_text, percent_text
+from pass3d_ros.core.metrics import format_metrics, format_objects, interval_text, percent_text
 from pass3d_ros.core.stage1 import STEPS
 from pass3d_ros.evaluation.live import LiveResult
 
@@ -132,6 +132,7 @@ def format_full(summary: dict, per_frame: bool = False) -> str:
     s1 = summary["stage1"]
     lines = [f"full pipeline over {summary['frames']} frame(s)", _classifier_line(summary)]
     lines += format_metrics(summary["classes"], summary["mean_iou"], summary.get("mean_iou_interval"))
+    lines += format_objects(summary.get("objects"))
     lines.append(_stage_ms_line(summary["ms_per_frame"]))
     lines.append(f"stage 1: foreground recall {_fmt(s1['foreground_recall'])}, proposals / frame median "
                  f"{_fmt(s1['proposals_per_frame']['median'], 1)}")

@@ -47,7 +47,10 @@ the lite network faster than two).
   "skipped"; low / high are null when every resample was); one frame gives a degenerate interval (low = high,
   "degenerate": true), which the table says. The table prints each IoU as "car 76.6 [68.1, 83.0]". Live
   runs carry the per-class intervals too.
-  full adds "stage1" (as below), "background_proposals": {"front_view": n, "called_object": n},
+  full adds "stage1" (as below), "objects": {"min_points": 10, "share": 0.5, "frames_without_instances": n,
+  "classes": {class: {"objects", "found", "recall", "interval"}}} (labelled objects of >= 10 points with at least
+  half their points labelled their class; null when no frame has instance ids; the table's "objects found" line),
+  "background_proposals": {"front_view": n, "called_object": n},
   "budget": {"max_proposals": N, "proposals_cut": n, "frames_cut": k} (proposals beyond the classifier's
   max_proposals, the nearest first kept: the cut ones are not classified, their points count as background; the
   table says "proposals cut by the budget: N in K frame(s)") and "per_frame": [{"frame", "points", "proposals",
