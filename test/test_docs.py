@@ -19,6 +19,25 @@ def test_relative_links_resolve(doc: Path) -> None:
     assert not missing, f"{doc.name} links to missing files: {missing}"
 
 
+ANCHOR_LINK = re.compile(r"\]\(([^)#\s]*)#([^)\s]+)\)")
+
+
+def _anchors(doc: Path) -> set[str]:
+    """GitHub's heading anchors: lower case, punctuation but hyphens dropped, spaces to hyphens."""
+    headings = re.findall(r"^#+ (.*)$", doc.read_text(), re.MULTILINE)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in headings}
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_section_links_name_a_heading(doc: Path) -> None:
+    broken = []
+    for path, anchor in ANCHOR_LINK.findall(doc.read_text()):
+        target = (doc.parent / path) if path else doc
+        if "://" not in path and target.suffix == ".md" and target.exists() and anchor not in _anchors(target):
+            broken.append(f"{path}#{anchor}")
+    assert not broken, f"{doc.name} links to missing sections: {broken}"
+
+
 @pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
 def test_no_paths_outside_the_repository(doc: Path) -> None:
     assert "../shared" not in doc.read_text(), f"{doc.name} names a path users do not have"
