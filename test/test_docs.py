@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import re
 from pathlib import Path
 
@@ -22,6 +23,7 @@ def test_relative_links_resolve(doc: Path) -> None:
 ANCHOR_LINK = re.compile(r"\]\(([^)#\s]*)#([^)\s]+)\)")
 
 
+@functools.cache
 def _anchors(doc: Path) -> set[str]:
     """GitHub's heading anchors: lower case, punctuation but hyphens dropped, spaces to hyphens."""
     headings = re.findall(r"^#+ (.*)$", doc.read_text(), re.MULTILINE)

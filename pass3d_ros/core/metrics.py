@@ -344,13 +344,13 @@ class ObjectRecall:
 
     def update(self, truth: np.ndarray, predicted: np.ndarray, instance: np.ndarray | None) -> None:
         """Add one frame's labels, predictions and instance ids (-1: no instance)."""
-        objects, found = np.zeros(NUM_CLASSES, np.int64), np.zeros(NUM_CLASSES, np.int64)
         if instance is None:
             self.frames_without_instances += 1
             return
         truth, predicted, instance = np.asarray(truth), np.asarray(predicted), np.asarray(instance)
         if not len(truth) == len(predicted) == len(instance):
             raise ValueError(f"{len(truth)} labels, {len(predicted)} predictions, {len(instance)} instance ids")
+        objects, found = np.zeros(NUM_CLASSES, np.int64), np.zeros(NUM_CLASSES, np.int64)
         for c in FOREGROUND:
             member = (truth == c) & (instance >= 0)
             ids, counts = np.unique(instance[member], return_counts=True)
