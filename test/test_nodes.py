@@ -6,6 +6,7 @@ real robot on the default domain never see each other's traffic.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import random
 import re
@@ -19,7 +20,7 @@ import pytest
 import rclpy
 import torch
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import PointCloud2
@@ -49,17 +50,23 @@ PROPOSAL_FIELDS = ("x", "y", "z", "intensity", "ring", "ground", "cluster_id", "
 
 
 class Ros:
-    """A private context, a multi-threaded executor spinning in a thread, and a probe node to talk with."""
+    """A private context, a single-threaded executor spinning in a thread (as the executables run the nodes), and a
+    probe node to talk with."""
 
     def __init__(self) -> None:
         self.domain = random.randint(100, 200)
         self.context = Context()
         rclpy.init(context=self.context, domain_id=self.domain)
-        self.executor = MultiThreadedExecutor(num_threads=3, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes: list = []
         self.probe = self.add(rclpy.create_node(f"probe_{random.getrandbits(32):08x}", context=self.context))
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
+
+    def _spin(self) -> None:
+        """Spin until closed; a context shut down under it (Ctrl-C) ends the spin, as in the executables."""
+        with contextlib.suppress(ExternalShutdownException):
+            self.executor.spin()
 
     def add(self, node):
         self.executor.add_node(node)
