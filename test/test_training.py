@@ -481,3 +481,81 @@ def test_best_without_validation_is_the_lowest_loss_even_above_one(tmp_path):
     losses = [h["train_loss"] for h in json.loads((tmp_path / "history.json").read_text())]
     best = torch.load(tmp_path / "best.pt", weights_only=True)
     assert best["epoch"] == int(np.argmin(losses)) and best["best_score"] == pytest.approx(-min(losses)), losses
+
+
+# ------------------------------------------------------------------------------------------ view consistency
+
+UNLABELLED = "synthetic:frames=1,seed=3"  # labelled, so the test can see the labels are not read
+
+
+def test_unlabelled_samples_read_no_labels_and_pair_the_same_points():
+    from pass3d_ros.training.consistency import unlabelled_samples, view_pair
+
+    samples = unlabelled_samples([UNLABELLED])
+    assert len(samples) > 5 and not np.any(samples.labels)  # the scan's cars and people are not read
+    config = make_config("lite")
+    ids = np.arange(len(samples))
+    weak_xyz, weak_feat, strong_xyz, strong_feat = view_pair(samples, ids, config, np.random.default_rng(1))
+    assert weak_xyz.shape == strong_xyz.shape == (len(ids), config.num_points, 3)
+    # One sample seen twice: the same pairwise distances (views are rigid maps, with mirrors), the same point count
+    # feature; the views differ for most proposals, and so does the augmented intensity.
+    pairwise = [np.linalg.norm(x[:, :, None] - x[:, None], axis=-1) for x in (weak_xyz, strong_xyz)]
+    assert np.allclose(*pairwise, atol=1e-4)
+    assert np.array_equal(weak_feat[:, :, 1], strong_feat[:, :, 1])
+    moved = np.abs(weak_xyz - strong_xyz).max(axis=(1, 2)) > 1e-3
+    assert moved.mean() > 0.5
+    assert not np.allclose(weak_feat[:, :, 0], strong_feat[:, :, 0])
+    # The first one is what inference feeds the network: the view nearest the sensor, the intensity as given.
+    from pass3d_ros.core.segmentation import prepare_proposals
+
+    again = view_pair(samples, ids, config, np.random.default_rng(1))
+    assert np.array_equal(again[0], weak_xyz)
+    seed = int(np.random.default_rng(1).integers(2**63))
+    inference = prepare_proposals(samples.points, samples.members(ids), config, rng=np.random.default_rng(seed),
+                                  boxes=samples.boxes, queries=False)
+    assert np.array_equal(inference.sample_xyz, weak_xyz) and np.array_equal(inference.sample_feat, weak_feat)
+
+
+def test_consistency_loss_counts_only_sure_points():
+    from pass3d_ros.training.consistency import consistency_loss
+
+    teacher = torch.tensor([[[0.95, 0.05, 0.0, 0.0], [0.4, 0.6, 0.0, 0.0], [0.0, 0.0, 0.1, 0.9]]])
+    student = torch.randn(1, 3, NUM_CLASSES)
+    loss, sure = consistency_loss(student, teacher, 0.9)
+    ce = torch.nn.functional.cross_entropy(student[0], torch.tensor([0, 1, 3]), reduction="none")
+    assert sure == pytest.approx(2 / 3)
+    assert loss.item() == pytest.approx((ce[0] + ce[2]).item() / 3, rel=1e-5)
+    assert consistency_loss(student, teacher, 0.99)[0].item() == 0.0
+
+
+def test_trainer_with_view_consistency_records_what_it_used(tmp_path):
+    rng = np.random.default_rng(9)
+    frames = [constructed_frame(rng, f"t{i}") for i in range(4)]
+    options = TrainOptions(data=["constructed:train"], out=tmp_path, config="lite", epochs=1, batch_size=4,
+                           max_steps=2, background_keep=1.0, threads=1, quiet=True, consistency=[UNLABELLED],
+                           consistency_batch=3, consistency_threshold=0.0)
+    threads = torch.get_num_threads()
+    try:
+        result = Trainer(options, proposer=instance_proposer, frame_source=lambda specs: iter(frames),
+                         command=["test"]).run()
+    finally:
+        torch.set_num_threads(threads)
+    # threshold 0: every unlabelled point is a target
+    assert result.history[0]["consistency_sure"] == 1.0 and np.isfinite(result.history[0]["train_loss"])
+    checkpoint = torch.load(result.last_path, weights_only=True)
+    assert checkpoint["data"]["consistency"] == [UNLABELLED]
+    assert checkpoint["train_args"]["consistency_batch"] == 3
+
+
+def test_consistency_data_without_proposals_is_refused(tmp_path, capsys):
+    empty = tmp_path / "seq"
+    (empty / "velodyne").mkdir(parents=True)
+    np.zeros((0, 4), np.float32).tofile(empty / "velodyne" / "000000.bin")
+    rng = np.random.default_rng(2)
+    frames = [constructed_frame(rng, "t0")]
+    options = TrainOptions(data=["constructed:train"], out=tmp_path / "run", epochs=1, quiet=True,
+                           consistency=[f"semantickitti:{empty}"])
+    from pass3d_ros.training.trainer import TrainingError
+
+    with pytest.raises(TrainingError, match="no proposals in semantickitti:.* for view consistency"):
+        Trainer(options, proposer=instance_proposer, frame_source=lambda specs: iter(frames), command=["test"]).run()

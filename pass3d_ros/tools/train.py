@@ -25,7 +25,7 @@ from typing import NoReturn
 
 from pass3d_ros.evaluation.offline import parse_params
 from pass3d_ros.tools.cli import EXIT_SIGINT, EXIT_SIGTERM, check_writable, run_tool
-from pass3d_ros.training import distributed, launcher
+from pass3d_ros.training import consistency, distributed, launcher
 from pass3d_ros.training.samples import Proposer
 from pass3d_ros.training.trainer import FrameSource, PeerLostError, Trainer, TrainingError, TrainOptions
 
@@ -95,6 +95,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "(e.g. th_dist=0.25; part of the sample cache name)")
     p.add_argument("--nproc", type=_number(int, 1), default=1, metavar="N",
                    help="data-parallel: train in N processes started here (the alternative is torchrun)")
+    p.add_argument("--consistency", action="append", default=[], metavar="SPEC",
+                   help="unlabelled real scans FORMAT:PATH for view consistency (their labels are not read)")
+    p.add_argument("--consistency-weight", type=_number(float, 0.0), default=consistency.DEFAULT_WEIGHT,
+                   help="weight of the view-consistency term")
+    p.add_argument("--consistency-threshold", type=_number(float, 0.0, 1.0), default=consistency.DEFAULT_THRESHOLD,
+                   help="inference-view probability a point's target needs")
+    p.add_argument("--consistency-batch", type=_number(int, 1), default=consistency.DEFAULT_BATCH,
+                   help="unlabelled proposals per optimizer step, over all processes")
     p.add_argument("--rebuild-cache", action="store_true", help="rerun stage 1 even if a sample cache exists")
     p.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
                    help="no progress bars (as in the other tools; --quiet is the old name)")

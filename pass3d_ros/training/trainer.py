@@ -43,7 +43,9 @@ from pass3d_ros.core.segmentation import (
 )
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_datasets, open_datasets_shard, resolve_datasets
+from pass3d_ros.training import consistency as consistency_defaults
 from pass3d_ros.training import distributed
+from pass3d_ros.training.consistency import consistency_loss, unlabelled_samples, view_pair
 from pass3d_ros.training.losses import make_loss
 from pass3d_ros.training.samples import (
     Proposer,
@@ -99,6 +101,10 @@ class TrainOptions:
     rebuild_cache: bool = False  # rerun stage 1 even if a sample cache exists
     quiet: bool = False  # no progress bars
     param: list[str] = field(default_factory=list)  # stage-1 overrides KEY=VALUE as given (the Trainer's `stage1`)
+    consistency: list[str] = field(default_factory=list)  # unlabelled real data specs for view consistency
+    consistency_weight: float = consistency_defaults.DEFAULT_WEIGHT
+    consistency_threshold: float = consistency_defaults.DEFAULT_THRESHOLD
+    consistency_batch: int = consistency_defaults.DEFAULT_BATCH  # unlabelled proposals per step, all processes
 
     def record(self) -> dict:
         """The options as a checkpoint stores them: plain values, paths as strings."""
@@ -149,6 +155,8 @@ class Trainer:
         self.progress = not options.quiet
         self.start_epoch, self.best_score, self.history = 0, -math.inf, []
         self.data_info: dict = {}
+        self.unlabelled: SampleSet | None = None  # proposals of the `consistency` scans
+        self._sure: list[float] = []  # the epoch's shares of unlabelled points sure enough to be a target
         self.init_model: PointNet2Seg | None = None  # the network `init` names, loaded before any work
         self.saved_epoch: int | None = None  # the last epoch this run wrote into last.pt (1-based)
         self.dist = distributed.Dist(device=options.device)
@@ -238,6 +246,13 @@ class Trainer:
         self._log(f"train samples: {self.train_set.describe()} (cache {train_cache.name})")
         if self.val_set is not None:
             self._log(f"val samples: {self.val_set.describe()}")
+        if o.consistency:
+            self.unlabelled = unlabelled_samples(o.consistency, self.stage1)  # small: every rank builds it alike
+            if len(self.unlabelled) == 0:
+                raise TrainingError(f"no proposals in {', '.join(o.consistency)} for view consistency")
+            self._log(f"view consistency: {len(self.unlabelled)} unlabelled proposals of "
+                      f"{len(self.unlabelled.frame_names)} scans, weight {o.consistency_weight}, "
+                      f"threshold {o.consistency_threshold}, {o.consistency_batch} a step")
         self.data_info = {
             "train": list(o.data),
             "val": list(o.val_data),
@@ -245,6 +260,7 @@ class Trainer:
             "val_samples": self.val_set.describe() if self.val_set is not None else None,
             "background_keep": o.background_keep,
             "stage1_params": stage1_overrides(self.stage1),
+            "consistency": list(o.consistency),
         }
 
     def _samples(
@@ -343,7 +359,7 @@ class Trainer:
         steps = -(-len(order) // batch_size)
         if o.max_steps:
             steps = min(steps, o.max_steps)
-        losses = []
+        losses, self._sure = [], []
         bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{o.epochs}", unit="batch",
                    disable=None if self.progress else True)
         started = time.perf_counter()
@@ -355,7 +371,10 @@ class Trainer:
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}", refresh=False)
         self.scheduler.step()
         loss = distributed.mean(self.dist, float(np.mean(losses)))
-        return {"epoch": epoch, "train_loss": loss, "seconds": time.perf_counter() - started}
+        record = {"epoch": epoch, "train_loss": loss, "seconds": time.perf_counter() - started}
+        if self._sure:
+            record["consistency_sure"] = distributed.mean(self.dist, float(np.mean(self._sure)))
+        return record
 
     def _train_step(self, ids: np.ndarray, rng: np.random.Generator) -> float:
         """One optimizer step on the proposals `ids` (a random view each unless no_augment, intensity augmented
@@ -364,12 +383,36 @@ class Trainer:
         xyz, feat, labels = training_batch(self.train_set, ids, self.config, rng, augment=not o.no_augment,
                                            intensity_augment=not o.no_intensity_augment)
         device = self.dist.device
-        logits = self.net(torch.from_numpy(xyz).to(device), torch.from_numpy(feat).to(device))
-        loss = self.loss_fn(logits, torch.from_numpy(labels.astype(np.int64)).to(device))
+        if self.unlabelled is None:
+            logits = self.net(torch.from_numpy(xyz).to(device), torch.from_numpy(feat).to(device))
+            loss = self.loss_fn(logits, torch.from_numpy(labels.astype(np.int64)).to(device))
+        else:
+            loss = self._consistency_step(xyz, feat, labels, rng)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
         return loss.item()
+
+    def _consistency_step(self, xyz: np.ndarray, feat: np.ndarray, labels: np.ndarray, rng: np.random.Generator
+                          ) -> torch.Tensor:
+        """The labelled loss plus the view-consistency term on this rank's share of `consistency_batch`
+        unlabelled proposals (pass3d_ros.training.consistency), in one forward pass through the trained net."""
+        o, device = self.options, self.dist.device
+        share = max(1, -(-o.consistency_batch // self.dist.world))
+        ids = rng.integers(0, len(self.unlabelled), share)
+        weak_xyz, weak_feat, strong_xyz, strong_feat = view_pair(self.unlabelled, ids, self.config, rng)
+        self.model.eval()
+        with torch.no_grad():
+            teacher = torch.softmax(self.model(torch.from_numpy(weak_xyz).to(device),
+                                               torch.from_numpy(weak_feat).to(device)).float(), dim=-1)
+        self.model.train()
+        logits = self.net(torch.from_numpy(np.concatenate([xyz, strong_xyz])).to(device),
+                          torch.from_numpy(np.concatenate([feat, strong_feat])).to(device))
+        labelled = len(xyz)
+        loss = self.loss_fn(logits[:labelled], torch.from_numpy(labels.astype(np.int64)).to(device))
+        term, sure = consistency_loss(logits[labelled:], teacher, o.consistency_threshold)
+        self._sure.append(sure)
+        return loss + o.consistency_weight * term
 
     def _validate(self, record: dict) -> float:
         """Score the epoch and log it: the validation mean IoU (NaN when undefined), or without validation

@@ -1,0 +1,97 @@
+"""View consistency on unlabelled real scans: adaptation without their labels (issue 28).
+
+Stage 2 reads a proposal in one canonical view; on real scans 20-25 % of car proposals change class across the 8
+views, on synthetic ones 1-3 %. Each training step adds a few proposals of unlabelled real scans: the network's own
+answer in the inference view (eval mode, no gradient) is the target for a random view of the same sampled points
+with augmented intensity, on the points it is sure of (FixMatch, Sohn et al., NeurIPS 2020, with the canonical views
+and the intensity augmentation as the strong augmentation). No label of those scans is read; their intensities are
+put on the training scale per stream, as the segmentation node does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+import torch
+from torch.nn import functional
+
+from pass3d_ros.core import canonical
+from pass3d_ros.core.config import Stage1Config
+from pass3d_ros.core.held_lines import LineHolder
+from pass3d_ros.core.intensity_match import StreamIntensityMatch
+from pass3d_ros.core.pointnet2 import ModelConfig
+from pass3d_ros.core.segmentation import prepare_proposals, uses_intensity
+from pass3d_ros.core.stage1 import proposal_members
+from pass3d_ros.data.spec import open_dataset
+from pass3d_ros.training.samples import SampleSet, augment_intensity
+
+DEFAULT_WEIGHT = 1.0  # the consistency term against the labelled loss
+DEFAULT_THRESHOLD = 0.9  # a point's target counts when its inference-view probability is at least this
+DEFAULT_BATCH = 8  # unlabelled proposals per optimizer step, over all processes
+
+
+def unlabelled_samples(specs: Iterable[str], stage1: Stage1Config | None = None) -> SampleSet:
+    """Every non-empty stage-1 proposal of the frames of `specs` (laser lines and the intensity map held per spec,
+    intensities on the training scale); labels are all background placeholders and are never read."""
+    points, index, counts, frame_ids, names, sizes = [], [], [], [], [], []
+    for spec in specs:
+        lines, intensity = LineHolder(), StreamIntensityMatch()
+        for frame in open_dataset(spec):
+            finite = np.isfinite(frame.points[:, :3]).all(axis=1)
+            scan = np.ascontiguousarray(frame.points[finite])
+            ring = None if frame.ring is None else frame.ring[finite]
+            result = lines.propose(scan, ring, stage1)
+            intensity.update(scan[:, 3])
+            scan = intensity.on_training_scale(scan)
+            for member in proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals):
+                if len(member) == 0:
+                    continue
+                points.append(scan[member])
+                index.append(np.flatnonzero(finite)[member].astype(np.int32))
+                counts.append(len(member))
+                frame_ids.append(len(names))
+            names.append(frame.name)
+            sizes.append(len(frame.points))
+    total = int(sum(counts))
+    return SampleSet(
+        points=np.concatenate(points).astype(np.float32) if points else np.zeros((0, 4), np.float32),
+        labels=np.zeros(total, dtype=np.uint8),
+        offsets=np.concatenate([[0], np.cumsum(counts, dtype=np.int64)]).astype(np.int64),
+        frame=np.asarray(frame_ids, dtype=np.int32),
+        point_index=np.concatenate(index) if index else np.zeros(0, np.int32),
+        frame_names=names,
+        frame_sizes=np.asarray(sizes, dtype=np.int64),
+    )
+
+
+def view_pair(samples: SampleSet, ids: np.ndarray, config: ModelConfig, rng: np.random.Generator
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The same random point sample of proposals `ids` twice: (xyz, features) in the inference view (the vertex
+    nearest the sensor, intensity as given), then in a random one of the 8 views with augmented intensity.
+    Point i of one is point i of the other."""
+    ids = np.asarray(ids, dtype=np.int64)
+    every = samples.boxes
+    boxes = canonical.Boxes(every.center[ids], every.size[ids], every.yaw[ids], every.zmin[ids])
+    members = samples.members(ids)
+    seed = int(rng.integers(2**63))
+    weak = prepare_proposals(samples.points, members, config, rng=np.random.default_rng(seed), boxes=boxes,
+                             queries=False)
+    views = rng.integers(0, canonical.NUM_VIEWS, len(ids))
+    strong = prepare_proposals(samples.points, members, config, views=views, rng=np.random.default_rng(seed),
+                               boxes=boxes, queries=False)
+    feat = strong.sample_feat
+    if uses_intensity(config):
+        feat[:, :, 0] = augment_intensity(feat[:, :, 0], rng)
+    return weak.sample_xyz, weak.sample_feat, strong.sample_xyz, feat
+
+
+def consistency_loss(student_logits: torch.Tensor, teacher_probs: torch.Tensor, threshold: float
+                     ) -> tuple[torch.Tensor, float]:
+    """Cross entropy of the student's logits (..., K) against the teacher's most likely class, on the points whose
+    teacher probability reaches `threshold`, averaged over all points (unsure ones add 0); and that sure share."""
+    confidence, target = teacher_probs.reshape(-1, teacher_probs.shape[-1]).max(dim=-1)
+    sure = (confidence >= threshold).float()
+    loss = functional.cross_entropy(student_logits.reshape(-1, student_logits.shape[-1]).float(), target,
+                                    reduction="none")
+    return (loss * sure).mean(), float(sure.mean())
