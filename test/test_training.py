@@ -557,5 +557,5 @@ def test_consistency_data_without_proposals_is_refused(tmp_path, capsys):
                            consistency=[f"semantickitti:{empty}"])
     from pass3d_ros.training.trainer import TrainingError
 
-    with pytest.raises(TrainingError, match="no proposals in semantickitti:.* for view consistency"):
+    with pytest.raises(TrainingError, match=r"no proposals in semantickitti:.* for view consistency"):
         Trainer(options, proposer=instance_proposer, frame_source=lambda specs: iter(frames), command=["test"]).run()
