@@ -559,3 +559,13 @@ def test_consistency_data_without_proposals_is_refused(tmp_path, capsys):
 
     with pytest.raises(TrainingError, match=r"no proposals in semantickitti:.* for view consistency"):
         Trainer(options, proposer=instance_proposer, frame_source=lambda specs: iter(frames), command=["test"]).run()
+
+
+def test_a_bad_consistency_spec_fails_before_stage_1(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["--data", "synthetic:frames=1,seed=5", "--out", str(out), "--quiet",
+            "--consistency", f"semantickitti:{tmp_path / 'missing'}"]
+    assert train.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "missing" in err and "not found" in err and "Traceback" not in err
+    assert not list(out.glob("samples_*.npz"))  # no training sample was built first

@@ -226,8 +226,16 @@ class Trainer:
             self.config.extra["intensity"] = False
 
     def _load_samples(self) -> None:
-        """Training (background partly discarded) and validation samples, from the caches or stage 1."""
+        """Unlabelled samples for view consistency (first: a bad spec fails before the long part), then training
+        (background partly discarded) and validation samples, from the caches or stage 1."""
         o = self.options
+        if o.consistency:
+            self.unlabelled = unlabelled_samples(o.consistency, self.stage1)  # small: every rank builds it alike
+            if len(self.unlabelled) == 0:
+                raise TrainingError(f"no proposals in {', '.join(o.consistency)} for view consistency")
+            self._log(f"view consistency: {len(self.unlabelled)} unlabelled proposals of "
+                      f"{len(self.unlabelled.frame_names)} scans, weight {o.consistency_weight}, "
+                      f"threshold {o.consistency_threshold}, {o.consistency_batch} a step")
         common = {
             "frames": self.frame_source or _default_frames,
             "seed": o.seed,
@@ -246,13 +254,6 @@ class Trainer:
         self._log(f"train samples: {self.train_set.describe()} (cache {train_cache.name})")
         if self.val_set is not None:
             self._log(f"val samples: {self.val_set.describe()}")
-        if o.consistency:
-            self.unlabelled = unlabelled_samples(o.consistency, self.stage1)  # small: every rank builds it alike
-            if len(self.unlabelled) == 0:
-                raise TrainingError(f"no proposals in {', '.join(o.consistency)} for view consistency")
-            self._log(f"view consistency: {len(self.unlabelled)} unlabelled proposals of "
-                      f"{len(self.unlabelled.frame_names)} scans, weight {o.consistency_weight}, "
-                      f"threshold {o.consistency_threshold}, {o.consistency_batch} a step")
         self.data_info = {
             "train": list(o.data),
             "val": list(o.val_data),
