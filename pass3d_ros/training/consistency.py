@@ -18,12 +18,10 @@ from torch.nn import functional
 
 from pass3d_ros.core import canonical
 from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.held_lines import LineHolder
-from pass3d_ros.core.intensity_match import StreamIntensityMatch
 from pass3d_ros.core.pointnet2 import ModelConfig
 from pass3d_ros.core.segmentation import prepare_proposals, uses_intensity
-from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.data.spec import open_dataset
+from pass3d_ros.training.real_scans import proposed_scans
 from pass3d_ros.training.samples import SampleSet, augment_intensity
 
 DEFAULT_WEIGHT = 1.0  # the consistency term against the labelled loss
@@ -35,24 +33,15 @@ def unlabelled_samples(specs: Iterable[str], stage1: Stage1Config | None = None)
     """Every non-empty stage-1 proposal of the frames of `specs` (laser lines and the intensity map held per spec,
     intensities on the training scale); labels are all background placeholders and are never read."""
     points, index, counts, frame_ids, names, sizes = [], [], [], [], [], []
-    for spec in specs:
-        lines, intensity = LineHolder(), StreamIntensityMatch()
-        for frame in open_dataset(spec):
-            finite = np.isfinite(frame.points[:, :3]).all(axis=1)
-            scan = np.ascontiguousarray(frame.points[finite])
-            ring = None if frame.ring is None else frame.ring[finite]
-            result = lines.propose(scan, ring, stage1)
-            intensity.update(scan[:, 3])
-            scan = intensity.on_training_scale(scan)
-            for member in proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals):
-                if len(member) == 0:
-                    continue
-                points.append(scan[member])
-                index.append(np.flatnonzero(finite)[member].astype(np.int32))
-                counts.append(len(member))
-                frame_ids.append(len(names))
-            names.append(frame.name)
-            sizes.append(len(frame.points))
+    frames = ((spec, frame) for spec in specs for frame in open_dataset(spec))
+    for scan in proposed_scans(frames, stage1):
+        for member in scan.members:
+            points.append(scan.points[member])
+            index.append(scan.kept[member].astype(np.int32))
+            counts.append(len(member))
+            frame_ids.append(len(names))
+        names.append(scan.frame.name)
+        sizes.append(len(scan.frame.points))
     total = int(sum(counts))
     return SampleSet(
         points=np.concatenate(points).astype(np.float32) if points else np.zeros((0, 4), np.float32),

@@ -17,11 +17,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pass3d_ros.classes import CLASS_NAMES, NUM_CLASSES
-from pass3d_ros.core.held_lines import LineHolder
-from pass3d_ros.core.intensity_match import StreamIntensityMatch
 from pass3d_ros.core.segmentation import Segmenter, proposal_majority, scatter_predictions
-from pass3d_ros.core.stage1 import Stage1Config, proposal_members
+from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.training.real_scans import proposed_scans
 
 DEFAULT_MIN_CONFIDENCE = 0.9  # median view-averaged confidence of a kept proposal's points
 
@@ -70,24 +69,11 @@ def pseudo_label_frames(frames: Iterator[tuple[str, Frame]], config: Stage1Confi
     """Each frame with pseudo-labels and only its kept points, intensities on the training scale (`intensity_match`,
     as stage 2 saw them); labels of the input are ignored; laser lines and the intensity map are held per spec."""
     stats = stats if stats is not None else PseudoLabelStats()
-    lines, intensity, current = LineHolder(), StreamIntensityMatch(), None
-    for spec, frame in frames:
-        lines.follow(spec)
-        if spec != current:
-            intensity.reset()
-            current = spec
-        finite = np.isfinite(frame.points[:, :3]).all(axis=1)
-        points = np.ascontiguousarray(frame.points[finite])
-        ring = None if frame.ring is None else frame.ring[finite]
-        result = lines.propose(points, ring, config)
-        members = [m for m in proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals) if len(m)]
-        if intensity_match:
-            intensity.update(points[:, 3])
-            points = intensity.on_training_scale(points)  # written as stage 2 saw it, so training sees the same
-        labels, keep, kept = pseudo_label_scan(points, members, segmenter, min_confidence)
+    for scan in proposed_scans(frames, config, intensity_match):
+        labels, keep, kept = pseudo_label_scan(scan.points, scan.members, segmenter, min_confidence)
         stats.frames += 1
         stats.kept += np.bincount(kept, minlength=NUM_CLASSES)
-        stats.left_out += len(members) - len(kept)
+        stats.left_out += len(scan.members) - len(kept)
         stats.points_left_out += int((~keep).sum())
-        yield Frame(name=frame.name, points=points[keep], stamp_ns=frame.stamp_ns,
-                    ring=None if ring is None else ring[keep], labels=labels[keep])
+        yield Frame(name=scan.frame.name, points=scan.points[keep], stamp_ns=scan.frame.stamp_ns,
+                    ring=None if scan.ring is None else scan.ring[keep], labels=labels[keep])

@@ -43,9 +43,8 @@ from pass3d_ros.core.segmentation import (
 )
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_datasets, open_datasets_shard, resolve_datasets
-from pass3d_ros.training import consistency as consistency_defaults
+from pass3d_ros.training import consistency as view_consistency  # `consistency` is a TrainOptions field
 from pass3d_ros.training import distributed
-from pass3d_ros.training.consistency import consistency_loss, unlabelled_samples, view_pair
 from pass3d_ros.training.losses import make_loss
 from pass3d_ros.training.samples import (
     Proposer,
@@ -102,9 +101,9 @@ class TrainOptions:
     quiet: bool = False  # no progress bars
     param: list[str] = field(default_factory=list)  # stage-1 overrides KEY=VALUE as given (the Trainer's `stage1`)
     consistency: list[str] = field(default_factory=list)  # unlabelled real data specs for view consistency
-    consistency_weight: float = consistency_defaults.DEFAULT_WEIGHT
-    consistency_threshold: float = consistency_defaults.DEFAULT_THRESHOLD
-    consistency_batch: int = consistency_defaults.DEFAULT_BATCH  # unlabelled proposals per step, all processes
+    consistency_weight: float = view_consistency.DEFAULT_WEIGHT
+    consistency_threshold: float = view_consistency.DEFAULT_THRESHOLD
+    consistency_batch: int = view_consistency.DEFAULT_BATCH  # unlabelled proposals per step, all processes
 
     def record(self) -> dict:
         """The options as a checkpoint stores them: plain values, paths as strings."""
@@ -230,7 +229,8 @@ class Trainer:
         (background partly discarded) and validation samples, from the caches or stage 1."""
         o = self.options
         if o.consistency:
-            self.unlabelled = unlabelled_samples(o.consistency, self.stage1)  # small: every rank builds it alike
+            # small: every rank builds it alike
+            self.unlabelled = view_consistency.unlabelled_samples(o.consistency, self.stage1)
             if len(self.unlabelled) == 0:
                 raise TrainingError(f"no proposals in {', '.join(o.consistency)} for view consistency")
             self._log(f"view consistency: {len(self.unlabelled)} unlabelled proposals of "
@@ -401,7 +401,8 @@ class Trainer:
         o, device = self.options, self.dist.device
         share = max(1, -(-o.consistency_batch // self.dist.world))
         ids = rng.integers(0, len(self.unlabelled), share)
-        weak_xyz, weak_feat, strong_xyz, strong_feat = view_pair(self.unlabelled, ids, self.config, rng)
+        weak_xyz, weak_feat, strong_xyz, strong_feat = view_consistency.view_pair(self.unlabelled, ids, self.config,
+                                                                                  rng)
         self.model.eval()
         with torch.no_grad():
             teacher = torch.softmax(self.model(torch.from_numpy(weak_xyz).to(device),
@@ -411,7 +412,7 @@ class Trainer:
                           torch.from_numpy(np.concatenate([feat, strong_feat])).to(device))
         labelled = len(xyz)
         loss = self.loss_fn(logits[:labelled], torch.from_numpy(labels.astype(np.int64)).to(device))
-        term, sure = consistency_loss(logits[labelled:], teacher, o.consistency_threshold)
+        term, sure = view_consistency.consistency_loss(logits[labelled:], teacher, o.consistency_threshold)
         self._sure.append(sure)
         return loss + o.consistency_weight * term
 
