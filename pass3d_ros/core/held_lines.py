@@ -1,4 +1,5 @@
-"""Laser lines held across the scans of one stream: the one place that decides which lines a scan is given.
+"""Laser lines and the ring field's order held across the scans of one stream: the one place that decides which
+lines a scan is given.
 
 A scan in no firing order and without a ring field (a column-major driver, a shuffled or filtered cloud) has its
 rings read off the laser lines of its sensor (pass3d_ros.core.ring). Searching for them costs 20-40 ms a scan; the
@@ -7,6 +8,9 @@ lines are a property of the sensor, so a stream searches once and gives the line
 none (`NO_LINES`) is not repeated on every scan either: the stream bins by elevation until `LINE_SEARCH_RETRY_S` has
 passed, then searches again. The cluster node and every offline tool (evaluation, segmentation, the stage-1
 benchmark, training's samples) hold their lines through a `LineHolder`, so a stream costs the same everywhere.
+
+A driver's ring field is read in the order of its rings' measured elevations (pass3d_ros.core.ring_field); the order
+is measured on a stream's first scan with a field and held with the lines, so the stream pays for it once.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import numpy as np
 from pass3d_ros.core import stage1 as _stage1
 from pass3d_ros.core.config import Stage1Config
 from pass3d_ros.core.ring import LaserLines
+from pass3d_ros.core.ring_field import RingFieldOrder
 
 LINE_SEARCH_RETRY_S = 10.0  # a stream whose laser-line search found none searches again after this long
 SCAN_PERIOD_S = 0.1  # offline (no clock), each scan counts as this long: a 10 Hz sensor's revolution
@@ -34,6 +39,7 @@ class LineHolder:
         self._clock = clock
         self._scans = 0
         self._lines: LaserLines | None = None
+        self._ring_order: RingFieldOrder | None = None
         self._searched_at = 0.0  # when a line search last found none (clock time)
         self._key: Hashable = None
 
@@ -45,9 +51,15 @@ class LineHolder:
         """The lines held now (None: none yet; `NO_LINES`: a search found none)."""
         return self._lines
 
+    @property
+    def ring_order(self) -> RingFieldOrder | None:
+        """How the stream's ring field is read (None: no field seen yet)."""
+        return self._ring_order
+
     def reset(self) -> None:
-        """Forget the lines: the next scan without a firing order searches."""
+        """Forget the lines and the ring field's order: the next scan without a firing order searches."""
         self._lines = None
+        self._ring_order = None
         self._searched_at = 0.0
 
     def follow(self, key: Hashable) -> None:
@@ -76,6 +88,7 @@ class LineHolder:
                 config: Stage1Config | None = None) -> _stage1.Stage1Result:
         """`pass3d_ros.core.stage1.propose` on the stream's next scan, given the held lines, holding what it found."""
         given = self.lines()
-        result = _stage1.propose(points, ring, config, lines=given)
+        result = _stage1.propose(points, ring, config, lines=given, ring_order=self._ring_order)
         self.hold(given, result.lines)
+        self._ring_order = result.ring_order or self._ring_order
         return result

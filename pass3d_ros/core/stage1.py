@@ -19,6 +19,7 @@ import numpy as np
 from pass3d_ros.core import ground as _ground
 from pass3d_ros.core import refinement as _refinement
 from pass3d_ros.core import ring as _ring
+from pass3d_ros.core import ring_field as _ring_field
 from pass3d_ros.core import scanline as _scanline
 from pass3d_ros.core import sensor_params as _sensor
 from pass3d_ros.core import split as _split
@@ -46,6 +47,7 @@ class Stage1Result:
     sensor: SensorScale | None = None  # the scan's resolution and the effective th_num / th_prop it ran with
     lines: _ring.LaserLines | None = None  # laser lines the rings were read from (NO_LINES: a search found none):
     # pass to the next scan's propose()
+    ring_order: _ring_field.RingFieldOrder | None = None  # how a ring field was read (None: no field): pass it on too
 
     @property
     def n_proposals(self) -> int:
@@ -54,7 +56,8 @@ class Stage1Result:
 
 
 def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Config | None = None,
-            lines: _ring.LaserLines | None = None) -> Stage1Result:
+            lines: _ring.LaserLines | None = None,
+            ring_order: _ring_field.RingFieldOrder | None = None) -> Stage1Result:
     """Run stage 1 on one scan: cluster proposals with per-point primary/secondary proposal ids.
 
     Points with a non-finite coordinate (a driver's no-return) take no part: ring 0, not ground, no proposal.
@@ -62,6 +65,10 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
     `lines`: the previous scan's `Stage1Result.lines` on a stream of one sensor; a scan in no firing order then skips
     the laser-line search when they still fit it, or (`NO_LINES`, from a search that found none) altogether
     (pass3d_ros.core.ring.recover_rings).
+    `ring`: a driver's ring field in any numbering (bottom-up, top-down, the driver's own): it is read in the order of
+    its rings' measured elevations, `ring_order` (the previous scan's `Stage1Result.ring_order`) while that covers
+    its values; a field that does not fit the points is ignored (pass3d_ros.core.ring_field). `Stage1Result.ring`
+    is then stage 1's ring, 0 = the highest laser.
     """
     cfg = config or Stage1Config()
     pts = np.ascontiguousarray(points, dtype=np.float32)
@@ -70,9 +77,10 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
     if ring is not None and len(ring) != len(pts):
         raise ValueError(f"ring field has {len(ring)} entries for {len(pts)} points")
     if np.isfinite(pts.sum()) or np.isfinite(pts[:, :3]).all():
-        return _propose_finite(pts, ring, cfg, lines)
+        return _propose_finite(pts, ring, cfg, lines, ring_order)
     valid = np.isfinite(pts[:, :3]).all(axis=1)
-    part = _propose_finite(np.ascontiguousarray(pts[valid]), None if ring is None else ring[valid], cfg, lines)
+    part = _propose_finite(np.ascontiguousarray(pts[valid]), None if ring is None else ring[valid], cfg, lines,
+                           ring_order)
     n = len(pts)
     full = {"ring": np.zeros(n, np.uint16), "ground": np.zeros(n, bool), "cluster_id": np.full(n, -1, np.int32),
             "cluster_id2": np.full(n, -1, np.int32)}
@@ -91,7 +99,7 @@ def _in_scan_order(rings: _ring.Rings) -> bool:
 
 
 def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
-                    lines: _ring.LaserLines | None) -> Stage1Result:
+                    lines: _ring.LaserLines | None, ring_order: _ring_field.RingFieldOrder | None) -> Stage1Result:
     """Stage 1 on float32 points whose coordinates are all finite.
 
     Ground plane fitting reads the points as they come (its sample does not depend on their order), on the ground
@@ -102,6 +110,8 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     effective config for its sensor (pass3d_ros.core.sensor_params.effective_config), reported in the result.
     """
     t0 = time.perf_counter()
+    if ring is not None:
+        ring, ring_order = _ring_field.field_rings(pts, np.asarray(ring), ring_order)
     # Under held laser lines the ground thread first assigns half of the points to them, then fits the ground.
     pool = _ground_pool() if cfg.ground_thread else None
     split = pool is not None and ring is None and lines is not None and not lines.empty
@@ -136,7 +146,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     return Stage1Result(
         ring=rings.ring, ground=fit.ground, cluster_id=cluster_id, cluster_id2=cluster_id2, boxes=boxes,
         timings_ms={k: 1e3 * v for k, v in timings.items()}, ring_source=rings.source, ground_planes=fit.planes,
-        n_clusters=n_clusters, n_split=n_split, sensor=sensor, lines=rings.lines,
+        n_clusters=n_clusters, n_split=n_split, sensor=sensor, lines=rings.lines, ring_order=ring_order,
     )
 
 

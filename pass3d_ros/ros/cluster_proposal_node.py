@@ -15,11 +15,12 @@ from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.core.held_lines import LineHolder
 from pass3d_ros.core.lasers import ring_limit
+from pass3d_ros.core.ring_field import RingFieldOrder
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, warm_up
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
 from pass3d_ros.msgs.pointcloud2 import warm_up as warm_up_codec
 from pass3d_ros.ros import params, scan_checks
-from pass3d_ros.ros.intensity_scale import StreamIntensityScale
+from pass3d_ros.ros.intensity_scale import FRAMES_TO_RAISE, StreamIntensityScale
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
 from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES
@@ -37,7 +38,9 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
         1.0, "multiplies the input intensity into [0,1] (1/255 for a 0..255 driver, 1/65535 for 16-bit "
         "reflectivity); a scan still outside 0..1 is divided by its detected full scale, with a warning", (0.0, 1.0),
     ),
-    "use_ring_field": (True, "use the cloud's ring field when present, else recover rings from azimuth", None),
+    "use_ring_field": (True, "use the cloud's ring field when present, in any numbering (measured from the points' "
+                       "elevations; a field that does not fit them is ignored), else recover rings from the points",
+                       None),
     "publish_boxes": (True, "publish the proposal boxes MarkerArray", None),
 }
 PARAMETERS = params.NodeParameters("cluster_proposal_node", NODE_PARAMETERS, {STAGE1_PREFIX: Stage1Config})
@@ -57,14 +60,17 @@ class ProposalFrame:
 ProposalSink = Callable[[ProposalFrame], None]
 
 
-def proposals_cloud(points: np.ndarray, result: Stage1Result) -> dict[str, np.ndarray]:
-    """The columns of /pass3d/proposals: everything the segmentation node needs, point order kept."""
+def proposals_cloud(points: np.ndarray, result: Stage1Result, ring: np.ndarray | None = None
+                    ) -> dict[str, np.ndarray]:
+    """The columns of /pass3d/proposals: everything the segmentation node needs, point order kept; `ring`: the
+    driver's field as it came (its own numbering) when there is one, else stage 1's rings (0 = highest laser)."""
+    ring = result.ring if ring is None else ring
     return {
         "x": points[:, 0],
         "y": points[:, 1],
         "z": points[:, 2],
         "intensity": points[:, 3],
-        "ring": result.ring.astype(np.uint16),
+        "ring": ring.astype(np.uint16),
         "ground": result.ground.astype(np.uint8),
         "cluster_id": result.cluster_id.astype(np.int32),
         "cluster_id2": result.cluster_id2.astype(np.int32),
@@ -83,6 +89,7 @@ class ClusterProposalNode(PointCloudNode):
         self.sink = sink
         self.config = params.read_config(self, Stage1Config, STAGE1_PREFIX)
         self._intensity = StreamIntensityScale()
+        self._ring_order: RingFieldOrder | None = None  # the order last reported (pass3d_ros.core.ring_field)
         self._sensor_source: tuple[str, int] | None = None
         self._lines = LineHolder(clock=time.monotonic)  # the stream's laser lines: a scan in no firing order skips
         # the search (pass3d_ros.core.held_lines)
@@ -128,6 +135,57 @@ class ClusterProposalNode(PointCloudNode):
                 "elevation, which splits or merges lasers: publish the driver's ring field or set stage1.sensor",
                 throttle_duration_sec=LOG_PERIOD_S)
 
+    def _unit_intensity(self, points: np.ndarray, summary: scan_checks.ScanSummary) -> scan_checks.ScanSummary:
+        """Put a scan's intensities in 0..1 in place (`intensity_scale`, then the stream's held full scale: a corrupt
+        scan changes no later scan's); returns the scan's summary after it."""
+        scale = self.get_parameter("intensity_scale").value
+        if scale != 1.0:
+            points[:, 3] *= scale
+            summary = summary.scaled(scale)
+        problem = summary.intensity_problem()
+        reading = self._intensity.read(points[:, 3], in_unit_range=not problem)
+        if reading.implausible:
+            self.get_logger().warning(
+                f"intensity: a corrupt scan ({reading.implausible}): divided by the stream's full scale "
+                f"{reading.divisor:g}, non-finite values read 0; it does not change the scale of later scans",
+                throttle_duration_sec=LOG_PERIOD_S)
+        elif reading.change is not None and (reading.change.old is not None or reading.change.new != 1.0):
+            self.get_logger().warning(
+                f"intensity: {problem or 'values within 0..1'} after intensity_scale {scale:g}, expected 0..1; "
+                f"this stream is divided by {reading.change.new:g} from now on ({reading.change}; a 0..255 driver "
+                "wants intensity_scale 1/255, 16-bit reflectivity 1/65535)")
+        elif reading.provisional and problem:
+            self.get_logger().warning(
+                f"intensity: {problem} after intensity_scale {scale:g}, expected 0..1; divided by {reading.divisor:g}, "
+                f"this scan's full scale, until {FRAMES_TO_RAISE} scans in a row agree on the stream's (a 0..255 "
+                "driver wants intensity_scale 1/255, 16-bit reflectivity 1/65535)", throttle_duration_sec=LOG_PERIOD_S)
+        if not problem and reading.divisor == 1.0:
+            return summary
+        points[:, 3] = scan_checks.unit_intensity(points[:, 3], reading.divisor)
+        return scan_checks.scan_summary(points)
+
+    def _report_ring_field(self, result: Stage1Result) -> None:
+        """Log the ring field's numbering when the stream's order is first measured or changes; warn (once per
+        measurement) when the field does not fit the points and is ignored."""
+        order = result.ring_order
+        if order is None or order is self._ring_order:
+            return
+        self._ring_order = order
+        if order.fits:
+            self.get_logger().info(f"ring field: numbered {order.convention.replace('_', '-')} (measured from the "
+                                   f"points' elevations; {100 * order.fit_share:.0f} % of returns fit their ring)")
+        else:
+            self.get_logger().warning(
+                f"ring field: does not fit the points (only {100 * order.fit_share:.0f} % of returns sit at their "
+                "ring's elevation); ignored, rings recovered from the points (set use_ring_field false to silence)")
+
+    def diagnostic_extras(self) -> tuple[dict[str, float | int | str], list[str]]:
+        """`ring_field`: the numbering measured in the input's ring field (none, top_down, bottom_up, driver_order,
+        unfit); an unfit field turns the status WARN."""
+        order = self._ring_order
+        warnings = ["ring field does not fit the points: ignored, rings recovered"] if order and not order.fits else []
+        return {"ring_field": "none" if order is None else order.convention}, warnings
+
     def _process(self, msg: PointCloud2) -> None:
         """One frame: decode, propose, publish; a malformed or empty frame is logged and skipped."""
         received = time.perf_counter()
@@ -136,9 +194,8 @@ class ClusterProposalNode(PointCloudNode):
             scan = decode_xyzi(msg, skip_nans=True)
         except PointCloud2Error as exc:
             self.get_logger().warning(f"skipping malformed PointCloud2: {exc}", throttle_duration_sec=LOG_PERIOD_S)
-            return
-        points = scan.points
-        ring = scan.ring if self.get_parameter("use_ring_field").value else None
+            return self.skipped("malformed")
+        points, field = scan.points, scan.ring  # field: the driver's ring numbering, published as it came
         summary = scan_checks.scan_summary(points)
         if not summary.plausible:
             keep = scan_checks.plausible_points(points)
@@ -146,29 +203,17 @@ class ClusterProposalNode(PointCloudNode):
                 f"x/y/z: dropping {np.count_nonzero(~keep)} points with non-finite or absurd coordinates "
                 f"(expected finite, |value| <= {scan_checks.MAX_COORDINATE_M:g} m)", throttle_duration_sec=LOG_PERIOD_S)
             points = points[keep]
-            ring = None if ring is None else ring[keep]
+            field = None if field is None else field[keep]
             summary = scan_checks.scan_summary(points)
         if len(points) == 0:
             self.get_logger().warning("skipping empty PointCloud2", throttle_duration_sec=LOG_PERIOD_S)
-            return
-        scale = self.get_parameter("intensity_scale").value
-        if scale != 1.0:
-            points[:, 3] *= scale
-            summary = summary.scaled(scale)
-        problem = summary.intensity_problem()
-        if problem or self._intensity.divisor not in (None, 1.0):
-            change = self._intensity.update(points[:, 3])
-            if change is not None:
-                self.get_logger().warning(
-                    f"intensity: {problem or 'values within 0..1'} after intensity_scale {scale:g}, expected 0..1; "
-                    f"this stream is divided by {change.new:g} from now on ({change}; a 0..255 driver wants "
-                    "intensity_scale 1/255, 16-bit reflectivity 1/65535)")
-            points[:, 3] = scan_checks.unit_intensity(points[:, 3], self._intensity.divisor or 1.0)
-            summary = scan_checks.scan_summary(points)
+            return self.skipped("empty")
+        summary = self._unit_intensity(points, summary)
         if summary.constant_intensity():
             self.get_logger().warning(
                 f"intensity: every point reads {float(points[0, 3]):g}; stage 2 will have no intensity information "
                 "(does the driver or conversion drop it?)", throttle_duration_sec=LOG_PERIOD_S)
+        ring = field if self.get_parameter("use_ring_field").value else None
         lasers = ring_limit(self.config.sensor, self.config.n_rings)
         if ring is not None and ring.max() >= lasers:
             self.get_logger().warning(
@@ -180,11 +225,14 @@ class ClusterProposalNode(PointCloudNode):
         result = self._lines.propose(points, ring, self.config)
         clock.mark("compute")
         self._report_sensor(result)
+        self._report_ring_field(result)
+        field_used = ring is not None and result.ring_order is not None and result.ring_order.fits
+        out_ring = field if field_used else result.ring
         if self.sink is not None:
-            self.sink(ProposalFrame(msg.header, points, result.ring, result.cluster_id, result.cluster_id2))
+            self.sink(ProposalFrame(msg.header, points, out_ring, result.cluster_id, result.cluster_id2))
             clock.mark("sink")
         if self.sink is None or self.proposals_pub.get_subscription_count() > 0:
-            cloud = encode(proposals_cloud(points, result), header=msg.header)
+            cloud = encode(proposals_cloud(points, result, out_ring), header=msg.header)
             clock.mark("encode")
             self.proposals_pub.publish(cloud)
             clock.mark("publish")
