@@ -7,6 +7,7 @@ scores the whole pipeline point by point (points outside every proposal count as
 
 from __future__ import annotations
 
+import ast
 import functools
 import hashlib
 import json
@@ -215,8 +216,38 @@ def cache_key(specs: list[str], background_keep: float, seed: int, keep_frame_la
     return hashlib.sha1(text.encode()).hexdigest()[:12]
 
 
-_STAGE1_SOURCES = ("stage1.py", "ground.py", "scanline.py", "ring.py", "refinement.py", "sensor_params.py",
-                   "config.py", "lasers.py")  # pass3d_ros/core files whose change changes the proposals
+STAGE1_ENTRY = "pass3d_ros.core.held_lines"  # what the samples call (it imports stage 1): its import closure is
+# every file whose change can change the proposals
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]  # the pass3d_ros folder
+
+
+def _imported_modules(path: Path) -> set[str]:
+    """The pass3d_ros modules a source file imports (`import a.b`, `from a import b`: b may be a module)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module)
+            found.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return {name for name in found if name.split(".")[0] == "pass3d_ros"}
+
+
+def source_closure(entry: str, root: Path = PACKAGE_ROOT) -> list[Path]:
+    """The source files of module `entry` and of every pass3d_ros module it imports, directly or not (sorted):
+    derived from the code, so a new or renamed stage-1 module is never left out of a cache's identity."""
+    seen: dict[str, Path] = {}
+    todo = [entry]
+    while todo:
+        name = todo.pop()
+        parts = name.split(".")[1:]
+        candidates = [root.joinpath(*parts).with_suffix(".py"), root.joinpath(*parts, "__init__.py")]
+        path = next((c for c in candidates if c.is_file()), None)
+        if path is None or name in seen:
+            continue
+        seen[name] = path
+        todo.extend(_imported_modules(path) - seen.keys())
+    return sorted(seen.values())
 
 
 def _digest(paths: list[Path]) -> str:
@@ -228,10 +259,10 @@ def _digest(paths: list[Path]) -> str:
     return digest.hexdigest()[:12]
 
 
-def stage1_identity() -> str:
-    """A hash of the stage-1 source files, so a changed stage 1 rebuilds the caches."""
-    core = Path(__file__).resolve().parents[1] / "core"
-    return _digest([core / name for name in _STAGE1_SOURCES])
+def stage1_identity(root: Path = PACKAGE_ROOT) -> str:
+    """A hash of every source file stage 1 runs (`source_closure`), so a changed stage 1 rebuilds the caches."""
+    files = source_closure(STAGE1_ENTRY, root)
+    return _digest(files)
 
 
 def stage1_overrides(config: Stage1Config | None) -> dict:
