@@ -115,8 +115,12 @@ def test_refuses_overwrite_without_force(tmp_path: Path, capsys: pytest.CaptureF
     (out / "keep.txt").write_text("mine")
     assert kitti2bag.main([f"--data=semantickitti:{seq}", f"--out={out}", "--no-progress"]) == 2
     assert "exists" in capsys.readouterr().err and (out / "keep.txt").read_text() == "mine"
+    assert kitti2bag.main([f"--data=semantickitti:{seq}", f"--out={out}", "--no-progress", "--force"]) == 2
+    assert "not a bag" in capsys.readouterr().err and (out / "keep.txt").read_text() == "mine"
+    (out / "keep.txt").unlink()
     assert kitti2bag.main([f"--data=semantickitti:{seq}", f"--out={out}", "--no-progress", "--force"]) == 0
-    assert not (out / "keep.txt").exists() and len(read_messages(out)) == 2
+    assert kitti2bag.main([f"--data=semantickitti:{seq}", f"--out={out}", "--no-progress", "--force"]) == 0
+    assert len(read_messages(out)) == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bag", "seq"]
 
 

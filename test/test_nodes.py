@@ -200,14 +200,15 @@ def test_malformed_and_empty_frames_are_skipped(ros: Ros, frame: Frame, capfd: p
                    stamp_ns=STAMP0 + 3)
     for count, msg in enumerate((short, no_z, empty), start=1):
         pub.publish(msg)  # one at a time: the one-slot mailbox must not drop them unprocessed
-        assert wait_until(lambda n=count: node.worker.counters.processed >= n and node.worker.idle())
+        assert wait_until(lambda n=count: node.worker.counters.skipped >= n and node.worker.idle())
     pub.publish(scan_message(frame, STAMP0 + 4))
     got = clouds.wait(1)
     time.sleep(0.2)
 
     assert [header_stamp_ns(m) for m in clouds.messages] == [STAMP0 + 4], "only the good frame comes out"
     counters = node.worker.counters
-    assert counters.failed == 0 and counters.dropped == 0 and counters.processed == 4
+    assert counters.failed == 0 and counters.dropped == 0 and (counters.processed, counters.skipped) == (1, 3)
+    assert node.skip_reasons == {"malformed": 2, "empty": 1}
     assert len(columns(got[0])) == len(frame.points)
     err = capfd.readouterr().err
     assert "skipping malformed PointCloud2" in err and "skipping empty PointCloud2" in err

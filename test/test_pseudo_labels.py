@@ -56,5 +56,7 @@ def test_tool_writes_a_trainable_sequence(tmp_path: Path) -> None:
     assert all(f.labels is not None and len(f.labels) == len(f.points) for f in frames)
     assert any(np.any(f.labels != BACKGROUND) for f in frames)
     assert pseudo_label.main(args) == 2  # exists: needs --force
-    assert pseudo_label.main([*args, "--min-confidence", "1.5", "--force"]) == 2
+    with pytest.raises(SystemExit) as refused:  # argparse's usage line, exit 2
+        pseudo_label.main([*args, "--min-confidence", "1.5", "--force"])
+    assert refused.value.code == 2
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no partial folder left behind

@@ -95,7 +95,8 @@ def test_in_memory_pipeline_labels_like_the_message_path(bag: Path) -> None:
     child = run_live(bag, lockstep=True, layout="in-memory", timeout_s=WAIT_S,
                      node_parameters={"segmentation_node": {"overlap": True, "process": True}})
     assert child.frames_in == child.frames_out == 2 and child.mismatched == 0
-    assert child.node_counters["segmentation_node"] == {"received": 2, "processed": 2, "dropped": 0, "failed": 0}
+    assert child.node_counters["segmentation_node"] == {"received": 2, "processed": 2, "dropped": 0, "failed": 0,
+                                                        "skipped": 0}
     assert child.node_stats["segmentation_node"]["handoff_p50_ms"] is not None  # by the publishing thread
     assert {f.stamp_ns: f.predicted.tobytes() for f in child.frames} == {
         f.stamp_ns: f.predicted.tobytes() for f in runs["in-memory"].frames}

@@ -14,6 +14,7 @@ from pass3d_ros.core import pointnet2, stage2
 from pass3d_ros.core.segmentation import Segmenter, make_checkpoint
 from pass3d_ros.core.size_rules import SizeRuleClassifier
 from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.data.outputs import MARKER
 from pass3d_ros.data.semantickitti import read_semantickitti
 from pass3d_ros.evaluation import bev
 from pass3d_ros.synthetic.dataset import generate_frame
@@ -129,6 +130,9 @@ def test_refusals_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
     code, err = run(f"--data={SPEC}", f"--out={out}", "--classifier=size_rules")
     assert code == 2 and "not empty" in err and "--force" in err
     assert sorted(p.name for p in out.iterdir()) == ["keep.txt"], "a refused run writes nothing"
+    code, err = run("--data=synthetic:frames=1,seed=4", f"--out={out}", "--classifier=size_rules", "--force")
+    assert code == 2 and "not an output folder of pass3d_segment" in err, "--force writes only into its own output"
+    (out / MARKER).write_text("written by pass3d_segment\n")
     code, err = run("--data=synthetic:frames=1,seed=4", f"--out={out}", "--classifier=size_rules", "--force")
     assert code == 0 and (out / "labels" / "000000.label").is_file() and (out / "keep.txt").is_file()
 

@@ -116,8 +116,11 @@ def test_ring_fallback_is_reported():
 
 def test_given_ring_field_is_used():
     points, rings, _ = raycast([car_at(10.0, 3.0)])
-    result = propose(points, ring=rings[::-1].copy())
-    assert result.ring_source == "field" and np.array_equal(result.ring, rings[::-1])
+    result = propose(points, ring=rings.copy())
+    assert result.ring_source == "field" and np.array_equal(result.ring, rings)
+    assert result.ring_order.convention == "top_down"
+    bottom_up = propose(points, ring=(63 - rings).astype(np.uint16))
+    assert bottom_up.ring_order.convention == "bottom_up" and np.array_equal(bottom_up.ring, rings)
     with pytest.raises(ValueError, match="ring field"):
         propose(points, ring=rings[:-1])
 

@@ -292,10 +292,13 @@ def test_view_keeps_an_existing_recording_without_force(tmp_path: Path, capsys: 
 
     pytest.importorskip("rerun")
     out = tmp_path / "x.rrd"
-    out.write_text("an earlier recording")
+    out.write_text("not a recording")
+    assert view.main(["--data", "synthetic:frames=1,seed=1", "--out", str(out), "--force"]) == 2
+    one_error_line(capsys.readouterr().err, "pass3d_view", out, "not a rerun recording")
+    out.write_bytes(view.RRD_MAGIC + b"2 an earlier recording")
     assert view.main(["--data", "synthetic:frames=1,seed=1", "--out", str(out)]) == 2
     one_error_line(capsys.readouterr().err, "pass3d_view", out, "--force")
-    assert out.read_text() == "an earlier recording"
+    assert out.read_bytes() == view.RRD_MAGIC + b"2 an earlier recording"
     assert view.main(["--data", "synthetic:frames=1,seed=1", "--out", str(out), "--force"]) == 0
     assert out.stat().st_size > 1_000 and sorted(p.name for p in tmp_path.iterdir()) == ["x.rrd"]
 
@@ -323,7 +326,8 @@ def test_segment_failure_leaves_no_half_output(tmp_path: Path, monkeypatch: pyte
 
     out = tmp_path / "out"
     write_png = segment.write_png
-    for error, status, says in ((PermissionError(13, "Permission denied", "bev/000002.png"), 2, "Permission denied"),
+    for error, status, says in ((PermissionError(13, "Permission denied", "bev/000002.png"), 2,
+                                 "bev/000002.png: permission denied"),
                                 (cli.Interrupted(130), 130, f"interrupted; {out} left as it was")):
         calls: list[Path] = []
 
@@ -377,8 +381,8 @@ def test_segment_param_reaches_stage1(tmp_path: Path, monkeypatch: pytest.Monkey
 
     seen = []
     propose = stage1.propose
-    monkeypatch.setattr(stage1, "propose", lambda pts, ring, config, lines=None: seen.append(config)
-                        or propose(pts, ring, config, lines))
+    monkeypatch.setattr(stage1, "propose", lambda pts, ring, config, lines=None, ring_order=None: seen.append(config)
+                        or propose(pts, ring, config, lines, ring_order))
     base = ["--data", "synthetic:frames=1,seed=1", "--classifier", "size_rules", "--no-progress", "--no-png"]
     assert segment.main([*base, "--out", str(tmp_path / "a"), "--param", "th_dist=0.25", "--param", "n_seg=4"],
                         log=lambda _: None) == 0

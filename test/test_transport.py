@@ -112,7 +112,8 @@ def feed(watch: InputWatch, start: float, frames: list[int], period: float = 0.1
 
 def test_input_watch_reports_scans_missing_between_arrivals() -> None:
     watch = InputWatch("/velodyne_points", None)
-    arrived = [0, 3, 4, 9, 13, 14, 17, 19]  # 8 of 20 (measured over Fast DDS defaults: 1 to 6 of 20)
+    arrived = [0, 3, 4, 9, 13, 14, 17, 19, 20]  # 9 of 21 (measured over Fast DDS defaults: 1 to 6 of 20); the last
+    # arrival on time confirms the gap before it as loss (until then it may be a slower rate)
     now = feed(watch, 0.0, arrived)
     problem = watch.check(now + 0.1, ["sensor"], "sensor")
     expected = arrived[-1] - arrived[0] + 1

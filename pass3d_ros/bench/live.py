@@ -48,6 +48,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
+from pass3d_ros.data.outputs import write_text_atomic
+from pass3d_ros.tools.cli import number
 
 if TYPE_CHECKING:
     from pass3d_ros.core.stage2 import Classifier
@@ -249,8 +251,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pass3d_benchmark live`."""
     parser.add_argument("--frames", type=int, default=10, metavar="N", help="synthetic frames in the bag (default 10)")
     parser.add_argument("--seed", type=int, default=7, help="synthetic scene seed (default 7)")
-    parser.add_argument("--rate", type=float, default=1.0, metavar="R", help="play at 10 Hz x R (default 1)")
-    parser.add_argument("--hz", type=float, metavar="F", help="input rate in Hz (overrides --rate; default 10)")
+    parser.add_argument("--rate", type=number(float, 0.0, low_open=True), default=1.0, metavar="R",
+                        help="play at 10 Hz x R (default 1)")
+    parser.add_argument("--hz", type=number(float, 0.0, low_open=True), metavar="F",
+                        help="input rate in Hz (overrides --rate; default 10)")
     parser.add_argument("--load", type=int, default=0, metavar="N",
                         help="N competing processes, each spinning one CPU during the run (default 0)")
     parser.add_argument("--layout", choices=("one-process", "in-memory", "two-process"), default="in-memory",
@@ -263,10 +267,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "another process's below)")
     parser.add_argument("--input-qos", choices=("auto", "sensor", "reliable"),
                         help="the cluster node's input QoS (default: its parameter default, auto)")
-    parser.add_argument("--seconds", type=float, metavar="S",
+    parser.add_argument("--seconds", type=number(float, 0.0, low_open=True), metavar="S",
                         help=f"replay length (default {SUSTAIN_SECONDS:.0f}; {SOAK_SECONDS:.0f} with --soak)")
     parser.add_argument("--soak", action="store_true", help="long run watching resident memory")
-    parser.add_argument("--warmup", type=float, default=30.0, metavar="S",
+    parser.add_argument("--warmup", type=number(float, 0.0), default=30.0, metavar="S",
                         help="memory reference taken this long after start (default 30; a quarter of a shorter run)")
     parser.add_argument("--classifier", choices=("network", "size_rules"), help="stage-2 classifier (default network)")
     parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
@@ -401,7 +405,6 @@ def run(args: argparse.Namespace) -> int:
                   "rss_samples": [[round(t, 2), round(m, 2)] for t, m in sampler.samples],
                   "windows": windows,
                   "target_met": met}
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=2) + "\n")
+        write_text_atomic(args.json, json.dumps(report, indent=2) + "\n")
         print(f"wrote {args.json}")
     return 0

@@ -23,7 +23,9 @@ from pass3d_ros.core.held_lines import LineHolder
 from pass3d_ros.core.ring import LaserLines
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, propose, synthetic_scan, warm_up
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
+from pass3d_ros.tools.cli import error_text
 
 PATCHWORK_HINT = "pip install pypatchworkpp"
 REORDERINGS: tuple[str, ...] = ("column", "shuffled")
@@ -200,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         frames, streams = load_frames(args.data, args.limit)
     except (DatasetError, FileNotFoundError, NotADirectoryError) as exc:
-        print(f"pass3d_benchmark stage1: error: {exc}", file=sys.stderr)
+        print(f"pass3d_benchmark stage1: error: {error_text(exc)}", file=sys.stderr)
         return 2
     if not frames:
         print("pass3d_benchmark stage1: error: no frames to time", file=sys.stderr)
@@ -229,6 +231,5 @@ def run(args: argparse.Namespace) -> int:
         report["orders"] = time_orders(frames, args.repeat, config, REORDERINGS if args.order == "all" else
                                        (args.order,))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=2) + "\n")
+        write_text_atomic(args.json, json.dumps(report, indent=2) + "\n")
     return 0

@@ -17,6 +17,7 @@ from pass3d_ros.core.segmentation import (
     prepare_proposals,
 )
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
+from pass3d_ros.tools.cli import torch_device
 
 # (length, width, height) of the constructed proposals: car, pedestrian, cyclist, background clutter.
 _SHAPES = np.array([[4.2, 1.7, 1.6], [0.7, 0.6, 1.8], [1.8, 0.7, 1.7], [2.5, 1.5, 2.5]])
@@ -55,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=int, default=15, help="timed frames (after 2 warm-up frames)")
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS,
                         help=f"CPU threads: torch, OpenMP, OpenBLAS (default {DEFAULT_THREADS})")
-    parser.add_argument("--device", default="cpu", help="cpu or cuda")
+    parser.add_argument("--device", type=torch_device, default="cpu", help="cpu or cuda")
     parser.add_argument("--seed", type=int, default=0)
 
 

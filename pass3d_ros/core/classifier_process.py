@@ -9,8 +9,11 @@ commands have it).
 
 A child that dies (the OOM killer's SIGKILL, a crash in a native library) is noticed at once by a supervisor
 thread, reported once, and started again after a back-off (1, 2, 4 ... s, at most 30 s; reset by a frame served);
-meanwhile `segment` raises `ClassifierProcessDownError` at once, so the caller drops the frame instead of waiting. The
-child ignores SIGINT: Ctrl-C in a terminal reaches the whole process group, and the parent shuts the child down.
+meanwhile `segment` raises `ClassifierProcessDownError` at once, so the caller drops the frame instead of waiting. A
+child that answers nothing for `timeout_s` (hung, or stopped by SIGSTOP) is killed by the supervisor, which SIGKILL
+does even to a stopped process: that frame raises `ClassifierProcessHungError` and the child is restarted like a dead
+one. The child ignores SIGINT: Ctrl-C in a terminal reaches the whole process group, and the parent shuts the child
+down.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from pass3d_ros.core.threads import limit_threads
 START_TIMEOUT_S = 120.0  # loading torch and the weights, and the warm-up, in a fresh interpreter
 STOP_TIMEOUT_S = 5.0
 POLL_S = 0.2  # how often a start that waits for the child looks whether it should give up
+WATCH_S = 0.1  # how often the supervisor looks whether the frame in the child has outlived `timeout_s`
 RESTART_FIRST_S = 1.0  # back-off before the first restart after a death; doubled per further failure
 RESTART_MAX_S = 30.0
 
@@ -48,6 +52,10 @@ class ClassifierProcessError(ClassifierError):
 
 class ClassifierProcessDownError(ClassifierProcessError):
     """No child serves now (it died and is being restarted, or the classifier is closed): the frame is not segmented."""
+
+
+class ClassifierProcessHungError(ClassifierProcessDownError):
+    """The child answered nothing for `timeout_s` during this frame: it was killed (and is being restarted)."""
 
 
 def restart_delay(failures: int) -> float:
@@ -173,15 +181,21 @@ class ProcessClassifier:
     """A classifier (`pass3d_ros.core.stage2.open_classifier` arguments) opened and running in a child process.
 
     One frame at a time (the caller's thread waits for its result); `close` ends the child, as does the parent's
-    exit. `pid` is the serving child's process id; `kind` and `weights` are what it opened. A child that dies is
-    restarted (see the module's description); `report(level, message)` hears of each death and restart,
-    `restarts` counts the restarts, `down_for()` says how long no child has served.
+    exit. `pid` is the serving child's process id; `kind` and `weights` are what it opened. A child that dies, or
+    answers a frame nothing for `timeout_s` seconds (None: waits forever), is restarted (see the module's
+    description); `report(level, message)` hears of each death, kill and restart, `restarts` counts the restarts,
+    `hangs` the children killed for hanging, `down_for()` says how long no child has served.
     """
 
     def __init__(self, weights: str | None, classifier: str | None = DEFAULT_CLASSIFIER, device: str = "cpu",
-                 max_proposals: int = DEFAULT_MAX_PROPOSALS, threads: int = 1, report: Report | None = None) -> None:
+                 max_proposals: int = DEFAULT_MAX_PROPOSALS, threads: int = 1, report: Report | None = None,
+                 timeout_s: float | None = None) -> None:
         self.max_proposals = max_proposals
+        self.timeout_s = timeout_s
         self.restarts = 0
+        self.hangs = 0
+        self._asked: float | None = None  # when the frame in hand was handed to the child (None: no frame)
+        self._killed_pid: int | None = None  # the child the supervisor killed for hanging
         self._args = (weights, classifier, device, max_proposals, threads)
         self._report: Report = report or (lambda level, message: None)
         self._closing = threading.Event()
@@ -200,11 +214,18 @@ class ProcessClassifier:
             child = self._child
             if child is None:
                 raise ClassifierProcessDownError(self._down_reason())
+            self._asked = time.monotonic()  # the supervisor's watch covers the send too: a stopped child's full pipe
             try:
                 child.conn.send(("segment", points, members, int(self.max_proposals)))
                 status, detail = child.conn.recv()
             except (EOFError, OSError, ValueError):
+                if self._killed_pid == child.pid:
+                    raise ClassifierProcessHungError(
+                        f"stage-2 process {child.pid} answered nothing for {self.timeout_s:g} s (stage2_timeout): "
+                        "killed, restarting; this frame is dropped") from None
                 raise ClassifierProcessDownError(f"stage-2 process {child.pid} ended during this frame") from None
+            finally:
+                self._asked = None
         if status != "ok":
             raise ClassifierProcessError(f"stage-2 process failed this frame:\n{detail}")
         self._failures = 0
@@ -224,10 +245,15 @@ class ProcessClassifier:
         """Nothing: the child warmed up before it said it was ready."""
 
     def _supervise(self) -> None:
-        """Wait for the serving child to end; unless closing, report it and start another with back-off."""
+        """Wait for the serving child to end, killing it when a frame outlives `timeout_s`; unless closing, report
+        it and start another with back-off."""
         child = self._child
         while child is not None:
-            wait([child.process.sentinel])
+            while not wait([child.process.sentinel], WATCH_S):
+                asked, timeout = self._asked, self.timeout_s
+                if timeout is not None and asked is not None and time.monotonic() - asked > timeout:
+                    self._killed_pid = child.pid
+                    child.process.kill()  # SIGKILL: also ends a stopped (SIGSTOP) process
             if self._closing.is_set():
                 return
             child.process.join(STOP_TIMEOUT_S)
@@ -235,8 +261,13 @@ class ProcessClassifier:
                 self._down_since = time.monotonic()
                 self._child = None
             child.conn.close()
-            self._report("error", f"stage 2 process {child.pid} died ({describe_exit(child.process.exitcode)}); "
-                                  f"frames are dropped until it is restarted, in {restart_delay(self._failures):g} s")
+            if self._killed_pid == child.pid:
+                self.hangs += 1
+                how = f"answered nothing for {self.timeout_s:g} s (hung or stopped): killed"
+            else:
+                how = f"died ({describe_exit(child.process.exitcode)})"
+            self._report("error", f"stage 2 process {child.pid} {how}; frames are dropped until it is restarted, "
+                                  f"in {restart_delay(self._failures):g} s")
             child = self._restart()
 
     def _restart(self) -> _Child | None:

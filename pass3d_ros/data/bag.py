@@ -13,7 +13,9 @@ caller asks for the predictions (`read_bag(PATH, labels="predicted")`).
 
 Writing: `BagWriter` builds the bag in a hidden sibling folder (`.NAME.partial-XXXX`) and renames it into
 place only when complete, so an interrupted or failed write leaves nothing that looks like a bag. A build
-folder whose writer is gone (killed with SIGKILL, power loss) is removed by the next write of the same bag.
+folder whose writer is gone (killed with SIGKILL, power loss) is removed by the next write of the same bag. With
+force it replaces only a bag it can open (or an empty folder), never the working folder, an input or a folder above
+one (pass3d_ros.data.outputs); a recorder whose disk filled up can still keep what it wrote (`keep_written`).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal
@@ -36,6 +38,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from pass3d_ros.data.errors import DatasetError
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.outputs import check_force, refuse_protected, writing
 from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
 from pass3d_ros.msgs.pointcloud2 import (
     POINTCLOUD2_TYPE,
@@ -59,6 +62,35 @@ LabelSource = Literal["truth", "predicted"]
 
 class BagError(ValueError):
     """A bag cannot be written (exists, bad option, ...); the message names the path and the problem."""
+
+
+def topic_name_problem(name: str) -> str | None:
+    """What makes `name` an invalid ROS 2 topic name (the rules of rcl's topic name check), or None when it is
+    valid: it starts with `/`, `~`, `_` or a letter, holds only letters, digits and `_/~{}`, has no `//`, no trailing
+    `/`, no token starting with a digit, `~` only first (followed by `/`) and braces only in matched pairs."""
+    if not name:
+        return "it is empty"
+    if not (name[0] in "/~_" or (name[0].isascii() and name[0].isalpha())):
+        return "it must start with '/', '~', '_' or a letter"
+    bad = sorted({c for c in name if not (c.isascii() and (c.isalnum() or c in "_/~{}"))})
+    if bad:
+        return f"it holds {''.join(bad)!r}; only letters, digits and _ / ~ {{ }} are allowed"
+    if "//" in name:
+        return "it holds '//'"
+    if name.endswith("/"):
+        return "it ends with '/'"
+    if "~" in name[1:] or (name.startswith("~") and len(name) > 1 and name[1] != "/"):
+        return "'~' may only come first, followed by '/'"
+    depth = 0
+    for char in name:
+        depth += {"{": 1, "}": -1}.get(char, 0)
+        if depth not in (0, 1):
+            return "its braces do not pair up"
+    if depth:
+        return "its braces do not pair up"
+    if any(token[:1].isdigit() for token in name.split("/")):
+        return "a part of it starts with a digit"
+    return None
 
 
 def parse_bag_spec(text: str | Path) -> tuple[Path, str | None]:
@@ -274,8 +306,12 @@ class BagWriter:
     """
 
     def __init__(self, out: str | Path, *, storage: str = "mcap", version: int = 9, force: bool = False,
-                 log: Callable[[str], None] | None = None) -> None:
+                 log: Callable[[str], None] | None = None, inputs: Iterable[str | Path] = (),
+                 what: str = "--out") -> None:
         self.out = Path(out)
+        if self.out.name in ("", ".", ".."):  # `.`, `x/..`: name the folder itself, so the build sibling has a name
+            self.out = self.out.resolve()
+        self.inputs, self.what = tuple(inputs), what
         self.log = log if log is not None else _to_stderr
         if storage not in STORAGES:
             raise BagError(f"unknown storage {storage!r}, expected one of {', '.join(STORAGES)}")
@@ -289,8 +325,13 @@ class BagWriter:
         self._connections: dict[str, Connection] = {}
 
     def _check_target(self) -> None:
-        if (self.out.exists() or self.out.is_symlink()) and not self.force:
+        """Refuse a path no writer may touch; an existing one needs force, and then must be a bag (or empty)."""
+        refuse_protected(self.out, self.inputs, self.what)
+        if not (self.out.exists() or self.out.is_symlink()):
+            return
+        if not self.force:
             raise BagError(f"{self.out} exists; pass --force to overwrite it")
+        check_force(self.out, ours=is_bag, kind="a bag", inputs=self.inputs, what=self.what)
 
     @property
     def temporary_path(self) -> Path | None:
@@ -324,7 +365,8 @@ class BagWriter:
             self._connections[topic] = conn
         elif conn.msgtype != msgtype:
             raise BagError(f"{self.out}: topic {topic} already holds {conn.msgtype}, not {msgtype}")
-        self._writer.write(conn, int(stamp_ns), data)
+        with writing(self.out):
+            self._writer.write(conn, int(stamp_ns), data)
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def write(self, topic: str, msg: Any, stamp_ns: int) -> None:
@@ -336,25 +378,50 @@ class BagWriter:
         if self._writer is None or self._tmp is None:
             raise BagError(f"{self.out}: writer is not open")
         try:
-            self._writer.close()
+            with writing(self.out):
+                self._writer.close()
             self._writer = None
-            self._check_target()
-            replaced = None
-            if self.out.exists() or self.out.is_symlink():
-                replaced = self._tmp / ".replaced"
-                self.out.rename(replaced)
-            try:
-                (self._tmp / self.out.name).rename(self.out)
-            except BaseException:
-                if replaced is not None:
-                    replaced.rename(self.out)
-                raise
+            self._move_into_place()
         except BaseException:
             self.abort()
             raise
+        return self.out
+
+    def keep_written(self) -> tuple[Path, int] | None:
+        """After a failed write (a full disk): finish the bag with the messages written before and move it into
+        place when it reads back whole; (its path, its message count), or None with everything removed."""
+        if self._writer is None or self._tmp is None or not any(self.counts.values()):
+            self.abort()
+            return None
+        try:
+            with contextlib.suppress(Exception):  # the storage may have been left mid-record: closing tries
+                self._writer.close()
+            self._writer = None
+            count = _readable_messages(self._tmp / self.out.name)
+            if count < sum(self.counts.values()):
+                raise BagError(f"{self.out}: only {count} of the messages written read back")
+            self._move_into_place()
+        except Exception:
+            self.abort()
+            return None
+        return self.out, count
+
+    def _move_into_place(self) -> None:
+        """Rename the finished bag to `out`, setting an old one (force) aside and removing it once replaced."""
+        assert self._tmp is not None
+        self._check_target()
+        replaced = None
+        if self.out.exists() or self.out.is_symlink():
+            replaced = self._tmp / ".replaced"
+            self.out.rename(replaced)
+        try:
+            (self._tmp / self.out.name).rename(self.out)
+        except BaseException:
+            if replaced is not None:
+                replaced.rename(self.out)
+            raise
         shutil.rmtree(self._tmp, ignore_errors=True)
         self._tmp = None
-        return self.out
 
     def abort(self) -> None:
         """Drop everything written so far; nothing is left at `out` or beside it."""
@@ -377,6 +444,29 @@ class BagWriter:
             self.close()
         else:
             self.abort()
+
+
+def is_bag(path: Path) -> bool:
+    """Whether `path` is a rosbag2 bag this package can open (what --force may replace)."""
+    if not path.is_dir() or path.is_symlink():
+        return False
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception:  # rosbags raises FileNotFoundError, ReaderError, yaml and sqlite errors
+        return False
+    reader.close()
+    return True
+
+
+def _readable_messages(path: Path) -> int:
+    """How many messages of the bag at `path` read back; any error reading it propagates."""
+    reader = Reader(path)
+    reader.open()
+    try:
+        return sum(1 for _ in reader.messages())
+    finally:
+        reader.close()
 
 
 def _to_stderr(text: str) -> None:

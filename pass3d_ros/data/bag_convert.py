@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pass3d_ros.data.bag import TRUTH_FIELD, TYPESTORE, BagWriter
+from pass3d_ros.data.bag import TRUTH_FIELD, TYPESTORE, BagError, BagWriter, topic_name_problem
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.outputs import dataset_paths
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, columns_to_cloud, encode
 
@@ -69,15 +70,21 @@ def convert(
     progress: bool = True,
     log: Callable[[str], None] = print,
 ) -> ConvertStats:
-    """Write the frames of `specs` into the bag `out`; nothing is left at `out` if anything fails."""
+    """Write the frames of `specs` into the bag `out`; nothing is left at `out` if anything fails. `force` replaces
+    only an existing bag, never an input or a folder holding one."""
     if not specs:
         raise DatasetError("no --data given")
+    problem = topic_name_problem(topic)
+    if problem is not None:
+        raise BagError(f"topic {topic!r} is not a valid ROS 2 topic name: {problem}")
+    if not frame_id.strip():
+        raise BagError("frame_id is empty; the clouds need a frame to be shown in")
     datasets = resolve_datasets(specs)
     counts = [dataset.count() for dataset in datasets]
     total = None if None in counts else sum(c for c in counts if c is not None)
     stats = ConvertStats()
     synthesized: list[str] = []
-    writer = BagWriter(out, storage=storage, version=version, force=force, log=log)
+    writer = BagWriter(out, storage=storage, version=version, force=force, log=log, inputs=dataset_paths(datasets))
     bar = tqdm(total=total, unit="frame", desc=Path(out).name, disable=None if progress else True)  # None: TTY only
     with writer, bar:
         for dataset in datasets:

@@ -46,6 +46,7 @@ from pass3d_ros.data.bag import (
     BagWriter,
     is_output_cloud,
     message_stamp_ns,
+    parse_bag_spec,
     truth_field,
 )
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, finite_mask, header_stamp_ns
@@ -355,10 +356,10 @@ class LiveOptions:
         """Refuse values that cannot run (ConfigError naming the option)."""
         if self.layout not in LAYOUTS:
             raise ConfigError(f"layout must be one of {', '.join(LAYOUTS)}, got {self.layout!r}")
-        if self.rate < 0:
-            raise ConfigError(f"rate must be >= 0, got {self.rate}")
-        if self.timeout_s <= 0:
-            raise ConfigError(f"timeout_s must be > 0, got {self.timeout_s}")
+        if not (np.isfinite(self.rate) and self.rate >= 0):
+            raise ConfigError(f"the rate (--rate) must be a finite number >= 0, got {self.rate}")
+        if not (np.isfinite(self.timeout_s) and self.timeout_s > 0):
+            raise ConfigError(f"the timeout (--timeout) must be a finite number of seconds > 0, got {self.timeout_s}")
         if self.repeat < 1:
             raise ConfigError(f"repeat must be >= 1, got {self.repeat}")
         if self.log_level is not None and self.log_level.lower() not in LOG_LEVELS:
@@ -408,7 +409,9 @@ class LiveHarness:
         self.overrides = _overrides(options.node_parameters)
         self.result = LiveResult(lockstep=options.lockstep, rate=options.rate,
                                  record_out=Path(options.record_out) if options.record_out else None)
-        self.writer = BagWriter(options.record_out, force=options.force) if options.record_out is not None else None
+        source = bag.path if isinstance(bag, BagFile) else parse_bag_spec(bag)[0]
+        self.writer = (None if options.record_out is None else
+                       BagWriter(options.record_out, force=options.force, inputs=(source,), what="--record-out"))
         self.nodes: list[Any] = []
         self.context: Any = None
         self.executor: Any = None

@@ -21,6 +21,7 @@ from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
 from pass3d_ros.msgs.pointcloud2 import warm_up as warm_up_codec
 from pass3d_ros.ros import params, scan_checks
 from pass3d_ros.ros.intensity_scale import FRAMES_TO_RAISE, StreamIntensityScale
+from pass3d_ros.ros.latest_frame import Outcome
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
 from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES
@@ -186,7 +187,7 @@ class ClusterProposalNode(PointCloudNode):
         warnings = ["ring field does not fit the points: ignored, rings recovered"] if order and not order.fits else []
         return {"ring_field": "none" if order is None else order.convention}, warnings
 
-    def _process(self, msg: PointCloud2) -> None:
+    def _process(self, msg: PointCloud2) -> Outcome | None:
         """One frame: decode, propose, publish; a malformed or empty frame is logged and skipped."""
         received = time.perf_counter()
         clock = self.step_clock()

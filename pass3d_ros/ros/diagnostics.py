@@ -1,8 +1,9 @@
-"""Per-node live counters for `/diagnostics`: frames received / processed / dropped, input gaps from header
-stamps, latency percentiles and where each frame's time went (queue wait, decode, compute, encode, publish,
+"""Per-node live counters for `/diagnostics`: frames received / processed / skipped / dropped, input gaps from
+header stamps, latency percentiles and where each frame's time went (queue wait, decode, compute, encode, publish,
 and the in-memory next stage).
 
-`NodeStats` knows no rclpy (it is fed plain numbers); `to_status` builds the `diagnostic_msgs` message.
+`NodeStats` and `OutputWatch` know no rclpy (they are fed plain numbers); `to_status` builds the
+`diagnostic_msgs` message.
 """
 
 from __future__ import annotations
@@ -15,14 +16,12 @@ from collections.abc import Mapping
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
+from pass3d_ros.ros.input_watch import MIN_PERIOD_NS, Cadence
+
 DIAGNOSTICS_TOPIC = "/diagnostics"
 DIAGNOSTICS_PERIOD_S = 1.0
-GAP_FACTOR = 1.5  # a stamp interval above this x the sensor's period means frames were lost before the node
 HISTORY = 200  # frames kept for the percentiles
-CADENCE_WINDOW = 30  # recent stamp intervals the sensor's period is estimated from (gaps included: it re-learns)
-CADENCE_QUANTILE = 10.0  # a first guess of the period: this low percentile of them, so that loss leaves it alone
-MIN_INTERVALS = 3  # intervals seen before gaps are counted
-MIN_PERIOD_NS = 2_000_000  # no scanning LiDAR turns faster than 500 Hz: a shorter interval is a repeated stamp
+NO_OUTPUT_WARN_S = 3.0  # frames came in and were skipped, dropped or failed, but none went out for this long: WARN
 MAX_GAP_NS = 10_000_000_000  # a longer silence is a pause of the stream (stopped, bag restarted), not lost frames
 STEPS = ("wait", "decode", "compute", "handoff", "encode", "publish", "sink")  # sink: the in-memory next stage;
 # handoff: the wait in segmentation_node's publishing thread (overlap)
@@ -34,17 +33,27 @@ class NodeStats:
     def __init__(self, history: int = HISTORY, count_gaps: bool = True) -> None:
         self._lock = threading.Lock()
         self.count_gaps = count_gaps  # False where the input is another node's output, whose drops are its own
-        self._intervals: deque[int] = deque(maxlen=CADENCE_WINDOW)
+        self._cadence = Cadence()  # the sensor's period, learnt (a rate change is no loss); input_gaps and
+        # frames_missed are its confirmed losses
         self._last_stamp: int | None = None
-        self.input_gaps = 0  # stamp intervals longer than GAP_FACTOR x the sensor's period
-        self.frames_missed = 0  # frames those gaps stand for (interval / period - 1, rounded)
         self.stream_pauses = 0  # silences longer than MAX_GAP_NS
         self.stamps_out_of_order = 0  # stamps not after the previous one, or repeated within MIN_PERIOD_NS
         self.latency_ms: deque[float] = deque(maxlen=history)
         self.steps_ms: dict[str, deque[float]] = {name: deque(maxlen=history) for name in STEPS}
 
+    @property
+    def input_gaps(self) -> int:
+        """Stamp intervals confirmed as frames lost before the node."""
+        return self._cadence.gaps
+
+    @property
+    def frames_missed(self) -> int:
+        """Frames those gaps stand for (interval / learned period - 1, rounded)."""
+        return self._cadence.missed
+
     def input(self, stamp_ns: int) -> None:
-        """A frame arrived with this header stamp: count the frames missing since the previous one."""
+        """A frame arrived with this header stamp: count the frames missing since the previous one (once the
+        stream confirms them: a rate change is learnt, not counted)."""
         if not self.count_gaps:
             return
         with self._lock:
@@ -58,20 +67,7 @@ class NodeStats:
             if interval > MAX_GAP_NS:
                 self.stream_pauses += 1
                 return
-            if len(self._intervals) >= MIN_INTERVALS:
-                period = self._period()
-                missing = round(interval / period) - 1
-                if interval > GAP_FACTOR * period and missing >= 1:
-                    self.input_gaps += 1
-                    self.frames_missed += missing
-            self._intervals.append(interval)
-
-    def _period(self) -> float:
-        """The sensor's period (call with the lock held): each recent interval divided by the whole number of
-        periods it spans by a first guess (a low percentile), then their median, which averages out jitter."""
-        intervals = np.asarray(self._intervals, dtype=np.float64)
-        guess = float(np.percentile(intervals, CADENCE_QUANTILE))
-        return float(np.median(intervals / np.maximum(1.0, np.round(intervals / guess))))
+            self._cadence.add(interval)
 
     def frame(self, steps_ms: Mapping[str, float]) -> None:
         """One processed frame: its step times (ms); their sum is the node's latency for it."""
@@ -92,7 +88,8 @@ class NodeStats:
                     "frames_missed_upstream": self.frames_missed,
                     "stream_pauses": self.stream_pauses,
                     "stamps_out_of_order": self.stamps_out_of_order,
-                    "input_period_ms": self._period() / 1e6 if self._intervals else None,
+                    "input_rate_changes": self._cadence.rate_changes,
+                    "input_period_ms": self._cadence.period_ns / 1e6 if self._cadence.period_ns else None,
                 })
             out.update({
                 "latency_p50_ms": float(np.percentile(latency, 50)) if len(latency) else None,
@@ -118,23 +115,67 @@ class StepClock:
         self._last = now
 
 
+class OutputWatch:
+    """Says when frames come in but none goes out: over the last `after_s` the input grew and the output did not
+    (the totals alone read fine while a stream of malformed clouds produces nothing); names where they went."""
+
+    def __init__(self, after_s: float = NO_OUTPUT_WARN_S) -> None:
+        self.after_s = after_s
+        self._samples: deque[tuple[float, dict[str, int]]] = deque()  # (time, counters) at each check
+        self._last_output: float | None = None  # when the output count last grew (or watching began)
+
+    def check(self, now: float, counters: Mapping[str, int], skip_reasons: Mapping[str, int]) -> str:
+        """The warning ("" when none) from the node's counters (received, processed = output, skipped, dropped,
+        failed) and its skips by reason, totals since start; called about once a second."""
+        current = {key: int(counters.get(key, 0)) for key in ("received", "processed", "skipped", "dropped",
+                                                              "failed")}
+        current.update({f"skip:{reason}": int(count) for reason, count in skip_reasons.items()})
+        if self._last_output is None or (self._samples and current["processed"] != self._samples[-1][1]["processed"]):
+            self._last_output = now
+        self._samples.append((now, current))
+        while len(self._samples) > 1 and now - self._samples[1][0] >= self.after_s:
+            self._samples.popleft()
+        then, base = self._samples[0]
+        if now - then < self.after_s:
+            return ""
+        new = {key: value - base.get(key, 0) for key, value in current.items()}
+        if not new["received"] or new["processed"]:
+            return ""
+        reasons = ", ".join(f"{key[5:]} {count}" for key, count in new.items() if key.startswith("skip:") and count)
+        why = [f"{new['skipped']} skipped" + (f" ({reasons})" if reasons else "")] if new["skipped"] else []
+        why += [f"{new[key]} {key}" for key in ("dropped", "failed") if new[key]]
+        return (f"no output for {now - self._last_output:.0f} s while {new['received']} frames came in: "
+                + (", ".join(why) or "none finished"))
+
+
 def to_status(name: str, counters: Mapping[str, int], stats: NodeStats, message: str = "",
-              warning: str = "") -> DiagnosticStatus:
-    """One DiagnosticStatus: OK, or WARN when frames were dropped, failed or lost before the node, or when a
-    `warning` (what is wrong now, e.g. with the input) is given; the warning is then the message."""
+              warning: str = "", error: str = "") -> DiagnosticStatus:
+    """One DiagnosticStatus: OK; WARN when frames were dropped, failed or lost before the node, or when a `warning`
+    (what is wrong now, e.g. with the input) is given; ERROR when an `error` is (a stage that had to be killed).
+    The error, else the warning, is then the message."""
     values: dict[str, float | int | None] = dict(counters)
     values.update(stats.snapshot())
     trouble = bool(warning) or any(values.get(k) for k in ("dropped", "failed", "input_gaps"))
+    level = DiagnosticStatus.ERROR if error else DiagnosticStatus.WARN if trouble else DiagnosticStatus.OK
     return DiagnosticStatus(
-        level=DiagnosticStatus.WARN if trouble else DiagnosticStatus.OK,
+        level=level,
         name=name,
-        message=warning or message or ("frames dropped or lost" if trouble else "ok"),
+        message="; ".join(m for m in (error, warning) if m) or message or (
+            "frames dropped or lost" if trouble else "ok"),
         hardware_id="pass3d",
         values=[KeyValue(key=k, value="" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v)))
                 for k, v in values.items()],
     )
 
 
-def status_values(status: DiagnosticStatus) -> dict[str, float | None]:
-    """A DiagnosticStatus's values back as numbers (None where empty): what a monitor or test reads."""
-    return {kv.key: (float(kv.value) if kv.value else None) for kv in status.values}
+def status_values(status: DiagnosticStatus) -> dict[str, float | str | None]:
+    """A DiagnosticStatus's values back as numbers (None where empty, text where not a number): what a monitor or
+    test reads."""
+    return {kv.key: _number(kv.value) for kv in status.values}
+
+
+def _number(text: str) -> float | str | None:
+    try:
+        return float(text) if text else None
+    except ValueError:
+        return text

@@ -1,6 +1,7 @@
 """Says when a node's input goes wrong between processes: publishers exist but no scan arrives, or scans arrive
 with stamps missing in between; names the likely cause (message size vs the transport, a QoS mismatch) and the
-fix. Plain numbers in, one line out: the node logs it (throttled) and puts it on /diagnostics."""
+fix. Plain numbers in, one line out: the node logs it (throttled) and puts it on /diagnostics. `Cadence` learns
+the sensor's period from the stamps (a rate change is re-learnt, not reported as loss)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,101 @@ from pass3d_ros.ros.qos import RELIABILITY_WORDS
 SILENT_AFTER_S = 5.0  # publishers but no scan for this long: say so
 WINDOW_S = 10.0  # missing scans are counted among the stamps that arrived this recently
 MISSING_FRACTION = 0.2  # ... and reported when at least this share of the expected scans (and 3) is missing
-PERIOD_PERCENTILE = 10  # the sensor period: a low percentile of the stamp steps (losses only lengthen steps)
+MIN_PERIOD_NS = 2_000_000  # no scanning LiDAR turns faster than 500 Hz: a shorter interval is a repeated stamp
+FIRST_INTERVALS = 3  # intervals the first period is learnt from (their smallest whole fraction)
+PERIOD_SAMPLES = 30  # the period is the median of this many recent on-period intervals (it follows a slow drift)
+ON_PERIOD = 1.5  # an interval within this factor of the period (either way) is on period
+MULTIPLE_TOLERANCE = 0.15  # an interval this close (in periods) to a whole multiple of a period is that multiple
+RATE_CHANGE_INTERVALS = 8  # this many off-period intervals in a row that one new period explains: a rate change
+REGULAR_SHARE = 0.75  # ... when at least this share of them is that period itself (loss leaves many lengths)
+
+
+class Cadence:
+    """The sensor's period learnt from header stamp intervals, and the frames missing between them.
+
+    An interval near the period confirms it. A longer one is a gap: frames lost (whole periods missing) or the
+    first interval of a slower rate, so its missing frames stay pending until the stream tells which. An on-period
+    interval again, or later intervals no single new period explains (3, then 2 periods), confirm them as loss;
+    RATE_CHANGE_INTERVALS off-period intervals in a row that one new period explains (20 -> 5 Hz: 4, 4, 4 ...;
+    5 -> 10 Hz: 0.5, 0.5 ...) are a rate change: the period is re-learnt and nothing is counted lost.
+    """
+
+    def __init__(self) -> None:
+        self.period_ns: float | None = None
+        self.gaps = 0  # intervals confirmed as loss
+        self.missed = 0  # frames those stand for
+        self.rate_changes = 0
+        self._samples: deque[float] = deque(maxlen=PERIOD_SAMPLES)
+        self._first: list[int] = []  # intervals before a period is known
+        self._run: list[int] = []  # off-period intervals since the last on-period one, their loss pending
+
+    def add(self, interval_ns: int) -> int:
+        """One stamp interval (at least MIN_PERIOD_NS, not a pause of the stream); returns the frames it
+        confirms lost, in it or in earlier pending gaps."""
+        if self.period_ns is not None:
+            return self._classify(interval_ns)
+        self._first.append(interval_ns)
+        if len(self._first) < FIRST_INTERVALS:
+            return 0
+        first, self._first = self._first, []
+        self.period_ns = _base_period(first)
+        return sum(self._classify(interval) for interval in first)
+
+    def pending(self) -> int:
+        """Frames that the pending gaps stand for if they turn out to be loss."""
+        return sum(self._missing(interval) for interval in self._run)
+
+    def _classify(self, interval: int) -> int:
+        period = self.period_ns or float(interval)
+        if period / ON_PERIOD <= interval <= ON_PERIOD * period:
+            self._samples.append(float(interval))
+            self.period_ns = float(np.median(self._samples))
+            return self._confirm(len(self._run))
+        self._run.append(interval)
+        lost = self._confirm(self._explained_from())
+        if len(self._run) >= RATE_CHANGE_INTERVALS and self._regular():
+            self.period_ns = _base_period(self._run)
+            self._samples.clear()
+            self._samples.extend(interval / max(1, round(interval / self.period_ns)) for interval in self._run)
+            self._run = []
+            self.rate_changes += 1
+        return lost
+
+    def _explained_from(self) -> int:
+        """Where the longest tail of the pending run starts that one period (its shortest interval) explains."""
+        for start in range(len(self._run)):
+            tail = np.asarray(self._run[start:], dtype=np.float64)
+            multiples = tail / tail.min()
+            if np.all(np.abs(multiples - np.round(multiples)) <= MULTIPLE_TOLERANCE):
+                return start
+        return len(self._run)
+
+    def _regular(self) -> bool:
+        """Whether most of the pending run is one interval, as a new rate gives (loss gives many lengths)."""
+        run = np.asarray(self._run, dtype=np.float64)
+        return np.count_nonzero(np.round(run / run.min()) == 1) >= REGULAR_SHARE * len(run)
+
+    def _missing(self, interval: int) -> int:
+        period = self.period_ns or float(interval)
+        return max(0, round(interval / period) - 1) if interval > ON_PERIOD * period else 0
+
+    def _confirm(self, count: int) -> int:
+        """The first `count` pending intervals are loss at the learned period: count them."""
+        lost = 0
+        for interval in self._run[:count]:
+            missing = self._missing(interval)
+            if missing:
+                self.gaps += 1
+                lost += missing
+        self.missed += lost
+        del self._run[:count]
+        return lost
+
+
+def _base_period(intervals: Sequence[int]) -> float:
+    """The period a few intervals are whole multiples of: each divided by its multiple of the shortest, median."""
+    values = np.asarray(intervals, dtype=np.float64)
+    return float(np.median(values / np.maximum(1.0, np.round(values / values.min()))))
 
 
 class InputWatch:
@@ -29,32 +124,37 @@ class InputWatch:
         self.problem = ""  # what is wrong now, "" when nothing
         self._publishers = 0
         self._since: float | None = None  # when the current publishers appeared (or the subscription changed)
-        self._recent: deque[tuple[float, int]] = deque()  # (arrival, header stamp) of one unbroken stretch
+        self._recent: deque[tuple[float, int, int]] = deque()  # (arrival, header stamp, scans it confirmed
+        # missing) of one unbroken stretch
+        self._cadence = Cadence()  # the stretch's period
 
     def received(self, now: float, stamp_ns: int) -> None:
         """A message with header stamp `stamp_ns` arrived at monotonic time `now`; a pause, a stamp going back or
-        jumping ahead starts a new stretch (a restarted or looped bag is no loss)."""
+        jumping ahead starts a new stretch (a restarted or looped bag is no loss), a repeated stamp is left out."""
+        lost = 0
         if self._recent:
-            last_now, last_stamp = self._recent[-1]
+            last_now, last_stamp, _ = self._recent[-1]
             if (now - last_now >= self.silent_after_s or stamp_ns <= last_stamp
                     or stamp_ns - last_stamp >= self.silent_after_s * 1e9):
                 self._recent.clear()
-        self._recent.append((now, stamp_ns))
+                self._cadence = Cadence()
+            elif stamp_ns - last_stamp < MIN_PERIOD_NS:
+                return
+            else:
+                lost = self._cadence.add(stamp_ns - last_stamp)
+        self._recent.append((now, stamp_ns, lost))
 
     def restart(self, now: float) -> None:
         """The subscription was recreated: give the publishers the grace period again."""
         self._since = now
 
     def missing(self, now: float) -> tuple[int, int, float]:
-        """(missing, expected, period s) among the stamps of the last WINDOW_S s."""
+        """(missing, expected, period s) among the stamps of the last WINDOW_S s: scans confirmed missing at the
+        learned period (a rate change is no loss)."""
         while self._recent and now - self._recent[0][0] > WINDOW_S:
             self._recent.popleft()
-        if len(self._recent) < 3:
-            return 0, len(self._recent), 0.0
-        stamps = np.array([stamp for _, stamp in self._recent], dtype=np.int64)
-        period = float(np.percentile(np.diff(stamps), PERIOD_PERCENTILE))
-        expected = round(float(stamps[-1] - stamps[0]) / period) + 1
-        return max(0, expected - len(stamps)), expected, period / 1e9
+        missing = sum(lost for _, _, lost in self._recent)
+        return missing, len(self._recent) + missing, (self._cadence.period_ns or 0.0) / 1e9
 
     def check(self, now: float, offered: Sequence[str], subscribed: str) -> str:
         """Update `problem` from the publishers' QoS names (`offered`, one per publisher) and the subscription's

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 import threading
 import time
 from collections.abc import Callable
@@ -11,22 +12,36 @@ from typing import Generic, TypeVar
 T = TypeVar("T")
 
 
+class Outcome(enum.Enum):
+    """What `process` returns for a frame that produced no output (anything else: it did)."""
+
+    SKIPPED = "skipped"  # malformed or empty input: nothing to process
+    DROPPED = "dropped"  # a good frame given up (its stage hung or was down, its result came too late)
+
+
+SKIPPED, DROPPED = Outcome.SKIPPED, Outcome.DROPPED
+
+
 @dataclass
 class FrameCounters:
+    """A node's frame totals: processed counts frames that produced output, skipped the malformed or empty ones."""
+
     received: int = 0
     processed: int = 0
     dropped: int = 0
     failed: int = 0
+    skipped: int = 0
 
 
 class LatestFrameWorker(Generic[T]):
     """Runs `process` on the newest submitted item in a background thread.
 
     `submit` never blocks: an item still waiting when a newer one arrives is replaced and counted as dropped,
-    so memory stays bounded however slow `process` is. Exceptions from `process` go to `on_error`.
+    so memory stays bounded however slow `process` is. Exceptions from `process` go to `on_error`; a frame for
+    which it returns SKIPPED or DROPPED is counted so, not as processed.
     """
 
-    def __init__(self, process: Callable[[T], None], on_error: Callable[[BaseException], None], name: str) -> None:
+    def __init__(self, process: Callable[[T], object], on_error: Callable[[BaseException], None], name: str) -> None:
         self._process = process
         self._on_error = on_error
         self._pending: T | None = None
@@ -89,8 +104,14 @@ class LatestFrameWorker(Generic[T]):
 
     def _call(self, item: T) -> None:
         try:
-            self._process(item)
-            self.counters.processed += 1
+            outcome = self._process(item)
         except Exception as exc:  # a bad frame must never kill the worker
             self.counters.failed += 1
             self._on_error(exc)
+            return
+        if outcome is SKIPPED:
+            self.counters.skipped += 1
+        elif outcome is DROPPED:
+            self.counters.dropped += 1
+        else:
+            self.counters.processed += 1

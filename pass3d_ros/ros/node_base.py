@@ -1,11 +1,13 @@
 """What both PASS3D nodes share: parameters declared from their table, QoS names checked at start-up, one
 latest-frame worker fed by the input subscription (or in memory by the node before it), counters on
 `/diagnostics` at 1 Hz, frame errors logged (throttled), the worker stopped on destroy. An `auto` input QoS follows
-the publishers (re-checked every second), and an input that stays silent or loses scans is reported."""
+the publishers (re-checked every second), and an input that stays silent or loses scans is reported, as is input
+that comes in while no output goes out (skipped frames count as skipped, not processed)."""
 
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Callable
 from functools import partial
 from typing import Any
@@ -19,9 +21,16 @@ from sensor_msgs.msg import PointCloud2
 
 from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
 from pass3d_ros.ros.dds_profile import shipped_profile
-from pass3d_ros.ros.diagnostics import DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, NodeStats, StepClock, to_status
+from pass3d_ros.ros.diagnostics import (
+    DIAGNOSTICS_PERIOD_S,
+    DIAGNOSTICS_TOPIC,
+    NodeStats,
+    OutputWatch,
+    StepClock,
+    to_status,
+)
 from pass3d_ros.ros.input_watch import InputWatch, OverlapFilter
-from pass3d_ros.ros.latest_frame import FrameCounters, LatestFrameWorker
+from pass3d_ros.ros.latest_frame import SKIPPED, FrameCounters, LatestFrameWorker, Outcome
 from pass3d_ros.ros.params import NodeParameters
 from pass3d_ros.ros.qos import (
     AUTO,
@@ -57,6 +66,8 @@ class PointCloudNode(Node):
             if self.get_parameter(name).value not in allowed:
                 raise ValueError(f"parameter {name} must be one of {allowed}")
         self.stats = NodeStats(count_gaps=self.COUNTS_INPUT_GAPS)
+        self.skip_reasons: Counter[str] = Counter()  # skipped frames by reason ("malformed", "empty")
+        self.output_watch = OutputWatch()
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
 
@@ -65,9 +76,10 @@ class PointCloudNode(Node):
         qos = qos_profile(self.get_parameter("output_qos").value)
         return self.create_publisher(msg_type, self.get_parameter(topic_parameter).value, qos)
 
-    def start_worker(self, process: Callable[[Any], None], name: str, subscribe: bool = True) -> None:
+    def start_worker(self, process: Callable[[Any], object], name: str, subscribe: bool = True) -> None:
         """Hand the newest input to `process` on a thread; inputs come from `input_topic` (with `input_qos`),
-        or only through `submit` when `subscribe` is False (an in-memory hand-off in one process)."""
+        or only through `submit` when `subscribe` is False (an in-memory hand-off in one process). `process`
+        returns `self.skipped(reason)` for a frame it skips, DROPPED for one it gives up."""
         self.worker: LatestFrameWorker[Any] = LatestFrameWorker(process, self._on_error, name)
         self.subscription = None
         self.input_watch: InputWatch | None = None
@@ -145,8 +157,13 @@ class PointCloudNode(Node):
         self.worker.submit(item)
 
     def counters(self) -> FrameCounters:
-        """The node's frame counters: received, processed (= output), dropped, failed."""
+        """The node's frame counters: received, processed (= output), dropped, failed, skipped."""
         return self.worker.counters
+
+    def skipped(self, reason: str) -> Outcome:
+        """What `process` returns for a frame it skips (malformed, empty): counted as skipped, by `reason`."""
+        self.skip_reasons[reason] += 1
+        return SKIPPED
 
     def idle(self) -> bool:
         """True when no frame is pending or in hand."""
@@ -162,16 +179,24 @@ class PointCloudNode(Node):
         if worker is None:
             return
         values, warnings = self.diagnostic_extras()
-        warnings = [self.input_watch.problem if self.input_watch is not None else "", *warnings]
+        counters = vars(self.counters())
+        no_output = self.output_watch.check(time.monotonic(), counters, self.skip_reasons)
+        warnings = [self.input_watch.problem if self.input_watch is not None else "", no_output, *warnings]
+        values = {**{f"skipped_{reason}": count for reason, count in self.skip_reasons.items()}, **values}
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [to_status(self.get_name(), {**vars(self.counters()), **values}, self.stats,
-                                warning="; ".join(w for w in warnings if w))]
+        msg.status = [to_status(self.get_name(), {**counters, **values}, self.stats,
+                                warning="; ".join(w for w in warnings if w),
+                                error="; ".join(self.diagnostic_errors()))]
         self.diagnostics_pub.publish(msg)
 
     def diagnostic_extras(self) -> tuple[dict[str, int], list[str]]:
         """A subclass's own `/diagnostics` values, and warnings that turn its status WARN (none here)."""
         return {}, []
+
+    def diagnostic_errors(self) -> list[str]:
+        """What a subclass has to report as ERROR on `/diagnostics` now (none here)."""
+        return []
 
     def _on_error(self, exc: BaseException) -> None:
         """A frame that raised: one throttled error line, and the node goes on with the next frame.

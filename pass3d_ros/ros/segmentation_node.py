@@ -13,7 +13,11 @@ from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN, packed_rgb
 from pass3d_ros.core.canonical import fit_box_members
-from pass3d_ros.core.classifier_process import ClassifierProcessDownError, ProcessClassifier
+from pass3d_ros.core.classifier_process import (
+    ClassifierProcessDownError,
+    ClassifierProcessHungError,
+    ProcessClassifier,
+)
 from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.intensity_match import StreamIntensityMatch
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult, proposals_cut
@@ -25,7 +29,7 @@ from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode, header
 from pass3d_ros.ros import params, scan_checks
 from pass3d_ros.ros.cluster_proposal_node import ProposalFrame
 from pass3d_ros.ros.diagnostics import StepClock
-from pass3d_ros.ros.latest_frame import FrameCounters, LatestFrameWorker
+from pass3d_ros.ros.latest_frame import DROPPED, FrameCounters, LatestFrameWorker, Outcome
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
 from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES
@@ -33,6 +37,7 @@ from pass3d_ros.ros.run import run_nodes
 
 REQUIRED_FIELDS = ("cluster_id",)
 ID_FIELDS = ("cluster_id", "cluster_id2")
+HUNG_ERROR_S = 10.0  # a stage-2 process killed for hanging stays an ERROR on /diagnostics this long (seen at 1 Hz)
 
 NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "input_topic": ("/pass3d/proposals", "proposals cloud from cluster_proposal_node", None),
@@ -54,6 +59,9 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
                 "overlaps stage 2 (more frames per second with a spare core; far fewer when the CPU is shared)", None),
     "process": (False, "run the classifier in a child process (with overlap: stage 2 beside stage 1 without sharing "
                 "the GIL, and a third thread encodes and publishes; each frame's arrays cross a pipe, a few ms)", None),
+    "stage2_timeout": (5.0, "seconds a frame may take in stage 2: a child process (process) that answers nothing "
+                       "this long is killed and restarted, ERROR on /diagnostics; a later result is dropped, never "
+                       "published late (raise it for a paper-size network on a CPU)", (0.1, 600.0)),
 }
 PARAMETERS = params.NodeParameters("segmentation_node", NODE_PARAMETERS)
 
@@ -202,7 +210,10 @@ class SegmentationNode(PointCloudNode):
         super().__init__(PARAMETERS, **kwargs)
         self.points_dropped = 0  # input points with implausible coordinates, left out
         self.proposals_cut = 0  # input proposals beyond max_proposals, labeled background
-        self.frames_down = 0  # frames dropped because the stage-2 process was down
+        self.frames_down = 0  # frames dropped because the stage-2 process was down (or killed for hanging)
+        self.frames_hung = 0  # frames whose stage-2 process answered nothing for stage2_timeout (killed)
+        self.frames_late = 0  # frames whose result came after stage2_timeout, dropped instead of published late
+        self._hung: tuple[float, str] | None = None  # when stage 2 was last killed for hanging, and why
         self.intensity = StreamIntensityMatch()  # the stream's intensity map onto the training scale
         scan_checks.warm_up()
         self.classifier = self._load_classifier()
@@ -242,7 +253,8 @@ class SegmentationNode(PointCloudNode):
         device, max_proposals = self.get_parameter("device").value, self.get_parameter("max_proposals").value
         if self.get_parameter("process").value:
             classifier: Classifier = ProcessClassifier(weights, kind, device=device, max_proposals=max_proposals,
-                                                       threads=threads, report=self._on_stage2_report)
+                                                       threads=threads, report=self._on_stage2_report,
+                                                       timeout_s=self.get_parameter("stage2_timeout").value)
             where = f" in process {classifier.pid}"
         else:
             classifier = open_classifier(weights, kind, device=device, max_proposals=max_proposals)
@@ -263,14 +275,14 @@ class SegmentationNode(PointCloudNode):
     def counters(self) -> FrameCounters:
         """The stage-2 worker's counters; with a publishing thread, a frame counts as processed once published, and
         a result that thread dropped for a newer one counts as dropped. A frame that found the stage-2 process down
-        counts as dropped."""
-        stage2, down = self.worker.counters, self.frames_down
+        or hung, or whose result came late, counts as dropped."""
+        stage2 = self.worker.counters
         if self.publisher is None:
-            return FrameCounters(received=stage2.received, processed=stage2.processed - down,
-                                 dropped=stage2.dropped + down, failed=stage2.failed)
+            return FrameCounters(**vars(stage2))
         publish = self.publisher.counters
         return FrameCounters(received=stage2.received, processed=publish.processed,
-                             dropped=stage2.dropped + publish.dropped + down, failed=stage2.failed + publish.failed)
+                             dropped=stage2.dropped + publish.dropped, failed=stage2.failed + publish.failed,
+                             skipped=stage2.skipped)
 
     def publish_diagnostics(self) -> None:
         """The base status, once the classifier exists (diagnostics may fire during start-up)."""
@@ -280,17 +292,26 @@ class SegmentationNode(PointCloudNode):
     def diagnostic_extras(self) -> tuple[dict[str, float | int], list[str]]:
         """What the input checks, the intensity map and the stage-2 process did; a warning while that process is
         down."""
-        values: dict[str, float | int] = {"points_dropped": self.points_dropped, "proposals_cut": self.proposals_cut}
+        values: dict[str, float | int] = {"points_dropped": self.points_dropped, "proposals_cut": self.proposals_cut,
+                                          "frames_late": self.frames_late}
         if self.intensity.map is not None:
             values["intensity_median"] = self.intensity.map.median
             values["intensity_matched"] = int(self.intensity.map.kind == "matched")
         warnings = []
         if isinstance(self.classifier, ProcessClassifier):
             values["stage2_restarts"] = self.classifier.restarts
+            values["stage2_hangs"] = self.classifier.hangs
             down = self.classifier.down_for()
             if down is not None:
                 warnings.append(f"stage-2 process down for {down:.0f} s, restarting; frames are dropped")
         return values, warnings
+
+    def diagnostic_errors(self) -> list[str]:
+        """A stage-2 process killed for hanging, for HUNG_ERROR_S after the kill."""
+        hung = self._hung
+        if hung is None or time.monotonic() - hung[0] > HUNG_ERROR_S:
+            return []
+        return [hung[1]]
 
     def idle(self) -> bool:
         """True when neither the stage-2 thread nor the publishing thread has a frame."""
@@ -310,38 +331,53 @@ class SegmentationNode(PointCloudNode):
             self.classifier.close()
 
     def _on_set_parameters(self, changed: list[Parameter]) -> Any:
-        """Only max_proposals and min_confidence change at run time; the rest need a restart."""
-        live = {"max_proposals", "min_confidence"}
+        """Only max_proposals, min_confidence and stage2_timeout change at run time; the rest need a restart."""
+        live = {"max_proposals", "min_confidence", "stage2_timeout"}
         fixed = [p.name for p in changed if p.name not in live]
         if fixed:
             return params.result(False, f"{', '.join(fixed)} can only be set at start-up")
         for p in changed:
             if p.name == "max_proposals":
                 self.classifier.max_proposals = int(p.value)
+            if p.name == "stage2_timeout" and isinstance(self.classifier, ProcessClassifier):
+                self.classifier.timeout_s = float(p.value)
         return params.result(True)
 
-    def _process(self, item: PointCloud2 | ProposalFrame) -> None:
+    def _process(self, item: PointCloud2 | ProposalFrame) -> Outcome | None:
         """One frame: decode (a message: implausible points left out), segment up to max_proposals proposals,
-        publish; malformed input is logged and skipped, a frame that finds the stage-2 process down is dropped."""
+        publish; malformed input is logged and skipped, a frame that finds the stage-2 process down or hung, or
+        whose result comes after stage2_timeout, is dropped (a late result is never published)."""
         clock = self.step_clock()
         try:
             frame = item if isinstance(item, ProposalFrame) else self._plausible(proposal_frame(item))
         except PointCloud2Error as exc:
             self.get_logger().warning(f"skipping malformed proposals cloud: {exc}", throttle_duration_sec=LOG_PERIOD_S)
-            return
+            return self.skipped("malformed")
         points = frame.points
         if len(points) == 0:
             self.get_logger().warning("skipping empty proposals cloud", throttle_duration_sec=LOG_PERIOD_S)
-            return
+            return self.skipped("empty")
         members = self._budget_members(frame)
         stage2_points = self._on_training_scale(points)
         clock.mark("decode")
         try:
             result = self.classifier.segment(stage2_points, members)
+        except ClassifierProcessHungError as exc:  # killed by the supervisor, which logged it; restarted
+            self.frames_down += 1
+            self.frames_hung += 1
+            self._hung = (time.monotonic(), str(exc))
+            return DROPPED
         except ClassifierProcessDownError:  # its death was logged once by the supervisor; this frame is dropped
             self.frames_down += 1
-            return
+            return DROPPED
         clock.mark("compute")
+        timeout = self.get_parameter("stage2_timeout").value
+        if clock.steps_ms["compute"] > 1e3 * timeout:
+            self.frames_late += 1
+            self.get_logger().warning(
+                f"stage 2 took {clock.steps_ms['compute'] / 1e3:.1f} s, over stage2_timeout {timeout:g} s: the frame "
+                "is dropped, not published late", throttle_duration_sec=LOG_PERIOD_S)
+            return DROPPED
         labeled = Labeled(frame, members, result, clock)
         if self.publisher is None:
             self._publish(labeled)

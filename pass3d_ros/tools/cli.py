@@ -6,6 +6,8 @@ A tool's `main` parses its arguments and hands the work to `run_tool`; nothing h
 
 from __future__ import annotations
 
+import argparse
+import math
 import os
 import signal
 import sys
@@ -15,12 +17,14 @@ from pathlib import Path
 from types import FrameType
 from typing import TextIO
 
+import torch
 from rosbags.rosbag2 import ReaderError, WriterError
 
 from pass3d_ros.core.config import ConfigError
 from pass3d_ros.core.segmentation import CheckpointError
 from pass3d_ros.core.stage2 import ClassifierError
 from pass3d_ros.data.bag import BagError
+from pass3d_ros.data.outputs import OutputError, describe_os_error, disk_full_error, is_disk_full
 from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
 from pass3d_ros.data.spec import DatasetError
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error
@@ -28,10 +32,6 @@ from pass3d_ros.msgs.pointcloud2 import PointCloud2Error
 EXIT_USAGE = 2
 EXIT_SIGINT = 130
 EXIT_SIGTERM = 143
-
-
-class OutputError(ValueError):
-    """An output path that cannot be created or written; found before the work starts."""
 
 
 # The project's error types for bad input (and rosbags' for unreadable or unwritable bags), plus what the system
@@ -70,6 +70,44 @@ def _interrupt_status(exc: BaseException) -> int | None:
         seen.add(id(link))
         link = link.__cause__ or link.__context__
     return _received[-1] if _received else None
+
+
+def number(kind: type[int] | type[float] = float, low: float | None = None, high: float | None = None, *,
+           low_open: bool = False) -> Callable[[str], float]:
+    """An argparse type for a finite `kind` (int or float) at least `low` (above it when `low_open`) and at most
+    `high`, so nan, inf and out-of-range values are refused with the argument's name rather than misbehaving later."""
+    bounds = [f"{'>' if low_open else '>='} {low:g}"] if low is not None else []
+    bounds += [f"<= {high:g}"] if high is not None else []
+    wanted = f"{'an integer' if kind is int else 'a finite number'}{' ' if bounds else ''}{' and '.join(bounds)}"
+
+    def parse(text: str) -> float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {wanted}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} is not {wanted}")
+        if (low is not None and (value < low or (low_open and value == low))) or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"{text!r} is out of range: must be {' and '.join(bounds)}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in its own messages
+    return parse
+
+
+def torch_device(text: str) -> str:
+    """An argparse type for --device: a torch device name this machine has, so `cuda` on a CPU-only torch is one line
+    before any work rather than a traceback once the work started."""
+    try:
+        chosen = torch.device(text)
+    except RuntimeError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a torch device (cpu, cuda or cuda:N)") from None
+    if chosen.type == "cuda" and (chosen.index or 0) >= torch.cuda.device_count():
+        seen = torch.cuda.device_count()
+        build = "built without CUDA" if torch.version.cuda is None else f"sees {seen} CUDA device(s)"
+        raise argparse.ArgumentTypeError(f"{text!r}: no such CUDA device here (torch {torch.__version__} {build}); "
+                                         "use cpu")
+    return text
 
 
 def show_progress(no_progress: bool = False, stream: TextIO | None = None) -> bool:
@@ -139,9 +177,10 @@ def run_tool(
     """Run `work` with the shared signal handling and exit-status mapping; returns the exit status.
 
     A user error prints `prog: error: MESSAGE` and gives 2; Ctrl-C gives 130 and SIGTERM 143 with
-    `prog: INTERRUPTED` (a callable is asked for the text then). `cleanup` runs after an error or an
-    interruption (never after success), so an unfinished output never looks complete. Any exception raised
-    once a signal came counts as that interruption; other exceptions are bugs and keep their traceback.
+    `prog: INTERRUPTED` (a callable is asked for the text then); a full disk is a user error too. `cleanup` runs
+    after an error or an interruption (never after success), so an unfinished output never looks complete. Any
+    exception raised once a signal came counts as that interruption; other exceptions are bugs and keep their
+    traceback.
     """
     _received.clear()
     previous = {sig: signal.signal(sig, _raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM)}
@@ -160,7 +199,17 @@ def run_tool(
         if status is not None:
             print(f"{prog}: {interrupted() if callable(interrupted) else interrupted}", file=sys.stderr)
             return status
-        if isinstance(exc, errors):
-            print(f"{prog}: error: {exc}", file=sys.stderr)
+        if isinstance(exc, errors) or is_disk_full(exc):
+            print(f"{prog}: error: {error_text(exc)}", file=sys.stderr)
             return EXIT_USAGE
         raise
+
+
+def error_text(exc: BaseException) -> str:
+    """A user error in plain words: a full disk as `PATH: disk full (...)`, a system error as `PATH: problem` without
+    its `[Errno N]`, anything else as its message."""
+    if is_disk_full(exc) and not isinstance(exc, OutputError):
+        return str(disk_full_error(getattr(exc, "filename", None), exc))
+    if isinstance(exc, OSError) and exc.strerror:
+        return describe_os_error(exc)
+    return str(exc)

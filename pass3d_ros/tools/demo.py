@@ -12,7 +12,8 @@ truth | prediction, legend, range rings, object boxes). The classifier is the PA
 when they exist; otherwise the geometric size-rules baseline, and the output says so.
 
 Everything lands in --out (default ./demo_out, git-ignored). A folder the demo made before (it holds a
-`.pass3d_demo` marker) is reused; any other non-empty folder needs --force.
+`.pass3d_demo` marker) is reused; any other non-empty folder needs --force, which adds the demo's entries beside
+what is there but never replaces an entry of the same name, nor uses the working folder.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from pass3d_ros.core.stage1 import propose
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.data.bag import read_bag
 from pass3d_ros.data.bag_convert import convert
+from pass3d_ros.data.outputs import out_path, refuse_protected, write_text_atomic
 from pass3d_ros.evaluation.bev import frame_picture, output_cluster_ids, write_png
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 from pass3d_ros.tools.cli import USER_ERRORS, run_tool
@@ -61,11 +63,18 @@ def choose_classifier(kind: str, weights: str | None) -> tuple[str, str, str]:
 
 
 def prepare_out(out: Path, force: bool) -> None:
-    """Create `out`, or clear the demo's own outputs from an earlier run; refuse a foreign non-empty folder."""
+    """Create `out`, or clear the demo's own outputs from an earlier run; refuse the working folder (or one above
+    it), and a foreign non-empty folder (with --force: one holding an entry the demo would replace)."""
+    refuse_protected(out)
     if out.exists() and not out.is_dir():
         raise DemoError(f"{out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / MARKER).exists() and not force:
-        raise DemoError(f"{out} is not empty and was not made by the demo; choose another --out or pass --force")
+    if out.is_dir() and any(out.iterdir()) and not (out / MARKER).exists():
+        if not force:
+            raise DemoError(f"{out} is not empty and was not made by the demo; choose another --out or pass --force")
+        clash = [name for name in OUTPUTS if (out / name).exists() or (out / name).is_symlink()]
+        if clash:
+            raise DemoError(f"{out} was not made by the demo and holds {', '.join(clash)}, which the demo would "
+                            "replace; --force never does that: choose another --out")
     out.mkdir(parents=True, exist_ok=True)
     for name in OUTPUTS:
         path = out / name
@@ -117,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     if args.frames < 1:
         raise DemoError(f"--frames must be >= 1, got {args.frames}")
     kind, weights, note = choose_classifier(args.classifier, args.weights)
-    out = Path(args.out)
+    out = out_path(args.out)
     prepare_out(out, args.force)
     print(note, flush=True)
 
@@ -147,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
     stage1 = stage1_offline(input_bag)
     scores["classifier"] = {"kind": kind, "weights": weights or None}
     scores["stage1_offline"] = stage1
-    (out / "metrics.json").write_text(json.dumps(scores, indent=2) + "\n")
+    write_text_atomic(out / "metrics.json", json.dumps(scores, indent=2) + "\n")
     print(f"[3/4] evaluated in {time.perf_counter() - step:.1f} s", flush=True)
 
     step = time.perf_counter()

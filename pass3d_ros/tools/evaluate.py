@@ -93,13 +93,14 @@ from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
+from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
 from pass3d_ros.evaluation.agreement import evaluate_agreement
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
 from pass3d_ros.evaluation.offline import evaluate_full, evaluate_stage1, iter_frames, parse_params
 from pass3d_ros.evaluation.report import PRINTERS
-from pass3d_ros.tools.cli import USER_ERRORS, check_writable, run_tool
+from pass3d_ros.tools.cli import USER_ERRORS, check_writable, number, run_tool
 
 
 class EvaluationError(ValueError):
@@ -138,11 +139,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     live = parser.add_argument_group("live mode")
     live.add_argument("--lockstep", action="store_true", help="publish the next frame only after the last output")
-    live.add_argument("--rate", type=float, default=1.0, metavar="R",
+    live.add_argument("--rate", type=number(float, 0.0), default=1.0, metavar="R",
                       help="free-running: R x the recorded pace (default 1; 0 = as fast as possible)")
     live.add_argument("--record-out", type=Path, metavar="BAG", help="record /pass3d/labeled into this MCAP bag")
     live.add_argument("--force", action="store_true", help="replace an existing --record-out bag")
-    live.add_argument("--timeout", type=float, default=30.0, metavar="S",
+    live.add_argument("--timeout", type=number(float, 0.0, low_open=True), default=30.0, metavar="S",
                       help="seconds to wait for an output (lockstep: per frame; else after the last input)")
     return parser
 
@@ -228,8 +229,7 @@ def _evaluate(args: argparse.Namespace) -> int:
                "config": parse_params(args.param).to_dict()}
     print(PRINTERS[mode](summary, per_frame=args.per_frame))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(summary, indent=2) + "\n")
+        write_text_atomic(args.json, json.dumps(summary, indent=2) + "\n")
         print(f"wrote {args.json}")
     return status
 

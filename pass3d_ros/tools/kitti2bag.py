@@ -9,8 +9,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from pass3d_ros.data.bag import STORAGES, VERSIONS
+from pass3d_ros.data.bag import STORAGES, VERSIONS, topic_name_problem
 from pass3d_ros.data.bag_convert import convert
+from pass3d_ros.data.outputs import OutputError, out_path
 from pass3d_ros.tools.cli import check_writable, run_tool
 
 
@@ -27,7 +28,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--frame-id", default="velodyne", help="header frame_id (default velodyne)")
     parser.add_argument("--with-labels", action="store_true",
                         help="add a uint8 `label_gt` field (data must have labels)")
-    parser.add_argument("--force", action="store_true", help="replace an existing BAG")
+    parser.add_argument("--force", action="store_true",
+                        help="replace an existing BAG (only a bag; never an input or the working folder)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -38,7 +40,18 @@ def main(argv: list[str] | None = None) -> int:
     return run_tool("pass3d_kitti2bag", lambda: _convert(args), interrupted=f"interrupted, {args.out} not written")
 
 
+def check_arguments(args: argparse.Namespace) -> None:
+    """OutputError naming the argument for an empty --out or --frame-id, or a --topic ROS 2 would refuse."""
+    out_path(args.out)
+    problem = topic_name_problem(args.topic)
+    if problem is not None:
+        raise OutputError(f"--topic {args.topic!r} is not a valid ROS 2 topic name: {problem}")
+    if not args.frame_id.strip():
+        raise OutputError("--frame-id is empty; the clouds need a frame to be shown in (default velodyne)")
+
+
 def _convert(args: argparse.Namespace) -> int:
+    check_arguments(args)
     out = Path(args.out)
     check_writable(out.parent if out.exists() or out.is_symlink() else out, folder=True, what="--out bag")
     stats = convert(

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
+from pass3d_ros.data.outputs import out_path, write_text_atomic
 from pass3d_ros.ros import cluster_proposal_node, segmentation_node
 from pass3d_ros.ros.params import NodeParameters, params_markdown, params_yaml
 from pass3d_ros.tools.cli import run_tool
@@ -50,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The command line: an optional output path."""
     parser = argparse.ArgumentParser(prog="pass3d_params_yaml", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, help="write to this file instead of printing")
+    parser.add_argument("--out", help="write to this file instead of printing")
     parser.add_argument("--markdown", action="store_true", help="the Markdown parameter reference instead of YAML")
     return parser
 
@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.out is None:
             sys.stdout.write(text)
         else:
-            args.out.write_text(text)
+            write_text_atomic(out_path(args.out), text)
         return 0
 
     return run_tool("pass3d_params_yaml", work)

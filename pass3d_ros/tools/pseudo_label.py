@@ -10,7 +10,9 @@ background (pass3d_ros.training.pseudo_labels). Writes DIR/velodyne/NNNNNN.bin a
 numbered in order across every --data) and DIR/summary.json (what was kept per class). Train on it with
 `pass3d_train --data semantickitti:DIR`. Input labels, if any, are never read: use it on unlabelled scans.
 
-DIR is built in a hidden sibling and moved into place when complete; an existing DIR needs --force (then replaced).
+DIR is built in a hidden sibling and moved into place when complete (a full disk leaves nothing); an existing DIR
+needs --force, which replaces only a folder this tool wrote (it holds a `.pass3d_output` marker) or an empty one,
+never an input, a folder holding one or the working folder.
 Exit status: 0 done, 2 user error, 130 / 143 interrupted.
 """
 
@@ -22,17 +24,26 @@ import shutil
 import sys
 from collections.abc import Iterator
 from dataclasses import replace
-from pathlib import Path
 
 from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.segmentation import Segmenter
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.outputs import (
+    check_force,
+    dataset_paths,
+    has_marker,
+    out_path,
+    refuse_protected,
+    swap_into_place,
+    write_marker,
+    writing,
+)
 from pass3d_ros.data.semantickitti import write_semantickitti_frame
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
 from pass3d_ros.evaluation.offline import iter_frames, parse_params
-from pass3d_ros.tools.cli import USER_ERRORS, check_writable, partial_path, remove_stale_partials, run_tool
+from pass3d_ros.tools.cli import USER_ERRORS, check_writable, number, partial_path, remove_stale_partials, run_tool
 from pass3d_ros.training.pseudo_labels import DEFAULT_MIN_CONFIDENCE, PseudoLabelStats, pseudo_label_frames
 
 PROG = "pass3d_pseudo_label"
@@ -46,9 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", action="append", required=True, metavar="SPEC", help="unlabelled scans, repeatable")
-    parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="the pseudo-labelled sequence folder")
+    parser.add_argument("--out", required=True, metavar="DIR", help="the pseudo-labelled sequence folder")
     parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
-    parser.add_argument("--min-confidence", type=float, default=DEFAULT_MIN_CONFIDENCE, metavar="C",
+    parser.add_argument("--min-confidence", type=number(float, 0.0, 1.0), default=DEFAULT_MIN_CONFIDENCE, metavar="C",
                         help="median view-averaged confidence a kept proposal needs "
                         f"(default {DEFAULT_MIN_CONFIDENCE})")
     parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
@@ -56,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--intensity-match", action=argparse.BooleanOptionalAction, default=INTENSITY_MATCH,
                         help="intensities onto the training scale, as the segmentation node does (default on)")
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS, metavar="N", help="torch CPU threads")
-    parser.add_argument("--force", action="store_true", help="replace an existing --out")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out this tool wrote")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -68,14 +79,17 @@ def _numbered(frames: Iterator[Frame]) -> Iterator[Frame]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    if not 0.0 <= args.min_confidence <= 1.0:
-        raise PseudoLabelError(f"--min-confidence must lie in 0..1, got {args.min_confidence}")
     if args.threads < 1:
         raise PseudoLabelError(f"--threads must be >= 1, got {args.threads}")
-    out = args.out.resolve()
-    if out.exists() and not args.force:
-        raise PseudoLabelError(f"--out {args.out} exists; --force replaces it")
+    given = out_path(args.out)
     datasets = resolve_datasets(args.data)
+    inputs = dataset_paths(datasets)
+    refuse_protected(given, inputs)
+    out = given.resolve()
+    if out.exists() or out.is_symlink():
+        if not args.force:
+            raise PseudoLabelError(f"--out {args.out} exists; --force replaces it")
+        check_force(out, ours=has_marker, kind="a pseudo-label folder", inputs=inputs)
     config = parse_params(args.param)
     check_writable(out, folder=True, what="--out folder")
     limit_threads(args.threads)
@@ -85,21 +99,21 @@ def _run(args: argparse.Namespace) -> int:
     segmenter.warm_up()
     remove_stale_partials(out)
     build = partial_path(out)
-    build.mkdir(parents=True)
     stats = PseudoLabelStats()
     try:
-        frames = iter_frames(datasets, None, not args.no_progress)
-        for frame in _numbered(pseudo_label_frames(frames, config, segmenter, args.min_confidence,
-                                                   args.intensity_match, stats)):
-            write_semantickitti_frame(build, frame)
-        if stats.frames == 0:
-            raise DatasetError(f"no frames in {', '.join(args.data)}")
-        summary = {"data": list(args.data), "weights": segmenter.weights, "min_confidence": args.min_confidence,
-                   "intensity_match": args.intensity_match, **stats.summary()}
-        (build / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        if out.exists():
-            shutil.rmtree(out)
-        build.rename(out)
+        with writing(out):
+            build.mkdir(parents=True)
+            write_marker(build, PROG)
+            frames = iter_frames(datasets, None, not args.no_progress)
+            for frame in _numbered(pseudo_label_frames(frames, config, segmenter, args.min_confidence,
+                                                       args.intensity_match, stats)):
+                write_semantickitti_frame(build, frame)
+            if stats.frames == 0:
+                raise DatasetError(f"no frames in {', '.join(args.data)}")
+            summary = {"data": list(args.data), "weights": segmenter.weights, "min_confidence": args.min_confidence,
+                       "intensity_match": args.intensity_match, **stats.summary()}
+            (build / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+            swap_into_place(build, out)
     except BaseException:
         shutil.rmtree(build, ignore_errors=True)
         raise

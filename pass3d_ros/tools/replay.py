@@ -13,8 +13,10 @@ is set (see `pass3d_ros.ros.dds_profile`). Recording writes each message at its 
 --discovery-timeout s for it; a topic never seen is an error unless TOPIC:TYPE names the type). Like
 `ros2 bag record`, each topic is subscribed with the QoS its publishers offer: best effort if any publisher is
 best effort (or none is known yet), else reliable; --qos overrides. A recording that received nothing leaves
-no bag and exits 1. Ctrl-C before --count / --duration is reached keeps what was recorded (a complete bag)
-and exits 130 (SIGTERM: 143). `replay()` and `Recorder` are the in-process API.
+no bag and exits 1. A write that fails (a full disk) stops the recording: the messages recorded before it are kept
+as a valid bag, one line says so, exit 2. --force replaces only a bag (never the working folder). Ctrl-C before
+--count / --duration is reached keeps what was recorded (a complete bag) and exits 130 (SIGTERM: 143).
+`replay()` and `Recorder` are the in-process API.
 """
 
 from __future__ import annotations
@@ -49,10 +51,11 @@ from pass3d_ros.data.bag import (
     message_stamp_ns,
     select_topic,
 )
+from pass3d_ros.data.outputs import out_path
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE
 from pass3d_ros.ros.dds_profile import apply_shipped_profile
 from pass3d_ros.ros.qos import QOS_NAMES, offered_qos, qos_profile
-from pass3d_ros.tools.cli import EXIT_SIGINT, Interrupted, run_tool
+from pass3d_ros.tools.cli import EXIT_SIGINT, Interrupted, error_text, number, run_tool
 
 EXIT_EMPTY = 1  # a recording that received no message
 DISCOVERY_TIMEOUT_S = 10.0
@@ -182,6 +185,10 @@ class EmptyRecordingError(BagError):
     """`Recorder.close()` found nothing recorded: no bag was written."""
 
 
+class RecordingWriteError(BagError):
+    """Writing the recording failed (a full disk); the message says what was kept."""
+
+
 class Recorder:
     """Records topics of a node the caller spins into a bag at header stamps; `close()` keeps, `abort()` drops it.
 
@@ -260,8 +267,9 @@ class Recorder:
             try:
                 self._writer.write_raw(topic, self.topics[topic], stamp, raw)
             except Exception as exc:  # kept and re-raised by wait()/close()
+                failure = self._keep_written(exc)
                 with self._changed:
-                    self.error = exc
+                    self.error = failure
                     self._changed.notify_all()
                 continue
             with self._changed:
@@ -275,6 +283,17 @@ class Recorder:
                 self._writer.abort()
         except BaseException as exc:
             self.error = self.error or exc
+
+    def _keep_written(self, exc: Exception) -> Exception:
+        """After a failed write (a full disk): keep the messages written so far as a valid bag when it can be
+        finished; the error to report, saying what was kept."""
+        kept = self._writer.keep_written()
+        if kept is not None:
+            path, count = kept
+            what = f"kept the {count} message(s) recorded before it as a valid bag {path}"
+        else:
+            what = "no bag kept" if any(self.counts.values()) else "nothing had been recorded; no bag written"
+        return RecordingWriteError(f"{error_text(exc)}; stopped recording, {what}")
 
     def _on_message(self, topic: str, raw: bytes) -> None:
         if topic == next(iter(self.topics)):
@@ -343,7 +362,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="pass3d_replay", description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("bag", nargs="?", help="bag to replay")
-    parser.add_argument("--rate", type=float, default=1.0, help="pace factor (default 1; 0 = as fast as possible)")
+    parser.add_argument("--rate", type=number(float, 0.0), default=1.0,
+                        help="pace factor (default 1; 0 = as fast as possible)")
     parser.add_argument("--loop", action="store_true", help="replay until Ctrl-C")
     parser.add_argument("--topic", help="bag topic to replay (default: its only PointCloud2 topic)")
     parser.add_argument("--publish-topic", help="publish under this name instead")
@@ -351,15 +371,16 @@ def build_parser() -> argparse.ArgumentParser:
                         help="QoS (default: sensor to replay; to record, what the publishers offer)")
     parser.add_argument("--wait-subscribers", type=int, default=WAIT_SUBSCRIBERS, metavar="N",
                         help=f"wait for N subscribers before publishing (default {WAIT_SUBSCRIBERS}; 0: don't wait)")
-    parser.add_argument("--wait-timeout", type=float, default=WAIT_TIMEOUT_S, metavar="S",
+    parser.add_argument("--wait-timeout", type=number(float, 0.0), default=WAIT_TIMEOUT_S, metavar="S",
                         help=f"publish anyway after S s without them (default {WAIT_TIMEOUT_S:g})")
     parser.add_argument("--record", action="append", metavar="TOPIC[:TYPE]",
                         help="record this topic (repeatable); TYPE defaults to what the ROS graph says")
-    parser.add_argument("--discovery-timeout", type=float, default=DISCOVERY_TIMEOUT_S, metavar="S",
+    parser.add_argument("--discovery-timeout", type=number(float, 0.0), default=DISCOVERY_TIMEOUT_S, metavar="S",
                         help=f"wait up to S s for --record topics to appear (default {DISCOVERY_TIMEOUT_S:g})")
     parser.add_argument("--out", help="bag to write when recording")
     stop = parser.add_mutually_exclusive_group()
-    stop.add_argument("--duration", type=float, help="record for S seconds (default: until Ctrl-C)")
+    stop.add_argument("--duration", type=number(float, 0.0, low_open=True),
+                      help="record for S seconds (default: until Ctrl-C)")
     stop.add_argument("--count", type=int, help="record N messages of the first topic (default: until Ctrl-C)")
     parser.add_argument("--storage", choices=sorted(STORAGES), default="mcap", help="storage plugin (default mcap)")
     parser.add_argument("--rosbag-version", type=int, choices=VERSIONS, default=9, help="rosbag2 version (9 or 8)")
@@ -424,6 +445,7 @@ def _publishers_note(node: Any, topics: Mapping[str, str]) -> str:
 
 
 def _record(args: argparse.Namespace, node: Any, executor: Any) -> int:
+    out_path(args.out)
     topics = discover_types(node, args.record, args.discovery_timeout)
     qos = {topic: args.qos or recording_qos(node, topic) for topic in topics}
     recorder = Recorder(node, topics, args.out, storage=args.storage, version=args.rosbag_version,
@@ -486,7 +508,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.record:
-        if not args.out:
+        if args.out is None:
             parser.error("--record needs --out BAG")
         if args.bag:
             parser.error("give either a BAG to replay or --record topics, not both")

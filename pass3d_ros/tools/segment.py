@@ -18,16 +18,18 @@ sensor=pandar64). The frames of one --data are a stream: laser lines found on on
 
 The output is built in a hidden sibling folder (`.DIR.partial-PID`) and moved into DIR only when every frame and
 the summary are written, so a failed or interrupted run leaves DIR as it was (one left by a killed run is removed by
-the next). With --force into a non-empty DIR, the run's own entries (labels/, bev/, NN/, summary.json) replace those
-of the same name; other files stay.
+the next). DIR gets a `.pass3d_output` marker; --force writes into a non-empty DIR only when it holds one (an output
+of this tool), and then the run's own entries (labels/, bev/, NN/, summary.json) replace those of the same name;
+other files stay. Never into the working folder, an input or a folder holding one. A full disk is one line; DIR is
+left as it was.
 
 Label ids: car 10, pedestrian 30 (person), cyclist 31 (bicyclist), background 0 (unlabeled): PASS3D
 only tells the three object classes from everything else, so background is left unnamed rather than
 guessed as road or building. The `semantickitti:` reader maps these back to the project's classes.
 
 Default classifier: `network` with the shipped weights (pass3d_ros/weights/pass3d_lite.pt), or --weights.
-Exit status: 0 done, 2 user error (bad spec, weights, --param, non-empty --out without --force), 130 / 143
-interrupted.
+Exit status: 0 done, 2 user error (bad spec, weights, --param, non-empty --out without --force, a full disk), 130 /
+143 interrupted.
 """
 
 from __future__ import annotations
@@ -52,6 +54,15 @@ from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members
 from pass3d_ros.core.stage2 import CLASSIFIERS, Classifier, open_classifier
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
+from pass3d_ros.data.outputs import (
+    check_force,
+    dataset_paths,
+    has_marker,
+    out_path,
+    refuse_protected,
+    write_marker,
+    writing,
+)
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.evaluation.bev import frame_picture, write_png
 from pass3d_ros.evaluation.offline import BudgetCuts, StreamIntensity, parse_params
@@ -89,12 +100,16 @@ def to_semantic_kitti(labels: np.ndarray) -> np.ndarray:
     return SEMANTIC_KITTI_IDS[labels.astype(np.intp)]
 
 
-def check_out_dir(out: Path, force: bool) -> None:
-    """Refuse a file, or a non-empty folder unless `force` (files of the same name are then replaced)."""
+def check_out_dir(out: Path, force: bool, inputs: Sequence[str | Path] = ()) -> None:
+    """Refuse the working folder, an input or a folder holding one, a file, or a non-empty folder unless `force` and
+    it is an output of this tool (its marker); files of the same name are then replaced."""
+    refuse_protected(out, inputs)
     if out.exists() and not out.is_dir():
         raise SegmentError(f"{out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise SegmentError(f"{out} is not empty; pass --force to write into it")
+    if out.is_dir() and any(out.iterdir()):
+        if not force:
+            raise SegmentError(f"{out} is not empty; pass --force to write into it")
+        check_force(out, ours=has_marker, kind="an output folder of pass3d_segment", inputs=inputs)
 
 
 def _safe_name(name: str) -> str:
@@ -118,16 +133,18 @@ def segment(
     if not specs:
         raise DatasetError("no --data given")
     datasets = resolve_datasets(specs)
-    out = Path(out)
-    check_out_dir(out, force)
+    out = out_path(out)
+    check_out_dir(out, force, dataset_paths(datasets))
     build = build_folder(out)
     remove_stale_partials(out.resolve())
-    build.mkdir(parents=True)
     try:
-        stats = _segment_all(datasets, out, build, classifier, config, png, progress, intensity_match)
-        report = summary(stats, [str(spec) for spec in specs], classifier.kind, classifier.weights)
-        (build / SUMMARY).write_text(json.dumps(report, indent=2) + "\n")
-        _move_into_place(build, out)
+        with writing(out):
+            build.mkdir(parents=True)
+            write_marker(build, "pass3d_segment")
+            stats = _segment_all(datasets, out, build, classifier, config, png, progress, intensity_match)
+            report = summary(stats, [str(spec) for spec in specs], classifier.kind, classifier.weights)
+            (build / SUMMARY).write_text(json.dumps(report, indent=2) + "\n")
+            _move_into_place(build, out)
     except BaseException:
         shutil.rmtree(build, ignore_errors=True)
         raise
@@ -278,7 +295,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "node does (default on)")
     parser.add_argument("--no-png", action="store_true", help="skip the bird's-eye-view PNGs")
     parser.add_argument("--force", action="store_true",
-                        help="write into a non-empty --out (this run's labels/, bev/, summary.json replace the old)")
+                        help="write into a non-empty --out this tool wrote (this run's labels/, bev/, summary.json "
+                             "replace the old)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -291,9 +309,9 @@ def main(argv: list[str] | None = None, log: Callable[[str], None] = print) -> i
 
 
 def _run(args: argparse.Namespace, log: Callable[[str], None]) -> int:
-    out = Path(args.out)
-    resolve_datasets(args.data)
-    check_out_dir(out, args.force)
+    out = out_path(args.out)
+    datasets = resolve_datasets(args.data)
+    check_out_dir(out, args.force, dataset_paths(datasets))
     check_writable(out, folder=True, what="--out folder")
     check_writable(build_folder(out).parent, folder=True, what="the folder --out is built in")
     config = parse_params(args.param)

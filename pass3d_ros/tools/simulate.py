@@ -18,6 +18,7 @@ Below it come the descriptive statistics side by side (points per ring, range hi
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -26,10 +27,19 @@ from tqdm import tqdm
 
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.kitti_object import write_kitti_object_frame
+from pass3d_ros.data.outputs import (
+    check_force,
+    has_marker,
+    merge_into,
+    out_path,
+    refuse_protected,
+    write_marker,
+    writing,
+)
 from pass3d_ros.data.semantickitti import write_semantickitti_frame
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
-from pass3d_ros.tools.cli import check_writable, run_tool
+from pass3d_ros.tools.cli import check_writable, partial_path, remove_stale_partials, run_tool
 
 WRITERS: dict[str, Callable[[Path, Frame], None]] = {
     "semantickitti": write_semantickitti_frame,
@@ -44,10 +54,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--frames", type=int, default=None, help="number of frames (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="sequence seed: same seed, same scans (default 0)")
     parser.add_argument("--start", type=int, default=0, help="index of the first frame (default 0)")
-    parser.add_argument("--out", type=Path, help="output folder (a sequence folder or an object split folder)")
+    parser.add_argument("--out", help="output folder (a sequence folder or an object split folder)")
     parser.add_argument("--format", choices=sorted(WRITERS), default="semantickitti",
                         help="layout written (default semantickitti: velodyne/ + labels/)")
-    parser.add_argument("--force", action="store_true", help="write into a non-empty --out folder")
+    parser.add_argument("--force", action="store_true",
+                        help="write into a non-empty --out folder this tool wrote (it holds a .pass3d_output marker)")
     parser.add_argument("--sensor", default="hdl64e", type=str.lower, choices=SENSOR_NAMES,
                         help="LiDAR model (default hdl64e: KITTI's)")
     parser.add_argument("--driver-intensity", action="store_true",
@@ -60,25 +71,38 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def generate(args: argparse.Namespace) -> int:
-    """Write the frames; refuse a non-empty folder unless --force."""
+    """Write the frames, built in a hidden sibling and moved in when all are written; refuse a non-empty folder
+    unless --force, and then one this tool did not write (no marker) or the working folder."""
     from pass3d_ros.synthetic.dataset import generate_frame
     from pass3d_ros.synthetic.sensor import driver_intensity, sensor_model
 
-    out: Path = args.out
+    out = out_path(args.out)
+    refuse_protected(out)
     check_writable(out, folder=True, what="--out folder")
-    if out.is_dir() and any(out.iterdir()) and not args.force:
-        raise DatasetError(f"{out}: folder is not empty (use --force to write into it)")
-    out.mkdir(parents=True, exist_ok=True)
+    if out.is_dir() and any(out.iterdir()):
+        if not args.force:
+            raise DatasetError(f"{out}: folder is not empty (use --force to write into it)")
+        check_force(out, ours=has_marker, kind="a folder of pass3d_simulate")
     write = WRITERS[args.format]
     frames = 10 if args.frames is None else args.frames
     points = 0
     sensor = sensor_model(args.sensor)
-    for index in tqdm(range(args.start, args.start + frames), desc="simulate", unit="frame", disable=None):
-        frame = generate_frame(args.seed, index, sensor)
-        if args.driver_intensity:
-            frame.points[:, 3] = driver_intensity(sensor, frame.points[:, 3])
-        write(out, frame)
-        points += len(frame.points)
+    remove_stale_partials(out.resolve())
+    build = partial_path(out.resolve())
+    try:
+        with writing(out):
+            build.mkdir(parents=True)
+            write_marker(build, "pass3d_simulate")
+            for index in tqdm(range(args.start, args.start + frames), desc="simulate", unit="frame", disable=None):
+                frame = generate_frame(args.seed, index, sensor)
+                if args.driver_intensity:
+                    frame.points[:, 3] = driver_intensity(sensor, frame.points[:, 3])
+                write(build, frame)
+                points += len(frame.points)
+            merge_into(build, out)
+    except BaseException:
+        shutil.rmtree(build, ignore_errors=True)
+        raise
     print(f"wrote {frames} {args.sensor} frames ({points / max(frames, 1):.0f} points each on average): "
           f"{args.format}:{out}")
     return 0

@@ -19,17 +19,41 @@ import contextlib
 import io
 import os
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-from pass3d_ros.evaluation.offline import parse_params
-from pass3d_ros.tools.cli import EXIT_SIGINT, EXIT_SIGTERM, check_writable, run_tool
-from pass3d_ros.training import consistency, distributed, launcher
-from pass3d_ros.training.samples import Proposer
-from pass3d_ros.training.trainer import FrameSource, PeerLostError, Trainer, TrainingError, TrainOptions
+from pass3d_ros.training import worker
 
 PROG = "pass3d_train"
+
+# Before the seconds of imports below: a launched worker ties itself to its launcher (so a launcher killed meanwhile
+# takes it along), and Ctrl-C meanwhile is the one line and status 130 it is later, not a traceback.
+worker.die_with_parent()
+try:
+    from pass3d_ros.evaluation.offline import parse_params
+    from pass3d_ros.tools.cli import (
+        EXIT_SIGINT,
+        EXIT_SIGTERM,
+        EXIT_USAGE,
+        check_writable,
+        number,
+        run_tool,
+        torch_device,
+    )
+    from pass3d_ros.training import consistency, distributed, launcher
+    from pass3d_ros.training.samples import Proposer
+    from pass3d_ros.training.trainer import (
+        DivergedError,
+        FrameSource,
+        PeerLostError,
+        Trainer,
+        TrainingError,
+        TrainOptions,
+    )
+except KeyboardInterrupt:
+    if worker.reports():
+        print(f"{PROG}: interrupted", file=sys.stderr)
+    sys.exit(130)  # EXIT_SIGINT, whose import was cut short
 
 
 class _Parser(argparse.ArgumentParser):
@@ -37,24 +61,7 @@ class _Parser(argparse.ArgumentParser):
     the same command line)."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n" if distributed.reports() else None)
-
-
-def _number(kind: type, low: float, high: float | None = None, low_open: bool = False) -> Callable[[str], float]:
-    """An argparse type: a `kind` (int or float) at least `low` (above it when `low_open`), at most `high`."""
-    bound = f"{'>' if low_open else '>='} {low}" + ("" if high is None else f" and <= {high}")
-
-    def parse(text: str) -> float:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
-        if value != value or value < low or (low_open and value == low) or (high is not None and value > high):
-            raise argparse.ArgumentTypeError(f"{text!r}: must be {bound}")
-        return value
-
-    parse.__name__ = kind.__name__
-    return parse
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n" if worker.reports() else None)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -63,16 +70,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", action="append", required=True, metavar="SPEC", help="training data FORMAT:PATH")
     p.add_argument("--val-data", action="append", default=[], metavar="SPEC", help="validation data FORMAT:PATH")
     p.add_argument("--config", choices=["paper", "lite"], default="lite", help="model configuration")
-    p.add_argument("--epochs", type=_number(int, 1), default=40)
+    p.add_argument("--epochs", type=number(int, 1), default=40)
     p.add_argument("--out", type=Path, required=True, help="output folder: checkpoints, sample caches, log")
-    p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--device", type=torch_device, default="cpu", help="cpu or cuda")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--init", type=Path, metavar="CHECKPOINT",
                    help="start from these weights (fine-tuning; fresh optimizer and schedule)")
     p.add_argument("--loss", choices=["ce", "focal"], default="ce")
-    p.add_argument("--focal-alpha", type=_number(float, 0.0, 1.0), default=0.25,
+    p.add_argument("--focal-alpha", type=number(float, 0.0, 1.0), default=0.25,
                    help="focal alpha: foreground weight, background 1-a")
-    p.add_argument("--focal-gamma", type=_number(float, 0.0), default=2.0)
+    p.add_argument("--focal-gamma", type=number(float, 0.0), default=2.0)
     p.add_argument("--no-augment", action="store_true", help="train on the inference view only (no 8 views)")
     p.add_argument("--no-n-feature", action="store_true", help="set the point-count feature n to 0")
     p.add_argument("--n-mode", choices=["ratio", "log"], default="log",
@@ -82,26 +89,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-intensity", action="store_true",
                    help="feed intensity as 0 (stored in the checkpoint: inference does the same)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--batch-size", type=_number(int, 1), default=32,
+    p.add_argument("--batch-size", type=number(int, 1), default=32,
                    help="proposals per step (in all, when data-parallel)")
-    p.add_argument("--lr", type=_number(float, 0.0), default=1e-3)
-    p.add_argument("--weight-decay", type=_number(float, 0.0), default=1e-4)
-    p.add_argument("--background-keep", type=_number(float, 0.0, 1.0), default=0.3,
+    p.add_argument("--lr", type=number(float, 0.0), default=1e-3)
+    p.add_argument("--weight-decay", type=number(float, 0.0), default=1e-4)
+    p.add_argument("--background-keep", type=number(float, 0.0, 1.0), default=0.3,
                    help="share of background proposals kept")
-    p.add_argument("--max-steps", type=_number(int, 0), default=0, help="cap on batches per epoch (0: all)")
-    p.add_argument("--threads", type=_number(int, 0), default=0, help="torch CPU threads (0: torch default)")
+    p.add_argument("--max-steps", type=number(int, 0), default=0, help="cap on batches per epoch (0: all)")
+    p.add_argument("--threads", type=number(int, 0), default=0, help="torch CPU threads (0: torch default)")
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                    help="override a Stage1Config parameter for the stage-1 run that builds the samples, repeatable "
                         "(e.g. th_dist=0.25; part of the sample cache name)")
-    p.add_argument("--nproc", type=_number(int, 1), default=1, metavar="N",
+    p.add_argument("--nproc", type=number(int, 1), default=1, metavar="N",
                    help="data-parallel: train in N processes started here (the alternative is torchrun)")
     p.add_argument("--consistency", action="append", default=[], metavar="SPEC",
                    help="unlabelled real scans FORMAT:PATH for view consistency (their labels are not read)")
-    p.add_argument("--consistency-weight", type=_number(float, 0.0), default=consistency.DEFAULT_WEIGHT,
+    p.add_argument("--consistency-weight", type=number(float, 0.0), default=consistency.DEFAULT_WEIGHT,
                    help="weight of the view-consistency term")
-    p.add_argument("--consistency-threshold", type=_number(float, 0.0, 1.0), default=consistency.DEFAULT_THRESHOLD,
+    p.add_argument("--consistency-threshold", type=number(float, 0.0, 1.0), default=consistency.DEFAULT_THRESHOLD,
                    help="inference-view probability a point's target needs")
-    p.add_argument("--consistency-batch", type=_number(int, 1), default=consistency.DEFAULT_BATCH,
+    p.add_argument("--consistency-batch", type=number(int, 1), default=consistency.DEFAULT_BATCH,
                    help="unlabelled proposals per optimizer step, over all processes")
     p.add_argument("--rebuild-cache", action="store_true", help="rerun stage 1 even if a sample cache exists")
     p.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
@@ -126,10 +133,13 @@ def _train(trainer: Trainer) -> int:
     try:
         trainer.run()
     except PeerLostError as exc:
-        if distributed.LAUNCHER_ENV in os.environ:
+        if worker.LAUNCHER_ENV in os.environ:
             return launcher.EXIT_PEER_LOST
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 1
+    except DivergedError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     except TrainingError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 1
@@ -158,14 +168,15 @@ def _work(args: argparse.Namespace, holder: list[Trainer]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the pass3d_train console script: 0 done, 1 nothing to train on, 2 unusable data, output,
-    checkpoint or argument, 130 / 143 interrupted. Data-parallel, only rank 0 reports (see --nproc)."""
-    distributed.die_with_parent()
+    checkpoint or argument, or a run that diverged, 130 / 143 interrupted. Data-parallel, only rank 0 reports (see
+    --nproc)."""
+    worker.die_with_parent()
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.nproc > 1 and distributed.world_size() > 1 and distributed.LAUNCHER_ENV not in os.environ:
+    if args.nproc > 1 and worker.world_size() > 1 and worker.LAUNCHER_ENV not in os.environ:
         parser.error("--nproc starts its own workers; under torchrun leave it out")
-    if args.nproc > 1 and distributed.world_size() == 1:
+    if args.nproc > 1 and worker.world_size() == 1:
         return run_tool(PROG, lambda: _launch(args, argv))
     holder: list[Trainer] = []
 
@@ -173,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
         return run_tool(PROG, lambda: _work(args, holder),
                         interrupted=lambda: _interrupted(holder[0]) if holder else "interrupted")
 
-    if distributed.reports():
+    if worker.reports():
         return work()
     silenced = io.StringIO()  # under torchrun a rank > 0 says nothing; its error goes to torchrun's summary
     with contextlib.redirect_stderr(silenced):

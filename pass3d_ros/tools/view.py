@@ -5,7 +5,8 @@
 
 A pass3d output bag shows its predictions (`label`), any other source its ground truth (`label_gt`, dataset labels).
 Needs rerun-sdk (`pip install rerun-sdk`; installed with the test dependencies of this repository).
-An existing --out recording is replaced only with --force. The recording is built in a hidden sibling
+An existing --out recording is replaced only with --force, and only when it is a rerun recording (never an input).
+The recording is built in a hidden sibling
 (`.NAME.partial-PID`) and renamed into place when complete; one left by a killed run is removed by the next.
 Exit status: 0 done, 2 bad input, rerun-sdk or its viewer missing, 130 / 143 interrupted (no partial .rrd is left).
 """
@@ -20,9 +21,12 @@ from pathlib import Path
 
 from pass3d_ros.data.bag import TYPESTORE, BagFile, LabelSource, is_output_cloud, read_bag
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.outputs import check_force, dataset_paths, out_path, refuse_protected, writing
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.msgs.pointcloud2 import decode
 from pass3d_ros.tools.cli import USER_ERRORS, check_writable, partial_path, remove_stale_partials, run_tool
+
+RRD_MAGIC = b"RRF"  # the first bytes of every rerun recording file
 
 
 class ViewError(ValueError):
@@ -35,11 +39,20 @@ def build_parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     parser.add_argument("--data", action="append", required=True, metavar="SPEC", help="bag:PATH or FORMAT:PATH")
     where = parser.add_mutually_exclusive_group(required=True)
-    where.add_argument("--out", type=Path, metavar="RRD", help="write a .rrd recording (open it with `rerun RRD`)")
+    where.add_argument("--out", metavar="RRD", help="write a .rrd recording (open it with `rerun RRD`)")
     where.add_argument("--spawn", action="store_true", help="start the rerun viewer and stream to it")
     parser.add_argument("--limit", type=int, metavar="N", help="at most N frames from each spec")
     parser.add_argument("--force", action="store_true", help="replace an existing --out recording")
     return parser
+
+
+def is_recording(path: Path) -> bool:
+    """Whether `path` is a rerun recording (a file starting with rerun's `RRF` magic): what --force may replace."""
+    try:
+        with path.open("rb") as stream:
+            return path.is_file() and stream.read(3) == RRD_MAGIC
+    except OSError:
+        return False
 
 
 def _frames(datasets: list[Dataset], limit: int | None) -> Iterator[Frame]:
@@ -74,9 +87,13 @@ def _view(args: argparse.Namespace) -> int:
     recording = rr.RecordingStream("pass3d_view")
     partial = None
     if args.out is not None:
+        args.out = out_path(args.out)
+        refuse_protected(args.out, dataset_paths(datasets))
         check_writable(args.out, folder=False, what="the recording")
-        if (args.out.exists() or args.out.is_symlink()) and not args.force:
-            raise ViewError(f"{args.out} exists; pass --force to replace it")
+        if args.out.exists() or args.out.is_symlink():
+            if not args.force:
+                raise ViewError(f"{args.out} exists; pass --force to replace it")
+            check_force(args.out, ours=is_recording, kind="a rerun recording", inputs=dataset_paths(datasets))
         args.out.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_partials(args.out)
         partial = partial_path(args.out)
@@ -98,10 +115,11 @@ def _view(args: argparse.Namespace) -> int:
             log_frame(recording, frame, count - 1)
         if count == 0:
             raise DatasetError(f"no frames in {', '.join(args.data)}")
-        recording.flush()
-        recording.disconnect()
-        if partial is not None:
-            os.replace(partial, args.out)
+        with writing(args.out or "the recording"):
+            recording.flush()
+            recording.disconnect()
+            if partial is not None:
+                os.replace(partial, args.out)
     finally:
         if partial is not None and partial.exists():
             partial.unlink()

@@ -3,19 +3,15 @@
 `pass3d_train --nproc N` (pass3d_ros.training.launcher) or `torchrun --nproc_per_node N -m pass3d_ros.tools.train
 ...` starts N processes with RANK, WORLD_SIZE and LOCAL_RANK set; `setup` joins them into one process group (gloo for
 a CPU device, nccl for CUDA). Without a launcher (no WORLD_SIZE, or WORLD_SIZE=1) nothing is initialised and every
-helper is the single-process no-op, so a plain run is unchanged. A worker dies with its launcher (`die_with_parent`),
-and only rank 0 reports (`reports`), unless pass3d_train's own launcher collects every rank's report itself."""
+helper is the single-process no-op, so a plain run is unchanged. A worker's rank, whether it reports and its tie to
+its launcher (it dies with it) are pass3d_ros.training.worker's, which needs no torch."""
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import datetime
 import json
 import os
-import signal
-import sys
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,15 +20,10 @@ from typing import Any
 import torch
 import torch.distributed as dist
 
+from pass3d_ros.training.worker import die_with_parent, world_size
+
 # Rank 0 validates alone while the others wait in a collective: give it far more than gloo's 30 minutes.
 TIMEOUT = datetime.timedelta(hours=4)
-LAUNCHER_ENV = "PASS3D_LAUNCHER_PID"  # set by pass3d_train --nproc in its workers: the launcher's pid
-PR_SET_PDEATHSIG = 1  # linux/prctl.h
-WATCH_SECONDS = 0.5  # how often the watchdog looks for a new parent
-GRACE_SECONDS = 10.0  # after the parent died: time to stop cleanly on SIGTERM before a hard exit
-EXIT_ORPHANED = 143  # a worker whose launcher died exits as if terminated
-
-_watched: list[int] = []  # the parent pid the watchdog compares with, once it runs
 
 
 @dataclass(frozen=True)
@@ -54,28 +45,6 @@ class Dist:
         return self.rank == 0
 
 
-def world_size() -> int:
-    """The WORLD_SIZE a launcher set (torchrun, or pass3d_train --nproc); 1 without one."""
-    try:
-        return max(1, int(os.environ.get("WORLD_SIZE", "1")))
-    except ValueError:
-        return 1
-
-
-def env_rank() -> int:
-    """The RANK a launcher set; 0 without one."""
-    try:
-        return int(os.environ.get("RANK", "0"))
-    except ValueError:
-        return 0
-
-
-def reports() -> bool:
-    """Whether this process prints errors and interruptions: rank 0, or any rank under pass3d_train's own launcher
-    (which keeps the other ranks' output and shows it only when rank 0 has nothing to say)."""
-    return env_rank() == 0 or LAUNCHER_ENV in os.environ
-
-
 # What gloo's and the TCP store's errors say when the other end of a collective is gone (a plain RuntimeError).
 PEER_LOSS_MARKERS = ("Connection closed by peer", "Connection reset by peer", "Broken pipe", "remote worker crashing")
 
@@ -94,29 +63,6 @@ def record_error(text: str) -> None:
     if path and lines:
         with contextlib.suppress(OSError):
             Path(path).write_text(json.dumps({"message": lines[-1], "timestamp": int(time.time())}))
-
-
-def die_with_parent() -> None:
-    """In a launched worker (WORLD_SIZE > 1): SIGTERM when the launcher dies (Linux parent-death signal), and a
-    watchdog thread that sends it when the parent pid changes and exits hard if the worker has not stopped
-    `GRACE_SECONDS` later. Call it first thing; idempotent; a no-op in a plain run."""
-    if world_size() <= 1 or _watched:
-        return
-    parent = int(os.environ.get(LAUNCHER_ENV, os.getppid()))
-    _watched.append(parent)
-    if sys.platform.startswith("linux"):
-        with contextlib.suppress(OSError, AttributeError):  # without it, the watchdog still covers it
-            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
-    threading.Thread(target=_watch_parent, args=(parent,), name="pass3d-parent-watchdog", daemon=True).start()
-
-
-def _watch_parent(parent: int) -> None:
-    """Wait until `parent` is no longer this process's parent; then SIGTERM this process, and exit hard later."""
-    while os.getppid() == parent:
-        time.sleep(WATCH_SECONDS)
-    os.kill(os.getpid(), signal.SIGTERM)
-    time.sleep(GRACE_SECONDS)
-    os._exit(EXIT_ORPHANED)
 
 
 def setup(device: str) -> Dist:

@@ -2,11 +2,11 @@
 
 Each worker runs `python -m MODULE ARGS` with RANK, LOCAL_RANK, WORLD_SIZE, LOCAL_WORLD_SIZE, MASTER_ADDR and
 MASTER_PORT set as torchrun sets them, in a session of its own (so a terminal's Ctrl-C reaches the launcher alone,
-which forwards it once), and with distributed.LAUNCHER_ENV naming the launcher, so a worker dies with it. Rank 0
-writes to the launcher's stdout and stderr; the other ranks' stderr goes to a temporary file, shown only when one of
-them fails first. Exit status: 0 when every worker succeeded; after SIGINT / SIGTERM (forwarded to the workers as
-SIGTERM) 130 / 143; else the status of the first worker that failed, once the others stopped (killed when they
-have not stopped by themselves `PEER_GRACE_SECONDS` later); a worker that stopped only because another one did
+which forwards it once), and with pass3d_ros.training.worker.LAUNCHER_ENV naming the launcher, so a worker dies with
+it. Rank 0 writes to the launcher's stdout and stderr; the other ranks' stderr goes to a temporary file, shown only
+when one of them fails first. Exit status: 0 when every worker succeeded; after SIGINT / SIGTERM (forwarded to the
+workers as SIGTERM) 130 / 143; else the status of the first worker that failed, once the others stopped (killed when
+they have not stopped by themselves `PEER_GRACE_SECONDS` later); a worker that stopped only because another one did
 exits `EXIT_PEER_LOST` and says nothing.
 """
 
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from types import FrameType
 from typing import IO
 
-from pass3d_ros.training.distributed import LAUNCHER_ENV
+from pass3d_ros.training.worker import LAUNCHER_ENV
 
 EXIT_SIGINT, EXIT_SIGTERM = 130, 143
 POLL_SECONDS = 0.05

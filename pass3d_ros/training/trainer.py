@@ -65,6 +65,10 @@ class TrainingError(RuntimeError):
     """A run that cannot go on: no proposals to train on, or a checkpoint to resume from that does not fit."""
 
 
+class DivergedError(TrainingError):
+    """The loss or the weights stopped being finite (too high a learning rate, mostly); no checkpoint of it is kept."""
+
+
 class PeerLostError(TrainingError):
     """Data-parallel: another process of the run stopped (its own report says why), so this one cannot go on."""
 
@@ -369,7 +373,16 @@ class Trainer:
             if world > 1:  # this rank's share; a batch smaller than the world repeats proposals
                 batch = np.resize(batch, max(len(batch), world))[rank::world]
             losses.append(self._train_step(batch, rng))
+            if not math.isfinite(losses[-1]):
+                raise DivergedError(f"training diverged: the loss is {losses[-1]} at epoch {epoch + 1}, step "
+                                    f"{step + 1}; no checkpoint of this epoch written, try a smaller --lr "
+                                    f"(this run: {o.lr:g})")
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}", refresh=False)
+        if not all(torch.isfinite(value).all() for value in self.model.state_dict().values()
+                   if value.is_floating_point()):
+            raise DivergedError(f"training diverged: the weights are no longer finite after epoch {epoch + 1}, step "
+                                f"{steps}; no checkpoint of this epoch written, try a smaller --lr (this run: "
+                                f"{o.lr:g})")
         self.scheduler.step()
         loss = distributed.mean(self.dist, float(np.mean(losses)))
         record = {"epoch": epoch, "train_loss": loss, "seconds": time.perf_counter() - started}
