@@ -18,8 +18,8 @@ from typing import Any
 import pytest
 import torch
 
-from pass3d_ros.core import pointnet2
-from pass3d_ros.core.segmentation import make_checkpoint
+from pass3d_ros.core.stage2 import pointnet2
+from pass3d_ros.core.stage2.segmentation import make_checkpoint
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 ROS_TEST_MODULES = ["test_nodes.py", "test_evaluate.py", "test_recording.py", "test_node_input.py",

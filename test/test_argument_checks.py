@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from pass3d_ros.core.config import ConfigError
+from pass3d_ros.core.stage1.config import ConfigError
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.tools.cli import number, torch_device
 

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from pass3d_ros.bench.stage2 import constructed_frame
-from pass3d_ros.core import canonical
-from pass3d_ros.core.segmentation import Segmenter
 from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.core.stage2 import canonical
+from pass3d_ros.core.stage2.segmentation import Segmenter
 from pass3d_ros.data.spec import open_dataset
 from pass3d_ros.weights import default_weights
 

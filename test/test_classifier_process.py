@@ -1,4 +1,4 @@
-"""The stage-2 classifier in a child process (pass3d_ros.core.classifier_process): the same results as in this
+"""The stage-2 classifier in a child process (pass3d_ros.core.stage2.classifier_process): the same results as in this
 process, a failed frame reported and survived, clear errors when the child cannot serve, a killed child restarted
 with back-off, and SIGINT (Ctrl-C) left to the parent."""
 
@@ -12,15 +12,15 @@ import time
 import numpy as np
 import pytest
 
-from pass3d_ros.core.classifier_process import (
+from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.core.stage2 import ClassifierError, open_classifier
+from pass3d_ros.core.stage2.classifier_process import (
     ClassifierProcessDownError,
     ClassifierProcessError,
     ProcessClassifier,
     describe_exit,
     restart_delay,
 )
-from pass3d_ros.core.stage1 import proposal_members, propose
-from pass3d_ros.core.stage2 import ClassifierError, open_classifier
 from pass3d_ros.synthetic.dataset import generate_frame
 
 

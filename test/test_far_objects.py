@@ -6,9 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pass3d_ros.core import ground, refinement
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.stage1 import propose, synthetic_scan
+from pass3d_ros.core.stage1 import ground, propose, refinement, synthetic_scan
+from pass3d_ros.core.stage1.config import Stage1Config
 
 SENSOR_HEIGHT = 1.73
 RAMP_START, RAMP_SLOPE = 45.0, 0.08  # the road is flat to x = 45 m, then climbs 8 %

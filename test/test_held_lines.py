@@ -1,6 +1,6 @@
-"""Laser lines held across a stream (pass3d_ros.core.held_lines.LineHolder), as the cluster node and every offline
-tool hold them: one search per stream, a new one for a new stream or when the held lines stop fitting, and a failed
-search repeated only after LINE_SEARCH_RETRY_S (offline: counted in scans, not wall time)."""
+"""Laser lines held across a stream (pass3d_ros.core.stage1.held_lines.LineHolder), as the cluster node and every
+offline tool hold them: one search per stream, a new one for a new stream or when the held lines stop fitting, and a
+failed search repeated only after LINE_SEARCH_RETRY_S (offline: counted in scans, not wall time)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,8 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from pass3d_ros.core import held_lines, ring
-from pass3d_ros.core.held_lines import LineHolder
-from pass3d_ros.core.stage1 import Stage1Config, propose, synthetic_scan
+from pass3d_ros.core.stage1 import Stage1Config, held_lines, propose, ring, synthetic_scan
+from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.evaluation.offline import evaluate_stage1
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
-from pass3d_ros.core.pointnet2 import PointNet2Seg, make_config
-from pass3d_ros.core.segmentation import Segmenter, make_checkpoint
+from pass3d_ros.core.stage2.pointnet2 import PointNet2Seg, make_config
+from pass3d_ros.core.stage2.segmentation import Segmenter, make_checkpoint
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.synthetic.dataset import generate_frame, mixed_pixel_share
 from pass3d_ros.synthetic.materials import REAL_ZERO_SHARE, zero_shares

@@ -330,7 +330,7 @@ def test_ring_field_past_the_named_sensor_warns(ros: Ros, frame: Frame, capfd: p
 def stream_with_counted_searches(ros: Ros) -> tuple[Any, Collector, list[int], Callable[..., Any]]:
     """A cluster node fed by a probe publisher, its proposals collector, and a laser-line search that records each
     call in the returned list (monkeypatch it over `ring.rings_from_lines` once the expected result is computed)."""
-    from pass3d_ros.core import ring
+    from pass3d_ros.core.stage1 import ring
 
     searches: list[int] = []
     search = ring.rings_from_lines
@@ -349,7 +349,7 @@ def stream_with_counted_searches(ros: Ros) -> tuple[Any, Collector, list[int], C
 def test_shuffled_stream_searches_its_laser_lines_once(ros: Ros, monkeypatch: pytest.MonkeyPatch) -> None:
     """Scans in no firing order and without a ring field: the node finds the laser lines on the first scan and reads
     the next scans' rings off them (no second search), with the proposals of the scan's own search."""
-    from pass3d_ros.core import ring
+    from pass3d_ros.core.stage1 import ring
 
     pub, clouds, searches, counted = stream_with_counted_searches(ros)
     points = synthetic_scan(points_per_ring=900)  # a scan whose lines the search finds (see the README on others)
@@ -368,7 +368,7 @@ def test_stream_without_laser_lines_searches_again_only_after_the_retry_time(
         ros: Ros, monkeypatch: pytest.MonkeyPatch) -> None:
     """Scans in which no line search can find laser lines: the node searches on the first, bins the next ones by
     elevation without searching, and searches again once LINE_SEARCH_RETRY_S has passed."""
-    from pass3d_ros.core import held_lines, ring
+    from pass3d_ros.core.stage1 import held_lines, ring
 
     pub, clouds, searches, counted = stream_with_counted_searches(ros)
     points = no_laser_lines_scan()

@@ -27,9 +27,9 @@ from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import Marker, MarkerArray
 
 from pass3d_ros.classes import BACKGROUND, NUM_CLASSES, packed_rgb
-from pass3d_ros.core.size_rules import SizeRuleClassifier
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
 from pass3d_ros.core.stage2 import open_classifier
+from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 from pass3d_ros.data.bag import read_bag
 from pass3d_ros.data.bag_convert import convert, frame_cloud
 from pass3d_ros.data.frame import Frame

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 
 from pass3d_ros.bench.stage1 import reorder, same_partition
-from pass3d_ros.core import ground, lasers, ring, scanline
-from pass3d_ros.core.stage1 import Stage1Config, propose, synthetic_scan
+from pass3d_ros.core.stage1 import Stage1Config, ground, lasers, propose, ring, scanline, synthetic_scan
 
 
 def kitti_scan(root: Path) -> np.ndarray:

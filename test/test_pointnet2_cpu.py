@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from pass3d_ros.bench.stage2 import constructed_frame
-from pass3d_ros.core import pointnet2_cpu
-from pass3d_ros.core.pointnet2 import (
+from pass3d_ros.core.stage2 import pointnet2_cpu
+from pass3d_ros.core.stage2.pointnet2 import (
     PointNet2Seg,
     SharedMLP,
     ball_members,
@@ -18,7 +18,7 @@ from pass3d_ros.core.pointnet2 import (
     sample_centres,
     torch_ops_only,
 )
-from pass3d_ros.core.segmentation import (
+from pass3d_ros.core.stage2.segmentation import (
     Segmenter,
     make_checkpoint,
     predict_probabilities,

@@ -1,5 +1,5 @@
 """Stage 2's proposal budget is never a silent cap: the offline tools count what it cuts, as the segmentation node does
-(pass3d_ros.core.segmentation.proposals_cut), and print and write it; and `--param` takes the node's names."""
+(pass3d_ros.core.stage2.segmentation.proposals_cut), and print and write it; and `--param` takes the node's names."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, proposals_cut
+from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, proposals_cut
 from pass3d_ros.tools import evaluate, segment
 
 SPEC = "synthetic:frames=2,seed=0"

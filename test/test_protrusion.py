@@ -1,11 +1,11 @@
-"""Split instead of drop, second kind: road users cut out of taller structures (pass3d_ros.core.protrusion)."""
+"""Split instead of drop, second kind: road users cut out of taller structures (pass3d_ros.core.stage1.protrusion)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pass3d_ros.core.protrusion import protruding_parts
+from pass3d_ros.core.stage1.protrusion import protruding_parts
 
 MAX_TOP = 2.3
 

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from pass3d_ros.classes import BACKGROUND
-from pass3d_ros.core.pointnet2 import PointNet2Seg, make_config
-from pass3d_ros.core.segmentation import Segmenter, make_checkpoint
+from pass3d_ros.core.stage2.pointnet2 import PointNet2Seg, make_config
+from pass3d_ros.core.stage2.segmentation import Segmenter, make_checkpoint
 from pass3d_ros.data.semantickitti import read_semantickitti
 from pass3d_ros.tools import pseudo_label
 from pass3d_ros.training.pseudo_labels import pseudo_label_scan

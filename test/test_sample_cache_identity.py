@@ -6,14 +6,26 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from pass3d_ros.training.samples import PACKAGE_ROOT, STAGE1_ENTRY, source_closure, stage1_identity
+from pass3d_ros.training.samples import (
+    PACKAGE_ROOT,
+    STAGE1_PACKAGE,
+    package_modules,
+    source_closure,
+    stage1_identity,
+)
 
 
-def test_the_closure_holds_every_stage1_module() -> None:
-    names = {path.name for path in source_closure(STAGE1_ENTRY)}
-    assert {"stage1.py", "held_lines.py", "split.py", "protrusion.py", "ring.py", "ring_field.py", "ground.py",
-            "scanline.py", "refinement.py", "config.py"} <= names
-    assert "pointnet2.py" not in names and "trainer.py" not in names, "stage 2 and training do not change proposals"
+def closure(root: Path = PACKAGE_ROOT) -> list[Path]:
+    return source_closure(package_modules(STAGE1_PACKAGE, root), root)
+
+
+def test_the_closure_holds_every_file_of_the_stage1_package() -> None:
+    files = closure()
+    stage1 = PACKAGE_ROOT / "core" / "stage1"
+    assert set(stage1.glob("*.py")) <= set(files)
+    assert {"held_lines.py", "split.py", "protrusion.py", "ring_field.py"} <= {path.name for path in files}
+    assert not any("stage2" in path.parts or path.name == "trainer.py" for path in files), \
+        "stage 2 and training do not change the proposals"
 
 
 def test_an_edit_to_a_copy_of_each_stage1_module_gives_a_new_identity(tmp_path: Path) -> None:
@@ -22,10 +34,10 @@ def test_an_edit_to_a_copy_of_each_stage1_module_gives_a_new_identity(tmp_path: 
     before = stage1_identity(root)
     assert before == stage1_identity(PACKAGE_ROOT)
     seen = {before}
-    for path in source_closure(STAGE1_ENTRY, root):
+    for path in closure(root):
         original = path.read_text()
         path.write_text(original + "\n# edited\n")
         seen.add(stage1_identity(root))
         path.write_text(original)
         assert stage1_identity(root) == before
-    assert len(seen) == len(source_closure(STAGE1_ENTRY, root)) + 1
+    assert len(seen) == len(closure(root)) + 1

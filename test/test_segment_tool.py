@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from pass3d_ros.core import pointnet2, stage2
-from pass3d_ros.core.segmentation import Segmenter, make_checkpoint
-from pass3d_ros.core.size_rules import SizeRuleClassifier
+from pass3d_ros.core import stage2
 from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.core.stage2 import pointnet2
+from pass3d_ros.core.stage2.segmentation import Segmenter, make_checkpoint
+from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 from pass3d_ros.data.outputs import MARKER
 from pass3d_ros.data.semantickitti import read_semantickitti
 from pass3d_ros.evaluation import bev

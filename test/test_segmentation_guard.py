@@ -21,9 +21,9 @@ from sensor_msgs.msg import PointCloud2
 from test_nodes import STAMP0, Collector, Ros, connect, wait_until
 
 from pass3d_ros.classes import BACKGROUND
-from pass3d_ros.core.segmentation import nearest_first
 from pass3d_ros.core.stage1 import proposal_members, propose
 from pass3d_ros.core.stage2 import open_classifier
+from pass3d_ros.core.stage2.segmentation import nearest_first
 from pass3d_ros.msgs.pointcloud2 import decode, encode
 from pass3d_ros.ros.cluster_proposal_node import proposals_cloud
 from pass3d_ros.ros.diagnostics import status_values

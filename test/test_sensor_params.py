@@ -1,4 +1,4 @@
-"""Stage-1 parameters that follow the sensor (pass3d_ros.core.sensor_params) and the node's intensity and ring
+"""Stage-1 parameters that follow the sensor (pass3d_ros.core.stage1.sensor_params) and the node's intensity and ring
 reports for other drivers."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ from rclpy.logging import LoggingSeverity
 from sensor_msgs.msg import PointCloud2
 from test_nodes import STAMP0, Collector, Ros, connect, scan_message
 
-from pass3d_ros.core.sensor_params import REFERENCE_DV_DEG, effective_config, resolutions
 from pass3d_ros.core.stage1 import Stage1Config, propose
+from pass3d_ros.core.stage1.sensor_params import REFERENCE_DV_DEG, effective_config, resolutions
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.msgs.pointcloud2 import decode
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
@@ -215,7 +215,7 @@ def test_node_reports_sensor_and_warns_on_intensity_and_binned_rings(
 def test_ring_field_limit_follows_the_sensor() -> None:
     """A 128-laser driver's ring field is plausible under "auto" (the node once threw it away above 63); a named
     sensor allows exactly its lasers."""
-    from pass3d_ros.core.lasers import ring_limit
+    from pass3d_ros.core.stage1.lasers import ring_limit
 
     assert ring_limit("auto", 64) == 128 and ring_limit("auto", 200) == 200
     assert ring_limit("vlp16", 64) == 16 and ring_limit("os1-128", 64) == 128

@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pass3d_ros.core import lasers
-from pass3d_ros.core.stage1 import propose
+from pass3d_ros.core.stage1 import lasers, propose
 from pass3d_ros.data.spec import DatasetError, open_dataset
 from pass3d_ros.synthetic.dataset import generate_frame, parse_synthetic_spec
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES, driver_intensity, sensor_model

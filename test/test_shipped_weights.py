@@ -6,9 +6,9 @@ import pytest
 
 import pass3d_ros.synthetic  # noqa: F401  (registers the synthetic: format that UNSEEN names)
 from pass3d_ros.classes import CLASS_NAMES
-from pass3d_ros.core.segmentation import Segmenter
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage2 import open_classifier
+from pass3d_ros.core.stage2.segmentation import Segmenter
 from pass3d_ros.evaluation.offline import evaluate_full, iter_frames
 from pass3d_ros.weights import default_weights
 

@@ -1,4 +1,5 @@
-"""Split instead of drop (pass3d_ros.core.split): clusters failing only the footprint gate are cut at their gaps."""
+"""Split instead of drop (pass3d_ros.core.stage1.split): clusters failing only the footprint gate are cut at their
+gaps."""
 
 from __future__ import annotations
 
@@ -6,9 +7,8 @@ import numpy as np
 import pytest
 from test_stage1 import SENSOR_HEIGHT, Solid, raycast
 
-from pass3d_ros.core import split
-from pass3d_ros.core.refinement import min_area_rectangle
-from pass3d_ros.core.stage1 import Stage1Config, propose
+from pass3d_ros.core.stage1 import Stage1Config, propose, split
+from pass3d_ros.core.stage1.refinement import min_area_rectangle
 
 KITTI_CAR = (3.88, 1.63, 1.53)  # mean KITTI car box (DESIGN.md)
 

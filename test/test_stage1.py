@@ -8,8 +8,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from pass3d_ros.core import ground, refinement, ring, scanline, stage1
-from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
+from pass3d_ros.core import stage1
+from pass3d_ros.core.stage1 import Stage1Config, ground, proposal_members, propose, refinement, ring, scanline
 from pass3d_ros.data.frame import Box3D
 
 SENSOR_HEIGHT = 1.73

@@ -9,8 +9,9 @@ import pytest
 import torch
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, NUM_CLASSES, PEDESTRIAN
-from pass3d_ros.core import canonical, stage2
-from pass3d_ros.core.pointnet2 import (
+from pass3d_ros.core import stage2
+from pass3d_ros.core.stage2 import ClassifierError, canonical, open_classifier
+from pass3d_ros.core.stage2.pointnet2 import (
     ModelConfig,
     PointNet2Seg,
     ball_query,
@@ -21,7 +22,7 @@ from pass3d_ros.core.pointnet2 import (
     make_config,
     pairwise_sq_dist,
 )
-from pass3d_ros.core.segmentation import (
+from pass3d_ros.core.stage2.segmentation import (
     CheckpointError,
     Segmenter,
     make_checkpoint,
@@ -29,8 +30,7 @@ from pass3d_ros.core.segmentation import (
     prepare_proposals,
     scatter_predictions,
 )
-from pass3d_ros.core.size_rules import SizeRuleClassifier
-from pass3d_ros.core.stage2 import ClassifierError, open_classifier
+from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 
 
 def box_points(size, yaw, centre, count, rng, zmin=-1.7):

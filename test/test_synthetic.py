@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, IGNORE, PEDESTRIAN
-from pass3d_ros.core.config import Stage1Config
+from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.data.kitti_object import read_kitti_object, write_kitti_object_frame
 from pass3d_ros.data.semantickitti import read_semantickitti, write_semantickitti_frame
 from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset
@@ -54,7 +54,7 @@ def test_quadrant_wraps_give_exactly_64_rings_top_laser_first(frames):
 
 
 def test_stage1_ring_recovery_agrees(frames):
-    ring_module = pytest.importorskip("pass3d_ros.core.ring")
+    ring_module = pytest.importorskip("pass3d_ros.core.stage1.ring")
     for frame in frames:
         rings = ring_module.recover_rings(frame.points, Stage1Config())
         assert rings.source == "azimuth_wrap"

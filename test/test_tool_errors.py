@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pass3d_ros.core.segmentation import CheckpointError, load_model
+from pass3d_ros.core.stage2.segmentation import CheckpointError, load_model
 from pass3d_ros.tools import cli, evaluate, kitti2bag, simulate, train
 
 SPEC = "synthetic:frames=5,seed=1"
@@ -201,7 +201,7 @@ def test_a_bug_keeps_its_traceback(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     """A plain ValueError or TypeError from inside the work is a bug: it is raised (exit 1 with a traceback from the
     interpreter), not printed as one line with exit 2 the way the project's own errors are."""
     from pass3d_ros.core import stage1
-    from pass3d_ros.core.size_rules import SizeRuleClassifier
+    from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
     from pass3d_ros.tools import segment
 
     def numpy_slip(*_args, **_kwargs):

@@ -12,8 +12,8 @@ import pytest
 import torch
 
 from pass3d_ros.classes import BACKGROUND, CAR, NUM_CLASSES, PEDESTRIAN
-from pass3d_ros.core.pointnet2 import PointNet2Seg, make_config
-from pass3d_ros.core.segmentation import CheckpointError, Segmenter, load_model, make_checkpoint
+from pass3d_ros.core.stage2.pointnet2 import PointNet2Seg, make_config
+from pass3d_ros.core.stage2.segmentation import CheckpointError, Segmenter, load_model, make_checkpoint
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.tools import train
 from pass3d_ros.training.losses import class_alpha, cross_entropy, focal_loss, make_loss
@@ -445,7 +445,7 @@ def test_nan_weights_are_refused_naming_the_file(tmp_path, capsys):
 
 def test_stage1_parameters_name_their_own_cache(tmp_path):
     """--param values are part of the sample cache name; the defaults (given or not) keep the plain name."""
-    from pass3d_ros.core.config import Stage1Config
+    from pass3d_ros.core.stage1.config import Stage1Config
     from pass3d_ros.training.samples import cache_path
 
     def name(stage1):
@@ -506,7 +506,7 @@ def test_unlabelled_samples_read_no_labels_and_pair_the_same_points():
     assert moved.mean() > 0.5
     assert not np.allclose(weak_feat[:, :, 0], strong_feat[:, :, 0])
     # The first one is what inference feeds the network: the view nearest the sensor, the intensity as given.
-    from pass3d_ros.core.segmentation import prepare_proposals
+    from pass3d_ros.core.stage2.segmentation import prepare_proposals
 
     again = view_pair(samples, ids, config, np.random.default_rng(1))
     assert np.array_equal(again[0], weak_xyz)

@@ -10,10 +10,10 @@ import pytest
 import torch
 
 from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
-from pass3d_ros.core import canonical
 from pass3d_ros.core.metrics import bootstrap_ratio
-from pass3d_ros.core.pointnet2 import PointNet2Seg, make_config
-from pass3d_ros.core.segmentation import Segmenter, make_checkpoint
+from pass3d_ros.core.stage2 import canonical
+from pass3d_ros.core.stage2.pointnet2 import PointNet2Seg, make_config
+from pass3d_ros.core.stage2.segmentation import Segmenter, make_checkpoint
 from pass3d_ros.evaluation.agreement import ViewAgreement
 from pass3d_ros.tools import evaluate
 

@@ -8,8 +8,8 @@ import time
 import numpy as np
 import torch
 
-from pass3d_ros.core.pointnet2 import PointNet2Seg, count_parameters, make_config
-from pass3d_ros.core.segmentation import (
+from pass3d_ros.core.stage2.pointnet2 import PointNet2Seg, count_parameters, make_config
+from pass3d_ros.core.stage2.segmentation import (
     Segmenter,
     make_checkpoint,
     nearest_first,

@@ -13,10 +13,10 @@ from collections.abc import Iterator
 import numpy as np
 
 from pass3d_ros.classes import CAR, CLASS_NAMES, CYCLIST, PEDESTRIAN
-from pass3d_ros.core.held_lines import LineHolder
 from pass3d_ros.core.metrics import bootstrap_ratio
-from pass3d_ros.core.segmentation import Segmenter, nearest_first
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
+from pass3d_ros.core.stage1.held_lines import LineHolder
+from pass3d_ros.core.stage2.segmentation import Segmenter, nearest_first
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.evaluation.offline import INTENSITY_MATCH, StreamIntensity
 

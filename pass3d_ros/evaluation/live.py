@@ -37,8 +37,8 @@ from typing import Any
 import numpy as np
 
 from pass3d_ros.classes import IGNORE, NUM_CLASSES
-from pass3d_ros.core.config import ConfigError
 from pass3d_ros.core.metrics import ConfusionAccumulator
+from pass3d_ros.core.stage1.config import ConfigError
 from pass3d_ros.data.bag import (
     LABEL_FIELD,
     TYPESTORE,

@@ -15,21 +15,21 @@ import numpy as np
 from tqdm import tqdm
 
 from pass3d_ros.classes import BACKGROUND, IGNORE
-from pass3d_ros.core.config import ConfigError, config_from_text
-from pass3d_ros.core.held_lines import LineHolder
-from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.intensity_match import StreamIntensityMatch
 from pass3d_ros.core.metrics import ObjectRecall, SegmentationMetrics, Stage1Metrics
-from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, proposals_cut
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
+from pass3d_ros.core.stage1.config import ConfigError, config_from_text
+from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage2 import Classifier
+from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
+from pass3d_ros.core.stage2.intensity_match import StreamIntensityMatch
+from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, proposals_cut
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 
 
 def parse_params(items: list[str]) -> Stage1Config:
     """Stage1Config from `KEY=VALUE` overrides: KEY as the node names it (`stage1.th_dist`) or bare (`th_dist`); VALUE
-    read by the field's type (pass3d_ros.core.config.parse_value): 0.25, 3, true, pandar64, 0.1,0.1,0.4, or a
+    read by the field's type (pass3d_ros.core.stage1.config.parse_value): 0.25, 3, true, pandar64, 0.1,0.1,0.4, or a
     Python literal as before ('pandar64', (0.1, 0.1, 0.4)). ConfigError names the first problem."""
     pairs = []
     for item in items:
@@ -62,7 +62,7 @@ def iter_frames(specs: Sequence[str | Dataset], limit: int | None, progress: boo
 @dataclass
 class BudgetCuts:
     """Proposals a stage-2 budget (`max_proposals`, nearest first) leaves unclassified over a run, and in how many
-    frames: counted as the segmentation node counts them (pass3d_ros.core.segmentation.proposals_cut)."""
+    frames: counted as the segmentation node counts them (pass3d_ros.core.stage2.segmentation.proposals_cut)."""
 
     max_proposals: int = DEFAULT_MAX_PROPOSALS
     proposals: int = 0
@@ -82,8 +82,8 @@ class BudgetCuts:
 def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
                     max_proposals: int = DEFAULT_MAX_PROPOSALS) -> dict:
     """Run stage 1 on every frame and accumulate its metrics; returns the summary with per-frame rows. Laser lines
-    are held across the frames of one spec (pass3d_ros.core.held_lines), as the cluster node holds them. "budget":
-    the proposals a stage-2 budget of `max_proposals` would cut."""
+    are held across the frames of one spec (pass3d_ros.core.stage1.held_lines), as the cluster node holds them.
+    "budget": the proposals a stage-2 budget of `max_proposals` would cut."""
     warm_up()
     metrics = Stage1Metrics()
     lines = LineHolder()
@@ -123,8 +123,8 @@ def background_proposals(points: np.ndarray, truth: np.ndarray, members: list[np
 
 
 class StreamIntensity:
-    """The intensity map of each spec (one sensor: pass3d_ros.core.intensity_match), as the segmentation node holds
-    one per stream; `maps` says what each spec got."""
+    """The intensity map of each spec (one sensor: pass3d_ros.core.stage2.intensity_match), as the segmentation node
+    holds one per stream; `maps` says what each spec got."""
 
     def __init__(self, enabled: bool, classifier: Classifier) -> None:
         self.enabled = enabled and classifier.kind != "size_rules"

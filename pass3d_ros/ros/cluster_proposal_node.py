@@ -13,10 +13,10 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
-from pass3d_ros.core.held_lines import LineHolder
-from pass3d_ros.core.lasers import ring_limit
-from pass3d_ros.core.ring_field import RingFieldOrder
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, warm_up
+from pass3d_ros.core.stage1.held_lines import LineHolder
+from pass3d_ros.core.stage1.lasers import ring_limit
+from pass3d_ros.core.stage1.ring_field import RingFieldOrder
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
 from pass3d_ros.msgs.pointcloud2 import warm_up as warm_up_codec
 from pass3d_ros.ros import params, scan_checks
@@ -90,10 +90,10 @@ class ClusterProposalNode(PointCloudNode):
         self.sink = sink
         self.config = params.read_config(self, Stage1Config, STAGE1_PREFIX)
         self._intensity = StreamIntensityScale()
-        self._ring_order: RingFieldOrder | None = None  # the order last reported (pass3d_ros.core.ring_field)
+        self._ring_order: RingFieldOrder | None = None  # the order last reported (pass3d_ros.core.stage1.ring_field)
         self._sensor_source: tuple[str, int] | None = None
         self._lines = LineHolder(clock=time.monotonic)  # the stream's laser lines: a scan in no firing order skips
-        # the search (pass3d_ros.core.held_lines)
+        # the search (pass3d_ros.core.stage1.held_lines)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         started = time.perf_counter()

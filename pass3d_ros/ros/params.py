@@ -13,7 +13,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from pass3d_ros.core.config import closest
+from pass3d_ros.core.stage1.config import closest
 
 C = TypeVar("C")
 

@@ -12,17 +12,17 @@ from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN, packed_rgb
-from pass3d_ros.core.canonical import fit_box_members
-from pass3d_ros.core.classifier_process import (
+from pass3d_ros.core.stage1 import proposal_members
+from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, open_classifier
+from pass3d_ros.core.stage2.canonical import fit_box_members
+from pass3d_ros.core.stage2.classifier_process import (
     ClassifierProcessDownError,
     ClassifierProcessHungError,
     ProcessClassifier,
 )
-from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.intensity_match import StreamIntensityMatch
-from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult, proposals_cut
-from pass3d_ros.core.stage1 import proposal_members
-from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, open_classifier
+from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
+from pass3d_ros.core.stage2.intensity_match import StreamIntensityMatch
+from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult, proposals_cut
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.frame import Box3D
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode, header_stamp_ns, to_xyzi

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, CLASS_NAMES, CYCLIST, FOREGROUND, IGNORE, PEDESTRIAN
-from pass3d_ros.core.ring import rings_for
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
+from pass3d_ros.core.stage1.ring import rings_for
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.semantickitti import read_label_file
 from pass3d_ros.data.spec import Dataset, resolve_datasets

@@ -1,7 +1,7 @@
 """Spinning LiDAR models: laser tables, firing and driver point order, ego-vehicle shadow, range noise, returns.
 
 The default model is KITTI's Velodyne HDL-64E; `sensor_model(name)` gives the others of
-pass3d_ros.core.lasers (VLP-16, VLP-32C, HDL-32E, OS1-64, OS1-128, Pandar64), see SENSOR_SPECS.
+pass3d_ros.core.stage1.lasers (VLP-16, VLP-32C, HDL-32E, OS1-64, OS1-128, Pandar64), see SENSOR_SPECS.
 
 KITTI geometry measured on KITTI object scans (which lie exactly on 64 cones): laser k fires from (0, 0, v_k)
 at elevation e_k, so its points satisfy z = v_k + r_xy * tan(e_k). The upper block (lasers 0-31) is about
@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from pass3d_ros.core.lasers import LASER_TABLES
+from pass3d_ros.core.stage1.lasers import LASER_TABLES
 
 N_LASERS = 64
 MOUNT_HEIGHT_M = 1.73  # sensor origin above the road under the car

@@ -20,9 +20,9 @@ from typing import TextIO
 import torch
 from rosbags.rosbag2 import ReaderError, WriterError
 
-from pass3d_ros.core.config import ConfigError
-from pass3d_ros.core.segmentation import CheckpointError
+from pass3d_ros.core.stage1.config import ConfigError
 from pass3d_ros.core.stage2 import ClassifierError
+from pass3d_ros.core.stage2.segmentation import CheckpointError
 from pass3d_ros.data.bag import BagError
 from pass3d_ros.data.outputs import OutputError, describe_os_error, disk_full_error, is_disk_full
 from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale

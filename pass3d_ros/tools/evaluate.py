@@ -89,9 +89,9 @@ import json
 import sys
 from pathlib import Path
 
-from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
+from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
+from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.spec import DatasetError, resolve_datasets

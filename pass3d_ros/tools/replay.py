@@ -40,7 +40,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from pass3d_ros.core.config import ConfigError
+from pass3d_ros.core.stage1.config import ConfigError
 from pass3d_ros.data.bag import (
     STORAGES,
     TYPESTORE,

@@ -14,7 +14,7 @@ intensity map each --data got ("intensity": stage 2 sees intensities on its trai
 node does; --no-intensity-match feeds them as read). `--param
 KEY=VALUE` (repeatable) overrides a stage-1 parameter, as in pass3d_evaluate (stage1.sensor=pandar64 or
 sensor=pandar64). The frames of one --data are a stream: laser lines found on one scan are reused by the next
-(pass3d_ros.core.held_lines).
+(pass3d_ros.core.stage1.held_lines).
 
 The output is built in a hidden sibling folder (`.DIR.partial-PID`) and moved into DIR only when every frame and
 the summary are written, so a failed or interrupted run leaves DIR as it was (one left by a killed run is removed by
@@ -47,12 +47,12 @@ import numpy as np
 from tqdm import tqdm
 
 from pass3d_ros.classes import NUM_CLASSES
-from pass3d_ros.core.held_lines import LineHolder
-from pass3d_ros.core.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.metrics import ConfusionAccumulator, format_metrics
-from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members
+from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage2 import CLASSIFIERS, Classifier, open_classifier
+from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
+from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.outputs import (
     check_force,

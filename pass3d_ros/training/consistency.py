@@ -16,10 +16,10 @@ import numpy as np
 import torch
 from torch.nn import functional
 
-from pass3d_ros.core import canonical
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.pointnet2 import ModelConfig
-from pass3d_ros.core.segmentation import prepare_proposals, uses_intensity
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage2 import canonical
+from pass3d_ros.core.stage2.pointnet2 import ModelConfig
+from pass3d_ros.core.stage2.segmentation import prepare_proposals, uses_intensity
 from pass3d_ros.data.spec import open_dataset
 from pass3d_ros.training.real_scans import proposed_scans
 from pass3d_ros.training.samples import SampleSet, augment_intensity

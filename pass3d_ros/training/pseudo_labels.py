@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pass3d_ros.classes import CLASS_NAMES, NUM_CLASSES
-from pass3d_ros.core.segmentation import Segmenter, proposal_majority, scatter_predictions
 from pass3d_ros.core.stage1 import Stage1Config
+from pass3d_ros.core.stage2.segmentation import Segmenter, proposal_majority, scatter_predictions
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.training.real_scans import proposed_scans
 

@@ -9,10 +9,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.held_lines import LineHolder
-from pass3d_ros.core.intensity_match import StreamIntensityMatch
 from pass3d_ros.core.stage1 import proposal_members
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage1.held_lines import LineHolder
+from pass3d_ros.core.stage2.intensity_match import StreamIntensityMatch
 from pass3d_ros.data.frame import Frame
 
 

@@ -19,11 +19,11 @@ import numpy as np
 from tqdm import tqdm
 
 from pass3d_ros.classes import BACKGROUND, IGNORE, NUM_CLASSES
-from pass3d_ros.core import canonical
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.held_lines import LineHolder
-from pass3d_ros.core.pointnet2 import ModelConfig
-from pass3d_ros.core.segmentation import prepare_proposals, uses_intensity
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage1.held_lines import LineHolder
+from pass3d_ros.core.stage2 import canonical
+from pass3d_ros.core.stage2.pointnet2 import ModelConfig
+from pass3d_ros.core.stage2.segmentation import prepare_proposals, uses_intensity
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, DatasetError
 
@@ -34,8 +34,8 @@ Proposer = Callable[[Frame], list[np.ndarray]]
 def stage1_proposer(frame: Frame, config: Stage1Config | None = None, lines: LineHolder | None = None
                     ) -> list[np.ndarray]:
     """Member indices of the stage-1 proposals of a frame (the real pipeline, with `config` or the defaults).
-    `lines`: the laser lines held across the frames (pass3d_ros.core.held_lines), so a stream in no firing order and
-    without a ring field searches them once, not on every frame."""
+    `lines`: the laser lines held across the frames (pass3d_ros.core.stage1.held_lines), so a stream in no firing order
+    and without a ring field searches them once, not on every frame."""
     from pass3d_ros.core.stage1 import proposal_members
 
     result = (lines or LineHolder()).propose(frame.points, frame.ring, config)
@@ -216,8 +216,7 @@ def cache_key(specs: list[str], background_keep: float, seed: int, keep_frame_la
     return hashlib.sha1(text.encode()).hexdigest()[:12]
 
 
-STAGE1_ENTRY = "pass3d_ros.core.held_lines"  # what the samples call (it imports stage 1): its import closure is
-# every file whose change can change the proposals
+STAGE1_PACKAGE = "pass3d_ros.core.stage1"  # every module of it, and all they import, can change the proposals
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]  # the pass3d_ros folder
 
 
@@ -233,11 +232,18 @@ def _imported_modules(path: Path) -> set[str]:
     return {name for name in found if name.split(".")[0] == "pass3d_ros"}
 
 
-def source_closure(entry: str, root: Path = PACKAGE_ROOT) -> list[Path]:
-    """The source files of module `entry` and of every pass3d_ros module it imports, directly or not (sorted):
+def package_modules(package: str, root: Path = PACKAGE_ROOT) -> list[str]:
+    """The dotted names of every module in a pass3d_ros package folder (its __init__ included)."""
+    folder = root.joinpath(*package.split(".")[1:])
+    return [package + "".join(f".{part}" for part in path.relative_to(folder).with_suffix("").parts
+                              if part != "__init__") for path in sorted(folder.rglob("*.py"))]
+
+
+def source_closure(entries: list[str], root: Path = PACKAGE_ROOT) -> list[Path]:
+    """The source files of modules `entries` and of every pass3d_ros module they import, directly or not (sorted):
     derived from the code, so a new or renamed stage-1 module is never left out of a cache's identity."""
     seen: dict[str, Path] = {}
-    todo = [entry]
+    todo = list(entries)
     while todo:
         name = todo.pop()
         parts = name.split(".")[1:]
@@ -261,7 +267,7 @@ def _digest(paths: list[Path]) -> str:
 
 def stage1_identity(root: Path = PACKAGE_ROOT) -> str:
     """A hash of every source file stage 1 runs (`source_closure`), so a changed stage 1 rebuilds the caches."""
-    files = source_closure(STAGE1_ENTRY, root)
+    files = source_closure(package_modules(STAGE1_PACKAGE, root), root)
     return _digest(files)
 
 

@@ -32,9 +32,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.pointnet2 import ModelConfig, PointNet2Seg, count_parameters, make_config
-from pass3d_ros.core.segmentation import (
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage2.pointnet2 import ModelConfig, PointNet2Seg, count_parameters, make_config
+from pass3d_ros.core.stage2.segmentation import (
     CheckpointError,
     check_finite,
     load_model,

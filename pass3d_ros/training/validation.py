@@ -11,8 +11,8 @@ import numpy as np
 from tqdm import tqdm
 
 from pass3d_ros.core.metrics import ConfusionAccumulator
-from pass3d_ros.core.pointnet2 import PointNet2Seg
-from pass3d_ros.core.segmentation import predict_probabilities, prepare_proposals, scatter_predictions
+from pass3d_ros.core.stage2.pointnet2 import PointNet2Seg
+from pass3d_ros.core.stage2.segmentation import predict_probabilities, prepare_proposals, scatter_predictions
 from pass3d_ros.training.samples import SampleSet
 
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
-from pass3d_ros.core import canonical
-from pass3d_ros.core.segmentation import (
+from pass3d_ros.core.stage2 import canonical
+from pass3d_ros.core.stage2.segmentation import (
     DEFAULT_MAX_PROPOSALS,
     SegmentResult,
     nearest_first,

@@ -37,8 +37,8 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.scanline import pseudo_azimuth, pseudo_azimuth_unordered
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage1.scanline import pseudo_azimuth, pseudo_azimuth_unordered
 
 LOCAL_CELL_M = 2.0  # local ground: x-y cell of the height histograms (m)
 LOCAL_BIN_M = 0.1  # local ground: height bin (m)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from pass3d_ros.core.fma import fma64
+from pass3d_ros.core.stage2.fma import fma64
 
 NUM_VIEWS = 8
 # Vertex k sits at (sx * L/2, sy * W/2) in the box frame; counter-clockwise order.

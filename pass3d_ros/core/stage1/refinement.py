@@ -8,7 +8,7 @@ z is the sensor's up axis, perpendicular to the ground for a level-mounted senso
 within 2 degrees of it); Box3D holds a yaw only. Gates: a point count that falls as 1/distance, a bottom
 near and a top not far above the ground, and footprints an occluded or whole road user can have. The ground is the
 segment planes, moved by the local ground's offset around each cluster when the planes come as a
-`pass3d_ros.core.ground.LocalGround` (Stage1Config.local_ground): a plane extrapolated 60 m from the road it was
+`pass3d_ros.core.stage1.ground.LocalGround` (Stage1Config.local_ground): a plane extrapolated 60 m from the road it was
 fitted on can sit tenths of a metre off the ground under a far car, enough to call its top too low. Kept
 boxes are enlarged (per side) and take in every point inside, ground points too: wheels and feet often sit
 in the ground band; with a local ground a box also reaches down to the ground band under it (`enlarged_membership`'s
@@ -20,8 +20,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.ground import LocalGround, fit_ground
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage1.ground import LocalGround, fit_ground
 from pass3d_ros.data.frame import Box3D
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pass3d_ros.core.config import Stage1Config
+from pass3d_ros.core.stage1.config import Stage1Config
 
 
 @nb.njit(cache=True, nogil=True, inline="always")

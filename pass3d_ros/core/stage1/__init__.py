@@ -3,7 +3,7 @@ proposal refinement behind one call, `propose`.
 
 Points are N x 4 float32 (x, y, z, intensity) in the sensor frame, in any order: rings come from the firing
 order, a ring field, or the scan's laser lines (see `_propose_finite`). Every parameter lives in `Stage1Config`
-(pass3d_ros.core.config, re-exported here), with the paper's values where the paper gives one.
+(pass3d_ros.core.stage1.config, re-exported here), with the paper's values where the paper gives one.
 """
 
 from __future__ import annotations
@@ -16,15 +16,15 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from pass3d_ros.core import ground as _ground
-from pass3d_ros.core import refinement as _refinement
-from pass3d_ros.core import ring as _ring
-from pass3d_ros.core import ring_field as _ring_field
-from pass3d_ros.core import scanline as _scanline
-from pass3d_ros.core import sensor_params as _sensor
-from pass3d_ros.core import split as _split
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.sensor_params import SensorScale
+from pass3d_ros.core.stage1 import ground as _ground
+from pass3d_ros.core.stage1 import refinement as _refinement
+from pass3d_ros.core.stage1 import ring as _ring
+from pass3d_ros.core.stage1 import ring_field as _ring_field
+from pass3d_ros.core.stage1 import scanline as _scanline
+from pass3d_ros.core.stage1 import sensor_params as _sensor
+from pass3d_ros.core.stage1 import split as _split
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage1.sensor_params import SensorScale
 from pass3d_ros.data.frame import Box3D
 
 STEPS: tuple[str, ...] = ("ring", "ground", "clustering", "refinement", "total")
@@ -40,7 +40,7 @@ class Stage1Result:
     cluster_id2: np.ndarray  # (N,) int32, a second proposal for points inside two enlarged boxes, else -1
     boxes: list[Box3D]  # K kept proposals, un-enlarged; Box3D.label = 0
     timings_ms: dict[str, float]  # ring, ground, clustering, refinement, total
-    ring_source: str = "field"  # how rings were obtained: see pass3d_ros.core.ring.RING_SOURCES
+    ring_source: str = "field"  # how rings were obtained: see pass3d_ros.core.stage1.ring.RING_SOURCES
     ground_planes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (n_seg, 4): a x+b y+c z+d=0
     n_clusters: int = 0  # clusters before the gates (and before the split)
     n_split: int = 0  # clusters cut into parts (Stage1Config.split_merged, split_protruding) and gated again
@@ -64,10 +64,10 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
     `config`: the stage-1 parameters; None gives `Stage1Config()` (defaulted here only: the steps below require one).
     `lines`: the previous scan's `Stage1Result.lines` on a stream of one sensor; a scan in no firing order then skips
     the laser-line search when they still fit it, or (`NO_LINES`, from a search that found none) altogether
-    (pass3d_ros.core.ring.recover_rings).
+    (pass3d_ros.core.stage1.ring.recover_rings).
     `ring`: a driver's ring field in any numbering (bottom-up, top-down, the driver's own): it is read in the order of
     its rings' measured elevations, `ring_order` (the previous scan's `Stage1Result.ring_order`) while that covers
-    its values; a field that does not fit the points is ignored (pass3d_ros.core.ring_field). `Stage1Result.ring`
+    its values; a field that does not fit the points is ignored (pass3d_ros.core.stage1.ring_field). `Stage1Result.ring`
     is then stage 1's ring, 0 = the highest laser.
     """
     cfg = config or Stage1Config()
@@ -105,9 +105,9 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     Ground plane fitting reads the points as they come (its sample does not depend on their order), on the ground
     thread beside ring recovery (after assigning half of the points to held laser lines, when there are some).
     Points in any other order than a scan order are put in the canonical order (ring, then azimuth:
-    pass3d_ros.core.scanline.canonical_order) for clustering and refinement, so the proposals do not depend on the
-    order the points came in; the results are mapped back to the input order. The frame runs with the
-    effective config for its sensor (pass3d_ros.core.sensor_params.effective_config), reported in the result.
+    pass3d_ros.core.stage1.scanline.canonical_order) for clustering and refinement, so the proposals do not depend
+    on the order the points came in; the results are mapped back to the input order. The frame runs with the
+    effective config for its sensor (pass3d_ros.core.stage1.sensor_params.effective_config), reported in the result.
     """
     t0 = time.perf_counter()
     if ring is not None:

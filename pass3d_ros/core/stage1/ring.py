@@ -52,8 +52,8 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.lasers import STANDARD_RING_COUNTS, laser_elevations
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage1.lasers import STANDARD_RING_COUNTS, laser_elevations
 
 RING_SOURCES: tuple[str, ...] = (
     "field", "azimuth_wrap", "azimuth_jump", "laser_table", "laser_table_moving", "elevation_lines",

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.scanline import group_starts
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage1.scanline import group_starts
 
 REFERENCE_DV_DEG = 0.42  # KITTI's HDL-64E: median elevation gap between neighbouring rings (this module's estimate)
 REFERENCE_DH_DEG = 0.17  # KITTI's HDL-64E at 10 Hz: median azimuth step between neighbouring points of a ring

@@ -32,8 +32,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult
 from pass3d_ros.core.stage2 import DEFAULT_CLASSIFIER, ClassifierError, open_classifier
+from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult
 from pass3d_ros.core.threads import limit_threads
 
 START_TIMEOUT_S = 120.0  # loading torch and the weights, and the warm-up, in a fresh interpreter

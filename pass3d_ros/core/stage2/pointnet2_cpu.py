@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from pass3d_ros.core.fma import fma32
+from pass3d_ros.core.stage2.fma import fma32
 
 _ZERO = np.float32(0.0)
 _ONE = np.float32(1.0)

@@ -1,16 +1,16 @@
 """Laser lines and the ring field's order held across the scans of one stream: the one place that decides which
 lines a scan is given.
 
-A scan in no firing order and without a ring field (a column-major driver, a shuffled or filtered cloud) has its
-rings read off the laser lines of its sensor (pass3d_ros.core.ring). Searching for them costs 20-40 ms a scan; the
+A scan in no firing order and without a ring field (a column-major driver, a shuffled or filtered cloud) has its rings
+read off the laser lines of its sensor (pass3d_ros.core.stage1.ring). Searching for them costs 20-40 ms a scan; the
 lines are a property of the sensor, so a stream searches once and gives the lines it found to the following scans
-(`propose(..., lines=...)`), which check that they still fit and search again when they do not. A search that found
-none (`NO_LINES`) is not repeated on every scan either: the stream bins by elevation until `LINE_SEARCH_RETRY_S` has
-passed, then searches again. The cluster node and every offline tool (evaluation, segmentation, the stage-1
-benchmark, training's samples) hold their lines through a `LineHolder`, so a stream costs the same everywhere.
+(`propose(..., lines=...)`), which check that they still fit and search again when they do not. A search that found none
+(`NO_LINES`) is not repeated on every scan either: the stream bins by elevation until `LINE_SEARCH_RETRY_S` has passed,
+then searches again. The cluster node and every offline tool (evaluation, segmentation, the stage-1 benchmark,
+training's samples) hold their lines through a `LineHolder`, so a stream costs the same everywhere.
 
-A driver's ring field is read in the order of its rings' measured elevations (pass3d_ros.core.ring_field); the order
-is measured on a stream's first scan with a field and held with the lines, so the stream pays for it once.
+A driver's ring field is read in the order of its rings' measured elevations (pass3d_ros.core.stage1.ring_field);
+the order is measured on a stream's first scan with a field and held with the lines, so the stream pays for it once.
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ from collections.abc import Callable, Hashable
 import numpy as np
 
 from pass3d_ros.core import stage1 as _stage1
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.ring import LaserLines
-from pass3d_ros.core.ring_field import RingFieldOrder
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage1.ring import LaserLines
+from pass3d_ros.core.stage1.ring_field import RingFieldOrder
 
 LINE_SEARCH_RETRY_S = 10.0  # a stream whose laser-line search found none searches again after this long
 SCAN_PERIOD_S = 0.1  # offline (no clock), each scan counts as this long: a 10 Hz sensor's revolution

@@ -12,8 +12,8 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from pass3d_ros.core.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, SegmentResult
-from pass3d_ros.core.size_rules import SizeRuleClassifier
+from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, SegmentResult
+from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 CLASSIFIERS: tuple[str, ...] = ("network", "size_rules")

@@ -2,7 +2,7 @@
 
 A person against a lamp mast or a building front, a car parked against a wall: scan-line-run clustering joins them
 to the structure (their runs touch), and the joined cluster is too tall or too long for any road user, so it is
-dropped whole. There is no gap to cut at (pass3d_ros.core.split); what tells the road user apart is that it
+dropped whole. There is no gap to cut at (pass3d_ros.core.stage1.split); what tells the road user apart is that it
 protrudes: its points lie below the tallest road user's height (`max_top`) where the structure, seen above that
 height, does not reach. So per cluster: the x-y cells (`CELL_M`) holding the cluster's points above `max_top`,
 grown by `PROTRUSION_M`, are the structure's footprint; the points below `max_top` outside it are grouped into

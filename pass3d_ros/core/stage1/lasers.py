@@ -2,7 +2,7 @@
 
 Angles are in degrees from the sensor's horizontal plane, as the makers' manuals and driver calibration files
 give them, sorted from the top laser down. A value marked approximate is a spec-sheet spread, not a per-unit
-calibration; ring recovery refits every laser's line to the scan itself (pass3d_ros.core.ring), so the table only
+calibration; ring recovery refits every laser's line to the scan itself (pass3d_ros.core.stage1.ring), so the table only
 has to tell how many lasers there are and roughly where.
 """
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from pass3d_ros.core.lasers import SENSORS
+from pass3d_ros.core.stage1.lasers import SENSORS
 
 
 class ConfigError(ValueError):
@@ -98,8 +98,8 @@ class Stage1Config:
     max_top: float = _param(2.3, "refinement: highest point at most this above the ground plane (m)", 0.0, 20.0)
     min_extent: float = _param(0.2, "refinement: the larger of length and height reaches this (m)", 0.0, 10.0)
     max_range: float = _param(70.0, "refinement: largest horizontal range of a cluster centre (m)", 1.0, 500.0)
-    # Local ground (pass3d_ros.core.ground): the height gates read heights above the ground around the cluster, not
-    # above a segment plane extrapolated tens of metres from the road it was fitted on.
+    # Local ground (pass3d_ros.core.stage1.ground): the height gates read heights above the ground around the
+    # cluster, not above a segment plane extrapolated tens of metres from the road it was fitted on.
     local_ground: bool = _param(
         True, "refinement: the height gates read heights above the local ground around a cluster (from a coarse grid "
         "of height histograms built once per frame) instead of above the segment plane alone; kept boxes take in "
@@ -109,7 +109,7 @@ class Stage1Config:
         4.0, "refinement: half-width of the square around a cluster that the local ground is read from (m; grows by "
         "5 % of the range)", 0.5, 50.0,
     )
-    # Split instead of drop (pass3d_ros.core.split): cars parked end to end 0.5-1 m apart chain into one cluster.
+    # Split instead of drop (pass3d_ros.core.stage1.split): cars parked end to end 0.5-1 m apart chain into one cluster.
     split_merged: bool = _param(
         True, "refinement: cut a cluster failing only the footprint gate at the gaps along its long axis, and "
         "gate each part again", 0, 1,
@@ -134,7 +134,7 @@ class Stage1Config:
         SENSORS,
     )
     sensor_scaling: bool = _param(
-        True, "refinement: scale th_num to the scan's angular resolution (pass3d_ros.core.sensor_params); the "
+        True, "refinement: scale th_num to the scan's angular resolution (pass3d_ros.core.stage1.sensor_params); the "
         "HDL-64E keeps the paper's values", 0, 1,
     )
     sensor_height: float = _param(1.73, "ground: sensor height above the road (m, KITTI)", 0.0, 10.0)

@@ -23,7 +23,7 @@ import torch
 from torch import nn
 
 from pass3d_ros.classes import NUM_CLASSES
-from pass3d_ros.core import pointnet2_cpu as _cpu
+from pass3d_ros.core.stage2 import pointnet2_cpu as _cpu
 
 # Per-point input features beside the local xyz: intensity and the point-count feature n.
 NUM_POINT_FEATURES = 2

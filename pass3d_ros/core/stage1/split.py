@@ -2,7 +2,7 @@
 end to end 0.5-1 m apart chain into one cluster through scan-line-run clustering's 0.5 m / 1.0 m reach), so such a
 cluster is cut at the gaps along its long axis and each part is gated again on its own.
 
-Which clusters: those that pass every gate of `pass3d_ros.core.refinement.select_proposals` but the footprint one
+Which clusters: those that pass every gate of `pass3d_ros.core.stage1.refinement.select_proposals` but the footprint one
 (point count, range, height, bottom and top above the ground) yet are longer than `max_length` or wider than
 `max_width`. Their points are projected on the long axis of the cluster's minimal-area rectangle and binned
 (`split_gap` / 4 wide); a run of empty bins at least `split_gap` less one bin long is a gap, and the cluster is cut
@@ -13,7 +13,7 @@ a cut cluster gets a new cluster id and goes through every gate again; a part th
 cluster was. Clusters that pass the gates are never touched: the proposals without the split all stay, first.
 
 `select_with_split` also runs the second kind of split on what is still dropped: road users protruding from a taller
-structure (pass3d_ros.core.protrusion, `split_protruding`).
+structure (pass3d_ros.core.stage1.protrusion, `split_protruding`).
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pass3d_ros.core import protrusion as _protrusion
-from pass3d_ros.core import refinement as _refinement
-from pass3d_ros.core.config import Stage1Config
-from pass3d_ros.core.ground import LocalGround
+from pass3d_ros.core.stage1 import protrusion as _protrusion
+from pass3d_ros.core.stage1 import refinement as _refinement
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage1.ground import LocalGround
 from pass3d_ros.data.frame import Box3D
 
 SIDE_WINDOW = 1.0  # metres of axis on each side of a gap whose coverage is checked
@@ -175,7 +175,7 @@ def select_with_split(
     """`select_proposals` with the splits: (boxes, kept cluster ids, labels with the parts' new ids, clusters split).
     The boxes and ids of `select_proposals` come first, unchanged; kept parts follow, first those cut at gaps
     (`split_merged`, module docstring), then those protruding from dropped taller structures (`split_protruding`,
-    pass3d_ros.core.protrusion). `planes`: the segment planes or the local ground, as the gates take them."""
+    pass3d_ros.core.stage1.protrusion). `planes`: the segment planes or the local ground, as the gates take them."""
     if n_clusters == 0:
         return [], np.zeros(0, dtype=np.int64), label, 0
     z_lo, z_hi, fitted, rects, keep, footprint = _refinement.gate_clusters(
