@@ -22,9 +22,10 @@ from test_nodes import STAMP0, Collector, Ros, connect, wait_until
 
 from pass3d_ros.core.stage1 import propose
 from pass3d_ros.msgs.pointcloud2 import encode, header_stamp_ns
-from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode, proposals_cloud
+from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
 from pass3d_ros.ros.diagnostics import NO_OUTPUT_WARN_S, NodeStats, OutputWatch, status_values, to_status
 from pass3d_ros.ros.input_watch import InputWatch
+from pass3d_ros.ros.proposals import proposals_cloud
 from pass3d_ros.ros.qos import qos_profile
 from pass3d_ros.ros.segmentation_node import SegmentationNode
 from pass3d_ros.synthetic.dataset import generate_frame

@@ -22,9 +22,10 @@ from pass3d_ros.core.stage1 import proposal_members, propose, synthetic_scan
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode
-from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode, proposals_cloud
+from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+from pass3d_ros.ros.proposals import members_from_cloud, proposal_ids, proposals_cloud
 from pass3d_ros.ros.qos import qos_profile
-from pass3d_ros.ros.segmentation_node import SegmentationNode, members_from_cloud, proposal_ids
+from pass3d_ros.ros.segmentation_node import SegmentationNode
 from pass3d_ros.synthetic.dataset import generate_frame
 
 pytestmark = pytest.mark.ros

@@ -25,10 +25,10 @@ from pass3d_ros.core.stage1 import proposal_members, propose
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.segmentation import nearest_first
 from pass3d_ros.msgs.pointcloud2 import decode, encode
-from pass3d_ros.ros.cluster_proposal_node import proposals_cloud
 from pass3d_ros.ros.diagnostics import status_values
+from pass3d_ros.ros.proposals import members_from_ids, nearest_proposals, proposals_cloud
 from pass3d_ros.ros.qos import qos_profile
-from pass3d_ros.ros.segmentation_node import SegmentationNode, members_from_ids, nearest_proposals
+from pass3d_ros.ros.segmentation_node import SegmentationNode
 from pass3d_ros.synthetic.dataset import generate_frame
 
 pytestmark = pytest.mark.ros

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -24,6 +22,7 @@ from pass3d_ros.ros.intensity_scale import FRAMES_TO_RAISE, StreamIntensityScale
 from pass3d_ros.ros.latest_frame import Outcome
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
+from pass3d_ros.ros.proposals import ProposalFrame, ProposalSink, proposals_cloud
 from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES
 from pass3d_ros.ros.run import run_nodes
 
@@ -45,37 +44,6 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "publish_boxes": (True, "publish the proposal boxes MarkerArray", None),
 }
 PARAMETERS = params.NodeParameters("cluster_proposal_node", NODE_PARAMETERS, {STAGE1_PREFIX: Stage1Config})
-
-
-@dataclass(frozen=True)
-class ProposalFrame:
-    """One frame of stage-1 output in memory: the columns of /pass3d/proposals the segmentation node reads."""
-
-    header: Any  # std_msgs/Header of the input scan (stamp and frame_id)
-    points: np.ndarray  # (N, 4) float32 x, y, z, intensity; all finite
-    ring: np.ndarray | None  # (N,) ring index, or None
-    cluster_id: np.ndarray  # (N,) primary proposal id, -1 = none
-    cluster_id2: np.ndarray  # (N,) secondary proposal id (overlapping enlarged boxes), -1 = none
-
-
-ProposalSink = Callable[[ProposalFrame], None]
-
-
-def proposals_cloud(points: np.ndarray, result: Stage1Result, ring: np.ndarray | None = None
-                    ) -> dict[str, np.ndarray]:
-    """The columns of /pass3d/proposals: everything the segmentation node needs, point order kept; `ring`: the
-    driver's field as it came (its own numbering) when there is one, else stage 1's rings (0 = highest laser)."""
-    ring = result.ring if ring is None else ring
-    return {
-        "x": points[:, 0],
-        "y": points[:, 1],
-        "z": points[:, 2],
-        "intensity": points[:, 3],
-        "ring": ring.astype(np.uint16),
-        "ground": result.ground.astype(np.uint8),
-        "cluster_id": result.cluster_id.astype(np.int32),
-        "cluster_id2": result.cluster_id2.astype(np.int32),
-    }
 
 
 class ClusterProposalNode(PointCloudNode):

@@ -13,7 +13,8 @@ from typing import Any
 
 from rclpy.node import Node
 
-from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode, ProposalFrame
+from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+from pass3d_ros.ros.proposals import ProposalFrame
 from pass3d_ros.ros.segmentation_node import SegmentationNode
 
 

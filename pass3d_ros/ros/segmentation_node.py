@@ -25,18 +25,16 @@ from pass3d_ros.core.stage2.intensity_match import StreamIntensityMatch
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult, proposals_cut
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.frame import Box3D
-from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode, header_stamp_ns, to_xyzi
+from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, header_stamp_ns
 from pass3d_ros.ros import params, scan_checks
-from pass3d_ros.ros.cluster_proposal_node import ProposalFrame
 from pass3d_ros.ros.diagnostics import StepClock
 from pass3d_ros.ros.latest_frame import DROPPED, FrameCounters, LatestFrameWorker, Outcome
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
+from pass3d_ros.ros.proposals import ProposalFrame, dense_ids, nearest_proposals, proposal_frame
 from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES
 from pass3d_ros.ros.run import run_nodes
 
-REQUIRED_FIELDS = ("cluster_id",)
-ID_FIELDS = ("cluster_id", "cluster_id2")
 HUNG_ERROR_S = 10.0  # a stage-2 process killed for hanging stays an ERROR on /diagnostics this long (seen at 1 Hz)
 
 NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
@@ -103,87 +101,6 @@ def object_boxes(points: np.ndarray, members: list[np.ndarray], result: SegmentR
         for k, i in enumerate(chosen)
     ]
     return boxes, [int(result.proposal_class[i]) for i in chosen]
-
-
-def proposal_ids(cloud: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The cluster_id and cluster_id2 columns as int64, checked to be integers in -1..N-1 (N points).
-
-    Anything else is a malformed message (PointCloud2Error naming the field): work must follow the number of
-    points, never the id values a sender chose.
-    """
-    names = cloud.dtype.names or ()
-    n = len(cloud)
-    ids = []
-    for name in ID_FIELDS:
-        if name not in names:
-            ids.append(np.full(n, -1, np.int64))
-            continue
-        column = cloud[name]
-        if column.dtype.kind not in "iu":
-            raise PointCloud2Error(f"field {name!r} has dtype {column.dtype}, expected an integer type (INT8..UINT32)")
-        values = column.astype(np.int64)
-        if n and (values.min() < -1 or values.max() >= n):
-            raise PointCloud2Error(
-                f"field {name!r} holds ids {values.min()}..{values.max()}, expected -1 (none) or 0..{n - 1} "
-                f"(below the {n} points of the cloud)"
-            )
-        ids.append(values)
-    return ids[0], ids[1]
-
-
-def proposal_frame(msg: PointCloud2) -> ProposalFrame:
-    """A /pass3d/proposals message as arrays (PointCloud2Error when it is not one); NaN points are left out."""
-    cloud = decode(msg, skip_nans=True)
-    names = cloud.dtype.names or ()
-    missing = [name for name in REQUIRED_FIELDS if name not in names]
-    if missing:
-        raise PointCloud2Error(f"no {', '.join(missing)} field: is this a /pass3d/proposals cloud?")
-    first, second = proposal_ids(cloud)
-    points = to_xyzi(cloud, with_ring=False).points
-    return ProposalFrame(msg.header, points, cloud["ring"] if "ring" in names else None, first, second)
-
-
-def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:
-    """Point indices of each proposal from the per-point cluster_id (and cluster_id2 when present).
-
-    Ids are renumbered densely in ascending order (unchanged for stage 1's 0..K-1), so the number of proposals is
-    the number of distinct ids, never the largest one.
-    """
-    return members_from_ids(*proposal_ids(cloud))
-
-
-def members_from_ids(first: np.ndarray, second: np.ndarray) -> list[np.ndarray]:
-    """Point indices of each proposal from checked primary and secondary ids (see members_from_cloud)."""
-    first, second, count = dense_ids(first, second)
-    return proposal_members(first, second, n_proposals=count)
-
-
-def dense_ids(first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Checked primary and secondary ids renumbered 0..K-1 in ascending order (unchanged for stage 1's), and K."""
-    ids = np.concatenate([first, second])
-    present = np.flatnonzero(np.bincount(ids[ids >= 0]))  # ids are checked below N: linear, no sort
-    if len(present) and present[-1] != len(present) - 1:
-        first = np.where(first >= 0, np.searchsorted(present, first), -1)
-        second = np.where(second >= 0, np.searchsorted(present, second), -1)
-    return first, second, len(present)
-
-
-def nearest_proposals(points: np.ndarray, first: np.ndarray, second: np.ndarray, count: int, limit: int
-                      ) -> tuple[np.ndarray, np.ndarray, int]:
-    """Dense ids (`dense_ids`) cut to the `limit` proposals nearest the sensor (x-y of the mean point, as the
-    classifiers choose), renumbered in order; the others' points get -1. Linear in the points, however many ids."""
-    if count <= limit:
-        return first, second, count
-    ids = np.concatenate([first, second])
-    inside = ids >= 0
-    ids = ids[inside]
-    xy = np.concatenate([points[:, :2], points[:, :2]])[inside].astype(np.float64)
-    size = np.bincount(ids, minlength=count)
-    distance = np.hypot(np.bincount(ids, xy[:, 0], count) / size, np.bincount(ids, xy[:, 1], count) / size)
-    kept = np.sort(np.argsort(distance, kind="stable")[:limit])
-    renumber = np.full(count + 1, -1, np.int64)  # index -1 (no proposal) reads the last entry: -1
-    renumber[kept] = np.arange(limit)
-    return renumber[first], renumber[second], limit
 
 
 class Labeled(NamedTuple):

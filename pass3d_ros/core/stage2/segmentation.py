@@ -188,13 +188,19 @@ def proposals_cut(count: int, limit: int) -> int:
     return max(0, int(count) - int(limit))
 
 
+def nearest_kept(distance: np.ndarray, limit: int) -> np.ndarray:
+    """The proposal budget, the one rule every caller applies: the indices (ascending) of the `limit` proposals
+    nearest the sensor, given each one's distance (x-y of its mean point); ties keep the lower index."""
+    return np.sort(np.argsort(distance, kind="stable")[:limit])
+
+
 def nearest_first(points: np.ndarray, members: list[np.ndarray], limit: int) -> np.ndarray:
     """Indices of up to `limit` non-empty proposals, the nearest to the sensor (x-y of the mean point) first."""
     valid = np.array([i for i, m in enumerate(members) if len(m) > 0], dtype=np.int64)
     if len(valid) <= limit:
         return valid
     dist = np.array([np.hypot(*points[members[i], :2].mean(axis=0)) for i in valid])
-    return np.sort(valid[np.argsort(dist, kind="stable")[:limit]])
+    return valid[nearest_kept(dist, limit)]
 
 
 # ------------------------------------------------------------------------------------------- checkpoints

@@ -1,0 +1,134 @@
+"""The message between the two nodes, `/pass3d/proposals`: its columns, its in-memory form (`ProposalFrame`), the
+checks a received one passes, and the proposal budget (at most `max_proposals`, the nearest) read off its ids.
+
+Both nodes and the in-memory pipeline use this module: the cluster node writes the message (or hands the frame over in
+memory), the segmentation node reads it. Nothing here needs rclpy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sensor_msgs.msg import PointCloud2
+
+from pass3d_ros.core.stage1 import Stage1Result, proposal_members
+from pass3d_ros.core.stage2.segmentation import nearest_kept
+from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, to_xyzi
+
+REQUIRED_FIELDS = ("cluster_id",)
+ID_FIELDS = ("cluster_id", "cluster_id2")
+
+
+@dataclass(frozen=True)
+class ProposalFrame:
+    """One frame of stage-1 output in memory: the columns of /pass3d/proposals the segmentation node reads."""
+
+    header: Any  # std_msgs/Header of the input scan (stamp and frame_id)
+    points: np.ndarray  # (N, 4) float32 x, y, z, intensity; all finite
+    ring: np.ndarray | None  # (N,) ring index, or None
+    cluster_id: np.ndarray  # (N,) primary proposal id, -1 = none
+    cluster_id2: np.ndarray  # (N,) secondary proposal id (overlapping enlarged boxes), -1 = none
+
+
+ProposalSink = Callable[[ProposalFrame], None]
+
+
+def proposals_cloud(points: np.ndarray, result: Stage1Result, ring: np.ndarray | None = None
+                    ) -> dict[str, np.ndarray]:
+    """The columns of /pass3d/proposals: everything the segmentation node needs, point order kept; `ring`: the
+    driver's field as it came (its own numbering) when there is one, else stage 1's rings (0 = highest laser)."""
+    ring = result.ring if ring is None else ring
+    return {
+        "x": points[:, 0],
+        "y": points[:, 1],
+        "z": points[:, 2],
+        "intensity": points[:, 3],
+        "ring": ring.astype(np.uint16),
+        "ground": result.ground.astype(np.uint8),
+        "cluster_id": result.cluster_id.astype(np.int32),
+        "cluster_id2": result.cluster_id2.astype(np.int32),
+    }
+
+
+def proposal_ids(cloud: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cluster_id and cluster_id2 columns as int64, checked to be integers in -1..N-1 (N points).
+
+    Anything else is a malformed message (PointCloud2Error naming the field): work must follow the number of
+    points, never the id values a sender chose.
+    """
+    names = cloud.dtype.names or ()
+    n = len(cloud)
+    ids = []
+    for name in ID_FIELDS:
+        if name not in names:
+            ids.append(np.full(n, -1, np.int64))
+            continue
+        column = cloud[name]
+        if column.dtype.kind not in "iu":
+            raise PointCloud2Error(f"field {name!r} has dtype {column.dtype}, expected an integer type (INT8..UINT32)")
+        values = column.astype(np.int64)
+        if n and (values.min() < -1 or values.max() >= n):
+            raise PointCloud2Error(
+                f"field {name!r} holds ids {values.min()}..{values.max()}, expected -1 (none) or 0..{n - 1} "
+                f"(below the {n} points of the cloud)"
+            )
+        ids.append(values)
+    return ids[0], ids[1]
+
+
+def proposal_frame(msg: PointCloud2) -> ProposalFrame:
+    """A /pass3d/proposals message as arrays (PointCloud2Error when it is not one); NaN points are left out."""
+    cloud = decode(msg, skip_nans=True)
+    names = cloud.dtype.names or ()
+    missing = [name for name in REQUIRED_FIELDS if name not in names]
+    if missing:
+        raise PointCloud2Error(f"no {', '.join(missing)} field: is this a /pass3d/proposals cloud?")
+    first, second = proposal_ids(cloud)
+    points = to_xyzi(cloud, with_ring=False).points
+    return ProposalFrame(msg.header, points, cloud["ring"] if "ring" in names else None, first, second)
+
+
+def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:
+    """Point indices of each proposal from the per-point cluster_id (and cluster_id2 when present).
+
+    Ids are renumbered densely in ascending order (unchanged for stage 1's 0..K-1), so the number of proposals is
+    the number of distinct ids, never the largest one.
+    """
+    return members_from_ids(*proposal_ids(cloud))
+
+
+def members_from_ids(first: np.ndarray, second: np.ndarray) -> list[np.ndarray]:
+    """Point indices of each proposal from checked primary and secondary ids (see members_from_cloud)."""
+    first, second, count = dense_ids(first, second)
+    return proposal_members(first, second, n_proposals=count)
+
+
+def dense_ids(first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Checked primary and secondary ids renumbered 0..K-1 in ascending order (unchanged for stage 1's), and K."""
+    ids = np.concatenate([first, second])
+    present = np.flatnonzero(np.bincount(ids[ids >= 0]))  # ids are checked below N: linear, no sort
+    if len(present) and present[-1] != len(present) - 1:
+        first = np.where(first >= 0, np.searchsorted(present, first), -1)
+        second = np.where(second >= 0, np.searchsorted(present, second), -1)
+    return first, second, len(present)
+
+
+def nearest_proposals(points: np.ndarray, first: np.ndarray, second: np.ndarray, count: int, limit: int
+                      ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Dense ids (`dense_ids`) cut to the `limit` proposals nearest the sensor (x-y of the mean point, as the
+    classifiers choose), renumbered in order; the others' points get -1. Linear in the points, however many ids."""
+    if count <= limit:
+        return first, second, count
+    ids = np.concatenate([first, second])
+    inside = ids >= 0
+    ids = ids[inside]
+    xy = np.concatenate([points[:, :2], points[:, :2]])[inside].astype(np.float64)
+    size = np.bincount(ids, minlength=count)
+    distance = np.hypot(np.bincount(ids, xy[:, 0], count) / size, np.bincount(ids, xy[:, 1], count) / size)
+    kept = nearest_kept(distance, limit)
+    renumber = np.full(count + 1, -1, np.int64)  # index -1 (no proposal) reads the last entry: -1
+    renumber[kept] = np.arange(limit)
+    return renumber[first], renumber[second], limit
