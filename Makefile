@@ -3,30 +3,33 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.setup-stamp
-# numba compiles the stage-1 loops and the scan simulator; tqdm draws progress bars (see README).
-RUNTIME_DEPS := 'ros-jazzy-rclpy[fastrtps]==7.1.6' ros-jazzy-common-interfaces==5.3.6 'rosbags>=0.10' numpy numba tqdm
-# pyyaml: the tests read the parameter YAML and bag metadata; rerun-sdk: pass3d_view (optional for users) is tested.
-TEST_DEPS := pytest pytest-timeout ruff pyyaml rerun-sdk
+# pytest processes for the tests (pytest-xdist; each has its own DDS domains, see test/helpers/ros.py).
+JOBS ?= 2
+PYTEST := $(BIN)/python -m pytest -q -n $(JOBS) --dist loadfile
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo test test-slow lint bench clean
 
 setup: $(STAMP)
 
-# torch first and pinned: an unpinned torch pulls several GB of CUDA wheels.
+# The dependencies are listed once, in setup.py (runtime, and the ros-wheels, torch and test extras). torch first, pinned as setup.py pins
+# it: an unpinned torch pulls several GB of CUDA wheels.
 $(STAMP): setup.py package.xml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==2.13.0
-	$(BIN)/python -m pip install --quiet $(RUNTIME_DEPS) $(TEST_DEPS)
-	$(BIN)/python -m pip install --quiet --no-deps -e .
+	$(BIN)/python -m pip install --quiet -e '.[ros-wheels,torch,test]'
 	touch $(STAMP)
 
 # SENSOR=vlp16 (or vlp32c, hdl32e, os1-64, os1-128, pandar64) drives a simulated drive of that LiDAR.
 demo: setup
 	$(BIN)/python -m pass3d_ros.tools.demo $(if $(SENSOR),--sensor $(SENSOR))
 
+# Every test but those marked slow; `make test-slow` runs those, CI (.ci/run) both.
 test: setup
-	$(BIN)/python -m pytest -q test
+	$(PYTEST) -m "not slow" test
+
+test-slow: setup
+	$(PYTEST) -m slow test
 
 lint: setup
 	$(BIN)/ruff check pass3d_ros test launch_configs

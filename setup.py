@@ -1,10 +1,31 @@
-"""ament_python package: console scripts double as `ros2 run pass3d_ros <name>` executables."""
+"""ament_python package: console scripts double as `ros2 run pass3d_ros <name>` executables.
+
+The one list of dependencies: INSTALL_REQUIRES (what the package needs to run) and the `test` extra (what its tests and
+`make lint` add); `make setup` installs `-e .[test]`, package.xml names the same runtime dependencies as rosdep keys and
+test/test_dependencies.py keeps the two (and the README's Dependencies section) in agreement."""
 
 from glob import glob
 
 from setuptools import find_packages, setup
 
 PACKAGE = "pass3d_ros"
+
+# What `ros2 run` needs as pip distributions on a real Jazzy too: the launcher scripts setuptools writes check these
+# at start-up, so ROS 2 itself (apt's rclpy is no pip distribution) and torch (a user's own CUDA build) are extras.
+INSTALL_REQUIRES = [
+    "numpy",
+    "numba",  # the stage-1 loops and the scan simulator, compiled
+    "rosbags>=0.10",  # bags without a ROS install
+    "tqdm",  # progress bars
+    "pyyaml",  # the live harness's parameter files
+]
+# ROS 2 Jazzy as PyPI wheels, for a machine without a ROS install (`make setup`); without the fastrtps extra rclpy has
+# no RMW and fails to import. A Jazzy install brings them through rosdep (package.xml).
+ROS_WHEELS_REQUIRES = ["ros-jazzy-rclpy[fastrtps]==7.1.6", "ros-jazzy-common-interfaces==5.3.6"]
+# Pinned: an unpinned torch pulls several GB of CUDA wheels; `make setup` installs it first.
+TORCH_REQUIRES = ["torch==2.13.0"]
+# The tests and `make lint` (rerun-sdk: pass3d_view, optional for users, is tested).
+TEST_REQUIRES = ["pytest", "pytest-timeout", "pytest-xdist", "ruff", "pyyaml", "rerun-sdk"]
 
 CONSOLE_SCRIPTS = [
     "cluster_proposal_node = pass3d_ros.ros.cluster_proposal_node:main",
@@ -34,13 +55,14 @@ setup(
         (f"share/{PACKAGE}/config", ["launch_configs/pass3d_params.yaml", "launch_configs/pass3d.rviz",
                                       "launch_configs/fastdds_large_clouds.xml"]),
     ],
-    install_requires=["setuptools", "numpy", "rosbags", "numba", "tqdm"],
+    install_requires=INSTALL_REQUIRES,
     zip_safe=True,
     maintainer="pass3d_ros developers",
     maintainer_email="dev@pass3d-ros.invalid",
     description="PASS3D LiDAR point-wise semantic segmentation for ROS 2 Jazzy",
     license="Apache-2.0",
     # `colcon test` runs pytest when the package declares this extra (setuptools ignores tests_require).
-    extras_require={"test": ["pytest", "pytest-timeout", "pyyaml", "rerun-sdk"], "view": ["rerun-sdk"]},
+    extras_require={"test": TEST_REQUIRES, "ros-wheels": ROS_WHEELS_REQUIRES, "torch": TORCH_REQUIRES,
+                    "view": ["rerun-sdk"]},
     entry_points={"console_scripts": CONSOLE_SCRIPTS},
 )

@@ -1,25 +1,33 @@
-"""Shared fixtures: where the real KITTI development frames are, when they are there at all; test markers.
+"""Shared fixtures, each declared here once: the real KITTI development frames when they are there at all
+(`kitti_dev`), the one ROS harness (`ros`, from test/helpers/ros.py; DDS domains per process so pytest-xdist workers
+never cross-talk), the synthetic scan most node tests use (`frame`, `proposal_columns`), the shipped and an untrained
+checkpoint; test markers. Shared code that is not a fixture lives in test/helpers; no test module imports another.
 
 Markers: `ros` (needs rclpy and a DDS: the node and live tests), `kitti` (needs the real KITTI development
-frames, skipped with a message when they are absent). `pytest -m "not ros"` leaves the ROS tests out. A
-broken rclpy fails the ROS tests instead of skipping them; only PASS3D_SKIP_ROS_TESTS=1 (never set by
-`.ci/run`) leaves their modules uncollected, for a machine that knowingly has no ROS.
+frames, skipped with a message when they are absent), `slow` (left out of `make test`; `make test-slow` and CI run
+them). `pytest -m "not ros"` leaves the ROS tests out. A broken rclpy fails the ROS tests instead of skipping
+them; only PASS3D_SKIP_ROS_TESTS=1 (never set by `.ci/run`) leaves their modules uncollected, for a machine that
+knowingly has no ROS.
 """
 
 from __future__ import annotations
 
 import os
-import threading
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+import random
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import torch
+from helpers.ros import PROCESS_DOMAIN, Ros, domain, ros_session
 
 from pass3d_ros.core.stage2 import pointnet2
-from pass3d_ros.core.stage2.segmentation import make_checkpoint
+from pass3d_ros.core.stage2.segmentation import Segmenter, make_checkpoint
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.synthetic.dataset import generate_frame
+from pass3d_ros.weights import default_weights
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 ROS_TEST_MODULES = ["test_nodes.py", "test_evaluate.py", "test_recording.py", "test_node_input.py",
@@ -56,35 +64,60 @@ def kitti_dev() -> Path:
     return root
 
 
-@contextmanager
-def private_ros(domain: int) -> Iterator[tuple[Callable[[str], Any], int]]:
-    """(make_node, domain): a private rclpy context on `domain` with a single-threaded executor spinning in a
-    thread; make_node(name) adds a node to it. Everything is shut down on exit."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
+@pytest.fixture
+def ros() -> Iterator[Ros]:
+    """A private rclpy context on this process's next DDS domain, a spinning executor and a probe node
+    (helpers.ros.Ros): the one ROS harness of the tests."""
+    with ros_session() as session:
+        yield session
 
-    context = Context()
-    rclpy.init(context=context, domain_id=domain)
-    executor = SingleThreadedExecutor(context=context)
-    nodes: list[Any] = []
 
-    def make_node(name: str) -> Any:
-        node = rclpy.create_node(f"{name}_{os.getpid()}", context=context)
-        executor.add_node(node)
-        nodes.append(node)
-        return node
-
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
+@pytest.fixture(scope="session", autouse=True)
+def dds_domains_of_this_process() -> Iterator[None]:
+    """ROS traffic of this test process stays on its own DDS domains (helpers.ros.domain), so pytest-xdist workers
+    never hear each other: a child process started without ROS_DOMAIN_ID gets this process's own default domain,
+    and run_live (also under pass3d_evaluate --live), which draws its domain from random.randint(100, 200) unless
+    told one, draws from this process's share instead."""
     try:
-        yield make_node, domain
-    finally:
-        executor.shutdown()
-        thread.join(timeout=5)
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        from pass3d_ros.evaluation import live
+    except ImportError:  # a machine without ROS (PASS3D_SKIP_ROS_TESTS=1) makes no live runs
+        live = None
+
+    class Draws:
+        def randint(self, a: int, b: int) -> int:
+            return domain()
+
+        def __getattr__(self, name: str) -> Any:
+            return getattr(random, name)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("ROS_DOMAIN_ID", str(PROCESS_DOMAIN))
+        if live is not None:
+            patch.setattr(live, "random", Draws())
+        yield
+
+
+@pytest.fixture(scope="session")
+def frame() -> Frame:
+    """A synthetic HDL-64E scan with cars and people, labels included (seed 5, frame 0)."""
+    scan = generate_frame(seed=5, index=0)
+    assert np.count_nonzero(scan.labels) > 1000
+    return scan
+
+
+@pytest.fixture(scope="session")
+def proposal_columns(frame: Frame) -> dict[str, np.ndarray]:
+    """A valid /pass3d/proposals cloud of `frame`, as columns, built by stage 1 (shared: change a copy)."""
+    from pass3d_ros.core.stage1 import propose
+    from pass3d_ros.ros.proposals import proposals_cloud
+
+    return proposals_cloud(frame.points, propose(frame.points, frame.ring))
+
+
+@pytest.fixture(scope="session")
+def shipped() -> Segmenter:
+    """The shipped `lite` weights, loaded once."""
+    return Segmenter(default_weights())
 
 
 @pytest.fixture(scope="module")

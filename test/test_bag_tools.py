@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import private_ros
+from helpers.ros import wait_until
 from rosbags.rosbag2 import Reader
 
 import pass3d_ros.data.bag_convert as bag_convert
@@ -193,13 +193,6 @@ def test_real_frames_round_trip(kitti_dev: Path, tmp_path: Path) -> None:
 
 # ---- live ROS: replay to a real subscriber, record what is published ----
 
-@pytest.fixture
-def ros():
-    """A private rclpy context on a per-process domain, with a real executor spinning in a thread."""
-    with private_ros(10 + os.getpid() % 90) as handles:
-        yield handles
-
-
 def small_bag(tmp_path: Path, frames: int = 8) -> Path:
     seq = write_sequence(tmp_path, frames=frames)
     out = tmp_path / "small"
@@ -217,24 +210,16 @@ def collect(node, topic: str, qos: str):
     return received
 
 
-def wait_until(predicate, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not predicate() and time.monotonic() < deadline:
-        time.sleep(0.02)
-    return predicate()
-
-
 def test_replay_to_real_subscriber(ros, tmp_path: Path) -> None:
-    from pass3d_ros.tools.replay import replay
+    from pass3d_ros.ros.bag_replay import replay
 
-    make_node, _ = ros
     bag = small_bag(tmp_path)
     topic = f"/replay_{os.getpid()}"
-    received = collect(make_node("sub"), topic, "sensor")
-    stats = replay(bag, make_node("pub"), publish_topic=topic, rate=2.0, min_subscribers=1)
+    received = collect(ros.make_node("sub"), topic, "sensor")
+    stats = replay(bag, ros.make_node("pub"), publish_topic=topic, rate=2.0, min_subscribers=1)
     assert stats.published == 8 and stats.passes == 1
     assert 0.7 * 0.35 <= stats.seconds < 3.0, stats.seconds  # 7 gaps of 100 ms at x2 = 0.35 s
-    assert wait_until(lambda: len(received) == 8), f"received {len(received)} of 8"
+    assert wait_until(lambda: len(received) == 8, 10.0), f"received {len(received)} of 8"
     originals = [frame for _, _, frame in read_messages(bag)]
     for (_, got), want in zip(received, originals, strict=True):
         assert header_stamp_ns(got) == header_stamp_ns(want)
@@ -242,9 +227,8 @@ def test_replay_to_real_subscriber(ros, tmp_path: Path) -> None:
 
 
 def test_replay_loop_until_stopped(ros, tmp_path: Path) -> None:
-    from pass3d_ros.tools.replay import replay
+    from pass3d_ros.ros.bag_replay import replay
 
-    make_node, _ = ros
     bag = small_bag(tmp_path, frames=4)
     stop = threading.Event()
     seen: list[int] = []
@@ -254,7 +238,7 @@ def test_replay_loop_until_stopped(ros, tmp_path: Path) -> None:
         if index == 9:
             stop.set()
 
-    stats = replay(bag, make_node("looper"), rate=0.0, loop=True, stop=stop, on_publish=on_publish, linger=0.0)
+    stats = replay(bag, ros.make_node("looper"), rate=0.0, loop=True, stop=stop, on_publish=on_publish, linger=0.0)
     assert stats.published == 10 and stats.passes == 2
     assert seen[:4] == seen[4:8] == [bag_convert.SYNTHETIC_START_NS + k * bag_convert.FRAME_GAP_NS for k in range(4)]
 
@@ -262,19 +246,19 @@ def test_replay_loop_until_stopped(ros, tmp_path: Path) -> None:
 def test_record_round_trip_from_replay(ros, tmp_path: Path) -> None:
     from visualization_msgs.msg import Marker, MarkerArray
 
+    from pass3d_ros.ros.bag_replay import replay
     from pass3d_ros.ros.qos import qos_profile
-    from pass3d_ros.tools.replay import Recorder, replay
+    from pass3d_ros.ros.recorder import Recorder
 
-    make_node, _ = ros
     bag = small_bag(tmp_path, frames=6)
     topic, markers_topic = f"/rec_{os.getpid()}", f"/rec_markers_{os.getpid()}"
-    recorder_node = make_node("recorder")
+    recorder_node = ros.make_node("recorder")
     out = tmp_path / "recorded"
     recorder = Recorder(recorder_node, {topic: POINTCLOUD2_TYPE, markers_topic: "visualization_msgs/msg/MarkerArray"},
                         out, storage="sqlite3", qos="sensor")
-    pub_node = make_node("pub")
+    pub_node = ros.make_node("pub")
     marker_pub = pub_node.create_publisher(MarkerArray, markers_topic, qos_profile("reliable", 10))
-    assert wait_until(lambda: marker_pub.get_subscription_count() > 0)
+    assert wait_until(lambda: marker_pub.get_subscription_count() > 0, 10.0)
     marker = Marker(action=Marker.DELETEALL)
     marker.header.stamp.sec, marker.header.stamp.nanosec = 42, 5
     marker_pub.publish(MarkerArray(markers=[marker]))
@@ -293,10 +277,9 @@ def test_record_round_trip_from_replay(ros, tmp_path: Path) -> None:
 
 
 def test_recorder_abort_and_overwrite(ros, tmp_path: Path) -> None:
-    from pass3d_ros.tools.replay import Recorder
+    from pass3d_ros.ros.recorder import Recorder
 
-    make_node, _ = ros
-    node = make_node("rec2")
+    node = ros.make_node("rec2")
     (tmp_path / "exists").mkdir()
     with pytest.raises(BagError, match="exists"):
         Recorder(node, [f"/x_{os.getpid()}"], tmp_path / "exists")
@@ -306,11 +289,10 @@ def test_recorder_abort_and_overwrite(ros, tmp_path: Path) -> None:
 
 
 def test_replay_cli_subprocess(ros, tmp_path: Path) -> None:
-    make_node, domain = ros
     bag = small_bag(tmp_path, frames=5)
     topic = f"/cli_{os.getpid()}"
-    received = collect(make_node("cli_sub"), topic, "sensor")
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+    received = collect(ros.make_node("cli_sub"), topic, "sensor")
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros.domain))
     result = subprocess.run(
         [sys.executable, "-m", "pass3d_ros.tools.replay", str(bag), "--publish-topic", topic, "--rate", "5",
          "--wait-subscribers", "1"],
@@ -318,7 +300,8 @@ def test_replay_cli_subprocess(ros, tmp_path: Path) -> None:
     )
     assert result.returncode == 0, result.stderr
     assert f"published 5 messages on {topic}" in result.stdout
-    assert wait_until(lambda: len(received) == 5), f"received {[header_stamp_ns(m) % 10**10 for _, m in received]}"
+    arrived = wait_until(lambda: len(received) == 5, 10.0)
+    assert arrived, f"received {[header_stamp_ns(m) % 10**10 for _, m in received]}"
 
 
 def test_replay_cli_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
@@ -336,12 +319,11 @@ def test_record_cli_subprocess(ros, tmp_path: Path) -> None:
 
     from pass3d_ros.ros.qos import qos_profile
 
-    make_node, domain = ros
     topic = f"/cli_rec_{os.getpid()}"
-    node = make_node("cli_pub")
+    node = ros.make_node("cli_pub")
     publisher = node.create_publisher(PointCloud2, topic, qos_profile("reliable", 10))
     out = tmp_path / "cli.bag"
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros.domain))
     proc = subprocess.Popen(
         [sys.executable, "-m", "pass3d_ros.tools.replay", "--record", topic, "--out", str(out), "--count", "3",
          "--storage", "sqlite3", "--rosbag-version", "8"],

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from pass3d_ros.classes import BACKGROUND, CAR, CLASS_NAMES, CYCLIST, PEDESTRIAN
-from pass3d_ros.evaluation import bev
-from pass3d_ros.evaluation.bev_font import GLYPH_H, draw_text, glyph, text_mask, text_size
+from pass3d_ros.drawing import bev
+from pass3d_ros.drawing.font import GLYPH_H, draw_text, glyph, text_mask, text_size
 
 HEIGHT = bev.TITLE_PX + bev.PANEL_PX + bev.LEGEND_PX
 SCALE = bev.PANEL_PX / (2 * bev.EXTENT_M)

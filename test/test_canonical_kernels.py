@@ -20,7 +20,6 @@ from pass3d_ros.core.stage1 import proposal_members, propose
 from pass3d_ros.core.stage2 import canonical
 from pass3d_ros.core.stage2.segmentation import Segmenter
 from pass3d_ros.data.spec import open_dataset
-from pass3d_ros.weights import default_weights
 
 ATOL = 1e-5
 
@@ -256,11 +255,6 @@ def test_real_kitti_proposals_match_reference(kitti_dev: Path):
         boxes = canonical.fit_boxes(xyz, offsets)
         assert_same_boxes(boxes, ref_fit_boxes(xyz, offsets))
         assert_same_canonical(xyz, boxes, offsets)
-
-
-@pytest.fixture(scope="module")
-def shipped() -> Segmenter:
-    return Segmenter(default_weights())
 
 
 def assert_same_labels(segmenter: Segmenter, frames: list, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -2,7 +2,7 @@
 turn the status WARN; a stage-2 child that stops answering is killed and restarted with an ERROR, and its frame is
 never published late; a sensor's rate change is learnt, not reported as frames lost.
 
-The node tests run in-process with real publishers and subscribers on a real executor (test_nodes.Ros).
+The node tests run in-process with real publishers and subscribers on a real executor (helpers.ros.Ros).
 """
 
 from __future__ import annotations
@@ -11,38 +11,20 @@ import contextlib
 import os
 import signal
 import time
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from helpers.ros import STAMP0, Collector, Ros, connect, wait_until
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
-from test_nodes import STAMP0, Collector, Ros, connect, wait_until
 
-from pass3d_ros.core.stage1 import propose
 from pass3d_ros.msgs.pointcloud2 import encode, header_stamp_ns
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
 from pass3d_ros.ros.diagnostics import NO_OUTPUT_WARN_S, NodeStats, OutputWatch, status_values, to_status
 from pass3d_ros.ros.input_watch import InputWatch
-from pass3d_ros.ros.proposals import proposals_cloud
 from pass3d_ros.ros.qos import qos_profile
 from pass3d_ros.ros.segmentation_node import SegmentationNode
-from pass3d_ros.synthetic.dataset import generate_frame
-
-
-@pytest.fixture(scope="module")
-def proposals() -> dict[str, np.ndarray]:
-    """The /pass3d/proposals columns of a synthetic scan with cars and people."""
-    frame = generate_frame(seed=5, index=0)
-    return proposals_cloud(frame.points, propose(frame.points, frame.ring))
-
-
-@pytest.fixture
-def ros() -> Iterator[Ros]:
-    session = Ros()
-    yield session
-    session.close()
 
 
 def statuses(diagnostics: Collector, name: str) -> list[DiagnosticStatus]:
@@ -103,7 +85,7 @@ def test_output_watch_warns_only_while_input_produces_nothing() -> None:
 
 @pytest.mark.ros
 def test_a_stopped_stage2_child_is_killed_restarted_and_its_frame_never_published(
-    ros: Ros, proposals: dict[str, np.ndarray], capfd: pytest.CaptureFixture[str]
+    ros: Ros, proposal_columns: dict[str, np.ndarray], capfd: pytest.CaptureFixture[str]
 ) -> None:
     node = ros.add(SegmentationNode(context=ros.context, parameter_overrides=[
         Parameter("classifier", value="size_rules"), Parameter("process", value=True),
@@ -114,14 +96,14 @@ def test_a_stopped_stage2_child_is_killed_restarted_and_its_frame_never_publishe
     connect(pub, labeled)
     name = node.get_name()
 
-    pub.publish(encode(proposals, stamp_ns=STAMP0))
+    pub.publish(encode(proposal_columns, stamp_ns=STAMP0))
     labeled.wait(1)
     first = node.classifier.pid
     os.kill(first, signal.SIGSTOP)
     try:
         stale = [STAMP0 + k * 100_000_000 for k in (1, 2)]
         for stamp in stale:  # the first waits in the stopped child, the second in the node's slot
-            pub.publish(encode(proposals, stamp_ns=stamp))
+            pub.publish(encode(proposal_columns, stamp_ns=stamp))
             time.sleep(0.3)
         assert wait_until(lambda: any(s.level == DiagnosticStatus.ERROR for s in statuses(diagnostics, name)),
                           timeout=5.0), [s.message for s in statuses(diagnostics, name)]
@@ -136,7 +118,7 @@ def test_a_stopped_stage2_child_is_killed_restarted_and_its_frame_never_publishe
     assert wait_until(lambda: node.classifier.restarts == 1, timeout=60.0)
     assert node.classifier.pid != first and node.classifier.hangs == 1
     fresh = STAMP0 + 10 * 100_000_000
-    pub.publish(encode(proposals, stamp_ns=fresh))
+    pub.publish(encode(proposal_columns, stamp_ns=fresh))
     assert wait_until(lambda: fresh in stamps_of(labeled), timeout=10.0)
     time.sleep(0.3)
 
@@ -149,7 +131,7 @@ def test_a_stopped_stage2_child_is_killed_restarted_and_its_frame_never_publishe
 
 @pytest.mark.ros
 def test_a_result_later_than_stage2_timeout_is_dropped_not_published(
-    ros: Ros, proposals: dict[str, np.ndarray]
+    ros: Ros, proposal_columns: dict[str, np.ndarray]
 ) -> None:
     node = ros.add(SegmentationNode(context=ros.context, parameter_overrides=[
         Parameter("classifier", value="size_rules"), Parameter("stage2_timeout", value=0.3)]))
@@ -165,9 +147,9 @@ def test_a_result_later_than_stage2_timeout_is_dropped_not_published(
         return segment(points, members)
 
     node.classifier.segment = stalled
-    pub.publish(encode(proposals, stamp_ns=STAMP0))
+    pub.publish(encode(proposal_columns, stamp_ns=STAMP0))
     assert wait_until(lambda: node.frames_late == 1 and node.worker.idle(), timeout=10.0)
-    pub.publish(encode(proposals, stamp_ns=STAMP0 + 100_000_000))
+    pub.publish(encode(proposal_columns, stamp_ns=STAMP0 + 100_000_000))
     labeled.wait(1)
     time.sleep(0.2)
     assert stamps_of(labeled) == [STAMP0 + 100_000_000]

@@ -1,7 +1,9 @@
 """Data-parallel pass3d_train: two CPU processes under torch.distributed.run (gloo) train a few steps, write each
 file once, give a plain checkpoint that loads like a single-process one (offline and in the segmentation node),
 resume, and reach about the loss of a one-process run from the same seed; the workers die with their launcher, and
-pass3d_train --nproc stops them with one line and the shell's exit status."""
+pass3d_train --nproc stops them with one line and the shell's exit status.
+
+The tests that start training processes are marked slow (10-25 s each): `make test-slow` and CI run them."""
 
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from helpers.ros import domain
 
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.training.distributed import strip_module_prefix
@@ -41,6 +44,7 @@ def ddp_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     return out, torchrun(out, "--epochs", "1").stdout
 
 
+@pytest.mark.slow
 def test_two_processes_write_one_plain_checkpoint(ddp_run: tuple[Path, str]) -> None:
     out, stdout = ddp_run
     assert stdout.count("data-parallel: 2 processes (cpu)") == 1  # rank 0 alone logs
@@ -60,6 +64,7 @@ def test_two_processes_write_one_plain_checkpoint(ddp_run: tuple[Path, str]) -> 
     assert result.labels.shape == (400,) and result.labels.max() < 4
 
 
+@pytest.mark.slow
 def test_resume_under_two_processes(ddp_run: tuple[Path, str], tmp_path: Path) -> None:
     out, _ = ddp_run
     for name in ("last.pt", "best.pt", "history.json"):
@@ -71,6 +76,7 @@ def test_resume_under_two_processes(ddp_run: tuple[Path, str], tmp_path: Path) -
     assert [h["epoch"] for h in json.loads((tmp_path / "history.json").read_text())] == [0, 1]
 
 
+@pytest.mark.slow
 def test_two_processes_reach_the_loss_of_one(ddp_run: tuple[Path, str], tmp_path: Path) -> None:
     """Same seed, same global batch of 8: the first epoch's mean loss (3 steps from the same initial weights) of
     2 processes is within 0.3 of 1 process's (about 1.6 at that point; the gap measured was under 0.1; the runs
@@ -95,6 +101,7 @@ def test_strip_module_prefix() -> None:
 
 
 @pytest.mark.ros
+@pytest.mark.slow
 def test_segmentation_node_loads_the_ddp_checkpoint(ddp_run: tuple[Path, str]) -> None:
     rclpy = pytest.importorskip("rclpy")
     from rclpy.context import Context
@@ -104,7 +111,7 @@ def test_segmentation_node_loads_the_ddp_checkpoint(ddp_run: tuple[Path, str]) -
 
     out, _ = ddp_run
     context = Context()
-    rclpy.init(context=context, domain_id=int(np.random.default_rng().integers(100, 200)))
+    rclpy.init(context=context, domain_id=domain())
     try:
         node = SegmentationNode(context=context, parameter_overrides=[
             Parameter("classifier", value="network"), Parameter("weights", value=str(out / "best.pt"))])
@@ -161,6 +168,7 @@ def alive(pid: int) -> bool:
 
 
 @pytest.mark.parametrize("how", ["torchrun", "nproc"])
+@pytest.mark.slow
 def test_workers_die_with_a_killed_launcher(how: str, tmp_path: Path) -> None:
     """SIGKILL on the launcher: both workers exit within seconds (parent-death signal, watchdog) and stop
     rewriting last.pt."""
@@ -184,6 +192,7 @@ def test_workers_die_with_a_killed_launcher(how: str, tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("signum", "status"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+@pytest.mark.slow
 def test_nproc_signal_gives_its_status_and_one_line(signum: int, status: int, tmp_path: Path) -> None:
     """pass3d_train --nproc 2 stopped by SIGTERM / SIGINT: 143 / 130, one line from rank 0 naming the last
     checkpoint, no traceback, no worker left."""
@@ -197,6 +206,7 @@ def test_nproc_signal_gives_its_status_and_one_line(signum: int, status: int, tm
     assert not any(alive(pid) for pid in workers)
 
 
+@pytest.mark.slow
 def test_user_error_is_one_line_with_status_2(tmp_path: Path) -> None:
     """A user error in every worker (here a missing --init file): exit 2 and its line once, not once per rank; under
     torchrun rank 0 alone prints it (torchrun's own report follows, quoting the other ranks' errors)."""
@@ -220,6 +230,7 @@ def test_nproc_refuses_a_bad_value_before_starting_workers(tmp_path: Path) -> No
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_user_error_in_one_rank_alone_is_its_one_line(tmp_path: Path) -> None:
     """Frame 1 (rank 1's share) has no labels: rank 1 reports it, rank 0 only loses its peer and says nothing, and
     pass3d_train --nproc shows rank 1's line once with its status 2. Under torchrun rank 1's line is in torchrun's

@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from pass3d_ros.bench import benchmark
 from pass3d_ros.bench import live as bench_live
 from pass3d_ros.classes import CLASS_NAMES, FOREGROUND, IGNORE, NUM_CLASSES
 from pass3d_ros.core import stage2
@@ -228,9 +229,8 @@ def test_benchmark_live_short_run(tmp_path: Path, capsys: pytest.CaptureFixture)
     assert live["lockstep"] is False and live["latency_ms"]["median"] > 0
     if report["memory"]["available"]:
         assert report["memory"]["after_warmup_mib"] > 10.0 and report["memory"]["end_mib"] > 10.0
-    bad = parser.parse_args(["--classifier", "size_rules", "--weights", "x.pt"])
-    assert bench_live.run(bad) == 2
-    assert "--weights applies" in capsys.readouterr().err
+    assert benchmark.main(["live", "--classifier", "size_rules", "--weights", "x.pt"]) == 2
+    assert "pass3d_benchmark: error: --weights applies" in capsys.readouterr().err
 
 
 def test_live_scoring_accepts_unknown_labels_from_kitti_layouts(tmp_path: Path) -> None:

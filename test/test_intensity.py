@@ -24,12 +24,12 @@ REAL_MIXED_SHARE = 0.046  # mixed_pixel_share over the 13 unlabelled HDL-64E sca
 
 
 @pytest.fixture(scope="module")
-def frames() -> list[Frame]:
+def intensity_frames() -> list[Frame]:
     return [generate_frame(seed, i) for seed in (1, 2, 3, 4) for i in range(8)]
 
 
-def test_zero_share_per_class_matches_real_scans(frames):
-    measured = zero_shares(frames)
+def test_zero_share_per_class_matches_real_scans(intensity_frames):
+    measured = zero_shares(intensity_frames)
     assert REAL_ZERO_SHARE["car"] == 45.0 and REAL_ZERO_SHARE["ground"] == 7.3
     for name, real in REAL_ZERO_SHARE.items():
         assert abs(measured[name] - real) <= TOLERANCE, (name, measured[name], real)
@@ -37,11 +37,11 @@ def test_zero_share_per_class_matches_real_scans(frames):
     assert min(measured.values()) > 1.0
 
 
-def test_mixed_pixels_at_the_real_rate(frames):
-    share = np.mean([mixed_pixel_share(f.points, f.ring) for f in frames[:6]])
+def test_mixed_pixels_at_the_real_rate(intensity_frames):
+    share = np.mean([mixed_pixel_share(f.points, f.ring) for f in intensity_frames[:6]])
     assert abs(share - REAL_MIXED_SHARE) < 0.015
     # mixed pixels are background in no box: every boxed point still lies in its box
-    for frame in frames[:3]:
+    for frame in intensity_frames[:3]:
         for box in frame.boxes:
             assert box.contains(frame.points[frame.instance == box.instance, :3]).all()
 

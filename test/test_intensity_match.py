@@ -7,8 +7,7 @@ import pytest
 
 from pass3d_ros.core.stage2 import intensity_match as im
 from pass3d_ros.core.stage2.intensity_match import REFERENCE_QUANTILES, StreamIntensityMatch, fit_map
-from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
-from pass3d_ros.evaluation.offline import StreamIntensity
+from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 
@@ -86,19 +85,17 @@ def test_first_scan_is_mapped_before_the_map_is_held() -> None:
     assert np.array_equal(points[:, 3], dark)  # the caller's points are untouched
 
 
-def test_offline_streams_follow_the_spec_and_skip_size_rules() -> None:
+def test_offline_streams_follow_the_spec_and_match_only_when_asked() -> None:
     rng = np.random.default_rng(5)
     points = np.zeros((40_000, 4), np.float32)
     points[:, 3] = training_like(rng, 40_000) * 0.1
-
-    class Network:
-        kind = "network"
-
-    intensity = StreamIntensity(True, Network())
-    assert intensity("a", points) is not points
-    assert "matched" in intensity.maps["a"]
+    stream = ScanStream()
+    stream.follow("a")
+    assert stream.on_training_scale(points) is not points
+    assert stream.match.map.kind == "matched"
     bright = points.copy()
     bright[:, 3] *= 10
-    assert intensity("b", bright) is bright and "already on the training scale" in intensity.maps["b"]
-    assert StreamIntensity(True, SizeRuleClassifier())("a", points) is points
-    assert StreamIntensity(False, Network())("a", points) is points
+    stream.follow("b")
+    assert stream.on_training_scale(bright) is bright and "already on the training scale" in str(stream.match.map)
+    off = ScanStream(intensity_match=False)
+    assert off.on_training_scale(points) is points

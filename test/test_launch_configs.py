@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from helpers.ros import domain
 
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.ros import cluster_proposal_node, segmentation_node
@@ -149,7 +150,7 @@ def test_a_real_node_loads_the_parameter_file(tmp_path: Path, namespace: str | N
     params.write_text(changed)
     args = ["--ros-args", "--params-file", str(params)] + (["-r", f"__ns:={namespace}"] if namespace else [])
     context = Context()
-    rclpy.init(args=args, context=context, domain_id=87)
+    rclpy.init(args=args, context=context, domain_id=domain())
     try:
         node = cluster_proposal_node.ClusterProposalNode(context=context)
         try:

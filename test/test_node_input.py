@@ -6,16 +6,16 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import pytest
 import rclpy
+from helpers.ros import STAMP0, Collector, Ros, columns, connect, scan_message, wait_until
+from helpers.scans import no_laser_lines_scan
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
-from test_nodes import STAMP0, Collector, Ros, columns, connect, scan_message, wait_until
-from test_point_order import no_laser_lines_scan
 
 from pass3d_ros.bench.stage1 import same_partition
 from pass3d_ros.core.stage1 import proposal_members, propose, synthetic_scan
@@ -31,26 +31,6 @@ from pass3d_ros.synthetic.dataset import generate_frame
 pytestmark = pytest.mark.ros
 
 MEMORY_BOUND_MIB = 200
-
-
-@pytest.fixture
-def ros() -> Iterator[Ros]:
-    """A private rclpy context with a spinning executor and a probe node (see test_nodes.Ros)."""
-    session = Ros()
-    yield session
-    session.close()
-
-
-@pytest.fixture(scope="module")
-def frame() -> Frame:
-    """The synthetic HDL-64E scan test_nodes uses, with cars and people."""
-    return generate_frame(seed=5, index=0)
-
-
-@pytest.fixture(scope="module")
-def proposal_columns(frame: Frame) -> dict[str, np.ndarray]:
-    """A valid /pass3d/proposals cloud of `frame`, as columns, built by stage 1."""
-    return proposals_cloud(frame.points, propose(frame.points, frame.ring))
 
 
 def with_column(base: dict[str, np.ndarray], name: str, values: np.ndarray | None) -> dict[str, np.ndarray]:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import rclpy
+from helpers.ros import domain
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
@@ -27,7 +28,7 @@ NODE = "import sys; from pass3d_ros.ros.cluster_proposal_node import main; sys.e
 
 def start(*ros_args: str) -> subprocess.Popen:
     """cluster_proposal_node in a child process on a private domain, with `ros_args` after --ros-args."""
-    env = {**os.environ, "ROS_DOMAIN_ID": "171"}
+    env = {**os.environ, "ROS_DOMAIN_ID": str(domain())}
     return subprocess.Popen([sys.executable, "-c", NODE, "--ros-args", *ros_args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env)
 
@@ -61,7 +62,7 @@ def test_params_file_problem_and_ros_message(tmp_path: Path) -> None:
 
 def test_misspelt_parameters_are_named_once(capfd: pytest.CaptureFixture[str]) -> None:
     context = Context()
-    rclpy.init(context=context, domain_id=172)
+    rclpy.init(context=context, domain_id=domain())
     overrides = [Parameter("stage1.th_dsit", value=0.2), Parameter("input_topik", value="/x"),
                  Parameter("stage1.th_ring", value=0.4), Parameter("qos_overrides./x.subscription.depth", value=5)]
     node = ClusterProposalNode(context=context, parameter_overrides=overrides)
@@ -95,7 +96,7 @@ def test_node_warns_about_a_misspelt_parameter_at_start_up() -> None:
 
 def test_segmentation_node_bad_device_is_one_line() -> None:
     code = "import sys; from pass3d_ros.ros.segmentation_node import main; sys.exit(main(sys.argv))"
-    env = {**os.environ, "ROS_DOMAIN_ID": "173"}
+    env = {**os.environ, "ROS_DOMAIN_ID": str(domain())}
     for device in ("cuda:99", "bogus"):
         proc = subprocess.run([sys.executable, "-c", code, "--ros-args", "-p", f"device:={device}"], env=env,
                               capture_output=True, text=True, timeout=120)
@@ -106,7 +107,7 @@ def test_segmentation_node_bad_device_is_one_line() -> None:
 
 def test_run_time_max_top_below_min_top_is_refused() -> None:
     context = Context()
-    rclpy.init(context=context, domain_id=174)
+    rclpy.init(context=context, domain_id=domain())
     node = ClusterProposalNode(context=context)
     try:
         result = node.set_parameters([Parameter("stage1.max_top", value=0.5)])[0]

@@ -1,26 +1,20 @@
 """Both real nodes in-process: real publishers, subscribers and services on a real executor spun in a thread.
 
-Every test runs in a private rclpy context on a random DDS domain (100..200), so parallel test runs and a
+Every test runs in a private rclpy context on a DDS domain of its own (helpers.ros), so parallel test runs and a
 real robot on the default domain never see each other's traffic.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
-import random
 import re
-import threading
 import time
-from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 import torch
-from rclpy.context import Context
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from helpers.ros import STAMP0, WAIT_S, Collector, Ros, columns, connect, scan_message, wait_until
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import PointCloud2
@@ -31,106 +25,19 @@ from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 from pass3d_ros.data.bag import read_bag
-from pass3d_ros.data.bag_convert import convert, frame_cloud
+from pass3d_ros.data.bag_convert import convert
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.evaluation.live import run_live
 from pass3d_ros.evaluation.report import score
-from pass3d_ros.msgs.pointcloud2 import decode, encode, header_stamp_ns
+from pass3d_ros.msgs.pointcloud2 import encode, header_stamp_ns
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
 from pass3d_ros.ros.qos import qos_profile
 from pass3d_ros.ros.segmentation_node import SegmentationNode
-from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.weights import DEFAULT_WEIGHTS_NAME, WEIGHTS_DIR
 
 pytestmark = pytest.mark.ros
 
-STAMP0 = 1_700_000_000_123_456_789
-WAIT_S = 30.0
 PROPOSAL_FIELDS = ("x", "y", "z", "intensity", "ring", "ground", "cluster_id", "cluster_id2")
-
-
-class Ros:
-    """A private context, a single-threaded executor spinning in a thread (as the executables run the nodes), and a
-    probe node to talk with."""
-
-    def __init__(self) -> None:
-        self.domain = random.randint(100, 200)
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=self.domain)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.nodes: list = []
-        self.probe = self.add(rclpy.create_node(f"probe_{random.getrandbits(32):08x}", context=self.context))
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self) -> None:
-        """Spin until closed; a context shut down under it (Ctrl-C) ends the spin, as in the executables."""
-        with contextlib.suppress(ExternalShutdownException):
-            self.executor.spin()
-
-    def add(self, node):
-        self.executor.add_node(node)
-        self.nodes.append(node)
-        return node
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.thread.join(timeout=5)
-        for node in reversed(self.nodes):
-            node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-
-
-class Collector:
-    """Messages of one topic received by the probe node, in arrival order."""
-
-    def __init__(self, ros: Ros, msg_type: type, topic: str) -> None:
-        self.messages: list = []
-        self.cond = threading.Condition()
-        self.sub = ros.probe.create_subscription(msg_type, topic, self._on, qos_profile("reliable", 20))
-
-    def _on(self, msg) -> None:
-        with self.cond:
-            self.messages.append(msg)
-            self.cond.notify_all()
-
-    def wait(self, count: int, timeout: float = WAIT_S) -> list:
-        with self.cond:
-            assert self.cond.wait_for(lambda: len(self.messages) >= count, timeout), (
-                f"{self.sub.topic_name}: {len(self.messages)} of {count} messages"
-            )
-            return list(self.messages)
-
-
-def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
-    return True
-
-
-def connect(publisher, *collectors: Collector) -> None:
-    """Wait until every endpoint is matched, plus a moment for the other side of discovery."""
-    assert wait_until(lambda: publisher.get_subscription_count() >= 1), "input not matched"
-    assert wait_until(lambda: all(c.sub.get_publisher_count() >= 1 for c in collectors)), "outputs not matched"
-    time.sleep(0.3)
-
-
-@pytest.fixture
-def ros() -> Iterator[Ros]:
-    session = Ros()
-    yield session
-    session.close()
-
-
-@pytest.fixture(scope="module")
-def frame() -> Frame:
-    """A synthetic HDL-64E scan with cars and people, labels included."""
-    scan = generate_frame(seed=5, index=0)
-    assert np.count_nonzero(scan.labels) > 1000
-    return scan
 
 
 @pytest.fixture(scope="module")
@@ -138,17 +45,6 @@ def small_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("bags") / "synthetic"
     convert(["synthetic:frames=3,seed=9"], out, with_labels=True, progress=False, log=lambda _: None)
     return out
-
-
-def scan_message(frame: Frame, stamp_ns: int, with_ring: bool = True, frame_id: str = "velodyne_test"):
-    cloud = frame_cloud(frame)
-    if not with_ring:
-        cloud = frame_cloud(Frame(frame.name, frame.points))
-    return encode(cloud, stamp_ns=stamp_ns, frame_id=frame_id)
-
-
-def columns(msg) -> np.ndarray:
-    return decode(msg)
 
 
 # ---- cluster_proposal_node ----

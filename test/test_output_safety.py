@@ -10,13 +10,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import private_ros
+from helpers.ros import ros_session
 from rosbags.rosbag2 import Reader, Writer
 
 import pass3d_ros.data.outputs as outputs
 from pass3d_ros.data import bag_convert
 from pass3d_ros.data.bag import TYPESTORE, BagWriter, topic_name_problem
 from pass3d_ros.data.outputs import MARKER, OutputError, out_path, protected_reason, write_text_atomic
+from pass3d_ros.evaluation import segmenting
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, columns_to_cloud, encode
 from pass3d_ros.tools import cli, evaluate, kitti2bag, pseudo_label, segment, simulate
 
@@ -129,10 +130,18 @@ def test_evaluate_json_on_a_full_disk(tmp_path: Path, monkeypatch: pytest.Monkey
                                       capsys: pytest.CaptureFixture[str]) -> None:
     target = tmp_path / "eval.json"
 
-    def full_replace(*_args) -> None:
-        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    class FullDiskOs:
+        """`os` as the outputs module sees it, on a full disk: only its renames fail (numba's cache, which also
+        renames through `os.replace`, is left alone)."""
 
-    monkeypatch.setattr(outputs.os, "replace", full_replace)
+        def __getattr__(self, name: str) -> object:
+            return getattr(os, name)
+
+        @staticmethod
+        def replace(*_args) -> None:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(outputs, "os", FullDiskOs())
     code = evaluate.main(["--stage1-only", "--data", "synthetic:frames=1,seed=1", "--json", str(target),
                           "--no-progress"])
     assert code == 2
@@ -236,16 +245,17 @@ def test_bag_writer_keeps_what_it_wrote(tmp_path: Path, monkeypatch: pytest.Monk
 
 
 def test_recorder_keeps_a_valid_bag_on_a_full_disk(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from pass3d_ros.tools.replay import Recorder, RecordingWriteError, replay
+    from pass3d_ros.ros.bag_replay import replay
+    from pass3d_ros.ros.recorder import Recorder, RecordingWriteError
 
     source = tmp_path / "source"
     bag_convert.convert(["synthetic:frames=6,seed=2"], source, progress=False, log=lambda _: None)
     monkeypatch.setattr(Writer, "write", fail_after(3))
     out = tmp_path / "recorded"
     topic = f"/full_{os.getpid()}"
-    with private_ros(10 + (os.getpid() + 7) % 90) as (make_node, _):
-        recorder = Recorder(make_node("recorder"), {topic: POINTCLOUD2_TYPE}, out, qos="reliable")
-        replay(source, make_node("pub"), publish_topic=topic, rate=0.0, qos="reliable", min_subscribers=1)
+    with ros_session() as ros:
+        recorder = Recorder(ros.make_node("recorder"), {topic: POINTCLOUD2_TYPE}, out, qos="reliable")
+        replay(source, ros.make_node("pub"), publish_topic=topic, rate=0.0, qos="reliable", min_subscribers=1)
         with pytest.raises(RecordingWriteError) as caught:
             recorder.wait(6, timeout=10.0)
         recorder.abort()
@@ -319,7 +329,7 @@ def test_segment_full_disk_leaves_the_output_as_it_was(tmp_path: Path, monkeypat
         def tofile(self, _path: Path) -> None:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(segment, "to_semantic_kitti", lambda _labels: FullDiskWords())
+    monkeypatch.setattr(segmenting, "to_semantic_kitti", lambda _labels: FullDiskWords())
     out = tmp_path / "out"
     assert segment.main(["--data", SPEC, "--out", str(out), "--classifier", "size_rules", "--no-progress",
                          "--no-png"], log=lambda _: None) == 2

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.scans import no_laser_lines_scan
 
 from pass3d_ros.bench.stage1 import reorder, same_partition
 from pass3d_ros.core.stage1 import Stage1Config, ground, lasers, propose, ring, scanline, synthetic_scan
@@ -276,13 +277,6 @@ def test_held_lines_read_a_firing_order_scan_as_its_firing_order_does():
     assert base.ring_source in ring.FIRING_ORDER_SOURCES and streamed.ring_source == "elevation_lines"
     assert np.mean(streamed.ring == base.ring) > 0.999
     assert same_partition(streamed.cluster_id, base.cluster_id)
-
-
-def no_laser_lines_scan(points: int = 20000, seed: int = 0) -> np.ndarray:
-    """Points at random elevations in random order: no ring field, no firing order, no laser lines to find."""
-    rng = np.random.default_rng(seed)
-    r, az, z = rng.uniform(5, 50, points), rng.uniform(-np.pi, np.pi, points), rng.uniform(-2, 3, points)
-    return np.stack([r * np.cos(az), r * np.sin(az), z, rng.uniform(0, 1, points)], 1).astype(np.float32)
 
 
 def test_a_failed_line_search_is_held_and_not_repeated(monkeypatch):

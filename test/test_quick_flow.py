@@ -13,11 +13,12 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers.ros import domain
 
 from pass3d_ros.data.bag import iter_raw
 from pass3d_ros.ros.dds_profile import USER_VARIABLES
 
-pytestmark = [pytest.mark.ros, pytest.mark.timeout(420)]
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.timeout(420)]
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES = 20
@@ -81,7 +82,7 @@ class Process:
 
 def test_quick_flow_records_every_frame_across_processes(tmp_path: Path) -> None:
     env = {k: v for k, v in os.environ.items() if k not in USER_VARIABLES and k != "RMW_IMPLEMENTATION"}
-    env["ROS_DOMAIN_ID"] = str(216 + os.getpid() % 16)
+    env["ROS_DOMAIN_ID"] = str(domain())
     bag, out = tmp_path / "input_bag", tmp_path / "labeled_bag"
     subprocess.run(command("pass3d_kitti2bag", "--data", f"synthetic:frames={FRAMES},seed=7", "--out", bag,
                            "--no-progress"), env=env, check=True, capture_output=True, timeout=300)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from pass3d_ros.synthetic.realism import (
     Row,
@@ -47,6 +48,7 @@ KNOWN_MISSES = (
 )
 
 
+@pytest.mark.slow
 def test_realism_scorecard_within_tolerances(kitti_dev: Path) -> None:
     rows = scorecard(synthetic_frames(SYNTHETIC_FRAMES, SEED), _real_specs(kitti_dev))
     judged = [r for r in rows if r.passed is not None]

@@ -2,41 +2,34 @@
 
 from __future__ import annotations
 
-import random
-import threading
-import time
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
+from helpers.ros import WAIT_S, Ros, wait_until
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 
 from pass3d_ros.data.bag_convert import convert, frame_cloud
+from pass3d_ros.data.frame import Frame
 from pass3d_ros.evaluation.live import run_live
 from pass3d_ros.msgs.pointcloud2 import encode
 from pass3d_ros.ros import cluster_proposal_node
 from pass3d_ros.ros.diagnostics import DIAGNOSTICS_TOPIC, NodeStats, status_values
 from pass3d_ros.ros.inprocess import in_memory_factories
 from pass3d_ros.ros.qos import qos_profile
-from pass3d_ros.synthetic.dataset import generate_frame
 
 pytestmark = pytest.mark.ros
 
 STAMP0 = 1_700_000_000_000_000_000
 PERIOD_NS = 100_000_000
-WAIT_S = 30.0
 
 
 @pytest.fixture(scope="module")
-def scan() -> np.ndarray:
-    return frame_cloud(generate_frame(seed=5, index=0))
+def scan(frame: Frame) -> np.ndarray:
+    return frame_cloud(frame)
 
 
 @pytest.fixture(scope="module")
@@ -46,38 +39,14 @@ def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def _wait(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
-
-
 @pytest.fixture
-def pair() -> Iterator[tuple]:
-    """Both nodes joined in memory (size_rules stage 2: fast) in a private context, spun in a thread, and a probe."""
-    context = Context()
-    rclpy.init(context=context, domain_id=random.randint(100, 200))
-    executor = SingleThreadedExecutor(context=context)
+def pair(ros: Ros) -> tuple:
+    """Both nodes joined in memory (size_rules stage 2: fast) in the test's private context, and its probe."""
     factories = in_memory_factories()
-    cluster = factories[0](context=context)
-    segmenter = factories[1](context=context, parameter_overrides=[Parameter("classifier", value="size_rules")])
-    probe = rclpy.create_node(f"probe_{random.getrandbits(32):08x}", context=context)
-    nodes = [cluster, segmenter, probe]
-    for node in nodes:
-        executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    try:
-        yield cluster, segmenter, probe
-    finally:
-        executor.shutdown()
-        spinner.join(5)
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    cluster = ros.add(factories[0](context=ros.context))
+    size_rules = [Parameter("classifier", value="size_rules")]
+    segmenter = ros.add(factories[1](context=ros.context, parameter_overrides=size_rules))
+    return cluster, segmenter, ros.probe
 
 
 def test_in_memory_pipeline_labels_like_the_message_path(bag: Path) -> None:
@@ -124,14 +93,14 @@ def test_proposals_encoded_only_while_subscribed(pair: tuple, scan: np.ndarray,
     monkeypatch.setattr(cluster_proposal_node, "encode", counting_encode)
     assert segmenter.subscription is None, "in memory: the segmentation node does not subscribe /pass3d/proposals"
     cluster.submit(encode(scan, stamp_ns=STAMP0, frame_id="velodyne"), STAMP0)
-    assert _wait(lambda: segmenter.worker.counters.processed == 1 and cluster.worker.idle())
+    assert wait_until(lambda: segmenter.worker.counters.processed == 1 and cluster.worker.idle())
     assert encoded == [] and cluster.proposals_pub.get_subscription_count() == 0
 
     received: list[PointCloud2] = []
     probe.create_subscription(PointCloud2, "/pass3d/proposals", received.append, qos_profile("reliable"))
-    assert _wait(lambda: cluster.proposals_pub.get_subscription_count() == 1)
+    assert wait_until(lambda: cluster.proposals_pub.get_subscription_count() == 1)
     cluster.submit(encode(scan, stamp_ns=STAMP0 + PERIOD_NS, frame_id="velodyne"), STAMP0 + PERIOD_NS)
-    assert _wait(lambda: len(received) == 1)
+    assert wait_until(lambda: len(received) == 1)
     assert encoded == [1] and segmenter.worker.counters.processed == 2
 
 
@@ -147,14 +116,14 @@ def test_diagnostics_carry_counters_and_input_gaps(pair: tuple, scan: np.ndarray
     stamps = [STAMP0 + k * PERIOD_NS for k in (0, 1, 2, 3, 4, 7, 8)]  # frames 5 and 6 lost before the node
     for stamp in stamps:
         cluster.submit(encode(scan, stamp_ns=stamp, frame_id="velodyne"), stamp)
-        assert _wait(lambda: cluster.worker.idle())
+        assert wait_until(lambda: cluster.worker.idle())
     expected = len(stamps)
 
     def complete() -> bool:
         values = [latest.get(name) for name in ("cluster_proposal_node", "segmentation_node")]
         return all(v is not None and v["received"] == expected for v in values)
 
-    assert _wait(complete, 10.0), latest
+    assert wait_until(complete, 10.0), latest
     values = latest["cluster_proposal_node"]
     assert values["processed"] == expected and values["dropped"] == 0
     assert values["input_gaps"] == 1 and values["frames_missed_upstream"] == 2

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import private_ros
+from helpers.ros import wait_until
 from rosbags.rosbag2 import Reader
 
 import pass3d_ros.synthetic  # noqa: F401  (registers the synthetic: format)
@@ -24,13 +24,6 @@ from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, encode, header_stamp_n
 pytestmark = pytest.mark.ros
 
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
-
-
-@pytest.fixture
-def ros():
-    """A private rclpy context (its own domain range: these tests start subprocesses on it) with an executor."""
-    with private_ros(110 + os.getpid() % 90) as handles:
-        yield handles
 
 
 def cloud_publisher(node, topic: str, qos: str):
@@ -57,20 +50,12 @@ def messages(bag: Path) -> list[tuple[str, int, object]]:
         return [(c.topic, t, TYPESTORE.deserialize_cdr(raw, c.msgtype)) for c, t, raw in reader.messages()]
 
 
-def wait_until(predicate, timeout: float = 20.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not predicate() and time.monotonic() < deadline:
-        time.sleep(0.02)
-    return predicate()
-
-
 def test_records_a_best_effort_publisher(ros, tmp_path: Path) -> None:
     """Sensor drivers and pass3d_replay publish best effort; a reliable subscription would match none of them."""
-    make_node, domain = ros
     topic = f"/best_effort_{os.getpid()}"
-    publisher = cloud_publisher(make_node("be_pub"), topic, "sensor")
+    publisher = cloud_publisher(ros.make_node("be_pub"), topic, "sensor")
     out = tmp_path / "be.bag"
-    proc = start_recorder(domain, "--record", topic, "--out", str(out), "--count", "3", "--storage", "sqlite3")
+    proc = start_recorder(ros.domain, "--record", topic, "--out", str(out), "--count", "3", "--storage", "sqlite3")
     stamp, deadline = 1_000_000_000, time.monotonic() + 30
     while proc.poll() is None and time.monotonic() < deadline:
         publisher.publish(cloud(stamp))
@@ -86,25 +71,23 @@ def test_records_a_best_effort_publisher(ros, tmp_path: Path) -> None:
 
 
 def test_recording_qos_follows_the_publishers(ros) -> None:
-    from pass3d_ros.tools.replay import recording_qos
+    from pass3d_ros.ros.recorder import recording_qos
 
-    make_node, _ = ros
-    node = make_node("qos_probe")
+    node = ros.make_node("qos_probe")
     mixed, reliable = f"/mixed_{os.getpid()}", f"/reliable_{os.getpid()}"
     assert recording_qos(node, mixed) == "sensor", "no publisher known yet: best effort matches any"
-    cloud_publisher(make_node("pub_a"), mixed, "reliable")
-    cloud_publisher(make_node("pub_b"), mixed, "sensor")
-    cloud_publisher(make_node("pub_c"), reliable, "reliable")
+    cloud_publisher(ros.make_node("pub_a"), mixed, "reliable")
+    cloud_publisher(ros.make_node("pub_b"), mixed, "sensor")
+    cloud_publisher(ros.make_node("pub_c"), reliable, "reliable")
     assert wait_until(lambda: len(node.get_publishers_info_by_topic(mixed)) == 2, 10)
     assert wait_until(lambda: len(node.get_publishers_info_by_topic(reliable)) == 1, 10)
     assert recording_qos(node, mixed) == "sensor" and recording_qos(node, reliable) == "reliable"
 
 
 def test_empty_recording_leaves_no_bag_and_exits_1(ros, tmp_path: Path) -> None:
-    _, domain = ros
     topic = f"/silent_{os.getpid()}"
     out = tmp_path / "empty.bag"
-    proc = start_recorder(domain, "--record", f"{topic}:{POINTCLOUD2_TYPE}", "--out", str(out), "--duration", "1")
+    proc = start_recorder(ros.domain, "--record", f"{topic}:{POINTCLOUD2_TYPE}", "--out", str(out), "--duration", "1")
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 1, (stdout, stderr)
     assert "recorded nothing" in stderr and topic in stderr and "not written" in stderr and "Traceback" not in stderr
@@ -112,10 +95,9 @@ def test_empty_recording_leaves_no_bag_and_exits_1(ros, tmp_path: Path) -> None:
 
 
 def test_recorder_close_refuses_an_empty_bag(ros, tmp_path: Path) -> None:
-    from pass3d_ros.tools.replay import EmptyRecordingError, Recorder
+    from pass3d_ros.ros.recorder import EmptyRecordingError, Recorder
 
-    make_node, _ = ros
-    recorder = Recorder(make_node("empty_rec"), [f"/none_{os.getpid()}"], tmp_path / "empty", qos="sensor")
+    recorder = Recorder(ros.make_node("empty_rec"), [f"/none_{os.getpid()}"], tmp_path / "empty", qos="sensor")
     with pytest.raises(EmptyRecordingError, match="no message arrived"):
         recorder.close()
     assert list(tmp_path.iterdir()) == []
@@ -126,12 +108,11 @@ def test_discovery_waits_for_the_real_type(ros) -> None:
     from visualization_msgs.msg import MarkerArray
 
     from pass3d_ros.ros.qos import qos_profile
-    from pass3d_ros.tools.replay import discover_types
+    from pass3d_ros.ros.recorder import discover_types
 
-    make_node, _ = ros
-    node = make_node("discover")
+    node = ros.make_node("discover")
     late, typed = f"/late_markers_{os.getpid()}", f"/typed_{os.getpid()}"
-    publisher_node = make_node("late_pub")
+    publisher_node = ros.make_node("late_pub")
     timer = threading.Timer(2.5, lambda: publisher_node.create_publisher(MarkerArray, late, qos_profile("reliable")))
     timer.start()
     try:
@@ -146,9 +127,8 @@ def test_discovery_waits_for_the_real_type(ros) -> None:
 
 
 def test_undiscovered_topic_is_an_error_naming_it(ros, tmp_path: Path) -> None:
-    _, domain = ros
     topic = f"/nobody_{os.getpid()}"
-    proc = start_recorder(domain, "--record", topic, "--out", str(tmp_path / "x"), "--discovery-timeout", "0.5")
+    proc = start_recorder(ros.domain, "--record", topic, "--out", str(tmp_path / "x"), "--discovery-timeout", "0.5")
     _, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 2 and topic in stderr and "not found" in stderr and "Traceback" not in stderr
     assert list(tmp_path.iterdir()) == []
@@ -158,12 +138,11 @@ def test_interrupt_keeps_what_was_recorded(ros, tmp_path: Path) -> None:
     """Ctrl-C before --count is reached closes the bag like `ros2 bag record`: complete, readable, counted."""
     from rclpy.qos import ReliabilityPolicy
 
-    make_node, domain = ros
     topic = f"/interrupted_{os.getpid()}"
-    node = make_node("int_pub")
+    node = ros.make_node("int_pub")
     publisher = cloud_publisher(node, topic, "reliable")
     out = tmp_path / "partial.bag"
-    proc = start_recorder(domain, "--record", topic, "--out", str(out), "--count", "1000")
+    proc = start_recorder(ros.domain, "--record", topic, "--out", str(out), "--count", "1000")
 
     def subscribed() -> bool:
         infos = node.get_subscriptions_info_by_topic(topic)

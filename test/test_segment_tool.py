@@ -17,7 +17,8 @@ from pass3d_ros.core.stage2.segmentation import Segmenter, make_checkpoint
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 from pass3d_ros.data.outputs import MARKER
 from pass3d_ros.data.semantickitti import read_semantickitti
-from pass3d_ros.evaluation import bev
+from pass3d_ros.drawing import bev
+from pass3d_ros.evaluation.segmenting import SEMANTIC_KITTI_IDS
 from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.tools import segment
 
@@ -41,40 +42,42 @@ def png_size(path: Path) -> tuple[int, int]:
 
 
 @pytest.fixture(scope="module")
-def frames() -> list:
+def tool_frames() -> list:
     return [generate_frame(4, k) for k in range(2)]
 
 
-def test_size_rules_labels_pngs_and_summary(tmp_path: Path, frames: list, capsys: pytest.CaptureFixture[str]) -> None:
+def test_size_rules_labels_pngs_and_summary(
+    tmp_path: Path, tool_frames: list, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "out"
     code = segment.main([f"--data={SPEC}", f"--out={out}", "--classifier=size_rules", "--no-progress"])
     assert code == 0, capsys.readouterr().err
     assert sorted(p.name for p in (out / "labels").iterdir()) == ["000000.label", "000001.label"]
     lut = {0: 0, 10: 1, 30: 2, 31: 3}
-    for frame in frames:
+    for frame in tool_frames:
         words = read_label(out / "labels" / f"{frame.name}.label")
         assert len(words) == len(frame.points)
         assert set(np.unique(words).tolist()) <= set(lut)
         expected = offline(frame.points, frame.ring, SizeRuleClassifier())
         assert np.count_nonzero(expected) > 0
-        np.testing.assert_array_equal(words, segment.SEMANTIC_KITTI_IDS[expected])
+        np.testing.assert_array_equal(words, SEMANTIC_KITTI_IDS[expected])
         assert png_size(out / "bev" / f"{frame.name}.png") == (2 * bev.PANEL_PX + bev.GAP_PX, FIGURE_HEIGHT), \
             "labeled data: ground truth | prediction"
     report = json.loads((out / "summary.json").read_text())
     assert report["frames"] == 2 and report["classifier"] == "size_rules" and report["weights"] is None
     assert report["labeled_frames"] == 2 and 0.0 <= report["per_class"]["car"]["iou"] <= 1.0
-    truth = np.concatenate([f.labels for f in frames])
+    truth = np.concatenate([f.labels for f in tool_frames])
     assert report["per_class"]["car"]["points"] == int(np.count_nonzero(truth == 1))
     assert report["ms_per_frame"]["stage1"] > 0 and report["ms_per_frame"]["stage2"] > 0
     printed = capsys.readouterr().out
     assert "segmented 2 frames" in printed and "mean IoU" in printed and str(out / "summary.json") in printed
 
 
-def test_labels_read_back_through_semantickitti_reader(tmp_path: Path, frames: list) -> None:
+def test_labels_read_back_through_semantickitti_reader(tmp_path: Path, tool_frames: list) -> None:
     """A .label written here is a SemanticKITTI label file: the reader maps it back to our classes."""
     seq = tmp_path / "seq"
     (seq / "velodyne").mkdir(parents=True)
-    frames[0].points.tofile(seq / "velodyne" / "000000.bin")
+    tool_frames[0].points.tofile(seq / "velodyne" / "000000.bin")
     out = tmp_path / "out"
     assert segment.main([f"--data=semantickitti:{seq}", f"--out={out}", "--classifier=size_rules",
                          "--no-progress", "--no-png"]) == 0
@@ -82,14 +85,14 @@ def test_labels_read_back_through_semantickitti_reader(tmp_path: Path, frames: l
     (seq / "labels").mkdir()
     (out / "labels" / "000000.label").rename(seq / "labels" / "000000.label")
     back = next(iter(read_semantickitti(seq)))
-    np.testing.assert_array_equal(back.labels, offline(frames[0].points, None, SizeRuleClassifier()))
+    np.testing.assert_array_equal(back.labels, offline(tool_frames[0].points, None, SizeRuleClassifier()))
 
 
-def test_network_weights_and_nan_points(tmp_path: Path, frames: list) -> None:
+def test_network_weights_and_nan_points(tmp_path: Path, tool_frames: list) -> None:
     torch.manual_seed(1)
     weights = tmp_path / "lite.pt"
     torch.save(make_checkpoint(pointnet2.PointNet2Seg(pointnet2.make_config("lite"))), weights)
-    points = frames[1].points.copy()
+    points = tool_frames[1].points.copy()
     nan_rows = np.arange(0, len(points), 997)
     points[nan_rows, :3] = np.nan
     seq = tmp_path / "seq"
@@ -102,7 +105,7 @@ def test_network_weights_and_nan_points(tmp_path: Path, frames: list) -> None:
     keep = np.ones(len(points), dtype=bool)
     keep[nan_rows] = False
     expected = offline(points[keep], None, Segmenter(str(weights)))
-    np.testing.assert_array_equal(words[keep], segment.SEMANTIC_KITTI_IDS[expected])
+    np.testing.assert_array_equal(words[keep], SEMANTIC_KITTI_IDS[expected])
     report = json.loads((out / "summary.json").read_text())
     assert report["classifier"] == "network" and report["weights"] == str(weights)
     assert report["per_class"] is None and report["labeled_frames"] == 0

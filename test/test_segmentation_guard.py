@@ -1,7 +1,7 @@
 """segmentation_node guards its input and its stage-2 process: points with absurd coordinates are dropped, proposals
 beyond max_proposals are not classified, and a killed stage-2 child is restarted while the node stays up.
 
-In-process, with real publishers and subscribers on a real executor (test_nodes.Ros).
+In-process, with real publishers and subscribers on a real executor (helpers.ros.Ros).
 """
 
 from __future__ import annotations
@@ -9,43 +9,27 @@ from __future__ import annotations
 import os
 import signal
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from helpers.ros import STAMP0, Collector, Ros, connect, wait_until
 from rclpy.logging import LoggingSeverity
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
-from test_nodes import STAMP0, Collector, Ros, connect, wait_until
 
 from pass3d_ros.classes import BACKGROUND
-from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.segmentation import nearest_first
 from pass3d_ros.msgs.pointcloud2 import decode, encode
 from pass3d_ros.ros.diagnostics import status_values
-from pass3d_ros.ros.proposals import members_from_ids, nearest_proposals, proposals_cloud
+from pass3d_ros.ros.proposals import members_from_ids, nearest_proposals
 from pass3d_ros.ros.qos import qos_profile
 from pass3d_ros.ros.segmentation_node import SegmentationNode
-from pass3d_ros.synthetic.dataset import generate_frame
 
 pytestmark = pytest.mark.ros
-
-
-@pytest.fixture(scope="module")
-def columns() -> dict[str, np.ndarray]:
-    """The /pass3d/proposals columns of a synthetic scan with cars and people."""
-    frame = generate_frame(seed=5, index=0)
-    return proposals_cloud(frame.points, propose(frame.points, frame.ring))
-
-
-@pytest.fixture
-def ros() -> Iterator[Ros]:
-    session = Ros()
-    yield session
-    session.close()
 
 
 def points_of(columns: dict[str, np.ndarray]) -> np.ndarray:
@@ -61,7 +45,8 @@ def start(ros: Ros, **values) -> tuple[SegmentationNode, Collector, object]:
     return node, labeled, pub
 
 
-def test_nearest_proposals_keeps_what_the_classifier_would_choose(columns: dict[str, np.ndarray]) -> None:
+def test_nearest_proposals_keeps_what_the_classifier_would_choose(proposal_columns: dict[str, np.ndarray]) -> None:
+    columns = proposal_columns
     points, first, second = points_of(columns), columns["cluster_id"], columns["cluster_id2"]
     members = proposal_members(first, second)
     for limit in (1, 5, len(members) - 1, len(members), 500):
@@ -74,9 +59,9 @@ def test_nearest_proposals_keeps_what_the_classifier_would_choose(columns: dict[
 
 
 def test_a_point_at_1e20_m_is_dropped_and_the_frame_labeled(
-    ros: Ros, columns: dict[str, np.ndarray], lite_weights: Path, capfd: pytest.CaptureFixture[str]
+    ros: Ros, proposal_columns: dict[str, np.ndarray], lite_weights: Path, capfd: pytest.CaptureFixture[str]
 ) -> None:
-    bad = {k: v.copy() for k, v in columns.items()}
+    bad = {k: v.copy() for k, v in proposal_columns.items()}
     inside = int(np.flatnonzero(bad["cluster_id"] >= 0)[0])  # a point of a proposal: it reaches the network
     bad["x"][inside] = 1e20
     node, labeled, pub = start(ros, classifier="network", weights=str(lite_weights))
@@ -85,8 +70,8 @@ def test_a_point_at_1e20_m_is_dropped_and_the_frame_labeled(
 
     keep = np.arange(len(bad["x"])) != inside
     expected = open_classifier(str(lite_weights), "network").segment(
-        points_of(columns)[keep], members_from_ids(columns["cluster_id"][keep].astype(np.int64),
-                                                   columns["cluster_id2"][keep].astype(np.int64)))
+        points_of(proposal_columns)[keep], members_from_ids(proposal_columns["cluster_id"][keep].astype(np.int64),
+                                                            proposal_columns["cluster_id2"][keep].astype(np.int64)))
     assert len(cloud) == len(keep) - 1 and np.all(np.abs(cloud["x"]) < 1e4)
     np.testing.assert_array_equal(cloud["label"], expected.labels)
     assert node.points_dropped == 1 and node.counters().failed == 0
@@ -94,9 +79,9 @@ def test_a_point_at_1e20_m_is_dropped_and_the_frame_labeled(
 
 
 def test_every_point_its_own_proposal_is_cut_to_max_proposals(
-    ros: Ros, columns: dict[str, np.ndarray], capfd: pytest.CaptureFixture[str]
+    ros: Ros, proposal_columns: dict[str, np.ndarray], capfd: pytest.CaptureFixture[str]
 ) -> None:
-    flood = {k: v.copy() for k, v in columns.items()}
+    flood = {k: v.copy() for k, v in proposal_columns.items()}
     n = len(flood["x"])
     flood["cluster_id"] = np.arange(n, dtype=np.int32)
     flood["cluster_id2"] = np.full(n, -1, np.int32)
@@ -114,7 +99,7 @@ def test_every_point_its_own_proposal_is_cut_to_max_proposals(
 
 
 def test_a_killed_stage2_process_is_restarted_and_frames_labeled_again(
-    ros: Ros, columns: dict[str, np.ndarray], capfd: pytest.CaptureFixture[str]
+    ros: Ros, proposal_columns: dict[str, np.ndarray], capfd: pytest.CaptureFixture[str]
 ) -> None:
     node, labeled, pub = start(ros, classifier="size_rules", process=True)
     node.get_logger().set_level(LoggingSeverity.INFO)  # another test may have raised the shared logger's level
@@ -124,7 +109,7 @@ def test_a_killed_stage2_process_is_restarted_and_frames_labeled_again(
     def statuses() -> list[DiagnosticStatus]:
         return [s for msg in diagnostics.messages for s in msg.status if s.name == name]
 
-    pub.publish(encode(columns, stamp_ns=STAMP0))
+    pub.publish(encode(proposal_columns, stamp_ns=STAMP0))
     expected = decode(labeled.wait(1)[0])["label"]
     first = node.classifier.pid
     os.kill(first, signal.SIGKILL)  # what the out-of-memory killer does
@@ -133,7 +118,7 @@ def test_a_killed_stage2_process_is_restarted_and_frames_labeled_again(
     deadline = time.monotonic() + 90.0
     while len(labeled.messages) < 2 and time.monotonic() < deadline:  # frames meanwhile are dropped, not queued
         stamp += 100_000_000
-        pub.publish(encode(columns, stamp_ns=stamp))
+        pub.publish(encode(proposal_columns, stamp_ns=stamp))
         time.sleep(0.3)
     again = labeled.wait(2)[1]
 

@@ -5,22 +5,22 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.ros import STAMP0, Collector, connect, ros_session, scan_message
 from rclpy.logging import LoggingSeverity
 from sensor_msgs.msg import PointCloud2
-from test_nodes import STAMP0, Collector, Ros, connect, scan_message
 
+from pass3d_ros.core.scan_checks import MAX_COORDINATE_M, intensity_divisor, scan_summary, unit_intensity
 from pass3d_ros.core.stage1 import Stage1Config, propose
 from pass3d_ros.core.stage1.sensor_params import REFERENCE_DV_DEG, effective_config, resolutions
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.msgs.pointcloud2 import decode
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
 from pass3d_ros.ros.qos import qos_profile
-from pass3d_ros.ros.scan_checks import MAX_COORDINATE_M, intensity_divisor, scan_summary, unit_intensity
 from pass3d_ros.synthetic.dataset import generate_frame
 
 
 @pytest.fixture(scope="module")
-def frames() -> list[Frame]:
+def hdl64_frames() -> list[Frame]:
     return [generate_frame(5, i) for i in range(3)]
 
 
@@ -38,11 +38,11 @@ def recall_and_count(frame: Frame, config: Stage1Config) -> tuple[int, int]:
     return int(np.count_nonzero(result.cluster_id[fg] >= 0)), int(np.count_nonzero(fg))
 
 
-def test_hdl64e_keeps_the_papers_values(frames: list[Frame]) -> None:
+def test_hdl64e_keeps_the_papers_values(hdl64_frames: list[Frame]) -> None:
     cfg = Stage1Config()
     assert (cfg.th_num_near, cfg.th_num_range, cfg.th_num_floor, cfg.th_prop, cfg.th_ring) == (30.0, 20.0, 5, 1.0, 0.5)
     assert cfg.sensor == "auto" and cfg.sensor_scaling and cfg.sensor_height == 1.73
-    for frame in frames:
+    for frame in hdl64_frames:
         effective, scale = effective_config(cfg, frame.points, frame.ring, 64)
         assert effective is cfg and scale.density == 1.0
         assert abs(scale.vertical_deg - REFERENCE_DV_DEG) < 0.05
@@ -53,9 +53,9 @@ def test_hdl64e_keeps_the_papers_values(frames: list[Frame]) -> None:
         np.testing.assert_array_equal(result.cluster_id2, off.cluster_id2)
 
 
-def test_32_rings_get_a_smaller_th_num_and_a_higher_recall(frames: list[Frame]) -> None:
+def test_32_rings_get_a_smaller_th_num_and_a_higher_recall(hdl64_frames: list[Frame]) -> None:
     scaled = unscaled = total = 0
-    for frame in map(every_other_ring, frames):
+    for frame in map(every_other_ring, hdl64_frames):
         result = propose(frame.points, frame.ring, Stage1Config(n_rings=32))
         assert result.sensor is not None and result.sensor.n_rings == 32
         assert 0.4 < result.sensor.density < 0.6
@@ -68,10 +68,10 @@ def test_32_rings_get_a_smaller_th_num_and_a_higher_recall(frames: list[Frame]) 
     assert scaled > unscaled, (scaled, unscaled, total)
 
 
-def test_a_scaled_config_is_derived_without_a_second_validation(frames: list[Frame],
+def test_a_scaled_config_is_derived_without_a_second_validation(hdl64_frames: list[Frame],
                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
     config = Stage1Config(n_rings=32)
-    frame = every_other_ring(frames[0])
+    frame = every_other_ring(hdl64_frames[0])
     checked: list[Stage1Config] = []
     monkeypatch.setattr(Stage1Config, "validate", lambda self: checked.append(self))
     effective, scale = effective_config(config, frame.points, frame.ring, 32)
@@ -176,18 +176,17 @@ def test_scan_summary_matches_the_numpy_checks(case: int) -> None:
 
 
 def test_node_reports_sensor_and_warns_on_intensity_and_binned_rings(
-    frames: list[Frame], capfd: pytest.CaptureFixture[str]
+    hdl64_frames: list[Frame], capfd: pytest.CaptureFixture[str]
 ) -> None:
     """16-bit and constant intensity each warn once, the ring source and effective values are logged, and a scan
     whose rings cannot be recovered warns that they came from elevation bins."""
-    ros = Ros()
-    try:
+    with ros_session() as ros:
         node = ros.add(ClusterProposalNode(context=ros.context))
         node.get_logger().set_level(LoggingSeverity.INFO)  # another test may have raised the shared logger's level
         clouds = Collector(ros, PointCloud2, "/pass3d/proposals")
         pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
         connect(pub, clouds)
-        frame = frames[1]
+        frame = hdl64_frames[1]
         wide = Frame(frame.name, frame.points * np.array([1, 1, 1, 65535], np.float32), ring=frame.ring)
         pub.publish(scan_message(wide, STAMP0))
         out = clouds.wait(1)[0]
@@ -202,8 +201,6 @@ def test_node_reports_sensor_and_warns_on_intensity_and_binned_rings(
         blob = np.concatenate([rng.uniform(-30, 30, (4000, 3)), np.full((4000, 1), 0.5)], axis=1).astype(np.float32)
         pub.publish(scan_message(Frame(frame.name, blob), STAMP0 + 2, with_ring=False))
         clouds.wait(3)
-    finally:
-        ros.close()
     err = capfd.readouterr().err
     assert "divided by 65535" in err
     # the stream's scale settles over its first three scans; until then the flat 0..1 scan is read on its own

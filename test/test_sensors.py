@@ -17,7 +17,7 @@ RECALL_FLOOR_VLP16 = 0.5
 
 
 @pytest.fixture(scope="module")
-def frames() -> dict:
+def frame_per_sensor() -> dict:
     return {name: generate_frame(3, 0, sensor_model(name)) for name in SENSOR_NAMES}
 
 
@@ -29,8 +29,8 @@ def _elevation_deg(frame, sensor) -> np.ndarray:
 
 
 @pytest.mark.parametrize("name", SENSOR_NAMES)
-def test_sensor_frame_has_every_ring_labels_and_unit_intensity(frames, name):
-    frame, sensor = frames[name], sensor_model(name)
+def test_sensor_frame_has_every_ring_labels_and_unit_intensity(frame_per_sensor, name):
+    frame, sensor = frame_per_sensor[name], sensor_model(name)
     assert sensor.n_lasers == len(lasers.LASER_TABLES[name])
     assert int(frame.ring.max()) + 1 == sensor.n_lasers and len(np.unique(frame.ring)) == sensor.n_lasers
     assert frame.points[:, 3].min() >= 0.0 and frame.points[:, 3].max() <= 1.0
@@ -39,10 +39,10 @@ def test_sensor_frame_has_every_ring_labels_and_unit_intensity(frames, name):
 
 
 @pytest.mark.parametrize("name", SENSOR_NAMES)
-def test_ring_elevations_follow_the_laser_table(frames, name):
+def test_ring_elevations_follow_the_laser_table(frame_per_sensor, name):
     """Median elevation of each ring's points lies within 0.1 degrees of the model's angle, which is the laser
     table's (KITTI's HDL-64E: its fitted lines, within 0.75 degrees of the S2 manual's table)."""
-    frame, sensor, table = frames[name], sensor_model(name), np.asarray(lasers.LASER_TABLES[name])
+    frame, sensor, table = frame_per_sensor[name], sensor_model(name), np.asarray(lasers.LASER_TABLES[name])
     tolerance = 0.75 if name == "hdl64e" else 1e-9
     assert np.abs(sensor.elevation_deg - table).max() <= tolerance
     far = np.linalg.norm(frame.points[:, :2], axis=1) > 5.0
@@ -54,10 +54,10 @@ def test_ring_elevations_follow_the_laser_table(frames, name):
 
 
 @pytest.mark.parametrize("name", ["os1-64", "pandar64", "vlp16"])
-def test_driver_point_order(frames, name):
+def test_driver_point_order(frame_per_sensor, name):
     """Hesai and Velodyne drivers: column after column (firing order); Ouster: an organized cloud, row (ring) after
     row, each sweeping clockwise."""
-    frame, sensor = frames[name], sensor_model(name)
+    frame, sensor = frame_per_sensor[name], sensor_model(name)
     az = np.arctan2(frame.points[:, 1], frame.points[:, 0])
     if sensor.point_order == "row":
         assert np.all(np.diff(frame.ring.astype(int)) >= 0)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import pytest
-
 import pass3d_ros.synthetic  # noqa: F401  (registers the synthetic: format that UNSEEN names)
 from pass3d_ros.classes import CLASS_NAMES
 from pass3d_ros.core.stage1 import Stage1Config
@@ -14,11 +12,6 @@ from pass3d_ros.weights import default_weights
 
 # Seeds 1, 2, 11 and 12 trained and validated the shipped weights; 99 is unseen.
 UNSEEN = "synthetic:frames=3,seed=99"
-
-
-@pytest.fixture(scope="module")
-def shipped() -> Segmenter:
-    return Segmenter(default_weights())
 
 
 def test_shipped_weights_are_the_lite_config_with_our_classes(shipped: Segmenter) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_stage1 import SENSOR_HEIGHT, Solid, raycast
+from helpers.scans import SENSOR_HEIGHT, Solid, raycast
 
 from pass3d_ros.core.stage1 import Stage1Config, propose, split
 from pass3d_ros.core.stage1.refinement import min_area_rectangle

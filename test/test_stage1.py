@@ -3,60 +3,17 @@
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers.scans import SENSOR_HEIGHT, Solid, raycast
 
 from pass3d_ros.core import stage1
 from pass3d_ros.core.stage1 import Stage1Config, ground, proposal_members, propose, refinement, ring, scanline
 from pass3d_ros.data.frame import Box3D
 
-SENSOR_HEIGHT = 1.73
-ELEVATIONS = np.deg2rad(np.linspace(2.0, -24.8, 64))  # ring 0 on top, as KITTI's firing order
 RUNS = Stage1Config(th_ring=0.5, th_prop=1.0)  # the paper's Th_ring and Th_prop, which the run tests rely on
-
-
-@dataclass
-class Solid:
-    """An oriented box obstacle: centre, size (length, width, height), yaw."""
-
-    center: tuple[float, float, float]
-    size: tuple[float, float, float]
-    yaw: float = 0.0
-
-
-def raycast(solids: list[Solid], slope: float = 0.0, n_az: int = 1200, backdrop: float = 90.0) -> tuple:
-    """A 64-ring scan in KITTI firing order (ring after ring, azimuth rising from the +x axis) of a ground
-    z = -SENSOR_HEIGHT + slope * x, some boxes, and a backdrop cylinder (buildings far away) that every ray
-    reaches. Returns (points N x 4, ring, hit: -1 ground, -2 backdrop, i = solid i)."""
-    az = np.arange(n_az) * (2.0 * np.pi / n_az) + 1e-4
-    e, a = np.meshgrid(ELEVATIONS, az, indexing="ij")
-    u = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1).reshape(-1, 3)
-    best = backdrop / np.hypot(u[:, 0], u[:, 1])
-    hit = np.full(len(u), -2)
-    denom = u[:, 2] - slope * u[:, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_ground = np.where(denom < 0.0, -SENSOR_HEIGHT / denom, np.inf)
-    best, hit = np.where(t_ground < best, t_ground, best), np.where(t_ground < best, -1, hit)
-    for index, solid in enumerate(solids):
-        c, s = np.cos(solid.yaw), np.sin(solid.yaw)
-        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        origin = -rot.T @ np.asarray(solid.center)
-        d = u @ rot
-        half = np.asarray(solid.size) / 2.0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t1 = (-half - origin) / d
-            t2 = (half - origin) / d
-        t_near = np.nanmax(np.minimum(t1, t2), axis=1)
-        t_far = np.nanmin(np.maximum(t1, t2), axis=1)
-        ok = (t_far >= t_near) & (t_near > 0.0) & (t_near < best)
-        best, hit = np.where(ok, t_near, best), np.where(ok, index, hit)
-    pts = u * best[:, None]
-    points = np.concatenate([pts, np.full((len(pts), 1), 0.5)], axis=1).astype(np.float32)
-    return points, np.repeat(np.arange(64), n_az).astype(np.uint16), hit
-
-
 CAR = (4.2, 1.8, 1.5)
 PEDESTRIAN = (0.6, 0.6, 1.8)
 

@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from pass3d_ros.bench import benchmark
 from pass3d_ros.bench import stage1 as bench
 from pass3d_ros.core.metrics import ConfusionAccumulator, Stage1Metrics
 from pass3d_ros.core.stage1 import Stage1Config, propose, synthetic_scan
@@ -117,7 +118,8 @@ def test_benchmark_runs_and_reports_missing_patchwork(tmp_path, capsys, monkeypa
     assert "clustering" in text and "pip install pypatchworkpp" in text
     report = json.loads(out.read_text())
     assert report["patchwork_ms_median"] is None and report["stage1_ms_median"]["total"] > 0
-    assert bench.run(parser.parse_args(["--data", "nosuch:x"])) == 2
+    assert benchmark.main(["stage1", "--data", "nosuch:x"]) == 2
+    assert capsys.readouterr().err.startswith("pass3d_benchmark: error: ")
 
 
 # Measured on the six kitti_dev frames (this 2-core machine): foreground recall 0.981 (car 0.981, pedestrian

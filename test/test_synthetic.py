@@ -25,7 +25,7 @@ KIND_LABEL = {"Car": CAR, "Van": BACKGROUND, "Truck": BACKGROUND, "Pedestrian": 
 
 
 @pytest.fixture(scope="module")
-def frames():
+def seeded_frames():
     return [generate_frame(seed, index) for seed, index in SEEDS]
 
 
@@ -37,8 +37,8 @@ def wrap_rings(points: np.ndarray) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(starts)])
 
 
-def test_quadrant_wraps_give_exactly_64_rings_top_laser_first(frames):
-    for frame in frames:
+def test_quadrant_wraps_give_exactly_64_rings_top_laser_first(seeded_frames):
+    for frame in seeded_frames:
         ring = wrap_rings(frame.points)
         assert ring[-1] + 1 == 64
         np.testing.assert_array_equal(ring, frame.ring.astype(np.int64))
@@ -53,16 +53,16 @@ def test_quadrant_wraps_give_exactly_64_rings_top_laser_first(frames):
             assert np.all(np.diff(azimuth[ring == k]) > 0), "azimuth rises within a ring"
 
 
-def test_stage1_ring_recovery_agrees(frames):
+def test_stage1_ring_recovery_agrees(seeded_frames):
     ring_module = pytest.importorskip("pass3d_ros.core.stage1.ring")
-    for frame in frames:
+    for frame in seeded_frames:
         rings = ring_module.recover_rings(frame.points, Stage1Config())
         assert rings.source == "azimuth_wrap"
         np.testing.assert_array_equal(rings.ring, frame.ring)
 
 
-def test_every_labelled_point_is_inside_its_box(frames):
-    for frame in frames:
+def test_every_labelled_point_is_inside_its_box(seeded_frames):
+    for frame in seeded_frames:
         boxes = {b.instance: b for b in frame.boxes}
         fg = frame.labels != BACKGROUND
         assert fg.any()
@@ -74,8 +74,8 @@ def test_every_labelled_point_is_inside_its_box(frames):
             assert box.contains(frame.points[members]).all()
 
 
-def test_points_inside_a_foreground_box_carry_its_label(frames):
-    for frame in frames:
+def test_points_inside_a_foreground_box_carry_its_label(seeded_frames):
+    for frame in seeded_frames:
         for box in frame.boxes:
             assert KIND_LABEL[box.kind] == box.label
             if box.label == BACKGROUND:
@@ -86,8 +86,8 @@ def test_points_inside_a_foreground_box_carry_its_label(frames):
             assert np.all(frame.instance[inside] == box.instance)
 
 
-def test_boxes_stand_on_the_ground_in_instance_order(frames):
-    for frame in frames:
+def test_boxes_stand_on_the_ground_in_instance_order(seeded_frames):
+    for frame in seeded_frames:
         assert [b.instance for b in frame.boxes] == list(range(len(frame.boxes)))
         assert np.all(np.array([b.size for b in frame.boxes]) > 0.2)
         ground = frame.points[frame.ground]
@@ -98,7 +98,7 @@ def test_boxes_stand_on_the_ground_in_instance_order(frames):
                 assert abs(bottom - np.median(ground[near, 2])) < 0.25
     # Every kind gets boxes; a scene holds no visible cyclist about a third of the time, so look a few frames further
     # when these three happen to lack one (a fixed list, so the test stays deterministic).
-    kinds = {b.kind for frame in frames for b in frame.boxes}
+    kinds = {b.kind for frame in seeded_frames for b in frame.boxes}
     for index in range(4):
         if {"Car", "Pedestrian", "Cyclist"} <= kinds:
             break
@@ -106,8 +106,8 @@ def test_boxes_stand_on_the_ground_in_instance_order(frames):
     assert {"Car", "Pedestrian", "Cyclist"} <= kinds
 
 
-def test_ground_mask_and_point_counts(frames):
-    for frame in frames:
+def test_ground_mask_and_point_counts(seeded_frames):
+    for frame in seeded_frames:
         assert 100_000 <= len(frame.points) <= 130_000
         assert 0.3 < frame.ground.mean() < 0.85
         assert np.all(frame.labels[frame.ground] == BACKGROUND)
@@ -117,21 +117,21 @@ def test_ground_mask_and_point_counts(frames):
         assert frame.labels.dtype == np.uint8 and frame.instance.dtype == np.int32
 
 
-def test_intensity_is_kitti_like(frames):
-    for frame in frames:
+def test_intensity_is_kitti_like(seeded_frames):
+    for frame in seeded_frames:
         intensity = frame.points[:, 3]
         assert intensity.min() >= 0.0 and intensity.max() <= 1.0
         assert 0.15 < intensity.mean() < 0.4
         np.testing.assert_allclose(intensity * 100, np.round(intensity * 100), atol=1e-3)
-    everything = np.concatenate([f.points[:, 3] for f in frames])
+    everything = np.concatenate([f.points[:, 3] for f in seeded_frames])
     assert 0.02 < np.mean(everything == 0.0) < 0.2  # KITTI: about 9% read 0 (far, grazing, dark paint)
-    cars = np.concatenate([f.points[f.labels == CAR, 3] for f in frames])
+    cars = np.concatenate([f.points[f.labels == CAR, 3] for f in seeded_frames])
     assert cars.mean() < everything.mean()
 
 
-def test_same_seed_same_bytes_other_seeds_differ(frames):
+def test_same_seed_same_bytes_other_seeds_differ(seeded_frames):
     again = generate_frame(*SEEDS[0])
-    first = frames[0]
+    first = seeded_frames[0]
     assert again.points.tobytes() == first.points.tobytes()
     for key in ("ring", "labels", "ground", "instance"):
         assert getattr(again, key).tobytes() == getattr(first, key).tobytes()
@@ -155,8 +155,8 @@ def test_synthetic_spec_reader():
             list(open_dataset(bad))
 
 
-def test_semantickitti_round_trip(frames, tmp_path):
-    frame = frames[1]
+def test_semantickitti_round_trip(seeded_frames, tmp_path):
+    frame = seeded_frames[1]
     write_semantickitti_frame(tmp_path, frame)
     (back,) = list(read_semantickitti(tmp_path))
     assert back.points.tobytes() == frame.points.tobytes()
@@ -165,8 +165,8 @@ def test_semantickitti_round_trip(frames, tmp_path):
     np.testing.assert_array_equal(back.instance, frame.instance)
 
 
-def test_kitti_object_round_trip(frames, tmp_path):
-    frame = frames[2]
+def test_kitti_object_round_trip(seeded_frames, tmp_path):
+    frame = seeded_frames[2]
     write_kitti_object_frame(tmp_path, frame)
     (back,) = list(read_kitti_object(tmp_path))
     assert back.points.tobytes() == frame.points.tobytes()

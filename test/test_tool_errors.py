@@ -153,6 +153,7 @@ def test_kitti2bag_signal_exits_cleanly(tmp_path: Path, signum: int, status: int
     assert list(tmp_path.iterdir()) == [], "an interrupted conversion must leave nothing"
 
 
+@pytest.mark.slow
 def test_kitti2bag_removes_partials_left_by_sigkill(tmp_path: Path) -> None:
     out = tmp_path / "bag"
     proc = _start_kitti2bag(out)
@@ -322,10 +323,11 @@ def test_view_removes_partials_of_killed_runs_only(tmp_path: Path, capsys: pytes
 def test_segment_failure_leaves_no_half_output(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                capsys: pytest.CaptureFixture[str]) -> None:
     """A run that fails or is interrupted after some frames leaves --out as it was; the rerun needs no --force."""
+    from pass3d_ros.evaluation import segmenting
     from pass3d_ros.tools import segment
 
     out = tmp_path / "out"
-    write_png = segment.write_png
+    write_png = segmenting.write_png
     for error, status, says in ((PermissionError(13, "Permission denied", "bev/000002.png"), 2,
                                  "bev/000002.png: permission denied"),
                                 (cli.Interrupted(130), 130, f"interrupted; {out} left as it was")):
@@ -337,12 +339,12 @@ def test_segment_failure_leaves_no_half_output(tmp_path: Path, monkeypatch: pyte
                 raise error
             write_png(path, image)
 
-        monkeypatch.setattr(segment, "write_png", failing)
+        monkeypatch.setattr(segmenting, "write_png", failing)
         assert segment.main(["--data", SPEC, "--out", str(out), "--classifier", "size_rules", "--no-progress"],
                             log=lambda _: None) == status
         one_error_line(capsys.readouterr().err, "pass3d_segment", says)
         assert list(tmp_path.iterdir()) == [], "nothing half-written, no hidden build folder"
-    monkeypatch.setattr(segment, "write_png", write_png)
+    monkeypatch.setattr(segmenting, "write_png", write_png)
     assert segment.main(["--data", SPEC, "--out", str(out), "--classifier", "size_rules", "--no-progress"],
                         log=lambda _: None) == 0
     assert len(list((out / "labels").iterdir())) == 5 and (out / "summary.json").is_file()
@@ -350,13 +352,14 @@ def test_segment_failure_leaves_no_half_output(tmp_path: Path, monkeypatch: pyte
 
 def test_segment_force_failure_keeps_the_old_output(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.evaluation import segmenting
     from pass3d_ros.tools import segment
 
     out = tmp_path / "out"
     args = ["--data", "synthetic:frames=2,seed=1", "--out", str(out), "--classifier", "size_rules", "--no-progress"]
     assert segment.main(args, log=lambda _: None) == 0
     before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
-    monkeypatch.setattr(segment, "write_png", lambda *_: (_ for _ in ()).throw(PermissionError(13, "denied")))
+    monkeypatch.setattr(segmenting, "write_png", lambda *_: (_ for _ in ()).throw(PermissionError(13, "denied")))
     assert segment.main([*args, "--force"], log=lambda _: None) == 2
     capsys.readouterr()
     assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before

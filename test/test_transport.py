@@ -4,15 +4,14 @@ publishers (`input_qos: auto`), and the warning when publishers exist but scans 
 from __future__ import annotations
 
 import os
-import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
+from helpers.ros import Ros, domain, wait_until
 from rclpy.qos import ReliabilityPolicy
 
 from pass3d_ros.ros import dds_profile
@@ -143,44 +142,7 @@ def test_overlap_filter_keeps_each_copy_once_even_of_a_repeated_stamp() -> None:
     assert overlap.accept(1, 1)
 
 
-class RosSession:
-    """A private rclpy context on its own domain with an executor spinning in a thread."""
-
-    def __init__(self) -> None:
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=200 + os.getpid() % 16)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.nodes: list[Any] = []
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
-
-    def add(self, node: Any) -> Any:
-        self.nodes.append(node)
-        self.executor.add_node(node)
-        return node
-
-    def close(self) -> None:
-        import rclpy
-
-        self.executor.shutdown()
-        self.thread.join(timeout=5)
-        for node in self.nodes:
-            node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-
-
-@pytest.fixture
-def ros() -> Iterator[RosSession]:
-    session = RosSession()
-    yield session
-    session.close()
-
-
-def probe_node(ros: RosSession, topic: str, input_qos: str) -> Any:
+def probe_node(ros: Ros, topic: str, input_qos: str) -> Any:
     """A PointCloudNode whose work is remembering each scan's stamp."""
     from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
     from pass3d_ros.ros.node_base import PointCloudNode
@@ -193,15 +155,6 @@ def probe_node(ros: RosSession, topic: str, input_qos: str) -> Any:
     return ros.add(node)
 
 
-def wait_until(condition: Any, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.02)
-    return condition()
-
-
 def small_cloud(stamp_ns: int) -> Any:
     from pass3d_ros.msgs.pointcloud2 import encode
 
@@ -210,7 +163,7 @@ def small_cloud(stamp_ns: int) -> Any:
 
 
 @pytest.mark.ros
-def test_auto_input_follows_a_reliable_publisher_without_losing_a_scan(ros: RosSession) -> None:
+def test_auto_input_follows_a_reliable_publisher_without_losing_a_scan(ros: Ros) -> None:
     import rclpy
     from sensor_msgs.msg import PointCloud2
 
@@ -221,7 +174,7 @@ def test_auto_input_follows_a_reliable_publisher_without_losing_a_scan(ros: RosS
     assert node.subscribed_qos == "sensor", "no publisher yet"
     publisher_node = ros.add(rclpy.create_node(f"pub_{os.getpid()}", context=ros.context))
     publisher = publisher_node.create_publisher(PointCloud2, topic, qos_profile("reliable", 50))
-    assert wait_until(lambda: publisher.get_subscription_count() >= 1)
+    assert wait_until(lambda: publisher.get_subscription_count() >= 1, 10.0)
     sent = []
     for i in range(80):  # 4 s at 20 Hz: the switch to reliable (within about 1 s) happens meanwhile
         stamp = 1_000_000_000 + i * 50_000_000
@@ -234,7 +187,7 @@ def test_auto_input_follows_a_reliable_publisher_without_losing_a_scan(ros: RosS
 
 
 @pytest.mark.ros
-def test_a_silent_input_is_a_warning_on_diagnostics(ros: RosSession) -> None:
+def test_a_silent_input_is_a_warning_on_diagnostics(ros: Ros) -> None:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from sensor_msgs.msg import PointCloud2
@@ -250,7 +203,7 @@ def test_a_silent_input_is_a_warning_on_diagnostics(ros: RosSession) -> None:
     other.create_subscription(DiagnosticArray, "/diagnostics",
                               lambda msg: statuses.extend(s for s in msg.status if s.name == node.get_name()), 10)
     assert wait_until(lambda: any(s.level == DiagnosticStatus.WARN and "QoS mismatch" in s.message
-                                  for s in statuses)), [s.message for s in statuses]
+                                  for s in statuses), 10.0), [s.message for s in statuses]
     assert "input_qos auto" in node.input_watch.problem
 
 
@@ -269,7 +222,7 @@ def test_replay_waits_for_a_subscriber_by_default_and_says_so(tmp_path: Path) ->
     writer.write_raw("/velodyne_points", POINTCLOUD2_TYPE, 10**9, serialize_message(small_cloud(10**9)))
     writer.close()
     env = {k: v for k, v in os.environ.items() if k not in dds_profile.USER_VARIABLES}
-    env["ROS_DOMAIN_ID"] = str(200 + os.getpid() % 16)
+    env["ROS_DOMAIN_ID"] = str(domain())
     started = time.monotonic()
     result = subprocess.run([sys.executable, "-m", "pass3d_ros.tools.replay", str(bag), "--publish-topic",
                              f"/nobody_{os.getpid()}", "--wait-timeout", "1.5"], capture_output=True, text=True,

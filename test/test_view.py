@@ -10,7 +10,7 @@ import pytest
 
 from pass3d_ros.classes import CAR, CLASS_COLORS_RGB, IGNORE, PEDESTRIAN
 from pass3d_ros.data.bag import TYPESTORE, BagWriter
-from pass3d_ros.evaluation.view import UNKNOWN_RGB, point_colors
+from pass3d_ros.drawing.view import UNKNOWN_RGB, point_colors
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, columns_to_cloud, encode
 from pass3d_ros.tools import view
 

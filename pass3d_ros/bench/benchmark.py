@@ -1,10 +1,13 @@
-"""`pass3d_benchmark SUITE ...`: speed benchmarks that print what they measured."""
+"""`pass3d_benchmark SUITE ...`: speed benchmarks that print what they measured. A suite raises UserError for bad
+options or input; `run_tool` prints it as one line, `pass3d_benchmark: error: ...`, on stderr and exits 2."""
 
 from __future__ import annotations
 
 import argparse
 import importlib
 import sys
+
+from pass3d_ros.tools.cli import run_tool
 
 # suite name -> module with `add_arguments(parser)` and `run(args) -> int`; loaded by name so that a suite missing
 # from an install is left out. This entry point lives in bench, the top layer, because it loads the suites.
@@ -19,7 +22,8 @@ SUITES: dict[str, str] = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point: run the chosen suite and return its exit status."""
+    """Console entry point: run the chosen suite and return its exit status (2 on a user error, 130 / 143 when
+    interrupted)."""
     parser = argparse.ArgumentParser(prog="pass3d_benchmark", description=__doc__)
     sub = parser.add_subparsers(dest="suite", required=True)
     modules = {}
@@ -33,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
         modules[name] = module
         module.add_arguments(sub.add_parser(name, help=(module.__doc__ or "").strip().splitlines()[0]))
     args = parser.parse_args(argv)
-    return modules[args.suite].run(args)
+    return run_tool("pass3d_benchmark", lambda: modules[args.suite].run(args))
 
 
 if __name__ == "__main__":

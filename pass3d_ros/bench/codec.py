@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -52,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     cloud = sample_cloud(args.points)
     msg = encode(cloud, frame_id="velodyne", stamp_ns=1)
     if not np.array_equal(decode(msg), cloud):
-        print("codec round trip FAILED")
+        print("pass3d_benchmark: codec round trip FAILED", file=sys.stderr)
         return 1
     columns = {name: np.ascontiguousarray(cloud[name]) for name in cloud.dtype.names}
     fields = ", ".join(f"{f.name}:{cloud.dtype.fields[f.name][0]}@{f.offset}" for f in msg.fields)

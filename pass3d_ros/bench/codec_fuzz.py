@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import argparse
 import array
+import sys
 import time
 
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
+from pass3d_ros.data.errors import UserError
 from pass3d_ros.msgs.pointcloud2 import DATATYPES, PointCloud2Error, decode
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -189,15 +191,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Fuzz and print the counts; 1 when the codec disagrees with the reference, 2 on bad options."""
+    """Fuzz and print the counts; 1 when the codec disagrees with the reference, UserError on bad options."""
     if args.messages < 1:
-        print("pass3d_benchmark fuzz: error: --messages must be >= 1")
-        return 2
+        raise UserError("--messages must be >= 1")
     started = time.perf_counter()
     try:
         outcomes = fuzz(args.messages, args.seed)
     except AssertionError as exc:
-        print(f"codec disagrees with the reference: {exc}")
+        print(f"pass3d_benchmark: codec disagrees with the reference: {exc}", file=sys.stderr)
         return 1
     took = time.perf_counter() - started
     print(f"{args.messages} corrupted messages (seed {args.seed}) in {took:.1f} s: {outcomes['decoded']} decoded "

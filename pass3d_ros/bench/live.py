@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
+from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.tools.cli import number
 
@@ -286,22 +287,19 @@ def _line(stats: dict | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the replay and print what it measured; 2 on bad options or weights."""
+    """Run the replay and print what it measured; UserError on bad options or weights, or a live run that could not
+    start."""
     from pass3d_ros.core.stage2 import open_classifier
 
     seconds = args.seconds if args.seconds is not None else (SOAK_SECONDS if args.soak else SUSTAIN_SECONDS)
-    try:
-        if args.hz is not None:
-            args.rate = args.hz / SENSOR_HZ
-        if args.frames < 1 or seconds <= 0 or args.rate <= 0 or args.threads < 1 or args.load < 0:
-            raise ValueError("--frames, --seconds, --rate, --hz and --threads must be positive, --load >= 0")
-        classifier = open_classifier(args.weights, args.classifier)
-        kind, weights = classifier.kind, classifier.weights
-    except ValueError as exc:
-        print(f"pass3d_benchmark live: error: {exc}", file=sys.stderr)
-        return 2
+    if args.hz is not None:
+        args.rate = args.hz / SENSOR_HZ
+    if args.frames < 1 or seconds <= 0 or args.rate <= 0 or args.threads < 1 or args.load < 0:
+        raise UserError("--frames, --seconds, --rate, --hz and --threads must be positive, --load >= 0")
+    classifier = open_classifier(args.weights, args.classifier)
+    kind, weights = classifier.kind, classifier.weights
     from pass3d_ros.data.bag_convert import convert
-    from pass3d_ros.evaluation.live import LiveEvalError, run_live
+    from pass3d_ros.evaluation.live import run_live
     from pass3d_ros.evaluation.report import score
 
     limit_threads(args.threads)
@@ -320,26 +318,19 @@ def run(args: argparse.Namespace) -> int:
         convert([spec], bag, progress=False, log=lambda _: None)
         print(f"{spec} -> {repeat} pass(es) = {repeat * args.frames} frames at {SENSOR_HZ * args.rate:g} Hz "
               f"(~{repeat * bag_seconds:.0f} s)", flush=True)
-        try:
-            with CpuLoad(args.load):
-                before = offline_compute_ms(bag, classifier, limit=args.frames)
-                cpu_before, own_before, wall_before = cpu_times(), time.process_time(), time.perf_counter()
-                with RssSampler() as sampler:
-                    result = run_live(
-                        bag, lockstep=False, rate=args.rate, keep_labels=False, repeat=repeat, timeout_s=30.0,
-                        node_parameters={"segmentation_node": {"classifier": kind, "weights": weights or "",
-                                                               "overlap": args.overlap, "process": args.process},
-                                         "cluster_proposal_node": cluster_parameters},
-                        log_level="warn", layout=args.layout,
-                    )
-                cpu_after, own_after, wall_after = cpu_times(), time.process_time(), time.perf_counter()
-                compute = bracket(before, offline_compute_ms(bag, classifier, limit=args.frames))
-        except ValueError as exc:
-            print(f"pass3d_benchmark live: error: {exc}", file=sys.stderr)
-            return 2
-        except LiveEvalError as exc:
-            print(f"pass3d_benchmark live: {exc}", file=sys.stderr)
-            return 1
+        with CpuLoad(args.load):
+            before = offline_compute_ms(bag, classifier, limit=args.frames)
+            cpu_before, own_before, wall_before = cpu_times(), time.process_time(), time.perf_counter()
+            with RssSampler() as sampler:
+                result = run_live(
+                    bag, lockstep=False, rate=args.rate, keep_labels=False, repeat=repeat, timeout_s=30.0,
+                    node_parameters={"segmentation_node": {"classifier": kind, "weights": weights or "",
+                                                           "overlap": args.overlap, "process": args.process},
+                                     "cluster_proposal_node": cluster_parameters},
+                    log_level="warn", layout=args.layout,
+                )
+            cpu_after, own_after, wall_after = cpu_times(), time.process_time(), time.perf_counter()
+            compute = bracket(before, offline_compute_ms(bag, classifier, limit=args.frames))
     cpu = cpu_share(cpu_before, cpu_after)
     if cpu is not None:
         own = (own_after - own_before) / ((wall_after - wall_before) * (os.cpu_count() or 1))

@@ -8,6 +8,8 @@ import time
 
 import numpy as np
 
+from pass3d_ros.data.errors import UserError
+
 TARGET_S_PER_FRAME = 0.5
 
 
@@ -26,11 +28,9 @@ def run(args: argparse.Namespace) -> int:
     from pass3d_ros.synthetic.sensor import SENSOR_NAMES, ray_bundle, sensor_model
 
     if args.frames < 1:
-        print("simulate: --frames must be at least 1")
-        return 2
+        raise UserError("--frames must be at least 1")
     if args.sensor not in SENSOR_NAMES:
-        print(f"simulate: unknown --sensor {args.sensor!r}; known: {', '.join(SENSOR_NAMES)}")
-        return 2
+        raise UserError(f"unknown --sensor {args.sensor!r}; known: {', '.join(SENSOR_NAMES)}")
     sensor = sensor_model(args.sensor)
     start = time.perf_counter()
     ds.generate_frame(args.seed + 1, 0, sensor)

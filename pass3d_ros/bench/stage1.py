@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -22,10 +21,10 @@ import numpy as np
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, propose, synthetic_scan, warm_up
 from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage1.ring import LaserLines
+from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
-from pass3d_ros.tools.cli import error_text
 
 PATCHWORK_HINT = "pip install pypatchworkpp"
 REORDERINGS: tuple[str, ...] = ("column", "shuffled")
@@ -197,16 +196,10 @@ def time_patchwork(frames: list[Frame], repeat: int, sensor_height: float) -> li
 def run(args: argparse.Namespace) -> int:
     """Time stage 1 (and pypatchworkpp) and print the medians."""
     if args.repeat < 1 or args.limit < 1:
-        print("pass3d_benchmark stage1: --repeat and --limit must be >= 1", file=sys.stderr)
-        return 2
-    try:
-        frames, streams = load_frames(args.data, args.limit)
-    except (DatasetError, FileNotFoundError, NotADirectoryError) as exc:
-        print(f"pass3d_benchmark stage1: error: {error_text(exc)}", file=sys.stderr)
-        return 2
+        raise UserError("--repeat and --limit must be >= 1")
+    frames, streams = load_frames(args.data, args.limit)
     if not frames:
-        print("pass3d_benchmark stage1: error: no frames to time", file=sys.stderr)
-        return 2
+        raise DatasetError("no frames to time")
     config = Stage1Config()
     times = time_stage1(frames, args.repeat, config, streams)
     points = int(np.median([len(f.points) for f in frames]))

@@ -36,7 +36,7 @@ from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from pass3d_ros.data.errors import DatasetError
+from pass3d_ros.data.errors import DatasetError, UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import check_force, refuse_protected, writing
 from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
@@ -60,7 +60,7 @@ OUTPUT_FIELDS: tuple[str, ...] = ("confidence", "rgb", "cluster_id")  # fields o
 LabelSource = Literal["truth", "predicted"]
 
 
-class BagError(ValueError):
+class BagError(UserError):
     """A bag cannot be written (exists, bad option, ...); the message names the path and the problem."""
 
 

@@ -41,6 +41,16 @@ def sorted_files(directory: Path, suffix: str) -> list[Path]:
                   key=lambda p: natural_key(p.name))
 
 
+def frame_stamp(stamps: list[int] | None, index: int, source: Path) -> int:
+    """The stamp of frame `index`: its line of the dataset's time file `source` (DatasetError when there is none),
+    or index x FRAME_PERIOD_NS when the dataset stores no time (`stamps` None)."""
+    if stamps is None:
+        return index * FRAME_PERIOD_NS
+    if index < len(stamps):
+        return stamps[index]
+    raise DatasetError(f"{source}: no line for frame {index}")
+
+
 def frame_index(stem: str, position: int) -> int:
     """Frame number from the trailing digits of a file stem (KITTI names), else the listing position."""
     match = _TRAILING_DIGITS.search(stem)

@@ -30,9 +30,9 @@ from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.data.errors import DatasetError
 from pass3d_ros.data.frame import Box3D, Frame
 from pass3d_ros.data.kitti_io import (
-    FRAME_PERIOD_NS,
     count_point_files,
     frame_index,
+    frame_stamp,
     ignore_outside_front_view,
     label_points_in_boxes,
     read_frame_bin,
@@ -103,12 +103,7 @@ def _frames(drive: Path, bins: list[Path], stamps: list[int] | None,
             boxes: dict[int, list[Box3D]] | None) -> Iterator[Frame]:
     for position, bin_path in enumerate(bins):
         index = frame_index(bin_path.stem, position)
-        if stamps is None:
-            stamp = index * FRAME_PERIOD_NS
-        elif index < len(stamps):
-            stamp = stamps[index]
-        else:
-            raise DatasetError(f"{drive / 'velodyne_points' / 'timestamps.txt'}: no line for frame {index}")
+        stamp = frame_stamp(stamps, index, drive / "velodyne_points" / "timestamps.txt")
         points = read_frame_bin(bin_path)
         if points is None:
             continue

@@ -20,11 +20,13 @@ import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
+from pass3d_ros.data.errors import UserError
+
 MARKER = ".pass3d_output"  # in a folder this package wrote: the tool that wrote it
 DISK_FULL: frozenset[int] = frozenset({errno.ENOSPC, errno.EDQUOT})
 
 
-class OutputError(ValueError):
+class OutputError(UserError):
     """An output path that cannot be created, written or replaced; the message names it and says why."""
 
 
@@ -147,6 +149,16 @@ def disk_full_error(path: str | Path | None, exc: BaseException) -> DiskFullErro
     detail = plain_os_error(link) if isinstance(link, OSError) else "disk full (no space left on device)"
     return DiskFullError(detail if path is None else f"{path}: {detail}")
 
+
+
+def error_text(exc: BaseException) -> str:
+    """A user error in plain words: a full disk as `PATH: disk full (...)`, a system error as `PATH: problem` without
+    its `[Errno N]`, anything else as its message."""
+    if is_disk_full(exc) and not isinstance(exc, OutputError):
+        return str(disk_full_error(getattr(exc, "filename", None), exc))
+    if isinstance(exc, OSError) and exc.strerror:
+        return describe_os_error(exc)
+    return str(exc)
 
 @contextlib.contextmanager
 def writing(path: str | Path) -> Iterator[None]:

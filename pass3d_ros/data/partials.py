@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -44,3 +45,19 @@ def remove_stale(out: Path, is_stale: Callable[[Path], bool], log: Callable[[str
         names = ", ".join(sorted(p.name for p in stale))
         log(f"note: removed {len(stale)} {what} of {out} left by an earlier interrupted run: {names}")
     return stale
+
+
+def partial_path(out: Path) -> Path:
+    """The hidden sibling this process builds `out` in (`.NAME.partial-PID`), renamed into place when complete."""
+    return out.with_name(f"{partial_prefix(out)}{os.getpid()}")
+
+
+def remove_stale_partials(out: Path) -> list[Path]:
+    """Delete the `partial_path` siblings of `out` whose process is gone (a killed run), saying so on stderr."""
+    prefix = partial_prefix(out)
+
+    def stale(path: Path) -> bool:
+        pid = path.name[len(prefix):]
+        return pid.isdigit() and process_gone(int(pid))
+
+    return remove_stale(out, stale, lambda text: print(text, file=sys.stderr))

@@ -26,9 +26,9 @@ from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.data.errors import DatasetError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.kitti_io import (
-    FRAME_PERIOD_NS,
     count_point_files,
     frame_index,
+    frame_stamp,
     read_frame_bin,
     read_stamp_lines,
     require_dir,
@@ -97,12 +97,7 @@ def _frames(seq: Path, bins: list[Path], stamps: list[int] | None) -> Iterator[F
     for position, bin_path in enumerate(bins):
         name = bin_path.stem
         index = frame_index(name, position)
-        if stamps is None:
-            stamp = index * FRAME_PERIOD_NS
-        elif index < len(stamps):
-            stamp = stamps[index]
-        else:
-            raise DatasetError(f"{seq / 'times.txt'}: no line for frame {index}")
+        stamp = frame_stamp(stamps, index, seq / "times.txt")
         points = read_frame_bin(bin_path)
         if points is None:
             continue

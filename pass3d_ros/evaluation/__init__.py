@@ -1,1 +1,1 @@
-"""Scoring the pipeline: offline over datasets, live through the ROS nodes, reports and bird's-eye views."""
+"""Scoring the pipeline: offline over datasets, live through the ROS nodes, and reports (pictures: `drawing`)."""

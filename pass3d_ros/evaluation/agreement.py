@@ -15,10 +15,10 @@ import numpy as np
 from pass3d_ros.classes import CAR, CLASS_NAMES, CYCLIST, PEDESTRIAN
 from pass3d_ros.core.metrics import bootstrap_ratio
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
-from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage2.segmentation import Segmenter, nearest_first
+from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.evaluation.offline import INTENSITY_MATCH, StreamIntensity
+from pass3d_ros.evaluation.offline import INTENSITY_MATCH, prepared
 
 AGREEMENT_CLASSES = (CAR, PEDESTRIAN, CYCLIST)
 
@@ -64,19 +64,19 @@ def evaluate_agreement(frames: Iterator[tuple[str, Frame]], config: Stage1Config
     warm_up()
     classifier.warm_up()
     agreement = ViewAgreement()
-    lines = LineHolder()
-    intensity = StreamIntensity(intensity_match, classifier)
+    stream = ScanStream(intensity_match=intensity_match)
+    maps: dict[str, str] = {}
     per_frame = []
     for spec, frame in frames:
-        lines.follow(spec)
-        finite = np.isfinite(frame.points[:, :3]).all(axis=1)
-        points = frame.points if finite.all() else np.ascontiguousarray(frame.points[finite])
-        ring = frame.ring if finite.all() or frame.ring is None else frame.ring[finite]
-        result = lines.propose(points, ring, config)
+        scan = prepared(stream, spec, frame, config)
+        result = stream.propose(scan, config)
+        points = scan.points
         members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
         members = [members[i] for i in nearest_first(points, members, classifier.max_proposals)]
-        row = agreement.update(classifier.view_classes(intensity(spec, points), members))
+        row = agreement.update(classifier.view_classes(stream.on_training_scale(points), members))
+        if stream.match.map is not None and intensity_match:
+            maps[spec] = str(stream.match.map)
         per_frame.append({"frame": f"{spec}#{frame.name}", "proposals": len(members),
                           **{CLASS_NAMES[c]: row[i].tolist() for i, c in enumerate(AGREEMENT_CLASSES)}})
-    return {"frames": len(per_frame), "agreement": agreement.summary(), "intensity": intensity.maps,
+    return {"frames": len(per_frame), "agreement": agreement.summary(), "intensity": maps,
             "per_frame": per_frame}

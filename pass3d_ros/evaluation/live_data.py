@@ -9,6 +9,7 @@ from pathlib import Path
 
 from pass3d_ros.core.metrics import median_or_none
 from pass3d_ros.core.stage1 import Stage1Config
+from pass3d_ros.core.stage1.config import STAGE1_PREFIX
 from pass3d_ros.data.bag import BagFile, first_frame
 from pass3d_ros.data.bag_convert import convert
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
@@ -44,7 +45,7 @@ def evaluate_live(specs: Sequence[str | Dataset], config: Stage1Config, kind: st
     `options.node_parameters` is replaced by what `config`, `kind`, `weights` and `device` ask."""
     defaults = Stage1Config().to_dict()
     node_parameters = {
-        "cluster_proposal_node": {f"stage1.{key}": value for key, value in config.to_dict().items()
+        "cluster_proposal_node": {f"{STAGE1_PREFIX}{key}": value for key, value in config.to_dict().items()
                                   if value != defaults[key]},
         "segmentation_node": {"classifier": kind, "weights": weights or "", "device": device},
     }

@@ -18,11 +18,10 @@ from pass3d_ros.classes import BACKGROUND, IGNORE
 from pass3d_ros.core.metrics import ObjectRecall, SegmentationMetrics, Stage1Metrics
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
 from pass3d_ros.core.stage1.config import ConfigError, config_from_text
-from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.stage2.intensity_match import StreamIntensityMatch
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, proposals_cut
+from pass3d_ros.core.stream import PreparedScan, ScanStream
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 
@@ -79,6 +78,21 @@ class BudgetCuts:
         return {"max_proposals": self.max_proposals, "proposals_cut": self.proposals, "frames_cut": self.frames}
 
 
+def prepared(stream: ScanStream, spec: str, frame: Frame, config: Stage1Config) -> PreparedScan:
+    """`frame` through the input checks of its spec's stream (as the cluster node checks a live scan), printing
+    on stderr what they repaired, once a topic per stream."""
+    stream.follow(spec)
+    scan = stream.prepare(frame.points, frame.ring, config)
+    for text in stream.first_notes(scan):
+        print(f"{spec}: {text}", file=sys.stderr)
+    return scan
+
+
+def kept(values: np.ndarray | None, scan: PreparedScan) -> np.ndarray | None:
+    """Per-point `values` of a frame at the points its prepared scan kept."""
+    return values if values is None or scan.kept is None else values[scan.kept]
+
+
 def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
                     max_proposals: int = DEFAULT_MAX_PROPOSALS) -> dict:
     """Run stage 1 on every frame and accumulate its metrics; returns the summary with per-frame rows. Laser lines
@@ -86,12 +100,12 @@ def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
     "budget": the proposals a stage-2 budget of `max_proposals` would cut."""
     warm_up()
     metrics = Stage1Metrics()
-    lines = LineHolder()
+    stream = ScanStream(intensity_match=False)
     budget = BudgetCuts(max_proposals)
     for spec, frame in frames:
-        lines.follow(spec)
-        result = lines.propose(frame.points, frame.ring, config)
-        row = metrics.update_result(f"{spec}#{frame.name}", result, frame.labels, frame.ground)
+        scan = prepared(stream, spec, frame, config)
+        result = stream.propose(scan, config)
+        row = metrics.update_result(f"{spec}#{frame.name}", result, kept(frame.labels, scan), kept(frame.ground, scan))
         row["ring_source"] = result.ring_source
         row["proposals_cut"] = budget.add(result.n_proposals)  # a kept proposal has points
     summary = metrics.summary()
@@ -122,29 +136,6 @@ def background_proposals(points: np.ndarray, truth: np.ndarray, members: list[np
     return total, called
 
 
-class StreamIntensity:
-    """The intensity map of each spec (one sensor: pass3d_ros.core.stage2.intensity_match), as the segmentation node
-    holds one per stream; `maps` says what each spec got."""
-
-    def __init__(self, enabled: bool, classifier: Classifier) -> None:
-        self.enabled = enabled and classifier.kind != "size_rules"
-        self.maps: dict[str, str] = {}
-        self._match = StreamIntensityMatch()
-        self._spec: str | None = None
-
-    def __call__(self, spec: str, points: np.ndarray) -> np.ndarray:
-        """`points` with intensities on the training scale (the same array when nothing changes)."""
-        if not self.enabled:
-            return points
-        if spec != self._spec:
-            self._match.reset()
-            self._spec = spec
-        self._match.update(points[:, 3])
-        if self._match.map is not None:
-            self.maps[spec] = str(self._match.map)
-        return self._match.on_training_scale(points)
-
-
 def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, classifier: Classifier,
                   intensity_match: bool = INTENSITY_MATCH) -> dict:
     """Stage 1 then stage 2 on every frame, scored against its labels: per-class metrics, labelled objects
@@ -156,32 +147,29 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     objects = ObjectRecall()
     stage1 = Stage1Metrics()
     background = np.zeros(2, dtype=np.int64)
-    lines = LineHolder()
     budget = BudgetCuts(classifier.max_proposals)
-    intensity = StreamIntensity(intensity_match, classifier)
+    stream = ScanStream(intensity_match=intensity_match and classifier.kind != "size_rules")
+    maps: dict[str, str] = {}
     for spec, frame in frames:
-        lines.follow(spec)
         if frame.labels is None:
             raise DatasetError(f"{spec}: frame {frame.name} has no point labels; full evaluation needs labelled data")
-        finite = np.isfinite(frame.points[:, :3]).all(axis=1)
-        keep = None if finite.all() else finite
-        points = frame.points if keep is None else np.ascontiguousarray(frame.points[keep])
-        ring = frame.ring if keep is None or frame.ring is None else frame.ring[keep]
-        truth = frame.labels if keep is None else frame.labels[keep]
-        ground = frame.ground if keep is None or frame.ground is None else frame.ground[keep]
+        scan = prepared(stream, spec, frame, config)
+        points, truth, ground = scan.points, kept(frame.labels, scan), kept(frame.ground, scan)
         started = time.perf_counter()
-        result = lines.propose(points, ring, config)
+        result = stream.propose(scan, config)
         split = time.perf_counter()
         members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
         cut = budget.add(sum(1 for m in members if len(m) > 0))
-        segmented = classifier.segment(intensity(spec, points), members)
+        segmented = classifier.segment(stream.on_training_scale(points), members)
         done = time.perf_counter()
+        if stream.match.map is not None and stream.intensity_match:
+            maps[spec] = str(stream.match.map)
         labels = segmented.labels
         background += background_proposals(points, truth, members, segmented.proposal_class)
         predicted = labels
-        if keep is not None:
+        if scan.kept is not None:
             predicted = np.full(len(frame.points), BACKGROUND, dtype=np.uint8)
-            predicted[keep] = labels
+            predicted[scan.kept] = labels
         name = f"{spec}#{frame.name}"
         row = segmentation.update(name, frame.labels, predicted, 1e3 * (split - started), 1e3 * (done - split))
         objects.update(frame.labels, predicted, frame.instance)
@@ -193,6 +181,6 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     summary["objects"] = objects.summary()
     summary["background_proposals"] = {"front_view": int(background[0]), "called_object": int(background[1])}
     summary["budget"] = budget.summary()
-    summary["intensity"] = intensity.maps
+    summary["intensity"] = maps
     summary["per_frame"] = segmentation.per_frame
     return summary

@@ -25,6 +25,8 @@ from typing import Any, NamedTuple
 import numba as nb
 import numpy as np
 
+from pass3d_ros.data.errors import UserError
+
 POINTCLOUD2_TYPE = "sensor_msgs/msg/PointCloud2"
 
 # PointField.datatype -> numpy type (INT8=1 ... FLOAT64=8), and back.
@@ -44,7 +46,7 @@ INTENSITY_NAMES: tuple[str, ...] = ("intensity", "i", "reflectance")
 _SCALAR_FIELDS = ("x", "y", "z", "ring", *INTENSITY_NAMES, "cluster_id", "cluster_id2", "label", "label_gt")
 
 
-class PointCloud2Error(ValueError):
+class PointCloud2Error(UserError):
     """A PointCloud2 message (or array to encode) is malformed; the message names the problem."""
 
 

@@ -6,27 +6,24 @@ import sys
 import time
 from typing import Any
 
-import numpy as np
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
+from pass3d_ros.core import scan_checks
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, warm_up
-from pass3d_ros.core.stage1.held_lines import LineHolder
-from pass3d_ros.core.stage1.lasers import ring_limit
+from pass3d_ros.core.stage1.config import STAGE1_PREFIX
 from pass3d_ros.core.stage1.ring_field import RingFieldOrder
+from pass3d_ros.core.stream import Note, ScanStream
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
 from pass3d_ros.msgs.pointcloud2 import warm_up as warm_up_codec
-from pass3d_ros.ros import params, scan_checks
-from pass3d_ros.ros.intensity_scale import FRAMES_TO_RAISE, StreamIntensityScale
+from pass3d_ros.ros import params
 from pass3d_ros.ros.latest_frame import Outcome
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
 from pass3d_ros.ros.proposals import ProposalFrame, ProposalSink, proposals_cloud
 from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES
 from pass3d_ros.ros.run import run_nodes
-
-STAGE1_PREFIX = "stage1."
 
 NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "input_topic": ("/velodyne_points", "PointCloud2 topic of the LiDAR driver", None),
@@ -57,11 +54,11 @@ class ClusterProposalNode(PointCloudNode):
         super().__init__(PARAMETERS, **kwargs)
         self.sink = sink
         self.config = params.read_config(self, Stage1Config, STAGE1_PREFIX)
-        self._intensity = StreamIntensityScale()
         self._ring_order: RingFieldOrder | None = None  # the order last reported (pass3d_ros.core.stage1.ring_field)
         self._sensor_source: tuple[str, int] | None = None
-        self._lines = LineHolder(clock=time.monotonic)  # the stream's laser lines: a scan in no firing order skips
-        # the search (pass3d_ros.core.stage1.held_lines)
+        self._stream = ScanStream(clock=time.monotonic)  # what the stream's scans taught: laser lines, ring order,
+        # intensity scale (pass3d_ros.core.stream)
+        self._noted: dict[str, float] = {}  # when each topic of the input checks was last logged
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         started = time.perf_counter()
@@ -86,7 +83,7 @@ class ClusterProposalNode(PointCloudNode):
         if config is None:
             return params.result(False, reason)
         self.config = config
-        self._lines.reset()
+        self._stream.lines.reset()
         return params.result(True)
 
     def _report_sensor(self, result: Stage1Result) -> None:
@@ -104,34 +101,15 @@ class ClusterProposalNode(PointCloudNode):
                 "elevation, which splits or merges lasers: publish the driver's ring field or set stage1.sensor",
                 throttle_duration_sec=LOG_PERIOD_S)
 
-    def _unit_intensity(self, points: np.ndarray, summary: scan_checks.ScanSummary) -> scan_checks.ScanSummary:
-        """Put a scan's intensities in 0..1 in place (`intensity_scale`, then the stream's held full scale: a corrupt
-        scan changes no later scan's); returns the scan's summary after it."""
-        scale = self.get_parameter("intensity_scale").value
-        if scale != 1.0:
-            points[:, 3] *= scale
-            summary = summary.scaled(scale)
-        problem = summary.intensity_problem()
-        reading = self._intensity.read(points[:, 3], in_unit_range=not problem)
-        if reading.implausible:
-            self.get_logger().warning(
-                f"intensity: a corrupt scan ({reading.implausible}): divided by the stream's full scale "
-                f"{reading.divisor:g}, non-finite values read 0; it does not change the scale of later scans",
-                throttle_duration_sec=LOG_PERIOD_S)
-        elif reading.change is not None and (reading.change.old is not None or reading.change.new != 1.0):
-            self.get_logger().warning(
-                f"intensity: {problem or 'values within 0..1'} after intensity_scale {scale:g}, expected 0..1; "
-                f"this stream is divided by {reading.change.new:g} from now on ({reading.change}; a 0..255 driver "
-                "wants intensity_scale 1/255, 16-bit reflectivity 1/65535)")
-        elif reading.provisional and problem:
-            self.get_logger().warning(
-                f"intensity: {problem} after intensity_scale {scale:g}, expected 0..1; divided by {reading.divisor:g}, "
-                f"this scan's full scale, until {FRAMES_TO_RAISE} scans in a row agree on the stream's (a 0..255 "
-                "driver wants intensity_scale 1/255, 16-bit reflectivity 1/65535)", throttle_duration_sec=LOG_PERIOD_S)
-        if not problem and reading.divisor == 1.0:
-            return summary
-        points[:, 3] = scan_checks.unit_intensity(points[:, 3], reading.divisor)
-        return scan_checks.scan_summary(points)
+    def _log_notes(self, notes: list[Note]) -> None:
+        """Log what the input checks repaired: throttled per topic (one rclpy call site would throttle every topic
+        together), a change of the stream's scale always."""
+        now = time.monotonic()
+        for note in notes:
+            if note.throttle and now - self._noted.get(note.topic, -LOG_PERIOD_S) < LOG_PERIOD_S:
+                continue
+            self._noted[note.topic] = now
+            self.get_logger().warning(note.text)
 
     def _report_ring_field(self, result: Stage1Result) -> None:
         """Log the ring field's numbering when the stream's order is first measured or changes; warn (once per
@@ -164,38 +142,20 @@ class ClusterProposalNode(PointCloudNode):
         except PointCloud2Error as exc:
             self.get_logger().warning(f"skipping malformed PointCloud2: {exc}", throttle_duration_sec=LOG_PERIOD_S)
             return self.skipped("malformed")
-        points, field = scan.points, scan.ring  # field: the driver's ring numbering, published as it came
-        summary = scan_checks.scan_summary(points)
-        if not summary.plausible:
-            keep = scan_checks.plausible_points(points)
-            self.get_logger().warning(
-                f"x/y/z: dropping {np.count_nonzero(~keep)} points with non-finite or absurd coordinates "
-                f"(expected finite, |value| <= {scan_checks.MAX_COORDINATE_M:g} m)", throttle_duration_sec=LOG_PERIOD_S)
-            points = points[keep]
-            field = None if field is None else field[keep]
-            summary = scan_checks.scan_summary(points)
-        if len(points) == 0:
+        prepared = self._stream.prepare(scan.points, scan.ring, self.config,
+                                        intensity_scale=self.get_parameter("intensity_scale").value,
+                                        use_ring=self.get_parameter("use_ring_field").value)
+        self._log_notes(prepared.notes)
+        if len(prepared.points) == 0:
             self.get_logger().warning("skipping empty PointCloud2", throttle_duration_sec=LOG_PERIOD_S)
             return self.skipped("empty")
-        summary = self._unit_intensity(points, summary)
-        if summary.constant_intensity():
-            self.get_logger().warning(
-                f"intensity: every point reads {float(points[0, 3]):g}; stage 2 will have no intensity information "
-                "(does the driver or conversion drop it?)", throttle_duration_sec=LOG_PERIOD_S)
-        ring = field if self.get_parameter("use_ring_field").value else None
-        lasers = ring_limit(self.config.sensor, self.config.n_rings)
-        if ring is not None and ring.max() >= lasers:
-            self.get_logger().warning(
-                f"ring: values up to {int(ring.max())}, expected 0..{lasers - 1} (stage1.sensor "
-                f"{self.config.sensor}); rings recovered from the points for this frame",
-                throttle_duration_sec=LOG_PERIOD_S)
-            ring = None
+        points, field = prepared.points, prepared.field  # field: the driver's ring numbering, published as it came
         clock.mark("decode")
-        result = self._lines.propose(points, ring, self.config)
+        result = self._stream.propose(prepared, self.config)
         clock.mark("compute")
         self._report_sensor(result)
         self._report_ring_field(result)
-        field_used = ring is not None and result.ring_order is not None and result.ring_order.fits
+        field_used = prepared.ring is not None and result.ring_order is not None and result.ring_order.fits
         out_ring = field if field_used else result.ring
         if self.sink is not None:
             self.sink(ProposalFrame(msg.header, points, out_ring, result.cluster_id, result.cluster_id2))

@@ -12,6 +12,7 @@ from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN, packed_rgb
+from pass3d_ros.core import scan_checks
 from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, open_classifier
 from pass3d_ros.core.stage2.canonical import fit_box_members
@@ -21,12 +22,12 @@ from pass3d_ros.core.stage2.classifier_process import (
     ProcessClassifier,
 )
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.stage2.intensity_match import StreamIntensityMatch
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult, proposals_cut
+from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.frame import Box3D
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, header_stamp_ns
-from pass3d_ros.ros import params, scan_checks
+from pass3d_ros.ros import params
 from pass3d_ros.ros.diagnostics import StepClock
 from pass3d_ros.ros.latest_frame import DROPPED, FrameCounters, LatestFrameWorker, Outcome
 from pass3d_ros.ros.markers import boxes_to_markers
@@ -131,7 +132,7 @@ class SegmentationNode(PointCloudNode):
         self.frames_hung = 0  # frames whose stage-2 process answered nothing for stage2_timeout (killed)
         self.frames_late = 0  # frames whose result came after stage2_timeout, dropped instead of published late
         self._hung: tuple[float, str] | None = None  # when stage 2 was last killed for hanging, and why
-        self.intensity = StreamIntensityMatch()  # the stream's intensity map onto the training scale
+        self.stream = ScanStream(clock=time.monotonic)  # the stream's intensity map onto the training scale
         scan_checks.warm_up()
         self.classifier = self._load_classifier()
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -211,9 +212,9 @@ class SegmentationNode(PointCloudNode):
         down."""
         values: dict[str, float | int] = {"points_dropped": self.points_dropped, "proposals_cut": self.proposals_cut,
                                           "frames_late": self.frames_late}
-        if self.intensity.map is not None:
-            values["intensity_median"] = self.intensity.map.median
-            values["intensity_matched"] = int(self.intensity.map.kind == "matched")
+        if self.stream.match.map is not None:
+            values["intensity_median"] = self.stream.match.map.median
+            values["intensity_matched"] = int(self.stream.match.map.kind == "matched")
         warnings = []
         if isinstance(self.classifier, ProcessClassifier):
             values["stage2_restarts"] = self.classifier.restarts
@@ -306,10 +307,10 @@ class SegmentationNode(PointCloudNode):
         published cloud keeps the sensor's own. The map is reported once, when it is held."""
         if not self.get_parameter("intensity_match").value or self.classifier.kind == "size_rules":
             return points
-        held = self.intensity.update(points[:, 3])
+        held = self.stream.match.update(points[:, 3])
         if held is not None:
             self.get_logger().info(f"intensity: {held}")
-        return self.intensity.on_training_scale(points)
+        return self.stream.match.on_training_scale(points)
 
     def _plausible(self, frame: ProposalFrame) -> ProposalFrame:
         """The frame without points whose coordinates no LiDAR returns (as the cluster node drops them), warned

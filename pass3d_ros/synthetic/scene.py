@@ -5,20 +5,21 @@ with curbs, sidewalks and terrain, lined with buildings, walls, fences, hedges, 
 signs, barriers, planters and car-sized bushes, and populated with parked and moving cars, vans, trucks,
 pedestrians (alone, in groups, and standing behind parked cars and low things) and cyclists; some cars are seen
 only in part, behind nearer road users, trees, boxes, hedges and low things in the sensor's line of sight. The
-objects themselves are modelled in `synthetic.objects`; `SceneBuilder` sets them on the ground.
+objects themselves are modelled in `synthetic.objects`; `SceneBuilder` sets them on the ground. The street's
+cross-section is `synthetic.street`; the world changes that show things in part ("hidden", "partial") are
+`synthetic.occlusion`, the car-sized background and thinned posts ("negatives") `synthetic.hard_negatives`.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
-from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
+from pass3d_ros.classes import CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.synthetic import raycast as rc
 from pass3d_ros.synthetic.builder import TOUCH_CLEARANCE_M, Scene, SceneBuilder
+from pass3d_ros.synthetic.hard_negatives import add_hard_negatives, thinned_out
 from pass3d_ros.synthetic.objects import parked as pk
 from pass3d_ros.synthetic.objects import street_furniture as sf
 from pass3d_ros.synthetic.objects import structures as st
@@ -33,46 +34,15 @@ from pass3d_ros.synthetic.objects.people import (
 from pass3d_ros.synthetic.objects.street_furniture import sign_parts, street_lamp_parts
 from pass3d_ros.synthetic.objects.structures import building_parts, fence_parts, porch_parts, wall_parts
 from pass3d_ros.synthetic.objects.vegetation import bush_parts, hedge_parts, tree_parts
-from pass3d_ros.synthetic.objects.vehicles import car_parts, truck_parts, van_parts
+from pass3d_ros.synthetic.objects.vehicles import car_parts
+from pass3d_ros.synthetic.occlusion import add_hidden_pedestrians, add_partial_views
 from pass3d_ros.synthetic.parts import Part, part_extent
 from pass3d_ros.synthetic.sensor import MOUNT_HEIGHT_M
+from pass3d_ros.synthetic.street import VEHICLE_LABEL, PartsFn, RoadLayout, draw_vehicle, in_cross, road_layout
 
 U_MAX = 130.0  # farthest road coordinate a ray can reach the ground at (bounds the slope term)
 
 
-@dataclass
-class RoadLayout:
-    """Cross-section of the street in road coordinates (metres)."""
-
-    lanes: int
-    lane_width: float
-    parking: tuple[bool, bool]  # right (v < 0), left (v > 0)
-    half_width: float  # road edge at |v| = half_width (the curb)
-    sidewalk: float
-    frontage: float  # property line (|v|) where buildings may start
-    cross: bool
-    cross_u: float
-    cross_half_width: float
-    v_ego: float
-
-
-def _road_layout(rng: np.random.Generator, style: str) -> RoadLayout:
-    """Lanes, parking, sidewalks, yards, an optional cross street and where the ego car drives."""
-    lanes = int(rng.choice([1, 2, 4], p=[0.15, 0.6, 0.25]))
-    lane_width = rng.uniform(3.0, 3.6)
-    p_park = {"urban": 0.7, "residential": 0.6, "open": 0.2}[style]
-    parking = (bool(rng.random() < p_park), bool(rng.random() < p_park))
-    park_w = rng.uniform(2.2, 2.8) if any(parking) else 0.3
-    half_width = lanes * lane_width / 2 + park_w
-    sidewalk = rng.uniform(1.5, 4.0) if style != "open" else rng.uniform(0.8, 2.0)
-    yard = {"urban": rng.uniform(0.0, 1.5), "residential": rng.uniform(2.0, 8.0), "open": rng.uniform(4.0, 14.0)}[style]
-    cross = bool(rng.random() < 0.3)
-    cross_u = float(rng.choice([-1.0, 1.0], p=[0.3, 0.7]) * rng.uniform(14.0, 45.0))
-    ego_lane = 0 if lanes < 4 else int(rng.choice(4, p=[0.45, 0.35, 0.1, 0.1]))
-    v_ego = -lanes * lane_width / 2 + (ego_lane + 0.5) * lane_width if lanes > 1 else 0.0
-    v_ego += rng.uniform(-0.3, 0.3)
-    return RoadLayout(lanes, lane_width, parking, half_width, sidewalk, half_width + sidewalk + yard, cross, cross_u,
-                      rng.uniform(4.0, 7.5), v_ego)
 
 
 def _ground_params(rng: np.random.Generator, lay: RoadLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,9 +82,6 @@ def _ground_params(rng: np.random.Generator, lay: RoadLayout) -> tuple[np.ndarra
     return gp, bumps, waves
 
 
-def _in_cross(lay: RoadLayout, u: float, margin: float) -> bool:
-    return lay.cross and abs(u - lay.cross_u) < lay.cross_half_width + lay.sidewalk + margin
-
 
 def _add_roadside(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, style: str, clutter: bool = True,
                   thin_rng: np.random.Generator | None = None) -> None:
@@ -126,7 +93,7 @@ def _add_roadside(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, st
         while u < 115.0:
             lot = rng.uniform(8.0, 26.0)
             mid = u + lot / 2
-            if not _in_cross(lay, mid, lot / 2 + 1.0):
+            if not in_cross(lay, mid, lot / 2 + 1.0):
                 kind = rng.random()
                 setback = rng.uniform(0.0, 2.5)
                 if kind < p_building:
@@ -186,7 +153,7 @@ def _add_street_trees(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout
     spacing = rng.uniform(6.0, 16.0)
     v_line = side * (lay.half_width + min(0.9, lay.sidewalk * 0.4))
     for u in np.arange(-100.0 + rng.uniform(0, spacing), 100.0, spacing):
-        if _in_cross(lay, u, 2.0) or rng.random() < 0.15:
+        if in_cross(lay, u, 2.0) or rng.random() < 0.15:
             continue
         parts, footprint = tree_parts(rng, min_base=2.6)
         b.place(parts, u + rng.uniform(-1, 1), v_line + side * rng.uniform(0.0, 0.3), 0.0, footprint=footprint,
@@ -197,7 +164,7 @@ def _add_poles(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, side:
     """Street lamps near the curb and traffic signs (retro-reflective faces) here and there."""
     spacing = rng.uniform(18.0, 35.0)
     for u in np.arange(-100.0 + rng.uniform(0, spacing), 100.0, spacing):
-        if _in_cross(lay, u, 0.5):
+        if in_cross(lay, u, 0.5):
             continue
         b.place(street_lamp_parts(rng, -side), u, side * (lay.half_width + 0.4), 0.0)
     for _ in range(int(rng.integers(0, 5))):
@@ -226,7 +193,6 @@ def _add_cross_street_sides(b: SceneBuilder, rng: np.random.Generator, lay: Road
                 v += lot
 
 
-_PartsFn = Callable[[np.random.Generator], list[Part]]
 # Street clutter that stage 1 lets through (0.9-2.3 m tall, car-sized or smaller): (model, parts function, weight).
 # Kerb line: within a metre of the curb; sidewalk: along its back half; frontage: at the property line.
 _KERB_CLUTTER = (("bollard", sf.bollard_parts, 3.0), ("post", sf.post_parts, 2.5),
@@ -245,15 +211,8 @@ _CLUTTER_SPACING_M = {"urban": 3.5, "residential": 4.5, "open": 9.0}  # mean ker
 
 SCENE_CHANGES = ("clutter", "beside", "hidden", "partial", "negatives")  # what generate_scene(without=...) leaves out
 
-# Street clutter kinds that make thin tall proposals (pole / trunk-like: footprint <= 0.5 m, >= 1.2 m tall). The
-# synthetic world held 8.4 % of its stage-1 proposals thin and tall against 2.5 % on the 13 real unlabelled
-# HDL-64E scans (3.1 a frame against 0.6 a scan; 20 frames of seed 7 against the 13 scans, issue 28); with the
-# "negatives" change this share of them is drawn but not placed (the scene's stream is kept).
-_THIN_CLUTTER = ("post", "short_pole", "trunk")
-_THIN_DROP = 0.5
 
-
-def _pick(rng: np.random.Generator, table: tuple[tuple[str, _PartsFn, float], ...]) -> tuple[str, _PartsFn]:
+def _pick(rng: np.random.Generator, table: tuple[tuple[str, PartsFn, float], ...]) -> tuple[str, PartsFn]:
     """A (model, parts function) drawn from a clutter table by weight."""
     weights = np.array([w for _, _, w in table])
     name, fn, _ = table[int(rng.choice(len(table), p=weights / weights.sum()))]
@@ -266,12 +225,12 @@ def _add_street_clutter(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayo
 
     Real KITTI streets hold many such proposal-sized background objects (64% of real front-view proposals are
     background only); they stand on the kerb line, the sidewalk and the property line, about every 3.5-9 m.
-    With `thin_rng` (the "negatives" change), _THIN_DROP of the posts, short poles and trunks are drawn from `rng`
-    as before but not placed (the draw decided by `thin_rng`, so `rng`'s stream is the same either way).
+    With `thin_rng` (the "negatives" change), some posts, short poles and trunks are drawn from `rng` as before
+    but not placed (`hard_negatives.thinned_out` decides, from `thin_rng`, so `rng`'s stream is the same either way).
     """
 
     def place_thin(name: str, parts: list[Part], u: float, v: float, yaw: float) -> None:
-        if name in _THIN_CLUTTER and thin_rng is not None and thin_rng.random() < _THIN_DROP:
+        if thinned_out(name, thin_rng):
             return
         b.place(parts, u, v, yaw, model=name)
 
@@ -279,7 +238,7 @@ def _add_street_clutter(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayo
     walk_out = lay.half_width + lay.sidewalk
     u = -70.0 + rng.exponential(_CLUTTER_SPACING_M[style])
     while u < 95.0:
-        if not _in_cross(lay, u, 0.5):
+        if not in_cross(lay, u, 0.5):
             where = rng.random()
             yaw = float(rng.choice([0.0, math.pi])) + rng.normal(0.0, 0.1)
             if where < 0.5:
@@ -308,7 +267,7 @@ def _add_street_clutter(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayo
                 place_thin(name, fn(rng), u, side * v, facing)
         u += rng.exponential(_CLUTTER_SPACING_M[style])
     u_stop = rng.uniform(5.0, 60.0)
-    if rng.random() < 0.3 and not _in_cross(lay, u_stop, 4.0):
+    if rng.random() < 0.3 and not in_cross(lay, u_stop, 4.0):
         b.place(sf.bus_shelter_parts(rng), u_stop, side * (walk_out - 1.2), 0.0 if side > 0 else math.pi,
                 model="bus_shelter")
 
@@ -385,248 +344,6 @@ def _add_clutter_beside_foreground(b: SceneBuilder, rng: np.random.Generator) ->
                 break
 
 
-# What a pedestrian stands behind, and how often each is picked.
-_HIDING = {"Car": 0.6, "Van": 0.3, "Truck": 0.2, "hedge_fragment": 1.0, "wall_fragment": 1.0, "bin": 0.6,
-           "mailbox": 0.4, "bench": 0.6, "utility_box": 0.8, "Pedestrian": 0.8, "car_bush": 0.6, "low_hedge": 0.6,
-           "long_planter": 0.6, "jersey_barrier": 0.4}
-_HIDDEN_COUNT_P = (0.2, 0.35, 0.3, 0.15)  # pedestrians placed behind something per scene: 0, 1, 2, 3
-
-
-def _add_hidden_pedestrians(b: SceneBuilder, rng: np.random.Generator) -> None:
-    """Pedestrians (alone or a pair) standing or walking just beyond a parked car, van, truck, hedge or wall
-    fragment, bin, mailbox, bench, utility box, another pedestrian, or (with "negatives") a planter, barrier, low
-    hedge or car-sized bush as the sensor sees it, so only their upper body shows.
-
-    Measured on the dev data (real VLP-32C boxes corrected, see docs/experiments.md): 15 of 22 real pedestrians of
-    >= 10 points at 8-35 m show only the upper body (a crowded street), the one KITTI pedestrian its whole body,
-    against 3 of 46 synthetic ones placed by `_add_people` alone. These placements bring the synthetic share to about
-    a third.
-    """
-    hiders = [o for o in b.objects if o.model in _HIDING and 5.0 < math.hypot(o.x, o.y) < 35.0]
-    if not hiders:
-        return
-    weights = np.array([_HIDING[o.model] for o in hiders])
-    for _ in range(int(rng.choice(len(_HIDDEN_COUNT_P), p=_HIDDEN_COUNT_P))):
-        hider = hiders[int(rng.choice(len(hiders), p=weights / weights.sum()))]
-        dist = math.hypot(hider.x, hider.y)
-        ray = math.atan2(hider.y, hider.x)
-        across = ray - hider.yaw  # the ray in the hider's frame: how deep and how wide it looks along the ray
-        half = 0.5 * (hider.local_max - hider.local_min)
-        depth = abs(math.cos(across)) * half[0] + abs(math.sin(across)) * half[1]
-        wide = abs(math.sin(across)) * half[0] + abs(math.cos(across)) * half[1]
-        heading = float(rng.uniform(-math.pi, math.pi))
-        pair = rng.random() < 0.3
-        for member in range(2 if pair else 1):
-            for _attempt in range(4):
-                behind = dist + depth + rng.uniform(0.45, 1.6)
-                side = rng.uniform(-0.6, 0.6) * wide + 0.8 * member  # a pair's second walks beside the first
-                x = behind * math.cos(ray) - side * math.sin(ray)
-                y = behind * math.sin(ray) + side * math.cos(ray)
-                u, v = b.road_uv(x, y)
-                parts, lo, hi = pedestrian(rng, "walk" if rng.random() < 0.6 else "stand")
-                if b.place(parts, u, v, heading - b.road_yaw() + rng.normal(0.0, 0.15), PEDESTRIAN, "Pedestrian",
-                           clearance=TOUCH_CLEARANCE_M if member else None, extent=(lo, hi)):
-                    break
-
-
-# Hard negatives (issue 28): car-sized background the real scans hold and the synthetic world lacked. Low wide
-# stage-1 proposals (2.5-6 m long, 0.5-1.1 m tall: barriers, planters, low hedges) are 17.5 % of the proposals of
-# the 13 real unlabelled HDL-64E scans (4.3 a scan), 10.2 % of the synthetic ones (3.7 a frame; 20 frames of
-# seed 7); real stage 2 calls 6.5 % of such separate objects car. Each entry: (model, parts function, weight,
-# where: "walk" back half of the sidewalk, "kerb" the kerb line, "front" the property line, "yard" beyond it).
-_NEGATIVES: tuple[tuple[str, _PartsFn, float, str], ...] = (
-    ("long_planter", sf.long_planter_parts, 1.0, "walk"),
-    ("jersey_barrier", lambda r: sf.jersey_barrier_parts(r, float(r.uniform(4.0, 10.0))), 0.6, "kerb"),
-    ("low_hedge", vg.low_hedge_parts, 1.0, "front"),
-    ("car_bush", vg.car_bush_parts, 0.8, "front"),
-    ("car_bush", vg.car_bush_parts, 0.8, "yard"),
-)
-_NEGATIVE_SPACING_M = 16.0  # mean street length (per side) per hard negative: about 17 a scene over 2 x 140 m
-_NEGATIVE_MIN_RANGE_M = 8.0  # nearer, a planter beside the ego car hides a third of the ground around it
-_NEGATIVE_VEHICLE_GAP_M = 1.2  # kept from foreground objects: a barrier against a parked car would chain them
-
-
-def _add_hard_negatives(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout) -> None:
-    """Jersey barrier runs on the kerb line, long planters on the sidewalk, low hedges and car-sized bushes at the
-    property line and in yards, about one per _NEGATIVE_SPACING_M of street on each side, 1.2 m clear of every car,
-    person and cyclist (so stage 1 proposes them on their own, as real barriers and planters are)."""
-    weights = np.array([w for _, _, w, _ in _NEGATIVES])
-    for side in (1.0, -1.0):
-        u = -60.0 + rng.exponential(_NEGATIVE_SPACING_M)
-        while u < 80.0:
-            name, fn, _, where = _NEGATIVES[int(rng.choice(len(_NEGATIVES), p=weights / weights.sum()))]
-            parts = fn(rng)
-            walk_out = lay.half_width + lay.sidewalk
-            for _attempt in range(3):  # the property line and yards are crowded: a few places nearby
-                if where == "kerb":
-                    v = lay.half_width + rng.uniform(0.35, 0.6)
-                elif where == "walk":
-                    v = walk_out - rng.uniform(0.8, max(0.9, lay.sidewalk / 2))
-                elif where == "front":  # just inside the property line, or on it where nothing stands
-                    v = max(walk_out + 0.6, lay.frontage - rng.uniform(0.6, 1.5)) if rng.random() < 0.7 else \
-                        lay.frontage + rng.uniform(-0.3, 0.6)
-                else:
-                    v = walk_out + rng.uniform(0.8, max(lay.frontage - walk_out, 0.8) + 3.0)
-                uu = u + rng.uniform(-3.0, 3.0) * _attempt
-                if math.hypot(*b.world_xy(uu, side * v)) < _NEGATIVE_MIN_RANGE_M:
-                    continue
-                if not _in_cross(lay, uu, 3.0) and _place_negative(
-                        b, parts, uu, side * v, float(rng.choice([0.0, math.pi])) + rng.normal(0.0, 0.05), name):
-                    break
-            u += rng.exponential(_NEGATIVE_SPACING_M)
-
-
-def _place_negative(b: SceneBuilder, parts: list[Part], u: float, v: float, yaw: float, name: str,
-                    gap: float = _NEGATIVE_VEHICLE_GAP_M) -> bool:
-    """Place a background object `gap` clear of foreground objects (it stays an ordinary background object)."""
-    if not b.place(parts, u, v, yaw, model=name, clearance=gap, veg=name in ("car_bush", "low_hedge")):
-        return False
-    b.objects[-1].clearance = None  # kept farther, not closer, than the usual gap: not a lapsed clearance
-    return True
-
-
-# Partial views (issue 28). Real cars called background are occluded and cut ones (visible width 1.1 vs 1.55 m,
-# proposal length 1.8 vs 3.4 m, lowest point 0.13 m higher): real partial cars (visible length < 2.5 m) fail 6 of
-# 14, synthetic ones 0 of 58, and the real short fragments are cut at both ends by nearer things (trial 4). A share
-# of the cars 6-28 m away get occluders in the sensor's line of sight: two that leave a 0.7-2.4 m piece, one that
-# hides an end, or a low one (planter, low hedge, barrier, bush) that hides the lower part. Occluders stand where
-# such things stand: vehicles in the lanes and parking lanes, street trees, utility boxes, bushes and hedges on the
-# sidewalk and beyond.
-_PARTIAL_SHARE = 0.4
-_PARTIAL_RANGE_M = (6.0, 28.0)  # the real short fragments lie at 9.5-21 m (docs/experiments.md)
-_PARTIAL_SCENARIO_P = (("cut2", 0.45), ("cut1", 0.25), ("low", 0.30))
-_PIECE_M = (0.7, 2.4)
-
-
-def _add_partial_views(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout) -> None:
-    """Occluders in front of some cars so that only a piece (or the upper part) of the car shows."""
-    names, probs = zip(*_PARTIAL_SCENARIO_P, strict=True)
-    for car in [o for o in b.objects if o.label == CAR]:
-        corners = _footprint_corners(car.x, car.y, car.yaw, car.local_min, car.local_max)
-        near = float(np.hypot(corners[:, 0], corners[:, 1]).min())
-        if rng.random() >= _PARTIAL_SHARE or not _PARTIAL_RANGE_M[0] < near < _PARTIAL_RANGE_M[1]:
-            continue
-        ray = math.atan2(car.y, car.x)
-        lo, hi = _azimuth_span(corners, ray)
-        scenario = str(rng.choice(names, p=probs))
-        length = float(car.local_max[0] - car.local_min[0])
-        visible = rng.uniform(*_PIECE_M)
-        piece = (hi - lo) * visible / length  # the piece left visible, as an angle (its share of the car's length)
-        if scenario == "low":
-            spans = [(lo - 0.01, hi + 0.01, None)]
-        elif visible > 0.8 * length or hi - lo < 0.03:
-            continue  # nothing to cut (a short car, or seen end-on or far)
-        elif scenario == "cut1":
-            spans = [(lo - 0.01, hi - piece, (hi - piece, hi))] if rng.random() < 0.5 else \
-                [(lo + piece, hi + 0.01, (lo, lo + piece))]
-        else:
-            start = rng.uniform(lo, hi - piece)
-            window = (start, start + piece)
-            spans = [(lo - 0.01, start, window), (start + piece, hi + 0.01, window)]
-        for a0, a1, window in spans:
-            if a1 - a0 > 0.004:
-                _place_occluder(b, rng, lay, near, a0, a1, window)
-
-
-def _footprint_corners(x: float, y: float, yaw: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """(4, 2) sensor-frame corners of a footprint lo..hi (object frame) at pose (x, y, yaw)."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([(x + c * lx - s * ly, y + s * lx + c * ly) for lx in (lo[0], hi[0]) for ly in (lo[1], hi[1])])
-
-
-def _azimuth_span(corners: np.ndarray, ray: float) -> tuple[float, float]:
-    """Azimuth interval (about `ray`, unwrapped) that corners cover as the sensor sees them."""
-    rel = np.angle(np.exp(1j * (np.arctan2(corners[:, 1], corners[:, 0]) - ray)))
-    return ray + float(rel.min()), ray + float(rel.max())
-
-
-def _parts_box(parts: list[Part]) -> tuple[np.ndarray, np.ndarray]:
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for p in parts:
-        ext = part_extent(p)
-        lo, hi = np.minimum(lo, p.center - ext), np.maximum(hi, p.center + ext)
-    return lo, hi
-
-
-def _occluder_for(rng: np.random.Generator, lay: RoadLayout, av: float, width: float, phi: float,
-                  low: bool) -> tuple[str, list[Part], int, str, list | None] | None:
-    """(model, parts, label, kind, footprint) of an occluder standing |v| = av from the road's centre line, that
-    should cover `width` metres across the ray (the ray meets the road at sin-angle `phi`); None: nothing there."""
-    if av < lay.half_width - 0.3:  # on the road: another road user
-        # Vans as often as in the parked rows: a van is background with dark paint cells, and 40 % vans here put the
-        # scorecard's non-ground background zero-intensity share 2 points up (12.4 % against the real 6.9 %).
-        kind, parts = _draw_vehicle(rng, 0.1, 0.0)
-        return kind, parts, _VEHICLE_LABEL[kind], kind, None
-    if av < lay.half_width + 0.15:
-        return None  # the kerb face itself
-    depth = 0.8
-    length = float(np.clip((width - depth * math.sqrt(max(0.0, 1.0 - phi * phi))) / max(phi, 0.2), 0.6, 5.0))
-    sidewalk = av < lay.half_width + lay.sidewalk
-    pick = rng.random()
-    if low:
-        height = rng.uniform(0.7, 1.1)
-        if sidewalk and pick < 0.3 and av < lay.half_width + 1.0:
-            return "jersey_barrier", sf.jersey_barrier_parts(rng, max(length, 2.0)), BACKGROUND, "", None
-        if pick < 0.65:
-            return "low_hedge", vg.low_hedge_parts(rng, length, height), BACKGROUND, "", None
-        return "car_bush", vg.car_bush_parts(rng, max(length, 1.2), height), BACKGROUND, "", None
-    if width < 0.5 and sidewalk:
-        parts, footprint = tree_parts(rng, min_base=2.6)
-        return "tree", parts, BACKGROUND, "", footprint
-    height = rng.uniform(1.6, 2.2)
-    if sidewalk and width < 1.3 and pick < 0.5:
-        return "utility_box", sf.utility_box_parts(rng), BACKGROUND, "", None
-    if pick < 0.5:
-        return "hedge_fragment", vg.low_hedge_parts(rng, length, height), BACKGROUND, "", None
-    if not sidewalk and pick < 0.7:
-        return "wall_fragment", st.wall_fragment_parts(rng), BACKGROUND, "", None
-    return "car_bush", vg.car_bush_parts(rng, max(length, 1.2), height), BACKGROUND, "", None
-
-
-def _place_occluder(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, near: float, a0: float, a1: float,
-                    window: tuple[float, float] | None) -> bool:
-    """Something between the sensor and a car at range `near`, covering azimuths a0..a1 as the sensor sees them
-    (tall enough to hide the car; low, hiding its lower part, when there is no `window` to keep), chosen by where
-    it would stand and slid along the road so that it leaves the window (the car's piece) open."""
-    ac = 0.5 * (a0 + a1)
-    road_dir = b.road_yaw()
-    if near - 2.0 <= 5.0:
-        return False
-    for _attempt in range(10):
-        d = rng.uniform(max(5.0, 0.25 * near), near - 2.0)
-        u, v = b.road_uv(d * math.cos(ac), d * math.sin(ac))
-        if abs(v - lay.v_ego) < lay.lane_width * 0.75 and abs(u) < 8.0:
-            continue
-        phi = abs(math.sin(ac - road_dir))  # 1: the ray crosses the road, 0: it runs along it
-        found = _occluder_for(rng, lay, abs(v), (a1 - a0) * d + 0.2, phi, window is None)
-        if found is None:
-            continue
-        name, parts, label, kind, footprint = found
-        if label != BACKGROUND and abs(v) > lay.lanes * lay.lane_width / 2:  # parking lane: parked in line
-            v = math.copysign(lay.half_width - 1.1 + rng.uniform(-0.15, 0.2), v)
-        if label != BACKGROUND and abs(v) <= lay.lanes * lay.lane_width / 2:
-            yaw = (0.0 if v < 0 or lay.lanes == 1 else math.pi) + rng.normal(0.0, 0.03)
-        else:
-            yaw = float(rng.choice([0.0, math.pi])) + rng.normal(0.0, 0.05)
-        lo, hi = _parts_box(parts)
-        reach = float(hi[0] - lo[0])
-        # Slide along the road: cover a0..a1, keep out of the window.
-        best, best_score = None, -np.inf
-        for du in np.linspace(-1.5 * reach, 1.5 * reach, 21):
-            x, y = b.world_xy(u + du, v)
-            span = _azimuth_span(_footprint_corners(x, y, road_dir + yaw, lo, hi), ac)
-            cover = max(0.0, min(span[1], a1) - max(span[0], a0)) / (a1 - a0)
-            spill = 0.0 if window is None else max(0.0, min(span[1], window[1]) - max(span[0], window[0])) / max(
-                window[1] - window[0], 1e-6)
-            score = cover - 1.5 * spill - 0.05 * abs(du) / max(reach, 1e-6)
-            if score > best_score:
-                best, best_score = du, score
-        if best_score < 0.25:
-            continue
-        if b.place(parts, u + best, v, yaw, label, kind, footprint=footprint, model=name,
-                   veg=name in ("car_bush", "low_hedge", "hedge_fragment", "tree")):
-            return True
-    return False
 
 
 def _distance_u(rng: np.random.Generator) -> float:
@@ -649,18 +366,18 @@ def _add_vehicles(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, st
         occupancy = rng.uniform(0.2, 0.7)  # KITTI: ~4 labelled cars in the front 90 deg of a frame, not 6-7
         u = -60.0 + rng.uniform(0, 5)
         while u < 70.0:
-            kind, parts = _draw_vehicle(rng, 0.1, 0.03)
+            kind, parts = draw_vehicle(rng, 0.1, 0.03)
             length = max(abs(p.center[0]) + part_extent(p)[0] for p in parts) * 2
-            if rng.random() < occupancy and not _in_cross(lay, u + length / 2, length / 2 + 1.0):
+            if rng.random() < occupancy and not in_cross(lay, u + length / 2, length / 2 + 1.0):
                 flip = math.pi if rng.random() < 0.15 else 0.0
                 v = side * (lay.half_width - 1.1 + rng.uniform(-0.15, 0.2))
-                b.place(parts, u + length / 2, v, flip + rng.normal(0.0, 0.04), _VEHICLE_LABEL[kind], kind)
+                b.place(parts, u + length / 2, v, flip + rng.normal(0.0, 0.04), VEHICLE_LABEL[kind], kind)
             u += length + (rng.uniform(0.3, 1.5) if rng.random() < 0.7 else rng.uniform(1.5, 4.0))
     if style != "urban" or rng.random() < 0.3:
         _add_parking_lot(b, rng, lay)
     lane_edge = lay.lanes * lay.lane_width / 2
     for _ in range(int(rng.integers(0, 5))):  # moving vehicles, each maybe leading a queue
-        kind, parts = _draw_vehicle(rng, 0.1, 0.05)
+        kind, parts = draw_vehicle(rng, 0.1, 0.05)
         for _attempt in range(6):
             lane = int(rng.integers(0, lay.lanes))
             v = -lane_edge + (lane + 0.5) * lay.lane_width + rng.normal(0.0, 0.2)
@@ -668,15 +385,15 @@ def _add_vehicles(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, st
             if abs(v - lay.v_ego) < lay.lane_width / 2 and abs(u) < 9.0:
                 continue
             heading = 0.0 if v < 0 or lay.lanes == 1 else math.pi
-            if b.place(parts, u, v, heading + rng.normal(0.0, 0.03), _VEHICLE_LABEL[kind], kind):
+            if b.place(parts, u, v, heading + rng.normal(0.0, 0.03), VEHICLE_LABEL[kind], kind):
                 length = max(abs(p.center[0]) + part_extent(p)[0] for p in parts) * 2
                 for _k in range(int(rng.choice(3, p=[0.5, 0.3, 0.2]))):  # a queue behind it, one lane, same way
                     u += math.copysign(length / 2 + rng.uniform(1.5, 5.0), u if u != 0 else 1.0)
-                    kind, parts = _draw_vehicle(rng, 0.08, 0.03)
+                    kind, parts = draw_vehicle(rng, 0.08, 0.03)
                     length = max(abs(p.center[0]) + part_extent(p)[0] for p in parts) * 2
                     u += math.copysign(length / 2, u)
                     b.place(parts, u, v + rng.normal(0.0, 0.15), heading + rng.normal(0.0, 0.03),
-                            _VEHICLE_LABEL[kind], kind)
+                            VEHICLE_LABEL[kind], kind)
                 break
     if lay.cross:
         for _ in range(int(rng.integers(0, 3))):
@@ -686,17 +403,6 @@ def _add_vehicles(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, st
             b.place(parts, u, v, math.pi / 2 * rng.choice([-1.0, 1.0]) + rng.normal(0, 0.05), CAR, "Car")
 
 
-_VEHICLE_LABEL = {"Car": CAR, "Van": BACKGROUND, "Truck": BACKGROUND}
-
-
-def _draw_vehicle(rng: np.random.Generator, p_van: float, p_truck: float) -> tuple[str, list[Part]]:
-    """(KITTI kind, parts) of a car, van or truck drawn with the given shares."""
-    r = rng.random()
-    if r < p_van:
-        return "Van", van_parts(rng)
-    if r < p_van + p_truck:
-        return "Truck", truck_parts(rng)
-    return "Car", car_parts(rng)
 
 
 def _add_parking_lot(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout) -> None:
@@ -707,13 +413,13 @@ def _add_parking_lot(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout)
     for k in range(int(rng.integers(2, 8))):
         if rng.random() > 0.8:
             continue
-        kind, parts = _draw_vehicle(rng, 0.08, 0.0)
+        kind, parts = draw_vehicle(rng, 0.08, 0.0)
         length = max(abs(p.center[0]) + part_extent(p)[0] for p in parts) * 2
         v = side * (lay.half_width + lay.sidewalk + 0.6 + length / 2 + rng.uniform(0.0, 0.5))
         yaw = side * math.pi / 2 + (math.pi if rng.random() < 0.4 else 0.0) + rng.normal(0.0, 0.05)
         uk = u + k * spacing
-        if not _in_cross(lay, uk, 2.0):
-            b.place(parts, uk, v, yaw, _VEHICLE_LABEL[kind], kind)
+        if not in_cross(lay, uk, 2.0):
+            b.place(parts, uk, v, yaw, VEHICLE_LABEL[kind], kind)
 
 
 def _lateral(heading: float, d: float) -> tuple[float, float]:
@@ -838,13 +544,14 @@ def generate_scene(rng: np.random.Generator, without: frozenset[str] = frozenset
 
     `without` leaves world changes out, for an ablation: "clutter" (street and lane clutter), "beside" (clutter
     standing against foreground objects), "hidden" (pedestrians placed behind parked cars and low things),
-    "partial" (occluders in front of cars: cars seen as pieces, `_add_partial_views`), "negatives" (car-sized low
-    and leafy background, fewer thin posts: `_add_hard_negatives`); the rest of the scene is drawn from the same
-    stream, so it differs too (except without "hidden", "partial" or "negatives", drawn from their own; without
-    "negatives" or "partial" the objects placed after them, the hidden pedestrians, may stand elsewhere).
+    "partial" (occluders in front of cars: cars seen as pieces, `occlusion.add_partial_views`), "negatives"
+    (car-sized low and leafy background, fewer thin posts: `hard_negatives.add_hard_negatives`); the rest of the
+    scene is drawn from the same stream, so it differs too (except without "hidden", "partial" or "negatives", drawn
+    from their own; without "negatives" or "partial" the objects placed after them, the hidden pedestrians, may stand
+    elsewhere).
     """
     style = str(rng.choice(["urban", "residential", "open"], p=[0.45, 0.45, 0.1]))
-    lay = _road_layout(rng, style)
+    lay = road_layout(rng, style)
     gp, bumps, waves = _ground_params(rng, lay)
     b = SceneBuilder(gp, bumps, waves)
     # The issue-28 changes draw from streams of their own, so leaving one out keeps the rest of the scene.
@@ -865,9 +572,9 @@ def generate_scene(rng: np.random.Generator, without: frozenset[str] = frozenset
     patches = np.stack([u0, u0 + rng.uniform(2.0, 15.0, n_patches), v0, v0 + rng.uniform(0.4, 3.0, n_patches)], axis=1)
     rho = (float(rng.uniform(0.3, 0.42)), float(rng.uniform(0.42, 0.56)), float(rng.uniform(0.5, 0.65)))
     if negatives:
-        _add_hard_negatives(b, negatives_rng, lay)
+        add_hard_negatives(b, negatives_rng, lay)
     if "partial" not in without:
-        _add_partial_views(b, partial_rng, lay)
+        add_partial_views(b, partial_rng, lay)
     if "hidden" not in without:
-        _add_hidden_pedestrians(b, hidden_rng)
+        add_hidden_pedestrians(b, hidden_rng)
     return b.build(np.array(lines), patches, *rho)

@@ -20,25 +20,19 @@ from typing import TextIO
 import torch
 from rosbags.rosbag2 import ReaderError, WriterError
 
-from pass3d_ros.core.stage1.config import ConfigError
-from pass3d_ros.core.stage2 import ClassifierError
-from pass3d_ros.core.stage2.segmentation import CheckpointError
-from pass3d_ros.data.bag import BagError
-from pass3d_ros.data.outputs import OutputError, describe_os_error, disk_full_error, is_disk_full
-from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
-from pass3d_ros.data.spec import DatasetError
-from pass3d_ros.msgs.pointcloud2 import PointCloud2Error
+from pass3d_ros.data.errors import UserError
+from pass3d_ros.data.outputs import OutputError, error_text, is_disk_full
 
 EXIT_USAGE = 2
 EXIT_SIGINT = 130
 EXIT_SIGTERM = 143
 
 
-# The project's error types for bad input (and rosbags' for unreadable or unwritable bags), plus what the system
-# says about a path the user named: each is the user's to fix. Anything else is a bug and keeps its traceback.
+# The project's user errors (bad input, argument, file or output) and rosbags' for unreadable or unwritable bags,
+# plus what the system says about a path the user named: each is the user's to fix. Anything else is a bug and keeps
+# its traceback.
 USER_ERRORS: tuple[type[BaseException], ...] = (
-    DatasetError, BagError, PointCloud2Error, CheckpointError, ClassifierError, ConfigError, OutputError,
-    ReaderError, WriterError,
+    UserError, ReaderError, WriterError,
     FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError, FileExistsError,
 )
 
@@ -150,33 +144,16 @@ def check_writable(path: str | Path, *, folder: bool, what: str = "output") -> N
     os.unlink(probe)
 
 
-def partial_path(out: Path) -> Path:
-    """The hidden sibling this process builds `out` in (`.NAME.partial-PID`), renamed into place when complete."""
-    return out.with_name(f"{partial_prefix(out)}{os.getpid()}")
-
-
-def remove_stale_partials(out: Path) -> list[Path]:
-    """Delete the `partial_path` siblings of `out` whose process is gone (a killed run), saying so on stderr."""
-    prefix = partial_prefix(out)
-
-    def stale(path: Path) -> bool:
-        pid = path.name[len(prefix):]
-        return pid.isdigit() and process_gone(int(pid))
-
-    return remove_stale(out, stale, lambda text: print(text, file=sys.stderr))
-
-
 def run_tool(
     prog: str,
     work: Callable[[], int],
     *,
     cleanup: Callable[[], None] | None = None,
     interrupted: str | Callable[[], str] = "interrupted",
-    errors: tuple[type[BaseException], ...] = USER_ERRORS,
 ) -> int:
     """Run `work` with the shared signal handling and exit-status mapping; returns the exit status.
 
-    A user error prints `prog: error: MESSAGE` and gives 2; Ctrl-C gives 130 and SIGTERM 143 with
+    A user error (`USER_ERRORS`) prints `prog: error: MESSAGE` and gives 2; Ctrl-C gives 130 and SIGTERM 143 with
     `prog: INTERRUPTED` (a callable is asked for the text then); a full disk is a user error too. `cleanup` runs
     after an error or an interruption (never after success), so an unfinished output never looks complete. Any
     exception raised once a signal came counts as that interruption; other exceptions are bugs and keep their
@@ -199,17 +176,8 @@ def run_tool(
         if status is not None:
             print(f"{prog}: {interrupted() if callable(interrupted) else interrupted}", file=sys.stderr)
             return status
-        if isinstance(exc, errors) or is_disk_full(exc):
+        if isinstance(exc, USER_ERRORS) or is_disk_full(exc):
             print(f"{prog}: error: {error_text(exc)}", file=sys.stderr)
             return EXIT_USAGE
         raise
 
-
-def error_text(exc: BaseException) -> str:
-    """A user error in plain words: a full disk as `PATH: disk full (...)`, a system error as `PATH: problem` without
-    its `[Errno N]`, anything else as its message."""
-    if is_disk_full(exc) and not isinstance(exc, OutputError):
-        return str(disk_full_error(getattr(exc, "filename", None), exc))
-    if isinstance(exc, OSError) and exc.strerror:
-        return describe_os_error(exc)
-    return str(exc)

@@ -32,19 +32,16 @@ from pass3d_ros.core.stage1 import propose
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.data.bag import read_bag
 from pass3d_ros.data.bag_convert import convert
+from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import out_path, refuse_protected, write_text_atomic
-from pass3d_ros.evaluation.bev import frame_picture, output_cluster_ids, write_png
+from pass3d_ros.drawing.bev import frame_picture, output_cluster_ids, write_png
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
-from pass3d_ros.tools.cli import USER_ERRORS, run_tool
+from pass3d_ros.tools.cli import run_tool
 from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 MARKER = ".pass3d_demo"
 OUTPUTS = ("input_bag", "labeled_bag", "bev", "metrics.json")
 BEV_FRAMES = 4
-
-
-class DemoError(ValueError):
-    """The demo cannot run as asked; the message says why."""
 
 
 def choose_classifier(kind: str, weights: str | None) -> tuple[str, str, str]:
@@ -67,13 +64,13 @@ def prepare_out(out: Path, force: bool) -> None:
     it), and a foreign non-empty folder (with --force: one holding an entry the demo would replace)."""
     refuse_protected(out)
     if out.exists() and not out.is_dir():
-        raise DemoError(f"{out} exists and is not a folder")
+        raise UserError(f"{out} exists and is not a folder")
     if out.is_dir() and any(out.iterdir()) and not (out / MARKER).exists():
         if not force:
-            raise DemoError(f"{out} is not empty and was not made by the demo; choose another --out or pass --force")
+            raise UserError(f"{out} is not empty and was not made by the demo; choose another --out or pass --force")
         clash = [name for name in OUTPUTS if (out / name).exists() or (out / name).is_symlink()]
         if clash:
-            raise DemoError(f"{out} was not made by the demo and holds {', '.join(clash)}, which the demo would "
+            raise UserError(f"{out} was not made by the demo and holds {', '.join(clash)}, which the demo would "
                             "replace; --force never does that: choose another --out")
     out.mkdir(parents=True, exist_ok=True)
     for name in OUTPUTS:
@@ -124,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     if args.frames < 1:
-        raise DemoError(f"--frames must be >= 1, got {args.frames}")
+        raise UserError(f"--frames must be >= 1, got {args.frames}")
     kind, weights, note = choose_classifier(args.classifier, args.weights)
     out = out_path(args.out)
     prepare_out(out, args.force)
@@ -202,7 +199,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point: 0 done, 1 frames lost on the way, 2 user error, 130 / 143 interrupted."""
     args = build_parser().parse_args(argv)
-    return run_tool("demo", lambda: run(args), errors=(DemoError, *USER_ERRORS))
+    return run_tool("demo", lambda: run(args))
 
 
 if __name__ == "__main__":

@@ -33,45 +33,8 @@ pass3d_ros/weights/pass3d_lite.pt; or --classifier size_rules, the geometric bas
 torch's CPU threads (default 1: on the 2-core development machine, shared with other work, one thread ran
 the lite network faster than two).
 
-`--json PATH` writes the summary, nested. Full and live runs share the segmentation keys:
-  {"mode": "full" | "live", "frames": N, "data": [specs],
-   "classifier": {"kind", "weights", "device", "threads"},
-   "classes": {"background" | "car" | "pedestrian" | "cyclist": {"precision", "recall", "iou", "points",
-                                                                  "interval"}},
-   "mean_iou": m, "mean_iou_interval": interval (full mode),
-   "ms_per_frame": {"stage1": m, "stage2": m, "total": m}, "config": {Stage1Config}, ...}
-  interval: {"low", "high", "level": 0.9, "resamples": 1000, "skipped", "method": "frame bootstrap", "frames",
-  "degenerate"}: frames drawn with replacement (fixed seed: the same frames give the same interval), their
-  confusion matrices summed per resample, the 5th and 95th percentile of the resampled IoUs. A resample in
-  which a class has no ground-truth and no predicted point has no IoU for it and is skipped (counted in
-  "skipped"; low / high are null when every resample was); one frame gives a degenerate interval (low = high,
-  "degenerate": true), which the table says. The table prints each IoU as "car 76.6 [68.1, 83.0]". Live
-  runs carry the per-class intervals too.
-  full adds "stage1" (as below), "objects": {"min_points": 10, "share": 0.5, "frames_without_instances": n,
-  "classes": {class: {"objects", "found", "recall", "interval"}}} (labelled objects of >= 10 points with at least
-  half their points labelled their class; null when no frame has instance ids; the table's "objects found" line),
-  "background_proposals": {"front_view": n, "called_object": n},
-  "budget": {"max_proposals": N, "proposals_cut": n, "frames_cut": k} (proposals beyond the classifier's
-  max_proposals, the nearest first kept: the cut ones are not classified, their points count as background; the
-  table says "proposals cut by the budget: N in K frame(s)") and "per_frame": [{"frame", "points", "proposals",
-  "proposals_cut", "stage1_ms", "stage2_ms", "total_ms", "iou": {class: iou}, "mean_iou"}]; live adds "bag" (the
-  bag played; null when it was a deleted temporary), "record_out", and "live": {"frames_in", "frames_out", "dropped",
-  "latency_ms": {"median", "mean", "p95", "max"}, "stage_ms", "output_hz", "mismatched", "timeouts", ...}.
-  stage1-only: {"mode": "stage1", "frames": N, "data": [specs],
-   "stage1": {"foreground_recall": r | null, "foreground_points": n,
-              "class_recall": {"car": r | null, "pedestrian": ..., "cyclist": ...},
-              "proposals_per_frame": {"median": m, "mean": m},
-              "ms_per_frame": {"median": m, "mean": m},
-              "ms_per_step": {"ring": m, "ground": m, "clustering": m, "refinement": m, "total": m},
-              "ground": {"precision": p | null, "recall": r | null}, "ground_frames": n},
-   "budget": {"max_proposals", "proposals_cut", "frames_cut"} (what stage 2's default budget would cut),
-   "config": {every Stage1Config parameter}, "per_frame": [{"frame", "points", "proposals", "proposals_cut", "ms",
-   "ring_source", ...}]}
-  view-agreement: {"mode": "view_agreement", "frames": N, "data": [specs], "agreement": {"car" | "pedestrian" |
-   "cyclist": {"proposals", "agreement", "interval"}}, "intensity": {spec: map}, "per_frame": [...]}
-Full and view-agreement runs map each spec's intensities onto the training scale (--no-intensity-match: as read);
-"intensity" says what each spec got.
-A metric without data is null (no ground truth of that kind, no foreground points).
+`--json PATH` writes the summary, nested; docs/evaluate_json.md describes its keys. Full and view-agreement
+runs map each spec's intensities onto the training scale (--no-intensity-match: as read).
 
 --param KEY=VALUE: KEY as the cluster node names it (stage1.sensor) or bare (sensor); VALUE read by the parameter's
 type: a number, true / false, a name without quotes (sensor=pandar64), three numbers (enlarge=0.1,0.1,0.4 or
@@ -89,22 +52,20 @@ import json
 import sys
 from pathlib import Path
 
+from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
+from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import write_text_atomic
-from pass3d_ros.data.spec import DatasetError, resolve_datasets
+from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.evaluation.agreement import evaluate_agreement
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
 from pass3d_ros.evaluation.offline import evaluate_full, evaluate_stage1, iter_frames, parse_params
 from pass3d_ros.evaluation.report import PRINTERS
-from pass3d_ros.tools.cli import USER_ERRORS, check_writable, number, run_tool
-
-
-class EvaluationError(ValueError):
-    """The evaluation cannot run as asked (option combinations); the message says why."""
+from pass3d_ros.tools.cli import check_writable, number, run_tool
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -151,39 +112,46 @@ def build_parser() -> argparse.ArgumentParser:
 def _check_args(args: argparse.Namespace) -> str:
     """The mode of this run, after checking option combinations."""
     if args.limit is not None and args.limit < 1:
-        raise EvaluationError("--limit must be >= 1")
+        raise UserError("--limit must be >= 1")
     if args.threads < 1:
-        raise EvaluationError(f"--threads must be >= 1, got {args.threads}")
+        raise UserError(f"--threads must be >= 1, got {args.threads}")
     if args.max_proposals < 1:
-        raise EvaluationError(f"--max-proposals must be >= 1, got {args.max_proposals}")
+        raise UserError(f"--max-proposals must be >= 1, got {args.max_proposals}")
     mode = "live" if args.live else "stage1" if args.stage1_only else "view_agreement" if args.view_agreement \
         else "full"
     live_only = [name for name, given in (("--lockstep", args.lockstep), ("--record-out", args.record_out),
                                           ("--rate", args.rate != 1.0), ("--timeout", args.timeout != 30.0),
                                           ("--force", args.force)) if given]
     if mode != "live" and live_only:
-        raise EvaluationError(f"{', '.join(live_only)} only apply with --live")
+        raise UserError(f"{', '.join(live_only)} only apply with --live")
     if mode == "live" and args.max_proposals != DEFAULT_MAX_PROPOSALS:
-        raise EvaluationError("--max-proposals does not apply with --live (the node's parameter max_proposals)")
+        raise UserError("--max-proposals does not apply with --live (the node's parameter max_proposals)")
     if mode == "live" and args.intensity_match != INTENSITY_MATCH:
-        raise EvaluationError("--no-intensity-match does not apply with --live (the node's parameter intensity_match)")
+        raise UserError("--no-intensity-match does not apply with --live (the node's parameter intensity_match)")
     if mode == "live" and args.limit is not None:
-        raise EvaluationError("--limit does not apply with --live (choose the frames in the spec or bag)")
+        raise UserError("--limit does not apply with --live (choose the frames in the spec or bag)")
     if mode == "stage1" and (args.classifier or args.weights):
-        raise EvaluationError("--classifier and --weights do not apply with --stage1-only")
+        raise UserError("--classifier and --weights do not apply with --stage1-only")
     if mode == "view_agreement" and args.classifier == "size_rules":
-        raise EvaluationError("--view-agreement needs the network classifier (size_rules has no views)")
+        raise UserError("--view-agreement needs the network classifier (size_rules has no views)")
     return mode
 
 
 def run(args: argparse.Namespace) -> tuple[str, dict, int]:
-    """Evaluate as `args` ask: (mode, summary, exit status)."""
+    """Evaluate as `args` ask: (mode, summary ending with the stage-1 config it ran with, exit status)."""
     datasets = resolve_datasets(args.data)
     mode = _check_args(args)
     config = parse_params(args.param)
+    summary, status = _evaluate_mode(args, mode, datasets, config)
+    return mode, {**summary, "config": config.to_dict()}, status
+
+
+def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset], config: Stage1Config
+                   ) -> tuple[dict, int]:
+    """The summary of `mode` on `datasets` with stage-1 `config`, and the exit status."""
     if mode == "stage1":
         frames = iter_frames(datasets, args.limit, not args.no_progress)
-        return mode, evaluate_stage1(frames, config, args.max_proposals), 0
+        return evaluate_stage1(frames, config, args.max_proposals), 0
     limit_threads(args.threads)
     classifier = open_classifier(args.weights, args.classifier, device=args.device,
                                  max_proposals=args.max_proposals)  # --live: checked before the run
@@ -191,10 +159,10 @@ def run(args: argparse.Namespace) -> tuple[str, dict, int]:
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
     if mode == "full":
         frames = iter_frames(datasets, args.limit, not args.no_progress)
-        return mode, {**evaluate_full(frames, config, classifier, args.intensity_match), **settings}, 0
+        return {**evaluate_full(frames, config, classifier, args.intensity_match), **settings}, 0
     if mode == "view_agreement":
         frames = iter_frames(datasets, args.limit, not args.no_progress)
-        return mode, {**evaluate_agreement(frames, config, classifier, args.intensity_match), **settings}, 0
+        return {**evaluate_agreement(frames, config, classifier, args.intensity_match), **settings}, 0
     options = LiveOptions(lockstep=args.lockstep, rate=args.rate, record_out=args.record_out, timeout_s=args.timeout,
                           keep_labels=False, force=args.force, log_level="warn", progress=not args.no_progress)
     summary, result = evaluate_live(datasets, config, kind, weights, args.device, options)
@@ -204,13 +172,13 @@ def run(args: argparse.Namespace) -> tuple[str, dict, int]:
         print(f"pass3d_evaluate: warning: {lost} of {result.frames_in} frames did not come back complete",
               file=sys.stderr)
         status = 1
-    return mode, {**summary, **settings}, status
+    return {**summary, **settings}, status
 
 
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: 0 done, 1 frames lost on a live run, 2 user error, 130 / 143 interrupted."""
     args = build_parser().parse_args(argv)
-    return run_tool("pass3d_evaluate", lambda: _evaluate(args), errors=(EvaluationError, *USER_ERRORS))
+    return run_tool("pass3d_evaluate", lambda: _evaluate(args))
 
 
 def _evaluate(args: argparse.Namespace) -> int:
@@ -225,8 +193,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     frames_seen = summary["live"]["frames_in"] if mode == "live" else summary["frames"]
     if frames_seen == 0:
         raise DatasetError(f"no frames in {', '.join(args.data)}")
-    summary = {"mode": mode, "frames": summary["frames"], "data": list(args.data), **summary,
-               "config": parse_params(args.param).to_dict()}
+    summary = {"mode": mode, "frames": summary["frames"], "data": list(args.data), **summary}
     print(PRINTERS[mode](summary, per_frame=args.per_frame))
     if args.json:
         write_text_atomic(args.json, json.dumps(summary, indent=2) + "\n")

@@ -29,6 +29,7 @@ from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stage2.segmentation import Segmenter
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
+from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import (
     check_force,
@@ -40,17 +41,14 @@ from pass3d_ros.data.outputs import (
     write_marker,
     writing,
 )
+from pass3d_ros.data.partials import partial_path, remove_stale_partials
 from pass3d_ros.data.semantickitti import write_semantickitti_frame
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
 from pass3d_ros.evaluation.offline import iter_frames, parse_params
-from pass3d_ros.tools.cli import USER_ERRORS, check_writable, number, partial_path, remove_stale_partials, run_tool
+from pass3d_ros.tools.cli import check_writable, number, run_tool
 from pass3d_ros.training.pseudo_labels import DEFAULT_MIN_CONFIDENCE, PseudoLabelStats, pseudo_label_frames
 
 PROG = "pass3d_pseudo_label"
-
-
-class PseudoLabelError(ValueError):
-    """The command cannot run as asked; the message says why."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -80,7 +78,7 @@ def _numbered(frames: Iterator[Frame]) -> Iterator[Frame]:
 
 def _run(args: argparse.Namespace) -> int:
     if args.threads < 1:
-        raise PseudoLabelError(f"--threads must be >= 1, got {args.threads}")
+        raise UserError(f"--threads must be >= 1, got {args.threads}")
     given = out_path(args.out)
     datasets = resolve_datasets(args.data)
     inputs = dataset_paths(datasets)
@@ -88,14 +86,14 @@ def _run(args: argparse.Namespace) -> int:
     out = given.resolve()
     if out.exists() or out.is_symlink():
         if not args.force:
-            raise PseudoLabelError(f"--out {args.out} exists; --force replaces it")
+            raise UserError(f"--out {args.out} exists; --force replaces it")
         check_force(out, ours=has_marker, kind="a pseudo-label folder", inputs=inputs)
     config = parse_params(args.param)
     check_writable(out, folder=True, what="--out folder")
     limit_threads(args.threads)
     segmenter = open_classifier(args.weights, "network")
     if not isinstance(segmenter, Segmenter):
-        raise PseudoLabelError("pseudo-labels need the network classifier")
+        raise UserError("pseudo-labels need the network classifier")
     segmenter.warm_up()
     remove_stale_partials(out)
     build = partial_path(out)
@@ -126,7 +124,7 @@ def _run(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Console entry point."""
     args = build_parser().parse_args(argv)
-    return run_tool(PROG, lambda: _run(args), errors=(PseudoLabelError, *USER_ERRORS))
+    return run_tool(PROG, lambda: _run(args))
 
 
 if __name__ == "__main__":

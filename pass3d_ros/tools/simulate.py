@@ -28,6 +28,7 @@ from tqdm import tqdm
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.kitti_object import write_kitti_object_frame
 from pass3d_ros.data.outputs import (
+    OutputError,
     check_force,
     has_marker,
     merge_into,
@@ -36,10 +37,11 @@ from pass3d_ros.data.outputs import (
     write_marker,
     writing,
 )
+from pass3d_ros.data.partials import partial_path, remove_stale_partials
 from pass3d_ros.data.semantickitti import write_semantickitti_frame
-from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
+from pass3d_ros.data.spec import Dataset, resolve_datasets
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
-from pass3d_ros.tools.cli import check_writable, partial_path, remove_stale_partials, run_tool
+from pass3d_ros.tools.cli import check_writable, run_tool
 
 WRITERS: dict[str, Callable[[Path, Frame], None]] = {
     "semantickitti": write_semantickitti_frame,
@@ -81,7 +83,7 @@ def generate(args: argparse.Namespace) -> int:
     check_writable(out, folder=True, what="--out folder")
     if out.is_dir() and any(out.iterdir()):
         if not args.force:
-            raise DatasetError(f"{out}: folder is not empty (use --force to write into it)")
+            raise OutputError(f"{out}: folder is not empty (use --force to write into it)")
         check_force(out, ours=has_marker, kind="a folder of pass3d_simulate")
     write = WRITERS[args.format]
     frames = 10 if args.frames is None else args.frames

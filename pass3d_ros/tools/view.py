@@ -20,17 +20,15 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from pass3d_ros.data.bag import TYPESTORE, BagFile, LabelSource, is_output_cloud, read_bag
+from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.outputs import check_force, dataset_paths, out_path, refuse_protected, writing
+from pass3d_ros.data.outputs import OutputError, check_force, dataset_paths, out_path, refuse_protected, writing
+from pass3d_ros.data.partials import partial_path, remove_stale_partials
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.msgs.pointcloud2 import decode
-from pass3d_ros.tools.cli import USER_ERRORS, check_writable, partial_path, remove_stale_partials, run_tool
+from pass3d_ros.tools.cli import check_writable, run_tool
 
 RRD_MAGIC = b"RRF"  # the first bytes of every rerun recording file
-
-
-class ViewError(ValueError):
-    """The recording cannot be made as asked (an existing --out, no viewer to spawn); the message says why."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -78,11 +76,11 @@ def _view(args: argparse.Namespace) -> int:
     try:
         import rerun as rr
     except ImportError:
-        raise DatasetError("pass3d_view needs rerun-sdk: pip install rerun-sdk") from None
-    from pass3d_ros.evaluation.view import log_frame
+        raise UserError("pass3d_view needs rerun-sdk: pip install rerun-sdk") from None
+    from pass3d_ros.drawing.view import log_frame
 
     if args.limit is not None and args.limit < 1:
-        raise DatasetError("--limit must be >= 1")
+        raise UserError("--limit must be >= 1")
     datasets = resolve_datasets(args.data)
     recording = rr.RecordingStream("pass3d_view")
     partial = None
@@ -92,7 +90,7 @@ def _view(args: argparse.Namespace) -> int:
         check_writable(args.out, folder=False, what="the recording")
         if args.out.exists() or args.out.is_symlink():
             if not args.force:
-                raise ViewError(f"{args.out} exists; pass --force to replace it")
+                raise UserError(f"{args.out} exists; pass --force to replace it")
             check_force(args.out, ours=is_recording, kind="a rerun recording", inputs=dataset_paths(datasets))
         args.out.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_partials(args.out)
@@ -100,14 +98,14 @@ def _view(args: argparse.Namespace) -> int:
         try:
             recording.save(partial)
         except RuntimeError as exc:  # rerun reports file errors as RuntimeError
-            raise DatasetError(f"{args.out}: cannot write the recording ({exc})") from None
+            raise OutputError(f"{args.out}: cannot write the recording ({exc})") from None
     else:
         if args.force:
-            raise ViewError("--force applies to --out only")
+            raise UserError("--force applies to --out only")
         try:
             recording.spawn()
         except RuntimeError as exc:  # rerun: "Failed to find Rerun Viewer executable in PATH."
-            raise ViewError(f"cannot start the rerun viewer ({str(exc).splitlines()[0]}); install it "
+            raise UserError(f"cannot start the rerun viewer ({str(exc).splitlines()[0]}); install it "
                             "(pip install rerun-sdk puts `rerun` on PATH) or write a recording with --out") from None
     try:
         count = 0
@@ -130,7 +128,7 @@ def _view(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: 0 done, 2 user error, 130 / 143 interrupted."""
     args = build_parser().parse_args(argv)
-    return run_tool("pass3d_view", lambda: _view(args), errors=(ViewError, *USER_ERRORS))
+    return run_tool("pass3d_view", lambda: _view(args))
 
 
 if __name__ == "__main__":

@@ -41,6 +41,7 @@ from pass3d_ros.core.stage2.segmentation import (
     make_checkpoint,
     read_checkpoint,
 )
+from pass3d_ros.data.errors import Pass3dError, UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_datasets, open_datasets_shard, resolve_datasets
 from pass3d_ros.training import consistency as view_consistency  # `consistency` is a TrainOptions field
@@ -61,11 +62,11 @@ from pass3d_ros.training.validation import format_scores, validate
 FrameSource = Callable[[list[str]], Iterable[Frame]]
 
 
-class TrainingError(RuntimeError):
+class TrainingError(Pass3dError, RuntimeError):
     """A run that cannot go on: no proposals to train on, or a checkpoint to resume from that does not fit."""
 
 
-class DivergedError(TrainingError):
+class DivergedError(TrainingError, UserError):
     """The loss or the weights stopped being finite (too high a learning rate, mostly); no checkpoint of it is kept."""
 
 

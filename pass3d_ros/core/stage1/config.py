@@ -14,9 +14,10 @@ from typing import Any
 import numpy as np
 
 from pass3d_ros.core.stage1.lasers import SENSORS
+from pass3d_ros.data.errors import UserError
 
 
-class ConfigError(ValueError):
+class ConfigError(UserError):
     """A parameter or option value the user gave is invalid (out of range, unknown, malformed); the message names it."""
 
 
@@ -220,7 +221,7 @@ class Stage1Config:
 
 # ------------------------------------------------------------------------------ KEY=VALUE text (tools' --param)
 
-PREFIX = "stage1."  # the ROS parameters' namespace of these fields; `--param` takes a key with or without it
+STAGE1_PREFIX = "stage1."  # the ROS parameters' namespace of these fields; `--param` takes a key with or without it
 
 _TRUE, _FALSE = ("true", "yes", "on"), ("false", "no", "off")
 
@@ -229,11 +230,11 @@ def field_name(key: str) -> str:
     """A Stage1Config field name from a `--param` key: `th_dist` or, as the node names it, `stage1.th_dist`;
     ConfigError naming the nearest known key when there is no such field."""
     key = key.strip()
-    name = key[len(PREFIX):] if key.startswith(PREFIX) else key
+    name = key[len(STAGE1_PREFIX):] if key.startswith(STAGE1_PREFIX) else key
     known = {f.name: f for f in fields(Stage1Config)}
     if name not in known:
         near = closest(name, known)
-        prefix = PREFIX if key.startswith(PREFIX) else ""
+        prefix = STAGE1_PREFIX if key.startswith(STAGE1_PREFIX) else ""
         raise ConfigError(f"Stage1Config: unknown parameter(s) {key}"
                           + (f" (did you mean {prefix}{near}?)" if near else ""))
     return name

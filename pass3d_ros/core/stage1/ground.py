@@ -469,37 +469,6 @@ def _local_offsets(hist: np.ndarray, origin: float, xy: np.ndarray, radius: floa
                 out[q] = total / weight
                 break
     return out
-    counts = np.empty(n_bins, dtype=np.int64)
-    below_bins = int((LOCAL_BAND_M - band) / LOCAL_BIN_M) - 1  # pairs from these on reach the plane's ground band
-    for q in range(m):
-        x = xy[q, 0]
-        y = xy[q, 1]
-        half = radius + LOCAL_GROWTH * np.hypot(x, y)
-        i0 = min(max(int(np.floor((x - half - origin) / LOCAL_CELL_M)), 0), n_cells)
-        i1 = min(max(int(np.floor((x + half - origin) / LOCAL_CELL_M)) + 1, 0), n_cells)
-        j0 = min(max(int(np.floor((y - half - origin) / LOCAL_CELL_M)), 0), n_cells)
-        j1 = min(max(int(np.floor((y + half - origin) / LOCAL_CELL_M)) + 1, 0), n_cells)
-        if i1 <= i0 or j1 <= j0:
-            continue
-        best = 0
-        counts[:] = 0
-        for i in range(i0, i1):
-            for j in range(j0, j1):
-                for b in range(n_bins):
-                    counts[b] += hist[i, j, b]
-        for b in range(n_bins - 1):
-            best = max(best, counts[b] + counts[b + 1])
-        below = max(min_points, LOCAL_SHARE * best)  # bins under the plane's ground band: stray returns
-        for b in range(n_bins - 1):
-            if counts[b] + counts[b + 1] >= (below if b < below_bins else min_points):
-                total = 0.0
-                weight = 0.0
-                for t in range(b, min(b + 3, n_bins)):
-                    total += counts[t] * ((t + 0.5) * LOCAL_BIN_M - LOCAL_BAND_M)
-                    weight += counts[t]
-                out[q] = total / weight
-                break
-    return out
 
 
 def warm_up() -> None:

@@ -15,13 +15,16 @@ dropped; a low structure with nothing above `max_top` is never examined.
 
 Off by default (Stage1Config.split_protruding): on the six real KITTI dev frames it added 142 proposals (24 a frame,
 none holding a road user: lower facade pieces, bushes, clutter before walls) and about 20 ms of stage 1 a frame,
-for no recall there; on synthetic scans and the other real sensors it raised pedestrian recall (docs/experiments.md).
+for no recall there; on synthetic scans and the other real sensors it raised pedestrian recall
+(docs/experiments/stage1-issue-27.md).
 """
 
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
+
+from pass3d_ros.core.stage1.refinement import grouped_by_slot
 
 CELL_M = 0.1  # x-y cell of the footprints
 PROTRUSION_M = 0.2  # a point this far (x-y) from every point above max_top protrudes
@@ -45,22 +48,7 @@ def _protrusion_kernel(pts: np.ndarray, label: np.ndarray, height: np.ndarray, s
                        max_cells: int, max_width: float, window: int) -> tuple:
     """New labels (each protruding part of an examined cluster gets a new id from n_clusters on), the new cluster
     count, and how many clusters gave parts. Cluster c is examined when slot[c] >= 0."""
-    n = pts.shape[0]
-    # the examined clusters' points, grouped by slot
-    count = np.zeros(n_slots + 1, dtype=np.int64)
-    for i in range(n):
-        c = label[i]
-        if c >= 0 and slot[c] >= 0:
-            count[slot[c] + 1] += 1
-    for t in range(n_slots):
-        count[t + 1] += count[t]
-    fill = count[:n_slots].copy()
-    members = np.empty(count[n_slots], dtype=np.int64)
-    for i in range(n):
-        c = label[i]
-        if c >= 0 and slot[c] >= 0:
-            members[fill[slot[c]]] = i
-            fill[slot[c]] += 1
+    members, count = grouped_by_slot(label, slot, n_slots)  # the examined clusters' points
     out = label.copy()
     next_id = n_clusters
     n_cut = 0

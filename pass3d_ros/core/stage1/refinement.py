@@ -188,6 +188,27 @@ def min_area_rectangle(xy: np.ndarray) -> tuple[float, float, float, float, floa
 
 
 @nb.njit(cache=True, nogil=True)
+def grouped_by_slot(label: np.ndarray, slot: np.ndarray, n_slots: int) -> tuple[np.ndarray, np.ndarray]:
+    """The points of the clusters that have a slot (slot[cluster] >= 0), grouped by slot in point order (a counting
+    sort), and the n_slots + 1 bounds of the groups."""
+    bounds = np.zeros(n_slots + 1, dtype=np.int64)
+    for i in range(label.shape[0]):
+        c = label[i]
+        if c >= 0 and slot[c] >= 0:
+            bounds[slot[c] + 1] += 1
+    for t in range(n_slots):
+        bounds[t + 1] += bounds[t]
+    fill = bounds[:n_slots].copy()
+    members = np.empty(bounds[n_slots], dtype=np.int64)
+    for i in range(label.shape[0]):
+        c = label[i]
+        if c >= 0 and slot[c] >= 0:
+            members[fill[slot[c]]] = i
+            fill[slot[c]] += 1
+    return members, bounds
+
+
+@nb.njit(cache=True, nogil=True)
 def _cluster_rects(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -> np.ndarray:
     """Minimal-area rectangle (cx, cy, length, width, yaw) of each candidate cluster (rows in candidate order)."""
     n_clusters = label.max() + 1 if label.shape[0] > 0 else 0
@@ -195,23 +216,12 @@ def _cluster_rects(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -
     for t in range(candidates.shape[0]):
         slot[candidates[t]] = t
     k = candidates.shape[0]
-    start = np.zeros(k + 1, dtype=np.int64)
-    for i in range(pts.shape[0]):
-        c = label[i]
-        if c >= 0 and slot[c] >= 0:
-            start[slot[c] + 1] += 1
-    for t in range(k):
-        start[t + 1] += start[t]
-    fill = start[:k].copy()
+    members, start = grouped_by_slot(label, slot, k)
     xs = np.empty(start[k])
     ys = np.empty(start[k])
-    for i in range(pts.shape[0]):
-        c = label[i]
-        if c >= 0 and slot[c] >= 0:
-            t = slot[c]
-            xs[fill[t]] = pts[i, 0]
-            ys[fill[t]] = pts[i, 1]
-            fill[t] += 1
+    for j in range(start[k]):
+        xs[j] = pts[members[j], 0]
+        ys[j] = pts[members[j], 1]
     out = np.zeros((k, 5))
     for t in range(k):
         if start[t + 1] > start[t]:

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pass3d_ros.data.errors import Pass3dError
+
 RING_CONVENTIONS: tuple[str, ...] = ("top_down", "bottom_up", "driver_order", "unfit")
 MIN_RANGE_M = 2.0  # nearer returns (the vehicle, the mount) are left out of a ring's elevation
 MIN_RING_POINTS = 3  # a ring value needs this many returns beyond MIN_RANGE_M, else all of its points are read
@@ -58,7 +60,7 @@ class RingFieldOrder:
         return mapped.astype(np.uint16)
 
 
-class UnmeasuredRingError(Exception):
+class UnmeasuredRingError(Pass3dError):
     """A ring field value the held order never saw: the order is measured again."""
 
 

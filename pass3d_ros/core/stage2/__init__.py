@@ -14,13 +14,14 @@ import torch
 
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, SegmentResult
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
+from pass3d_ros.data.errors import UserError
 from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 CLASSIFIERS: tuple[str, ...] = ("network", "size_rules")
 DEFAULT_CLASSIFIER = "network"
 
 
-class ClassifierError(ValueError):
+class ClassifierError(UserError):
     """A classifier cannot be chosen or loaded as asked (kind, weights); the message says why."""
 
 

@@ -23,6 +23,7 @@ import torch
 from pass3d_ros.classes import BACKGROUND, CLASS_NAMES
 from pass3d_ros.core.stage2 import canonical, pointnet2_cpu
 from pass3d_ros.core.stage2.pointnet2 import ModelConfig, PointNet2Seg, flush_subnormals, fuse_batchnorm
+from pass3d_ros.data.errors import UserError
 
 CHECKPOINT_FORMAT = "pass3d_stage2"
 CHECKPOINT_VERSION = 1
@@ -35,7 +36,7 @@ BLOCK = 128
 DEFAULT_MAX_PROPOSALS = 128
 
 
-class CheckpointError(ValueError):
+class CheckpointError(UserError):
     """A stage-2 checkpoint is missing, unreadable or does not fit this code; the message names file and problem."""
 
 

@@ -20,7 +20,7 @@ import numpy as np
 from pass3d_ros.classes import BACKGROUND, CLASS_COLORS_RGB, CLASS_NAMES, FOREGROUND, NUM_CLASSES
 from pass3d_ros.core.stage2.canonical import fit_box_members, vertices
 from pass3d_ros.data.bag import TYPESTORE, iter_raw, parse_bag_spec, select_topic
-from pass3d_ros.evaluation.bev_font import draw_text, text_size
+from pass3d_ros.drawing.font import draw_text, text_size
 from pass3d_ros.msgs.pointcloud2 import decode
 
 EXTENT_M = 40.0  # half the side of a panel in metres

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pass3d_ros.ros.scan_checks import intensity_divisor
+from pass3d_ros.core.scan_checks import intensity_divisor
 
 HIGH_QUANTILE = 99.9  # a scan's "brightest" return: a handful of outliers above it do not count
 SAMPLE_STRIDE = 4  # the quantile reads every 4th point: 30k of a 120k-point scan, a fraction of a millisecond

@@ -1,0 +1,45 @@
+"""One stream state for every path: the input checks a live scan passes (absurd points left out, intensities read
+as 0..1 on the stream's held scale, a ring field past the lasers not read) apply offline too."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pass3d_ros.core.stage1 import Stage1Config, synthetic_scan
+from pass3d_ros.core.stream import ScanStream
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.evaluation.offline import evaluate_stage1
+
+
+def test_prepare_repairs_a_scan_and_says_what_it_did() -> None:
+    stream = ScanStream()
+    pts = synthetic_scan(n_rings=16, points_per_ring=90)
+    pts[:, 3] = np.linspace(0.0, 1.0, len(pts))
+    bright = pts.copy()
+    bright[:, 3] *= 255.0
+    bright[0, :3] = [np.inf, 0.0, 0.0]
+    ring = np.repeat(np.arange(16), 90).astype(np.uint16)
+    scan = stream.prepare(bright, ring, Stage1Config(sensor="vlp16"))
+    assert len(scan.points) == len(pts) - 1 and scan.kept[0] == 1
+    np.testing.assert_allclose(scan.points[:, 3], pts[1:, 3], atol=1e-6)
+    assert bright[5, 3] == pts[5, 3] * np.float32(255.0), "the caller's array is left as it was"
+    assert {note.topic for note in scan.notes} == {"x/y/z", "intensity-scale"}
+    np.testing.assert_array_equal(scan.ring, ring[1:])
+    wide = stream.prepare(pts, (ring * 2).astype(np.uint16), Stage1Config(sensor="vlp16"))
+    assert wide.ring is None and wide.field is not None and any(n.topic == "ring" for n in wide.notes)
+    assert stream.first_notes(scan) == [n.text for n in scan.notes]
+    assert stream.first_notes(scan) == []
+
+
+def test_offline_stage1_reads_a_0_255_stream_as_the_node_does(capsys) -> None:
+    pts = synthetic_scan()
+    pts[:, 3] = np.linspace(0.0, 1.0, len(pts))
+    bright = pts.copy()
+    bright[:, 3] *= 255.0
+    labels = np.zeros(len(pts), np.uint8)
+    unit = evaluate_stage1(iter([("a", Frame("0", pts, labels=labels))]), Stage1Config())
+    scaled = evaluate_stage1(iter([("b", Frame("0", bright, labels=labels))]), Stage1Config())
+    assert unit["per_frame"][0]["proposals"] == scaled["per_frame"][0]["proposals"]
+    err = capsys.readouterr().err
+    assert "b: intensity: values 0..255 after intensity_scale 1, expected 0..1; divided by 255" in err
+    assert "a: " not in err
