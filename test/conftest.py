@@ -27,7 +27,7 @@ from pass3d_ros.core.stage2 import pointnet2
 from pass3d_ros.core.stage2.segmentation import Segmenter, make_checkpoint
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.synthetic.dataset import generate_frame
-from pass3d_ros.weights import default_weights
+from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 ROS_TEST_MODULES = ["test_nodes.py", "test_evaluate.py", "test_recording.py", "test_node_input.py",
@@ -117,7 +117,7 @@ def proposal_columns(frame: Frame) -> dict[str, np.ndarray]:
 @pytest.fixture(scope="session")
 def shipped() -> Segmenter:
     """The shipped `lite` weights, loaded once."""
-    return Segmenter(default_weights())
+    return Segmenter(DEFAULT_WEIGHTS)
 
 
 @pytest.fixture(scope="module")

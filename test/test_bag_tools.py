@@ -450,19 +450,3 @@ def test_no_progress_bar_when_stderr_is_not_a_terminal(tmp_path: Path, capsys: p
     assert kitti2bag.main([f"--data=semantickitti:{seq}", f"--out={tmp_path / 'bag'}"]) == 0
     err = capsys.readouterr().err
     assert "\r" not in err and "frame/s" not in err and "it/s" not in err, f"a bar was drawn into a pipe: {err!r}"
-
-
-def test_show_progress_follows_the_terminal_and_no_progress() -> None:
-    import io
-
-    from pass3d_ros.tools.cli import show_progress
-
-    class Terminal(io.StringIO):
-        def isatty(self) -> bool:
-            return True
-
-    closed = io.StringIO()
-    closed.close()
-    assert show_progress(stream=Terminal()) is True
-    assert show_progress(True, stream=Terminal()) is False, "--no-progress wins"
-    assert show_progress(stream=io.StringIO()) is False and show_progress(stream=closed) is False

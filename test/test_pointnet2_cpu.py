@@ -25,7 +25,7 @@ from pass3d_ros.core.stage2.segmentation import (
     prepare_proposals,
     scatter_predictions,
 )
-from pass3d_ros.weights import default_weights
+from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 
 def clouds(seed: int) -> torch.Tensor:
@@ -151,7 +151,7 @@ def test_pool_applies_bias_and_relu_after_the_max():
 
 @pytest.mark.parametrize("fuse", [True, False])
 def test_segmenter_labels_equal_the_torch_reference(fuse):
-    segmenter = Segmenter(default_weights(), fuse=fuse)
+    segmenter = Segmenter(DEFAULT_WEIGHTS, fuse=fuse)
     for seed in (0, 1):
         points, members = constructed_frame(12, seed, min_points=5, max_points=1500, background=2000)
         result = segmenter.segment(points, members)

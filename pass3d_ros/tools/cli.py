@@ -15,7 +15,6 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
-from typing import TextIO
 
 import torch
 from rosbags.rosbag2 import ReaderError, WriterError
@@ -102,18 +101,6 @@ def torch_device(text: str) -> str:
         raise argparse.ArgumentTypeError(f"{text!r}: no such CUDA device here (torch {torch.__version__} {build}); "
                                          "use cpu")
     return text
-
-
-def show_progress(no_progress: bool = False, stream: TextIO | None = None) -> bool:
-    """Whether a tool draws progress bars: not with --no-progress, and only when `stream` (default stderr,
-    where tqdm draws) is a terminal, so logs and pipes get no bar debris."""
-    if no_progress:
-        return False
-    stream = sys.stderr if stream is None else stream
-    try:
-        return stream.isatty()
-    except (AttributeError, ValueError):  # no isatty, or a closed stream
-        return False
 
 
 def check_writable(path: str | Path, *, folder: bool, what: str = "output") -> None:
