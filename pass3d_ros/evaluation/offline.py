@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,8 +20,9 @@ from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
 from pass3d_ros.core.stage1.config import ConfigError, config_from_text
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, proposals_cut
+from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, proposals_cut
 from pass3d_ros.core.stream import PreparedScan, ScanStream
+from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 
@@ -184,3 +185,36 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     summary["intensity"] = maps
     summary["per_frame"] = segmentation.per_frame
     return summary
+
+
+def spread(values: list[float | None]) -> dict:
+    """{"iou": the values as given, "mean", "min", "max"} over those that are not None (all None: null)."""
+    known = [v for v in values if v is not None]
+    if not known:
+        return {"iou": list(values), "mean": None, "min": None, "max": None}
+    return {"iou": list(values), "mean": float(np.mean(known)), "min": float(min(known)), "max": float(max(known))}
+
+
+def evaluate_draws(frames: Callable[[], Iterator[tuple[str, Frame]]], config: Stage1Config, classifier: Classifier,
+                   draws: int, intensity_match: bool = INTENSITY_MATCH) -> dict:
+    """`evaluate_full` once per N-point sample draw 0..draws-1 (canonical.inference_rng; `frames()` yields the
+    frames afresh each time): draw 0's summary, plus "draws": {"count", "classes": {class: spread}, "mean_iou":
+    spread} with each draw's IoU. Needs the in-process network classifier (UserError otherwise)."""
+    if draws < 1:
+        raise UserError(f"--sample-draws must be >= 1, got {draws}")
+    if not isinstance(classifier, Segmenter):
+        raise UserError(f"--sample-draws needs the in-process network classifier, not {classifier.kind}")
+    summaries = []
+    try:
+        for draw in range(draws):
+            classifier.draw = draw
+            summaries.append(evaluate_full(frames(), config, classifier, intensity_match))
+    finally:
+        classifier.draw = 0
+    first = summaries[0]
+    first["draws"] = {
+        "count": draws,
+        "classes": {name: spread([s["classes"][name]["iou"] for s in summaries]) for name in first["classes"]},
+        "mean_iou": spread([s["mean_iou"] for s in summaries]),
+    }
+    return first

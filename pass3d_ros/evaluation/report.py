@@ -142,6 +142,7 @@ def format_full(summary: dict, per_frame: bool = False) -> str:
                      f"{background['front_view']}")
     lines += _budget_line(summary.get("budget"))
     lines += [f"intensity of {spec}: {text}" for spec, text in (summary.get("intensity") or {}).items()]
+    lines += format_draws(summary.get("draws"))
     if per_frame:
         lines.append("")
         lines.append(f"  {'frame':<48} {'points':>7} {'props':>5} {'s1 ms':>7} {'s2 ms':>7} {'mIoU':>6}")
@@ -149,6 +150,27 @@ def format_full(summary: dict, per_frame: bool = False) -> str:
             lines.append(f"  {row['frame'][-48:]:<48} {row['points']:>7} {row['proposals']:>5} "
                          f"{row['stage1_ms']:>7.1f} {row['stage2_ms']:>7.1f} {_fmt(row['mean_iou']):>6}")
     return "\n".join(lines)
+
+
+def _draw_row(name: str, row: dict) -> str:
+    """One line of the draws table: each draw's IoU, their mean and min..max, in %."""
+    each = " ".join(f"{percent_text(v):>6}" for v in row["iou"])
+    span = "n/a" if row["min"] is None else f"{percent_text(row['min']).strip()}..{percent_text(row['max']).strip()}"
+    return f"{name:<12}{each}  {percent_text(row['mean']):>6}  {span}"
+
+
+def format_draws(draws: dict | None) -> list[str]:
+    """Table lines of the "draws" section: per class (and the mean IoU) the IoU % of each N-point sample draw,
+    their mean and the draw-to-draw range; none without draws."""
+    if not draws:
+        return []
+    count = draws["count"]
+    lines = ["", f"IoU % over {count} draws of the N-point sample (the table above is draw 0):",
+             f"{'class':<12}" + " ".join(f"{'d' + str(d):>6}" for d in range(count))
+             + f"  {'mean':>6}  draw-to-draw range"]
+    lines += [_draw_row(name, row) for name, row in draws["classes"].items()]
+    lines.append(_draw_row("mean IoU", draws["mean_iou"]))
+    return lines
 
 
 def format_live(summary: dict, per_frame: bool = False) -> str:
@@ -170,6 +192,7 @@ def format_agreement(summary: dict, per_frame: bool = False) -> str:
                      f"{interval_text(row['interval'])}")
     lines.append("proposals counted under the class most of their 8 views give them; 90 % frame bootstrap intervals")
     lines += [f"intensity of {spec}: {text}" for spec, text in (summary.get("intensity") or {}).items()]
+    lines += format_draws(summary.get("draws"))
     if per_frame:
         lines += [f"  {row['frame'][-48:]:<48} {row['proposals']:>5}" for row in summary["per_frame"]]
     return "\n".join(lines)

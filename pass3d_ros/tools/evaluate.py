@@ -33,6 +33,10 @@ pass3d_ros/weights/pass3d_lite.pt; or --classifier size_rules, the geometric bas
 torch's CPU threads (default 1: on the 2-core development machine, shared with other work, one thread ran
 the lite network faster than two).
 
+--sample-draws N (full mode, network classifier): stage 2 samples 256 points of each proposal from a generator
+seeded by its point count; N > 1 reruns the evaluation with draws 0..N-1 of that sample and adds, per class and
+for the mean IoU, the IoU of each draw, their mean and the draw-to-draw range (draw 0's report is the default one).
+
 `--json PATH` writes the summary, nested; docs/evaluate_json.md describes its keys. Full and view-agreement
 runs map each spec's intensities onto the training scale (--no-intensity-match: as read).
 
@@ -48,6 +52,7 @@ Exit status: 0 done; 1 a live run lost frames it should not have (lockstep drops
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from pathlib import Path
@@ -63,7 +68,7 @@ from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.evaluation.agreement import evaluate_agreement
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
-from pass3d_ros.evaluation.offline import evaluate_full, evaluate_stage1, iter_frames, parse_params
+from pass3d_ros.evaluation.offline import evaluate_draws, evaluate_full, evaluate_stage1, iter_frames, parse_params
 from pass3d_ros.evaluation.report import PRINTERS
 from pass3d_ros.tools.cli import check_writable, number, run_tool
 
@@ -96,6 +101,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--intensity-match", action=argparse.BooleanOptionalAction, default=INTENSITY_MATCH,
                         help="map each --data's intensities onto the network's training scale, as the segmentation "
                         "node does (default on; the map is fitted on a spec's first frames, then held)")
+    parser.add_argument("--sample-draws", type=number(int, 1), default=1, metavar="N",
+                        help="full mode, network classifier in process: run the evaluation once per draw 0..N-1 of "
+                             "the seeded N-point sample of each proposal and report each class's IoU per draw, their "
+                             "mean and draw-to-draw range (JSON: \"draws\"); draw 0 is the default sample (default 1)")
     parser.add_argument("--per-frame", action="store_true", help="print one row per frame too")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     live = parser.add_argument_group("live mode")
@@ -132,6 +141,11 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UserError("--limit does not apply with --live (choose the frames in the spec or bag)")
     if mode == "stage1" and (args.classifier or args.weights):
         raise UserError("--classifier and --weights do not apply with --stage1-only")
+    if mode != "full" and args.sample_draws != 1:
+        option = {"stage1": "--stage1-only", "view_agreement": "--view-agreement", "live": "--live"}[mode]
+        raise UserError(f"--sample-draws applies to the full evaluation only, not with {option}")
+    if args.sample_draws != 1 and args.classifier == "size_rules":
+        raise UserError("--sample-draws needs the network classifier (size_rules draws no sample)")
     if mode == "view_agreement" and args.classifier == "size_rules":
         raise UserError("--view-agreement needs the network classifier (size_rules has no views)")
     return mode
@@ -158,6 +172,10 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
     kind, weights = classifier.kind, classifier.weights
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
     if mode == "full":
+        if args.sample_draws > 1:
+            again = functools.partial(iter_frames, datasets, args.limit, not args.no_progress)
+            return {**evaluate_draws(again, config, classifier, args.sample_draws, args.intensity_match),
+                    **settings}, 0
         frames = iter_frames(datasets, args.limit, not args.no_progress)
         return {**evaluate_full(frames, config, classifier, args.intensity_match), **settings}, 0
     if mode == "view_agreement":

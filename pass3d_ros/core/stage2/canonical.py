@@ -8,7 +8,8 @@ Views: a view puts the origin at one bottom vertex of the box with the axes alon
 the first octant. Views 0..3 are the four right-handed frames (origin at vertex 0..3: the 4 rotations),
 views 4..7 are their mirror images (x and y swapped, left-handed). Training draws any of the 8; inference
 uses the right-handed view at the vertex nearest the sensor, and a generator seeded from the proposal's
-point count for the N-point sample, so a proposal's input depends on its points alone.
+point count (and a draw index, 0 by default) for the N-point sample, so a proposal's input depends on its
+points alone.
 """
 
 from __future__ import annotations
@@ -261,16 +262,22 @@ def sample_indices(count: int, num_points: int, rng: np.random.Generator) -> np.
     return np.concatenate([np.arange(count), rng.integers(0, count, num_points - count)])
 
 
-def inference_rng(count: int) -> np.random.Generator:
-    """The deterministic per-proposal generator of inference, seeded from the proposal's point count."""
-    return np.random.default_rng(count)
+def inference_rng(count: int, draw: int = 0) -> np.random.Generator:
+    """The deterministic per-proposal generator of inference, seeded from the proposal's point count.
+
+    Draw 0 is the default sample; draw d > 0 another fixed generator (seeded from (count, d)), for measuring
+    how much the choice of sampled points moves the result.
+    """
+    if draw < 0:
+        raise ValueError(f"inference_rng: draw must be >= 0, got {draw}")
+    return np.random.default_rng(count) if draw == 0 else np.random.default_rng([count, draw])
 
 
 @functools.lru_cache(maxsize=4096)
-def inference_sample(count: int, num_points: int) -> np.ndarray:
-    """`sample_indices` under `inference_rng(count)`: the same for every proposal of `count` points, so drawn once
-    (a generator and a draw cost tens of microseconds, a frame has ~30 proposals). Read-only."""
-    indices = sample_indices(count, num_points, inference_rng(count))
+def inference_sample(count: int, num_points: int, draw: int = 0) -> np.ndarray:
+    """`sample_indices` under `inference_rng(count, draw)`: the same for every proposal of `count` points, so drawn
+    once (a generator and a draw cost tens of microseconds, a frame has ~30 proposals). Read-only."""
+    indices = sample_indices(count, num_points, inference_rng(count, draw))
     indices.flags.writeable = False
     return indices
 

@@ -95,12 +95,13 @@ def prepare_proposals(
     rng: np.random.Generator | None = None,
     boxes: canonical.Boxes | None = None,
     queries: bool = True,
+    draw: int = 0,
 ) -> ProposalBatch:
     """Canonical frames and N-point samples of non-empty proposals `members` (indices into points (N, 4)).
 
     Inference (views None, rng None): the vertex nearest the sensor and a generator seeded from each
-    proposal's point count, so the result depends on the input alone. Training passes views and rng (and
-    queries=False: only the sampled points are transformed).
+    proposal's point count (and `draw`, 0 by default: see canonical.inference_rng), so the result depends on the
+    input alone. Training passes views and rng (and queries=False: only the sampled points are transformed).
     """
     points = np.asarray(points, dtype=np.float32)
     counts = np.array([len(m) for m in members], dtype=np.int64)
@@ -115,7 +116,7 @@ def prepare_proposals(
     pos = np.empty((count, num), dtype=np.int64)
     for p, size in enumerate(counts):
         if rng is None:
-            pos[p] = offsets[p] + canonical.inference_sample(int(size), num)
+            pos[p] = offsets[p] + canonical.inference_sample(int(size), num, draw)
         else:
             pos[p] = offsets[p] + canonical.sample_indices(int(size), num, rng)
     if not queries:
@@ -313,6 +314,7 @@ class Segmenter:
         self.data_description = checkpoint.get("data")
         self.checkpoint_info = {k: v for k, v in checkpoint.items() if k not in ("state_dict", "optimizer")}
         self.max_proposals = max_proposals
+        self.draw = 0  # which seeded N-point sample inference uses (canonical.inference_rng); 0 is the default
         self.model = flush_subnormals(fuse_batchnorm(model) if fuse else model).to(self.device).eval()
 
     def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult:
@@ -323,7 +325,7 @@ class Segmenter:
         if len(chosen) == 0:
             labels, conf = scatter_predictions(len(points), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0))
             return SegmentResult(labels, conf, proposal_class)
-        batch = prepare_proposals(points, [np.asarray(members[i]) for i in chosen], self.config)
+        batch = prepare_proposals(points, [np.asarray(members[i]) for i in chosen], self.config, draw=self.draw)
         probs = predict_probabilities(self.model, batch, self.device)
         pred = probs.argmax(axis=1)
         conf = probs[np.arange(len(pred)), pred]
@@ -342,7 +344,8 @@ class Segmenter:
         boxes = canonical.fit_box_members(points, members)
         probs, batch = [], None
         for view in range(canonical.NUM_VIEWS):
-            batch = prepare_proposals(points, members, self.config, views=np.full(len(members), view), boxes=boxes)
+            batch = prepare_proposals(points, members, self.config, views=np.full(len(members), view), boxes=boxes,
+                                      draw=self.draw)
             probs.append(predict_probabilities(self.model, batch, self.device))
         return ViewProbabilities(batch.query_index, batch.query_batch, np.stack(probs), len(members))
 

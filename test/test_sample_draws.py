@@ -1,0 +1,114 @@
+"""Draws of stage 2's seeded N-point sample: draw 0 is the default sample, other draws differ, and
+`pass3d_evaluate --sample-draws N` reports each draw's IoU with their mean and range."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.core.stage2 import canonical, open_classifier
+from pass3d_ros.core.stage2.segmentation import Segmenter, prepare_proposals
+from pass3d_ros.data.errors import UserError
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.evaluation.offline import evaluate_draws, iter_frames, spread
+from pass3d_ros.tools import evaluate
+from pass3d_ros.weights import DEFAULT_WEIGHTS
+
+SPEC = "synthetic:frames=2,seed=3"
+
+
+def members_of(frame: Frame) -> list[np.ndarray]:
+    """The non-empty stage-1 proposals of `frame`."""
+    result = propose(frame.points, frame.ring)
+    return [m for m in proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals) if len(m) > 0]
+
+
+def test_draw_zero_is_the_count_seeded_generator() -> None:
+    for count in (40, 1000):
+        expected = np.random.default_rng(count).choice(count, 256, replace=False) if count >= 256 else None
+        drawn = canonical.sample_indices(count, 256, np.random.default_rng(count))
+        np.testing.assert_array_equal(canonical.inference_sample(count, 256, 0), drawn)
+        np.testing.assert_array_equal(canonical.inference_sample(count, 256), drawn)
+        if expected is not None:
+            np.testing.assert_array_equal(drawn, expected)
+    with pytest.raises(ValueError):
+        canonical.inference_rng(10, -1)
+
+
+def test_other_draws_are_fixed_and_differ_for_large_proposals() -> None:
+    one, two = canonical.inference_sample(1000, 256, 1), canonical.inference_sample(1000, 256, 2)
+    assert not np.array_equal(one, canonical.inference_sample(1000, 256, 0)) and not np.array_equal(one, two)
+    np.testing.assert_array_equal(one, canonical.sample_indices(1000, 256, np.random.default_rng([1000, 1])))
+    assert len(np.unique(one)) == 256 and not one.flags.writeable
+    small = canonical.inference_sample(40, 256, 1)
+    assert set(small[:40].tolist()) == set(range(40))
+
+
+def test_segment_draw_zero_keeps_todays_labels(frame: Frame, monkeypatch: pytest.MonkeyPatch) -> None:
+    members = members_of(frame)
+    assert max(len(m) for m in members) > 256
+    segmenter = Segmenter(DEFAULT_WEIGHTS)
+    assert segmenter.draw == 0
+    default = segmenter.segment(frame.points, members)
+
+    def todays(count: int, num_points: int, draw: int = 0) -> np.ndarray:
+        return canonical.sample_indices(count, num_points, np.random.default_rng(count))
+
+    with monkeypatch.context() as patched:
+        patched.setattr(canonical, "inference_sample", todays)
+        today = segmenter.segment(frame.points, members)
+    np.testing.assert_array_equal(default.labels, today.labels)
+    np.testing.assert_array_equal(default.confidence, today.confidence)
+    np.testing.assert_array_equal(default.proposal_class, today.proposal_class)
+    big = [m for m in members if len(m) > 256][:1]
+    config = segmenter.config
+    zero, one = prepare_proposals(frame.points, big, config), prepare_proposals(frame.points, big, config, draw=1)
+    assert not np.array_equal(zero.sample_index, one.sample_index)
+    segmenter.draw = 1
+    views = segmenter.view_probabilities(frame.points, big)
+    assert views.probs.shape[:2] == (canonical.NUM_VIEWS, len(big[0]))
+
+
+def test_spread_skips_missing_values() -> None:
+    assert spread([0.5, None, 0.7]) == {"iou": [0.5, None, 0.7], "mean": pytest.approx(0.6), "min": 0.5, "max": 0.7}
+    assert spread([None, None]) == {"iou": [None, None], "mean": None, "min": None, "max": None}
+
+
+def test_evaluate_draws_needs_the_network_in_process() -> None:
+    rules = open_classifier(None, "size_rules")
+    with pytest.raises(UserError, match="in-process network"):
+        evaluate_draws(lambda: iter_frames([SPEC], 1, False), None, rules, 2)  # type: ignore[arg-type]
+
+
+def test_sample_draws_json_and_report(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "draws.json"
+    assert evaluate.main(["--data", SPEC, "--sample-draws", "3", "--json", str(out), "--no-progress"]) == 0
+    data = json.loads(out.read_text())
+    draws = data["draws"]
+    assert draws["count"] == 3 and set(draws["classes"]) == set(data["classes"])
+    for row in [*draws["classes"].values(), draws["mean_iou"]]:
+        assert len(row["iou"]) == 3
+        if row["mean"] is not None:
+            assert row["min"] <= row["mean"] <= row["max"]
+    assert draws["mean_iou"]["iou"][0] == data["mean_iou"]
+    assert [row["iou"][0] for row in draws["classes"].values()] == [row["iou"] for row in data["classes"].values()]
+    printed = capsys.readouterr().out
+    assert "draw-to-draw range" in printed and "IoU % over 3 draws" in printed
+
+
+@pytest.mark.parametrize("extra", [["--stage1-only"], ["--live"], ["--view-agreement"],
+                                   ["--classifier", "size_rules"]])
+def test_sample_draws_refused_combinations_exit_2(extra: list[str], capsys: pytest.CaptureFixture) -> None:
+    assert evaluate.main(["--data", SPEC, "--sample-draws", "2", *extra, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--sample-draws" in err
+
+
+def test_sample_draws_below_one_is_an_argument_error(capsys: pytest.CaptureFixture) -> None:
+    with pytest.raises(SystemExit) as caught:
+        evaluate.main(["--data", SPEC, "--sample-draws", "0"])
+    assert caught.value.code == 2 and "--sample-draws: '0' is out of range" in capsys.readouterr().err
