@@ -112,3 +112,31 @@ def test_sample_draws_below_one_is_an_argument_error(capsys: pytest.CaptureFixtu
     with pytest.raises(SystemExit) as caught:
         evaluate.main(["--data", SPEC, "--sample-draws", "0"])
     assert caught.value.code == 2 and "--sample-draws: '0' is out of range" in capsys.readouterr().err
+
+
+def test_coverage_sample_depends_on_the_points_not_their_order() -> None:
+    from pass3d_ros.core.stage2.canonical import coverage_sample
+
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(0.0, 4.0, (700, 3)).astype(np.float32)
+    offsets = np.array([0, 600, 700])
+    first = coverage_sample(xyz, offsets, 256)
+    order = np.concatenate([rng.permutation(600), 600 + rng.permutation(100)])
+    again = coverage_sample(xyz[order], offsets, 256)
+    np.testing.assert_array_equal(xyz[order][again], xyz[first])
+    assert len(set(first[0].tolist())) == 256 and first[0].max() < 600
+    assert set(first[1].tolist()) == set(range(600, 700)), "a small proposal: every point at least once"
+
+
+def test_evaluate_sampling_coverage_runs_and_is_refused_where_it_cannot_apply(tmp_path, capsys) -> None:
+    import json
+
+    from pass3d_ros.tools import evaluate
+
+    out = tmp_path / "cov.json"
+    assert evaluate.main(["--data", "synthetic:frames=1,seed=3", "--sampling", "coverage", "--json", str(out),
+                          "--no-progress"]) == 0
+    assert json.loads(out.read_text())["classifier"]["sampling"] == "coverage"
+    assert evaluate.main(["--data", "synthetic:frames=1,seed=3", "--sampling", "coverage", "--stage1-only",
+                          "--no-progress"]) == 2
+    assert "--sampling applies to the full evaluation" in capsys.readouterr().err

@@ -59,8 +59,9 @@ from pathlib import Path
 
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
+from pass3d_ros.core.stage2.canonical import SAMPLINGS
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
+from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import write_text_atomic
@@ -105,6 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="full mode, network classifier in process: run the evaluation once per draw 0..N-1 of "
                              "the seeded N-point sample of each proposal and report each class's IoU per draw, their "
                              "mean and draw-to-draw range (JSON: \"draws\"); draw 0 is the default sample (default 1)")
+    parser.add_argument("--sampling", choices=SAMPLINGS, default="draw",
+                        help="full mode, network classifier in process: how stage 2 picks each proposal's points: "
+                             "the seeded draw (default) or the draw-free coverage sample")
     parser.add_argument("--per-frame", action="store_true", help="print one row per frame too")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     live = parser.add_argument_group("live mode")
@@ -144,6 +148,8 @@ def _check_args(args: argparse.Namespace) -> str:
     if mode != "full" and args.sample_draws != 1:
         option = {"stage1": "--stage1-only", "view_agreement": "--view-agreement", "live": "--live"}[mode]
         raise UserError(f"--sample-draws applies to the full evaluation only, not with {option}")
+    if args.sampling != "draw" and (mode != "full" or args.classifier == "size_rules"):
+        raise UserError("--sampling applies to the full evaluation with the network classifier")
     if args.sample_draws != 1 and args.classifier == "size_rules":
         raise UserError("--sample-draws needs the network classifier (size_rules draws no sample)")
     if mode == "view_agreement" and args.classifier == "size_rules":
@@ -172,6 +178,11 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
     kind, weights = classifier.kind, classifier.weights
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
     if mode == "full":
+        if args.sampling != "draw":
+            if not isinstance(classifier, Segmenter):
+                raise UserError("--sampling needs the network classifier in this process")
+            classifier.sampling = args.sampling
+            settings["classifier"]["sampling"] = args.sampling
         if args.sample_draws > 1:
             again = functools.partial(iter_frames, datasets, args.limit, not args.no_progress)
             return {**evaluate_draws(again, config, classifier, args.sample_draws, args.intensity_match),

@@ -282,6 +282,50 @@ def inference_sample(count: int, num_points: int, draw: int = 0) -> np.ndarray:
     return indices
 
 
+SAMPLINGS: tuple[str, ...] = ("draw", "coverage")  # how inference picks each proposal's N points
+COVERAGE_CELL_M = 0.001  # coverage sampling orders points on a Morton curve of their coordinates at this resolution
+_COVERAGE_BITS = 14  # per axis: 16.4 m of extent at 1 mm (coordinates past it are clipped)
+
+
+def _spread_bits(values: np.ndarray) -> np.ndarray:
+    """Each value's low 21 bits spread to every third bit (the 3-D Morton interleave)."""
+    x = values.astype(np.uint64) & np.uint64(0x1FFFFF)
+    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
+                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
+        x = (x | (x << np.uint64(shift))) & np.uint64(mask)
+    return x
+
+
+def coverage_sample(xyz: np.ndarray, offsets: np.ndarray, num_points: int) -> np.ndarray:
+    """Per proposal (points xyz[offsets[p]:offsets[p + 1]]), `num_points` positions into xyz spread over it: the
+    points ordered along a Morton curve of their coordinates, and the middle point of each of `num_points` equal
+    strata of that order (fewer points: each once, the repeats spread evenly), listed in one fixed shuffled order
+    (`_sample_order`). It depends on the coordinates alone,
+    never on the points' order or a generator: the same proposal always gets the same sample. (P, num_points)."""
+    counts = np.diff(offsets)
+    if len(counts) == 0:
+        return np.zeros((0, num_points), dtype=np.int64)
+    if np.any(counts <= 0):
+        raise ValueError("coverage_sample: empty proposal")
+    batch = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
+    low = np.minimum.reduceat(xyz, offsets[:-1], axis=0)
+    cells = np.clip(((xyz - low[batch]) / COVERAGE_CELL_M).astype(np.int64), 0, (1 << _COVERAGE_BITS) - 1)
+    morton = _spread_bits(cells[:, 0]) | (_spread_bits(cells[:, 1]) << np.uint64(1)) | (
+        _spread_bits(cells[:, 2]) << np.uint64(2))
+    key = (batch.astype(np.uint64) << np.uint64(3 * _COVERAGE_BITS)) | morton
+    order = np.argsort(key, kind="stable")
+    strata = (np.arange(num_points) + 0.5) / num_points
+    within = np.floor(strata[None, :] * counts[:, None]).astype(np.int64)
+    return order[offsets[:-1, None] + within][:, _sample_order(num_points)]
+
+
+@functools.lru_cache(maxsize=8)
+def _sample_order(num_points: int) -> np.ndarray:
+    """One fixed shuffle of N sample slots: the network starts its farthest point sampling at slot 0 and its ball
+    queries take the first points in slot order, so a sample listed along the curve would bias both to one corner."""
+    return np.random.default_rng(0).permutation(num_points)
+
+
 def n_feature(count: int | np.ndarray, num_points: int, mode: str = "ratio") -> float | np.ndarray:
     """The point-count feature: the paper's n = (NUM - N) / N ("ratio"), or log(NUM / N) ("log"), bounded
     to a few units for any proposal size."""

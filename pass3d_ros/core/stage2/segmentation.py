@@ -96,12 +96,14 @@ def prepare_proposals(
     boxes: canonical.Boxes | None = None,
     queries: bool = True,
     draw: int = 0,
+    sampling: str = "draw",
 ) -> ProposalBatch:
     """Canonical frames and N-point samples of non-empty proposals `members` (indices into points (N, 4)).
 
-    Inference (views None, rng None): the vertex nearest the sensor and a generator seeded from each
-    proposal's point count (and `draw`, 0 by default: see canonical.inference_rng), so the result depends on the
-    input alone. Training passes views and rng (and queries=False: only the sampled points are transformed).
+    Inference (views None, rng None): the vertex nearest the sensor and, with `sampling` "draw", a generator seeded
+    from each proposal's point count (and `draw`, 0 by default: see canonical.inference_rng), or with "coverage"
+    the draw-free sample of canonical.coverage_sample, so the result depends on the input alone. Training passes
+    views and rng (and queries=False: only the sampled points are transformed).
     """
     points = np.asarray(points, dtype=np.float32)
     counts = np.array([len(m) for m in members], dtype=np.int64)
@@ -113,12 +115,17 @@ def prepare_proposals(
     if views is None:
         views = canonical.inference_views(boxes)
     n = canonical.n_feature(counts, num, config.n_mode) if config.n_feature else np.zeros(count)
-    pos = np.empty((count, num), dtype=np.int64)
-    for p, size in enumerate(counts):
-        if rng is None:
-            pos[p] = offsets[p] + canonical.inference_sample(int(size), num, draw)
-        else:
-            pos[p] = offsets[p] + canonical.sample_indices(int(size), num, rng)
+    if sampling not in canonical.SAMPLINGS:
+        raise ValueError(f"unknown sampling {sampling!r}: {' or '.join(canonical.SAMPLINGS)}")
+    if rng is None and sampling == "coverage":
+        pos = canonical.coverage_sample(points[index, :3], offsets, num)
+    else:
+        pos = np.empty((count, num), dtype=np.int64)
+        for p, size in enumerate(counts):
+            if rng is None:
+                pos[p] = offsets[p] + canonical.inference_sample(int(size), num, draw)
+            else:
+                pos[p] = offsets[p] + canonical.sample_indices(int(size), num, rng)
     if not queries:
         local, feat = _canonical_input(points, index[pos.ravel()], np.repeat(np.arange(count), num), boxes, views, n,
                                        uses_intensity(config))
@@ -315,6 +322,7 @@ class Segmenter:
         self.checkpoint_info = {k: v for k, v in checkpoint.items() if k not in ("state_dict", "optimizer")}
         self.max_proposals = max_proposals
         self.draw = 0  # which seeded N-point sample inference uses (canonical.inference_rng); 0 is the default
+        self.sampling = "draw"  # or "coverage": the draw-free sample (canonical.coverage_sample)
         self.model = flush_subnormals(fuse_batchnorm(model) if fuse else model).to(self.device).eval()
 
     def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult:
@@ -325,7 +333,8 @@ class Segmenter:
         if len(chosen) == 0:
             labels, conf = scatter_predictions(len(points), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0))
             return SegmentResult(labels, conf, proposal_class)
-        batch = prepare_proposals(points, [np.asarray(members[i]) for i in chosen], self.config, draw=self.draw)
+        batch = prepare_proposals(points, [np.asarray(members[i]) for i in chosen], self.config, draw=self.draw,
+                                  sampling=self.sampling)
         probs = predict_probabilities(self.model, batch, self.device)
         pred = probs.argmax(axis=1)
         conf = probs[np.arange(len(pred)), pred]
@@ -345,7 +354,7 @@ class Segmenter:
         probs, batch = [], None
         for view in range(canonical.NUM_VIEWS):
             batch = prepare_proposals(points, members, self.config, views=np.full(len(members), view), boxes=boxes,
-                                      draw=self.draw)
+                                      draw=self.draw, sampling=self.sampling)
             probs.append(predict_probabilities(self.model, batch, self.device))
         return ViewProbabilities(batch.query_index, batch.query_batch, np.stack(probs), len(members))
 
