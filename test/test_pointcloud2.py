@@ -350,3 +350,14 @@ def test_packed_rgb_gives_each_class_its_colour_and_unknown_labels_grey() -> Non
         rgb = np.stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255], axis=1)
         expected = CLASS_COLORS_RGB[[0, 1, 2, 3, BACKGROUND, BACKGROUND]]
         assert np.array_equal(rgb, expected), labels.dtype
+
+
+def test_a_channel_field_is_read_as_the_ring_when_there_is_no_ring() -> None:
+    """Autoware's drivers name the laser index `channel`; a `ring` field wins when both are there."""
+    n = 5
+    xyz = {axis: np.arange(n, dtype=np.float32) for axis in "xyz"}
+    channel = np.arange(n, dtype=np.uint16)[::-1].copy()
+    scan = decode_xyzi(encode({**xyz, "intensity": np.ones(n, np.float32), "channel": channel}))
+    np.testing.assert_array_equal(scan.ring, channel)
+    both = decode_xyzi(encode({**xyz, "ring": np.zeros(n, np.uint16), "channel": channel}))
+    np.testing.assert_array_equal(both.ring, np.zeros(n))

@@ -43,3 +43,18 @@ def test_offline_stage1_reads_a_0_255_stream_as_the_node_does(capsys) -> None:
     err = capsys.readouterr().err
     assert "b: intensity: values 0..255 after intensity_scale 1, expected 0..1; divided by 255" in err
     assert "a: " not in err
+
+
+def test_no_returns_at_the_origin_or_inside_min_range_are_left_out() -> None:
+    """Ouster and Autoware drivers fill the grid with (0, 0, 0) for no-returns; the vehicle's own returns sit within
+    min_range: neither reaches stage 1, and the kept indices say where the rest came from."""
+    pts = synthetic_scan(n_rings=16, points_per_ring=90)
+    pts[::10, :3] = 0.0
+    pts[5, :3] = [0.2, 0.1, 0.0]
+    scan = ScanStream().prepare(pts, None, Stage1Config())
+    gone = np.zeros(len(pts), bool)
+    gone[::10] = True
+    gone[5] = True
+    np.testing.assert_array_equal(scan.kept, np.flatnonzero(~gone))
+    assert not [n for n in scan.notes if n.topic == "x/y/z"], "a driver's convention, not a warning"
+    assert len(ScanStream().prepare(pts, None, Stage1Config(min_range=0.0)).points) == len(pts) - int(gone.sum()) + 1

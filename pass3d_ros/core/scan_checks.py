@@ -25,13 +25,14 @@ class ScanSummary:
     nonfinite_intensity: int  # intensities that are NaN or infinite
     intensity_low: float  # smallest and largest finite intensity (inf, -inf when there is none)
     intensity_high: float
+    no_returns: int = 0  # points at (0, 0, 0) or nearer than the scan's min_range: a driver's "no return"
 
     def scaled(self, scale: float) -> ScanSummary:
         """The summary after the intensities were multiplied by `scale` >= 0 (float32 rounding is monotone)."""
         low, high = self.intensity_low, self.intensity_high
         if self.points > self.nonfinite_intensity:
             low, high = float(np.float32(low) * np.float32(scale)), float(np.float32(high) * np.float32(scale))
-        return ScanSummary(self.points, self.plausible, self.nonfinite_intensity, low, high)
+        return ScanSummary(self.points, self.plausible, self.nonfinite_intensity, low, high, self.no_returns)
 
     def intensity_problem(self) -> str:
         """Why the intensities cannot be the 0..1 the core expects; "" when they can."""
@@ -48,28 +49,41 @@ class ScanSummary:
 
 
 @numba.njit(cache=True, nogil=True)
-def _summary_kernel(points: np.ndarray, limit: float) -> tuple:
+def _summary_kernel(points: np.ndarray, limit: float, near2: float) -> tuple:
     plausible = True
     nonfinite = 0
+    no_returns = 0
     low, high = np.inf, -np.inf
     for k in range(points.shape[0]):
+        r2 = 0.0
         for axis in range(3):
             value = points[k, axis]
             if not (-limit <= value <= limit):  # NaN fails both comparisons
                 plausible = False
+            r2 += float(value) * float(value)
+        if r2 < near2 or r2 == 0.0:
+            no_returns += 1
         value = points[k, 3]
         if np.isfinite(value):
             low = min(low, float(value))
             high = max(high, float(value))
         else:
             nonfinite += 1
-    return plausible, nonfinite, low, high
+    return plausible, nonfinite, low, high, no_returns
 
 
-def scan_summary(points: np.ndarray) -> ScanSummary:
-    """The `ScanSummary` of N x 4 float32 points."""
-    plausible, nonfinite, low, high = _summary_kernel(points, MAX_COORDINATE_M)
-    return ScanSummary(len(points), bool(plausible), int(nonfinite), float(low), float(high))
+def scan_summary(points: np.ndarray, min_range: float = 0.0) -> ScanSummary:
+    """The `ScanSummary` of N x 4 float32 points; `no_returns` counts those at the origin or nearer than
+    `min_range` (m)."""
+    plausible, nonfinite, low, high, no_returns = _summary_kernel(points, MAX_COORDINATE_M, min_range * min_range)
+    return ScanSummary(len(points), bool(plausible), int(nonfinite), float(low), float(high), int(no_returns))
+
+
+def returns(points: np.ndarray, min_range: float = 0.0) -> np.ndarray:
+    """True for the points a LiDAR returned: not at (0, 0, 0), where drivers put a no-return, nor nearer than
+    `min_range` (m: the vehicle, the mount); coordinates assumed plausible."""
+    r2 = np.einsum("ij,ij->i", points[:, :3].astype(np.float64), points[:, :3].astype(np.float64))
+    return (r2 >= min_range * min_range) & (r2 > 0.0)
 
 
 def plausible_points(points: np.ndarray) -> np.ndarray:

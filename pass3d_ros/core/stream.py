@@ -76,16 +76,19 @@ class ScanStream:
 
     def prepare(self, points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Config | None = None, *,
                 intensity_scale: float = 1.0, use_ring: bool = True) -> PreparedScan:
-        """The input checks on one N x 4 float32 scan (never changed: a repaired scan is a copy): points with
-        non-finite or absurd coordinates left out, intensities times `intensity_scale` and then divided by the
-        stream's full scale, and a ring field with values past `config`'s lasers (or with `use_ring` False) not
-        read."""
+        """The input checks on one N x 4 float32 scan (never changed: a repaired scan is a copy): points with non-finite
+        or absurd coordinates left out, and no-returns (at (0, 0, 0) or nearer than `config.min_range`), intensities
+        times `intensity_scale` and then divided by the stream's full scale, and a ring field with values past
+        `config`'s lasers (or with `use_ring` False) not read."""
         notes: list[Note] = []
         kept = None
-        summary = scan_checks.scan_summary(points)
-        if not summary.plausible:
+        config = config or Stage1Config()
+        summary = scan_checks.scan_summary(points, config.min_range)
+        if not summary.plausible or summary.no_returns:
             keep = scan_checks.plausible_points(points)
-            notes.append(Note("x/y/z", scan_checks.dropped_points_warning(int(np.count_nonzero(~keep)))))
+            if not summary.plausible:
+                notes.append(Note("x/y/z", scan_checks.dropped_points_warning(int(np.count_nonzero(~keep)))))
+            keep &= scan_checks.returns(points, config.min_range)  # no-returns: a driver's convention, not noted
             kept = np.flatnonzero(keep)
             points = np.ascontiguousarray(points[kept])
             ring = None if ring is None else ring[kept]
@@ -99,7 +102,6 @@ class ScanStream:
             notes.append(Note("intensity-constant", f"intensity: every point reads {float(points[0, 3]):g}; stage 2 "
                                                     "will have no intensity information (does the driver or conversion "
                                                     "drop it?)"))
-        config = config or Stage1Config()
         lasers = ring_limit(config.sensor, config.n_rings)
         if scan.ring is not None and int(scan.ring.max()) >= lasers:
             notes.append(Note("ring", f"ring: values up to {int(scan.ring.max())}, expected 0..{lasers - 1} "

@@ -43,7 +43,7 @@ DATATYPES: dict[int, np.dtype] = {
 _DATATYPE_OF: dict[str, int] = {dt.str[1:]: code for code, dt in DATATYPES.items()}
 
 INTENSITY_NAMES: tuple[str, ...] = ("intensity", "i", "reflectance")
-_SCALAR_FIELDS = ("x", "y", "z", "ring", *INTENSITY_NAMES, "cluster_id", "cluster_id2", "label", "label_gt")
+_SCALAR_FIELDS = ("x", "y", "z", "ring", "channel", *INTENSITY_NAMES, "cluster_id", "cluster_id2", "label", "label_gt")
 
 
 class PointCloud2Error(UserError):
@@ -248,8 +248,10 @@ def to_xyzi(cloud: np.ndarray, *, with_ring: bool = True, skip_nans: bool = Fals
             points[:, column] = cloud[axis]
         points[:, 3] = 0.0 if name is None else cloud[name]
     ring = None
-    if with_ring and "ring" in (cloud.dtype.names or ()):
-        ring = (cloud["ring"] if keep is None else cloud["ring"][keep]).astype(np.uint16)
+    names = cloud.dtype.names or ()
+    field = "ring" if "ring" in names else "channel" if "channel" in names else None  # channel: Autoware's drivers
+    if with_ring and field is not None:
+        ring = (cloud[field] if keep is None else cloud[field][keep]).astype(np.uint16)
     return XYZI(points, name is not None, ring)
 
 

@@ -68,6 +68,10 @@ class Stage1Config:
     rest is what the paper leaves open, chosen on KITTI (see each field's description)."""
 
     # Ground plane fitting (Zermas et al.; PASS3D's values).
+    min_range: float = _param(
+        0.5, "input: returns nearer than this (m), and points at (0, 0, 0) where drivers put a no-return, are left "
+        "out before stage 1 (the vehicle, the mount)", 0.0, 10.0,
+    )
     n_seg: int = _param(3, "ground: segments along x", 1, 64)
     n_iter: int = _param(3, "ground: plane fits per segment", 1, 20)
     n_lpr: int = _param(20, "ground: lowest points whose mean height (the LPR) sets the seed height", 1, 1000)
