@@ -60,6 +60,7 @@ class ScanStream:
         self.intensity_match = intensity_match
         self._key: Hashable = _NO_STREAM
         self._noted: set[str] = set()
+        self.maps: dict[str, str] = {}  # the intensity map each stream key got (str of the key), for reports
 
     def reset(self) -> None:
         """Forget everything learned: the next scan is the stream's first."""
@@ -150,6 +151,8 @@ class ScanStream:
         if not self.intensity_match:
             return points
         self.match.update(points[:, 3])
+        if self.match.map is not None:
+            self.maps[str(self._key)] = str(self.match.map)
         return self.match.on_training_scale(points)
 
     def first_notes(self, scan: PreparedScan) -> list[str]:

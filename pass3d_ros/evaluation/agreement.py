@@ -65,7 +65,6 @@ def evaluate_agreement(frames: Iterator[tuple[str, Frame]], config: Stage1Config
     classifier.warm_up()
     agreement = ViewAgreement()
     stream = ScanStream(intensity_match=intensity_match)
-    maps: dict[str, str] = {}
     per_frame = []
     for spec, frame in frames:
         scan = prepared(stream, spec, frame, config)
@@ -74,9 +73,7 @@ def evaluate_agreement(frames: Iterator[tuple[str, Frame]], config: Stage1Config
         members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
         members = [members[i] for i in nearest_first(points, members, classifier.max_proposals)]
         row = agreement.update(classifier.view_classes(stream.on_training_scale(points), members))
-        if stream.match.map is not None and intensity_match:
-            maps[spec] = str(stream.match.map)
         per_frame.append({"frame": f"{spec}#{frame.name}", "proposals": len(members),
                           **{CLASS_NAMES[c]: row[i].tolist() for i, c in enumerate(AGREEMENT_CLASSES)}})
-    return {"frames": len(per_frame), "agreement": agreement.summary(), "intensity": maps,
+    return {"frames": len(per_frame), "agreement": agreement.summary(), "intensity": stream.maps,
             "per_frame": per_frame}

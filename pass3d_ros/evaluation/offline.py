@@ -150,7 +150,6 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     background = np.zeros(2, dtype=np.int64)
     budget = BudgetCuts(classifier.max_proposals)
     stream = ScanStream(intensity_match=intensity_match and classifier.kind != "size_rules")
-    maps: dict[str, str] = {}
     for spec, frame in frames:
         if frame.labels is None:
             raise DatasetError(f"{spec}: frame {frame.name} has no point labels; full evaluation needs labelled data")
@@ -163,8 +162,6 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
         cut = budget.add(sum(1 for m in members if len(m) > 0))
         segmented = classifier.segment(stream.on_training_scale(points), members)
         done = time.perf_counter()
-        if stream.match.map is not None and stream.intensity_match:
-            maps[spec] = str(stream.match.map)
         labels = segmented.labels
         background += background_proposals(points, truth, members, segmented.proposal_class)
         predicted = labels
@@ -182,7 +179,7 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     summary["objects"] = objects.summary()
     summary["background_proposals"] = {"front_view": int(background[0]), "called_object": int(background[1])}
     summary["budget"] = budget.summary()
-    summary["intensity"] = maps
+    summary["intensity"] = stream.maps
     summary["per_frame"] = segmentation.per_frame
     return summary
 

@@ -54,7 +54,6 @@ class SegmentStats:
     labeled_frames: int = 0
     budget: BudgetCuts = field(default_factory=BudgetCuts)  # proposals stage 2's max_proposals cut
     stream: ScanStream = field(default_factory=ScanStream)  # each --data's stream state (pass3d_ros.core.stream)
-    maps: dict[str, str] = field(default_factory=dict)  # each --data's intensity map onto the training scale
 
 
 def to_semantic_kitti(labels: np.ndarray) -> np.ndarray:
@@ -198,8 +197,6 @@ def _segment_frame(spec: str, frame: Frame, classifier: Classifier, stats: Segme
     members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
     stats.budget.add(sum(1 for m in members if len(m) > 0))
     predicted = classifier.segment(stats.stream.on_training_scale(scan.points), members).labels
-    if stats.stream.intensity_match and stats.stream.match.map is not None:
-        stats.maps[spec] = str(stats.stream.match.map)
     stats.stage2_ms.append(1e3 * (time.perf_counter() - started))
     stats.stage1_ms.append(result.timings_ms["total"])
     if scan.kept is None:
@@ -226,7 +223,7 @@ def summary(stats: SegmentStats, specs: Sequence[str], kind: str, weights: str |
         "points": stats.points,
         "ms_per_frame": {"stage1": _median(stats.stage1_ms), "stage2": _median(stats.stage2_ms)},
         "budget": stats.budget.summary(),
-        "intensity": stats.maps,
+        "intensity": stats.stream.maps,
         "labeled_frames": stats.labeled_frames,
         "per_class": metrics["per_class"] if metrics else None,
         "mean_iou": metrics["mean_iou"] if metrics else None,

@@ -77,11 +77,10 @@ def field_rings(points: np.ndarray, ring: np.ndarray, held: RingFieldOrder | Non
     return order.rings(ring), order
 
 
-def _ring_elevations(points: np.ndarray, ring: np.ndarray, n_values: int) -> tuple[np.ndarray, np.ndarray]:
-    """Median tan(elevation) of every ring value's returns beyond MIN_RANGE_M, and whether it had MIN_RING_POINTS
-    there (else the median of all its returns off the origin; NaN for a value with none)."""
-    r = np.hypot(points[:, 0], points[:, 1])
-    tan = points[:, 2] / np.maximum(r, 1e-3)
+def _ring_elevations(r: np.ndarray, tan: np.ndarray, ring: np.ndarray, n_values: int
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Median tan(elevation) of every ring value's returns beyond MIN_RANGE_M (horizontal range `r`), and whether it
+    had MIN_RING_POINTS there (else the median of all its returns off the origin; NaN for a value with none)."""
     medians = np.full(n_values, np.nan)
     well = np.zeros(n_values, dtype=bool)
     order = np.argsort(ring, kind="stable")
@@ -96,14 +95,14 @@ def _ring_elevations(points: np.ndarray, ring: np.ndarray, n_values: int) -> tup
     return medians, well
 
 
-def _fit_share(points: np.ndarray, ring: np.ndarray, medians: np.ndarray, measured: np.ndarray) -> float:
+def _fit_share(r: np.ndarray, tan: np.ndarray, ring: np.ndarray, medians: np.ndarray, measured: np.ndarray
+               ) -> float:
     """Share of the returns beyond MIN_RANGE_M (of `measured` ring values) whose elevation is nearest to the median
     of their own ring value or of one within NEIGHBOURS rings of it in elevation order."""
-    r = np.hypot(points[:, 0], points[:, 1])
     far = (r > MIN_RANGE_M) & np.isin(ring, measured)
     if not np.any(far) or len(measured) < 2:
         return 1.0
-    tan = points[far, 2] / r[far]
+    tan = tan[far]
     by_elevation = measured[np.argsort(medians[measured])]
     levels = medians[by_elevation]
     rank = np.zeros(len(medians), dtype=np.int64)
@@ -122,9 +121,11 @@ def measure_ring_order(points: np.ndarray, ring: np.ndarray) -> RingFieldOrder:
     if int(ring.min()) < 0:
         return RingFieldOrder("unfit", None, 0, 0.0)
     n_values = int(ring.max()) + 1
-    medians, well = _ring_elevations(points, ring, n_values)
+    r = np.hypot(points[:, 0], points[:, 1])
+    tan = points[:, 2] / np.maximum(r, 1e-3)
+    medians, well = _ring_elevations(r, tan, ring, n_values)
     measured = np.flatnonzero(well)  # the order is decided on these; near-only rings follow their near median
-    share = _fit_share(points, ring, medians, measured)
+    share = _fit_share(r, tan, ring, medians, measured)
     if share < MIN_FIT_SHARE:
         return RingFieldOrder("unfit", None, n_values, share)
     by_elevation = measured[np.argsort(-medians[measured], kind="stable")]  # highest first
