@@ -51,7 +51,7 @@ def test_no_returns_at_the_origin_or_inside_min_range_are_left_out() -> None:
     pts = synthetic_scan(n_rings=16, points_per_ring=90)
     pts[::10, :3] = 0.0
     pts[5, :3] = [0.2, 0.1, 0.0]
-    scan = ScanStream().prepare(pts, None, Stage1Config())
+    scan = ScanStream().prepare(pts, None, Stage1Config(min_range=0.5))
     gone = np.zeros(len(pts), bool)
     gone[::10] = True
     gone[5] = True

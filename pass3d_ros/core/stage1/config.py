@@ -69,8 +69,8 @@ class Stage1Config:
 
     # Ground plane fitting (Zermas et al.; PASS3D's values).
     min_range: float = _param(
-        0.5, "input: returns nearer than this (m), and points at (0, 0, 0) where drivers put a no-return, are left "
-        "out before stage 1 (the vehicle, the mount)", 0.0, 10.0,
+        0.0, "input: returns nearer than this (m; e.g. 0.5 for the vehicle and mount) are left out before stage 1, "
+        "as are points at (0, 0, 0), where drivers put a no-return", 0.0, 10.0,
     )
     n_seg: int = _param(3, "ground: segments along x", 1, 64)
     n_iter: int = _param(3, "ground: plane fits per segment", 1, 20)
