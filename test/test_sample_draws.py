@@ -140,3 +140,6 @@ def test_evaluate_sampling_coverage_runs_and_is_refused_where_it_cannot_apply(tm
     assert evaluate.main(["--data", "synthetic:frames=1,seed=3", "--sampling", "coverage", "--stage1-only",
                           "--no-progress"]) == 2
     assert "--sampling applies to the full evaluation" in capsys.readouterr().err
+    assert evaluate.main(["--data", "synthetic:frames=1,seed=3", "--sampling", "coverage", "--sample-draws", "2",
+                          "--no-progress"]) == 2
+    assert "the coverage sample has no draw" in capsys.readouterr().err

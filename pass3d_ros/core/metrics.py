@@ -16,11 +16,12 @@ frame every resample is that frame: the interval is degenerate (low = high = the
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pass3d_ros.classes import BACKGROUND, CLASS_NAMES, FOREGROUND, IGNORE, NUM_CLASSES
+from pass3d_ros.classes import BACKGROUND, CAR, CLASS_NAMES, FOREGROUND, IGNORE, NUM_CLASSES
 
 if TYPE_CHECKING:
     from pass3d_ros.core.stage1 import Stage1Result
@@ -269,6 +270,24 @@ def median_or_none(values: list[float]) -> float | None:
     return float(np.median(np.asarray(values, dtype=np.float64))) if values else None
 
 
+def ignore_vehicles(truth: np.ndarray, vehicle_other: np.ndarray | None) -> np.ndarray:
+    """`truth` with its background points on a non-car vehicle (`vehicle_other`: van, truck, bus; Frame.vehicle_other)
+    set to IGNORE, so they leave the score: a copy, or `truth` itself when the mask is None or marks nothing.
+    Points labelled a class keep it (a car box overlapping a van box stays car)."""
+    if vehicle_other is None:
+        return truth
+    mask = np.asarray(vehicle_other, dtype=bool)
+    truth = np.asarray(truth)
+    if mask.shape != truth.shape:
+        raise ValueError(f"vehicle mask {mask.shape} and truth {truth.shape} differ in shape")
+    drop = mask & (truth == BACKGROUND)
+    if not drop.any():
+        return truth
+    relaxed = truth.copy()
+    relaxed[drop] = IGNORE
+    return relaxed
+
+
 class SegmentationMetrics:
     """The full pipeline over frames: point-wise confusion against ground truth and milliseconds per stage.
 
@@ -280,6 +299,10 @@ class SegmentationMetrics:
 
     def __init__(self) -> None:
         self.confusion = ConfusionAccumulator()
+        self.vehicles_ignored = ConfusionAccumulator()  # truth with background points on non-car vehicles ignored
+        self.ignored_points = 0
+        self.vehicle_frames = 0  # frames whose source marks non-car vehicles
+        self.frames_with_vehicles = 0  # frames with a point left out of the vehicles-ignored score
         self.stage_ms: dict[str, list[float]] = {stage: [] for stage in self.STAGES}
         self.frames = 0
         self.per_frame: list[dict] = []
@@ -292,12 +315,20 @@ class SegmentationMetrics:
         stage1_ms: float | None = None,
         stage2_ms: float | None = None,
         total_ms: float | None = None,
+        vehicle_other: np.ndarray | None = None,
     ) -> dict:
-        """Add one frame (total defaults to stage1 + stage2); returns its row: points, ms, per-class IoU."""
+        """Add one frame (total defaults to stage1 + stage2); returns its row: points, ms, per-class IoU.
+        `vehicle_other` (the frame's Frame.vehicle_other) feeds the vehicles-ignored score, see `ignore_vehicles`."""
         frame = ConfusionAccumulator(self.confusion.num_classes, self.confusion.names)
         frame.update(truth, predicted)
         self.confusion.matrix += frame.matrix
         self.confusion.frames.append(frame.matrix)
+        relaxed = ignore_vehicles(truth, vehicle_other)
+        self.vehicles_ignored.update(relaxed, predicted)
+        ignored = int(np.count_nonzero(np.asarray(relaxed) != np.asarray(truth)))
+        self.ignored_points += ignored
+        self.vehicle_frames += vehicle_other is not None
+        self.frames_with_vehicles += ignored > 0
         if total_ms is None and stage1_ms is not None and stage2_ms is not None:
             total_ms = stage1_ms + stage2_ms
         row: dict = {"frame": name, "points": len(truth)}
@@ -314,56 +345,107 @@ class SegmentationMetrics:
 
     def summary(self) -> dict:
         """{"frames", "classes": {name: {precision, recall, iou, points, interval}}, "mean_iou" (car, pedestrian,
-        cyclist with ground-truth points), "mean_iou_interval", "ms_per_frame": {stage1, stage2, total} (medians)};
-        intervals: frame bootstrap, see `bootstrap_iou`."""
+        cyclist with ground-truth points), "mean_iou_interval", "car_vehicles_ignored": {precision, recall, iou,
+        points, interval, ignored_points, frames_with_vehicles, frames_known}, "ms_per_frame": {stage1, stage2,
+        total} (medians)};
+        intervals: frame bootstrap, see `bootstrap_iou` (the same resamples for both car scores)."""
         metrics = self.confusion.summary_with_intervals(FOREGROUND)
+        relaxed = self.vehicles_ignored.summary_with_intervals(FOREGROUND)["per_class"][CLASS_NAMES[CAR]]
         return {
             "frames": self.frames,
             "classes": metrics["per_class"],
             "mean_iou": metrics["mean_iou"],
             "mean_iou_interval": metrics["mean_iou_interval"],
+            "car_vehicles_ignored": {**relaxed, "ignored_points": self.ignored_points,
+                                     "frames_with_vehicles": self.frames_with_vehicles,
+                                     "frames_known": self.vehicle_frames},
             "ms_per_frame": {stage: median_or_none(values) for stage, values in self.stage_ms.items()},
         }
 
 
 OBJECT_MIN_POINTS = 10  # smaller labelled objects are left out of the object count (1-5 point far returns)
 OBJECT_FOUND_SHARE = 0.5  # an object is found when at least this share of its points carry its class
+# Range bins of the objects found (metres, upper edges; the last bin is open): 0-15, 15-30, 30-50, 50+ m. An object's
+# range is the horizontal distance from the sensor to the centroid of its points (every reader has points, few boxes).
+OBJECT_RANGE_EDGES_M: tuple[float, ...] = (15.0, 30.0, 50.0)
+
+
+def range_bin_names(edges: tuple[float, ...] = OBJECT_RANGE_EDGES_M) -> list[str]:
+    """Names of the range bins `edges` make: "0-15", "15-30", ..., "50+"."""
+    lows = (0.0, *edges)
+    return [f"{low:g}-{high:g}" for low, high in zip(lows, edges, strict=False)] + [f"{lows[-1]:g}+"]
 
 
 class ObjectRecall:
-    """Labelled objects found, per foreground class: an object (the points of one instance id and class, at least
-    `OBJECT_MIN_POINTS`) is found when at least `OBJECT_FOUND_SHARE` of its points are labelled its class.
+    """Labelled objects found, per foreground class and per range bin: an object (the points of one instance id and
+    class, at least `OBJECT_MIN_POINTS`) is found when at least `OBJECT_FOUND_SHARE` of its points are labelled its
+    class; its range bin is that of its points' centroid's horizontal distance from the sensor (`edges`, metres).
     Counts objects, not points, so one large car weighs as much as one small one; frames without instance
     ids are counted apart and add no object."""
 
-    def __init__(self, min_points: int = OBJECT_MIN_POINTS, share: float = OBJECT_FOUND_SHARE) -> None:
-        self.min_points, self.share = min_points, share
+    def __init__(self, min_points: int = OBJECT_MIN_POINTS, share: float = OBJECT_FOUND_SHARE,
+                 edges: tuple[float, ...] = OBJECT_RANGE_EDGES_M) -> None:
+        if list(edges) != sorted(edges) or any(e <= 0 for e in edges):
+            raise ValueError(f"range edges must be positive and increasing, got {edges}")
+        self.min_points, self.share, self.edges = min_points, share, tuple(float(e) for e in edges)
         self.objects: list[np.ndarray] = []  # per frame, objects per class id
         self.found: list[np.ndarray] = []
+        self.objects_by_range: list[np.ndarray] = []  # per frame given points, objects per class id x range bin
+        self.found_by_range: list[np.ndarray] = []
         self.frames_without_instances = 0
 
-    def update(self, truth: np.ndarray, predicted: np.ndarray, instance: np.ndarray | None) -> None:
-        """Add one frame's labels, predictions and instance ids (-1: no instance)."""
+    def update(self, truth: np.ndarray, predicted: np.ndarray, instance: np.ndarray | None,
+               xyz: np.ndarray | None = None) -> None:
+        """Add one frame's labels, predictions and instance ids (-1: no instance); with its points (`xyz`, N x 3 or
+        more columns) its objects are counted by range too."""
         if instance is None:
             self.frames_without_instances += 1
             return
         truth, predicted, instance = np.asarray(truth), np.asarray(predicted), np.asarray(instance)
         if not len(truth) == len(predicted) == len(instance):
             raise ValueError(f"{len(truth)} labels, {len(predicted)} predictions, {len(instance)} instance ids")
+        if xyz is not None and len(xyz) != len(truth):
+            raise ValueError(f"{len(xyz)} points for {len(truth)} labels")
+        bins = len(self.edges) + 1
         objects, found = np.zeros(NUM_CLASSES, np.int64), np.zeros(NUM_CLASSES, np.int64)
+        by_range, found_range = np.zeros((NUM_CLASSES, bins), np.int64), np.zeros((NUM_CLASSES, bins), np.int64)
         for c in FOREGROUND:
             member = (truth == c) & (instance >= 0)
-            ids, counts = np.unique(instance[member], return_counts=True)
+            ids, slot, counts = np.unique(instance[member], return_inverse=True, return_counts=True)
             hits = np.bincount(np.searchsorted(ids, instance[member & (predicted == c)]), minlength=len(ids))
             large = counts >= self.min_points
-            objects[c] = int(large.sum())
-            found[c] = int((hits[large] >= self.share * counts[large]).sum())
+            hit = large & (hits >= self.share * counts)
+            objects[c], found[c] = int(large.sum()), int(hit.sum())
+            if xyz is not None:
+                where = np.asarray(xyz, dtype=np.float64)[member]
+                centre_x = np.bincount(slot, weights=where[:, 0], minlength=len(ids)) / np.maximum(counts, 1)
+                centre_y = np.bincount(slot, weights=where[:, 1], minlength=len(ids)) / np.maximum(counts, 1)
+                band = np.searchsorted(self.edges, np.hypot(centre_x, centre_y), side="right")
+                by_range[c] = np.bincount(band[large], minlength=bins)
+                found_range[c] = np.bincount(band[hit], minlength=bins)
         self.objects.append(objects)
         self.found.append(found)
+        if xyz is not None:
+            self.objects_by_range.append(by_range)
+            self.found_by_range.append(found_range)
+
+    def _by_range(self) -> dict | None:
+        """The "by_range" part of `summary`; None when no frame came with points."""
+        if not self.objects_by_range:
+            return None
+        objects, found = np.stack(self.objects_by_range), np.stack(self.found_by_range)
+        names = range_bin_names(self.edges)
+        classes = {CLASS_NAMES[c]: {name: {"objects": int(objects[:, c, b].sum()), "found": int(found[:, c, b].sum()),
+                                           "recall": _ratio(found[:, c, b].sum(), objects[:, c, b].sum()),
+                                           "interval": bootstrap_ratio(found[:, c, b], objects[:, c, b])}
+                                    for b, name in enumerate(names)} for c in FOREGROUND}
+        return {"edges_m": list(self.edges), "bins": names, "frames": len(objects), "classes": classes}
 
     def summary(self) -> dict | None:
         """{"min_points", "share", "frames_without_instances", "classes": {name: {"objects", "found", "recall",
-        "interval"}}} (frame bootstrap intervals, as `bootstrap_ratio`); None when no frame had instance ids."""
+        "interval"}}, "by_range": {"edges_m", "bins", "frames", "classes": {name: {bin: {"objects", "found", "recall",
+        "interval"}}}} (None without points)} (frame bootstrap intervals, as `bootstrap_ratio`); None when no frame
+        had instance ids."""
         if not self.objects:
             return None
         objects, found = np.stack(self.objects), np.stack(self.found)
@@ -371,11 +453,12 @@ class ObjectRecall:
                                     "recall": _ratio(found[:, c].sum(), objects[:, c].sum()),
                                     "interval": bootstrap_ratio(found[:, c], objects[:, c])} for c in FOREGROUND}
         return {"min_points": self.min_points, "share": self.share,
-                "frames_without_instances": self.frames_without_instances, "classes": classes}
+                "frames_without_instances": self.frames_without_instances, "classes": classes,
+                "by_range": self._by_range()}
 
 
 def format_objects(objects: dict | None) -> list[str]:
-    """The object-count line: per class, labelled objects found, with their interval."""
+    """The object-count line: per class, labelled objects found, with their interval; then the by-range table."""
     if not objects:
         return []
     parts = []
@@ -383,8 +466,24 @@ def format_objects(objects: dict | None) -> list[str]:
         share = ("" if row["recall"] is None
                  else f" ({percent_text(row['recall']).strip()} % {interval_text(row['interval'])})")
         parts.append(f"{name} {row['found']} of {row['objects']}{share}")
-    return [f"objects found (>= {round(100 * objects['share'])} % of their points, objects of >= "
-            f"{objects['min_points']} points): " + "; ".join(parts)]
+    head = (f"objects found (>= {round(100 * objects['share'])} % of their points, objects of >= "
+            f"{objects['min_points']} points): " + "; ".join(parts))
+    return [head, *format_objects_by_range(objects.get("by_range"))]
+
+
+def format_objects_by_range(by_range: dict | None) -> list[str]:
+    """Table lines: per class and range bin, objects found / objects and the share in %."""
+    if not by_range:
+        return []
+    lines = ["objects found by range (m, horizontal, sensor to the centroid of the object's points): found / objects",
+             f"  {'class':<12}" + "".join(f"{name + ' m':>16}" for name in by_range["bins"])]
+    for name, row in by_range["classes"].items():
+        cells = []
+        for cell in row.values():
+            share = "   -" if cell["recall"] is None else f"{round(100 * cell['recall']):3d}%"
+            cells.append(f"{cell['found']:>5} /{cell['objects']:>4} {share}")
+        lines.append(f"  {name:<12}" + "".join(f"{cell:>16}" for cell in cells))
+    return lines
 
 
 def percent_text(value: float | None) -> str:
@@ -397,19 +496,25 @@ def interval_text(interval: dict | None) -> str:
     return f"[{100 * interval['low']:.1f}, {100 * interval['high']:.1f}]"
 
 
-def format_metrics(per_class: dict, mean_iou: float | None, mean_interval: dict | None = None) -> list[str]:
+def format_metrics(per_class: dict, mean_iou: float | None, mean_interval: dict | None = None,
+                   extra_rows: Sequence[tuple[str, str, dict]] = ()) -> list[str]:
     """Table lines: per-class precision / recall / IoU in %, point counts, and the foreground mean IoU; with the
-    bootstrap interval after each IoU where the rows carry one ("interval") and a line saying how it was made."""
+    bootstrap interval after each IoU where the rows carry one ("interval") and a line saying how it was made.
+    `extra_rows`: (class name, label, row) printed right after that class's row (e.g. car scored another way)."""
     boot = any("interval" in per_class[name] for name in CLASS_NAMES) or mean_interval is not None
     level = next((row["interval"] for row in per_class.values() if row.get("interval")), mean_interval)
     head = f"{round(100 * level['level'])}% interval" if boot and level else ""
-    lines = [f"{'class':<12}{'prec %':>8}{'recall %':>10}{'IoU %':>8}" + (f"  {head:<16}" if boot else "")
+    width = max([12] + [len(label) + 2 for _, label, _ in extra_rows])
+    lines = [f"{'class':<{width}}{'prec %':>8}{'recall %':>10}{'IoU %':>8}" + (f"  {head:<16}" if boot else "")
              + f"{'points':>10}"]
-    for name in CLASS_NAMES:
-        row = per_class[name]
+    rows = [(name, per_class[name]) for name in CLASS_NAMES]
+    for after, label, extra in extra_rows:
+        at = next((k for k, (name, _) in enumerate(rows) if name == after), len(rows) - 1)
+        rows.insert(at + 1, (label, extra))
+    for name, row in rows:
         span = f"  {interval_text(row.get('interval')):<16}" if boot else ""
-        lines.append(f"{name:<12}{percent_text(row['precision']):>8}{percent_text(row['recall']):>10}{percent_text(row['iou']):>8}{span}"
-                     f"{row['points']:>10}")
+        lines.append(f"{name:<{width}}{percent_text(row['precision']):>8}{percent_text(row['recall']):>10}"
+                     f"{percent_text(row['iou']):>8}{span}{row['points']:>10}")
     mean = f"mean IoU (car, pedestrian, cyclist): {percent_text(mean_iou).strip()} %"
     lines.append(mean + (f" {interval_text(mean_interval)}" if mean_interval is not None else ""))
     if boot and level:

@@ -43,13 +43,16 @@ class Frame:
     ground: np.ndarray | None = None  # (N,) bool
     instance: np.ndarray | None = None  # (N,) int32, -1 none
     boxes: list[Box3D] = field(default_factory=list)
+    # (N,) bool: points of a vehicle that is no car (KITTI Van / Truck boxes, SemanticKITTI bus / truck /
+    # other-vehicle), background under the SqueezeSeg rule; None when the source does not tell
+    vehicle_other: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.points = np.ascontiguousarray(self.points, dtype=np.float32)
         if self.points.ndim != 2 or self.points.shape[1] != 4:
             raise ValueError(f"frame {self.name}: points must be N x 4, got shape {self.points.shape}")
         n = len(self.points)
-        for key in ("ring", "labels", "ground", "instance"):
+        for key in ("ring", "labels", "ground", "instance", "vehicle_other"):
             value = getattr(self, key)
             if value is not None and len(value) != n:
                 raise ValueError(f"frame {self.name}: {key} has {len(value)} entries for {n} points")
@@ -97,4 +100,5 @@ def crop_frame(frame: Frame, keep: np.ndarray) -> Frame:
         labels=None if frame.labels is None else frame.labels[keep],
         ground=None if frame.ground is None else frame.ground[keep],
         instance=instance, boxes=boxes,
+        vehicle_other=None if frame.vehicle_other is None else frame.vehicle_other[keep],
     )

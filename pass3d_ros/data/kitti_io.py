@@ -16,6 +16,9 @@ from pass3d_ros.data.frame import Box3D
 # KITTI annotates objects only where the front camera sees; SqueezeSeg and PASS3D score the front 90 degrees.
 FRONT_VIEW_HALF_ANGLE_DEG = 45.0
 FRAME_PERIOD_NS = 100_000_000  # 10 Hz: the stamp of frame k when a dataset stores no time
+# KITTI box kinds (object labels and raw tracklets alike) of vehicles that are no car: background under SqueezeSeg's
+# rule, the points an evaluation may leave out of the car score (Frame.vehicle_other)
+OTHER_VEHICLE_KINDS: tuple[str, ...] = ("Van", "Truck")
 POINT_BYTES = 16  # x, y, z, reflectance as float32
 
 _DIGITS = re.compile(r"(\d+)")
@@ -101,6 +104,16 @@ def label_points_in_boxes(xyz: np.ndarray, boxes: Iterable[Box3D]) -> tuple[np.n
         labels[inside] = box.label
         instance[inside] = box.instance
     return labels, instance
+
+
+def points_in_kinds(xyz: np.ndarray, boxes: Iterable[Box3D], kinds: tuple[str, ...] = OTHER_VEHICLE_KINDS
+                    ) -> np.ndarray:
+    """Mask of the points inside a box whose kind is one of `kinds` (default: the non-car vehicles)."""
+    inside = np.zeros(len(xyz), dtype=bool)
+    for box in boxes:
+        if box.kind in kinds:
+            inside |= box.contains(xyz)
+    return inside
 
 
 def ignore_outside_front_view(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray:

@@ -8,6 +8,7 @@ Conventions:
   (Box3D turns about z only), which moves a box edge by about a centimetre.
 - Point labels follow SqueezeSeg: inside a Car / Pedestrian / Cyclist box -> that class, else background.
   Boxes of other types (Van, Truck, Tram, Person_sitting, Misc) are kept with label 0; DontCare is skipped.
+  Points inside a Van or Truck box are marked in Frame.vehicle_other (kitti_io.OTHER_VEHICLE_KINDS).
 - box.instance = the box's position in the frame's box list; foreground points carry it in `instance`.
 - KITTI object frames carry no time: stamp = frame number (digits of the file name) x 100 ms.
 - A frame without label_2/<name>.txt has labels None and no boxes; a label file needs its calib file.
@@ -30,6 +31,7 @@ from pass3d_ros.data.kitti_io import (
     frame_index,
     ignore_outside_front_view,
     label_points_in_boxes,
+    points_in_kinds,
     read_frame_bin,
     require_dir,
     sorted_files,
@@ -130,7 +132,8 @@ def _frames(root: Path, bins: list[Path]) -> Iterator[Frame]:
         boxes = read_label_file(label_path, parse_calib(calib_path))
         labels, instance = label_points_in_boxes(points[:, :3], boxes)
         labels = ignore_outside_front_view(points, labels)
-        yield Frame(name=name, points=points, stamp_ns=stamp, labels=labels, instance=instance, boxes=boxes)
+        yield Frame(name=name, points=points, stamp_ns=stamp, labels=labels, instance=instance, boxes=boxes,
+                    vehicle_other=points_in_kinds(points[:, :3], boxes))
 
 
 def read_kitti_object(path: str | Path) -> Iterator[Frame]:

@@ -8,6 +8,7 @@ Conventions:
 - Labels follow SqueezeSeg: points in a Car / Pedestrian / Cyclist box take that class, all else (Van,
   Truck, Tram, Person (sitting), Misc, no box) background. box.instance = the tracklet's index in the file,
   stable across frames; foreground points carry it in `instance`. No tracklet file -> labels None.
+  Points inside a Van or Truck box are marked in Frame.vehicle_other (kitti_io.OTHER_VEHICLE_KINDS).
 - Stamps: timestamps.txt ("2011-09-26 13:02:25.964389445", read as UTC) to integer ns exactly; without
   the file, frame number x 100 ms.
 - Frame name: SqueezeSeg's `2011_09_26_0001_0000000000` when the folder is named like a KITTI drive,
@@ -35,6 +36,7 @@ from pass3d_ros.data.kitti_io import (
     frame_stamp,
     ignore_outside_front_view,
     label_points_in_boxes,
+    points_in_kinds,
     read_frame_bin,
     read_stamp_lines,
     require_dir,
@@ -115,7 +117,7 @@ def _frames(drive: Path, bins: list[Path], stamps: list[int] | None,
         labels, instance = label_points_in_boxes(points[:, :3], frame_boxes)
         labels = ignore_outside_front_view(points, labels)
         yield Frame(name=name, points=points, stamp_ns=stamp, labels=labels, instance=instance,
-                    boxes=list(frame_boxes))
+                    boxes=list(frame_boxes), vehicle_other=points_in_kinds(points[:, :3], frame_boxes))
 
 
 def read_kitti_raw(path: str | Path) -> Iterator[Frame]:

@@ -6,6 +6,8 @@ times.txt (seconds per frame). Conventions:
   + 253 moving-bicyclist (the rider). 11 bicycle, 15 motorcycle, 32 motorcyclist and 255 moving-motorcyclist
   are background: the PASS3D / SqueezeSeg classes have no motorcyclist, and SemanticKITTI labels a ridden
   bicycle 11 apart from its rider, so its cyclist points are fewer than a KITTI box would give.
+- Non-car vehicles (Frame.vehicle_other): 13 bus, 18 truck, 20 other-vehicle and their moving 257, 258, 259;
+  background like every other class outside the three.
 - Ground mask: 40 road, 44 parking, 48 sidewalk, 49 other-ground, 60 lane-marking, 72 terrain.
 - Instance: Frame.instance = (v >> 16) - 1, so SemanticKITTI's 0 (no instance) becomes -1; the writer
   stores instance + 1. Labels None when labels/ is missing (or that frame's .label file is).
@@ -38,6 +40,7 @@ from pass3d_ros.data.kitti_io import (
 
 SEMANTIC_TO_LABEL: dict[int, int] = {10: CAR, 252: CAR, 30: PEDESTRIAN, 254: PEDESTRIAN, 31: CYCLIST, 253: CYCLIST}
 GROUND_CLASSES: tuple[int, ...] = (40, 44, 48, 49, 60, 72)
+OTHER_VEHICLE_CLASSES: tuple[int, ...] = (13, 18, 20, 257, 258, 259)  # bus, truck, other-vehicle, and moving
 LABEL_TO_SEMANTIC: dict[int, int] = {BACKGROUND: 99, CAR: 10, PEDESTRIAN: 30, CYCLIST: 31}
 GROUND_SEMANTIC = 40
 
@@ -45,6 +48,8 @@ _LABEL_LUT = np.zeros(1 << 16, dtype=np.uint8)
 _LABEL_LUT[list(SEMANTIC_TO_LABEL)] = list(SEMANTIC_TO_LABEL.values())
 _GROUND_LUT = np.zeros(1 << 16, dtype=bool)
 _GROUND_LUT[list(GROUND_CLASSES)] = True
+_OTHER_VEHICLE_LUT = np.zeros(1 << 16, dtype=bool)
+_OTHER_VEHICLE_LUT[list(OTHER_VEHICLE_CLASSES)] = True
 _SEMANTIC_OF_LABEL = np.array([LABEL_TO_SEMANTIC[k] for k in sorted(LABEL_TO_SEMANTIC)], dtype=np.uint32)
 
 
@@ -54,6 +59,11 @@ def decode_labels(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     semantic = raw & 0xFFFF
     instance = (raw >> 16).astype(np.int32) - 1
     return _LABEL_LUT[semantic], _GROUND_LUT[semantic], instance
+
+
+def decode_vehicle_other(raw: np.ndarray) -> np.ndarray:
+    """Mask of the points whose raw SemanticKITTI class is a bus, truck or other vehicle (moving or not)."""
+    return _OTHER_VEHICLE_LUT[np.asarray(raw, dtype=np.uint32) & 0xFFFF]
 
 
 def encode_labels(labels: np.ndarray, ground: np.ndarray | None, instance: np.ndarray | None) -> np.ndarray:
@@ -105,8 +115,10 @@ def _frames(seq: Path, bins: list[Path], stamps: list[int] | None) -> Iterator[F
         if not label_path.is_file():
             yield Frame(name=name, points=points, stamp_ns=stamp)
             continue
-        labels, ground, instance = decode_labels(read_label_file(label_path, len(points)))
-        yield Frame(name=name, points=points, stamp_ns=stamp, labels=labels, ground=ground, instance=instance)
+        raw = read_label_file(label_path, len(points))
+        labels, ground, instance = decode_labels(raw)
+        yield Frame(name=name, points=points, stamp_ns=stamp, labels=labels, ground=ground, instance=instance,
+                    vehicle_other=decode_vehicle_other(raw))
 
 
 def read_semantickitti(path: str | Path) -> Iterator[Frame]:

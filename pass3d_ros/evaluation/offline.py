@@ -139,8 +139,9 @@ def background_proposals(points: np.ndarray, truth: np.ndarray, members: list[np
 
 def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, classifier: Classifier,
                   intensity_match: bool = INTENSITY_MATCH) -> dict:
-    """Stage 1 then stage 2 on every frame, scored against its labels: per-class metrics, labelled objects
-    found, stage times, and the stage-1 summary. Each spec's intensities go to stage 2 on the training scale
+    """Stage 1 then stage 2 on every frame, scored against its labels: per-class metrics (car also with the points
+    of vans / trucks / buses left out, where the reader marks them), labelled objects found (overall and by range),
+    stage times, and the stage-1 summary. Each spec's intensities go to stage 2 on the training scale
     (`intensity_match`)."""
     warm_up()
     classifier.warm_up()
@@ -169,8 +170,9 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
             predicted = np.full(len(frame.points), BACKGROUND, dtype=np.uint8)
             predicted[scan.kept] = labels
         name = f"{spec}#{frame.name}"
-        row = segmentation.update(name, frame.labels, predicted, 1e3 * (split - started), 1e3 * (done - split))
-        objects.update(frame.labels, predicted, frame.instance)
+        row = segmentation.update(name, frame.labels, predicted, 1e3 * (split - started), 1e3 * (done - split),
+                                  vehicle_other=frame.vehicle_other)
+        objects.update(frame.labels, predicted, frame.instance, frame.points)
         row["proposals"] = result.n_proposals
         row["proposals_cut"] = cut
         stage1.update_result(name, result, truth, ground)

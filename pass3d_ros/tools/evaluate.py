@@ -7,8 +7,11 @@ Modes (one per run):
                   car / pedestrian / cyclist, median ms per frame per stage (stage 1 = propose(); stage 2 =
                   proposal members + segment(); total = their sum per frame). The stage-1 numbers come
                   along, and how many background-only proposals in the front 90 degrees stage 2 called
-                  an object (street clutter mistaken for road users). A frame without point labels is
-                  an error naming its spec. Points with a non-finite coordinate never reach the core:
+                  an object (street clutter mistaken for road users). Car is scored twice: strictly
+                  (van / truck points are background) and with the points of vans / trucks / buses left
+                  out where the reader marks them; labelled objects found are counted by range bin too
+                  (horizontal distance from the sensor to their points' centroid). A frame without
+                  point labels is an error naming its spec. Points with a non-finite coordinate never reach the core:
                   they are predicted background and still scored (a labelled one counts as a miss).
   --stage1-only   stage 1 cluster proposals: foreground recall (share of ground-truth car / pedestrian /
                   cyclist points inside a kept proposal), proposals per frame, milliseconds per frame and
@@ -106,9 +109,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="full mode, network classifier in process: run the evaluation once per draw 0..N-1 of "
                              "the seeded N-point sample of each proposal and report each class's IoU per draw, their "
                              "mean and draw-to-draw range (JSON: \"draws\"); draw 0 is the default sample (default 1)")
-    parser.add_argument("--sampling", choices=SAMPLINGS, default="draw",
+    parser.add_argument("--sampling", choices=SAMPLINGS,
                         help="full mode, network classifier in process: how stage 2 picks each proposal's points: "
-                             "the seeded draw (default) or the draw-free coverage sample")
+                             "the seeded draw or the draw-free coverage sample (default: the weights' own, as the "
+                             "nodes use it: coverage for order-free weights; --sample-draws: draw)")
     parser.add_argument("--per-frame", action="store_true", help="print one row per frame too")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     live = parser.add_argument_group("live mode")
@@ -148,8 +152,10 @@ def _check_args(args: argparse.Namespace) -> str:
     if mode != "full" and args.sample_draws != 1:
         option = {"stage1": "--stage1-only", "view_agreement": "--view-agreement", "live": "--live"}[mode]
         raise UserError(f"--sample-draws applies to the full evaluation only, not with {option}")
-    if args.sampling != "draw" and (mode != "full" or args.classifier == "size_rules"):
+    if args.sampling is not None and (mode != "full" or args.classifier == "size_rules"):
         raise UserError("--sampling applies to the full evaluation with the network classifier")
+    if args.sampling == "coverage" and args.sample_draws != 1:
+        raise UserError("--sample-draws draws the seeded sample again and again: the coverage sample has no draw")
     if args.sample_draws != 1 and args.classifier == "size_rules":
         raise UserError("--sample-draws needs the network classifier (size_rules draws no sample)")
     if mode == "view_agreement" and args.classifier == "size_rules":
@@ -178,11 +184,13 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
     kind, weights = classifier.kind, classifier.weights
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
     if mode == "full":
-        if args.sampling != "draw":
+        sampling = "draw" if args.sample_draws > 1 else args.sampling
+        if sampling is not None:
             if not isinstance(classifier, Segmenter):
                 raise UserError("--sampling needs the network classifier in this process")
-            classifier.sampling = args.sampling
-            settings["classifier"]["sampling"] = args.sampling
+            classifier.sampling = sampling
+        if isinstance(classifier, Segmenter):
+            settings["classifier"]["sampling"] = classifier.sampling
         if args.sample_draws > 1:
             again = functools.partial(iter_frames, datasets, args.limit, not args.no_progress)
             return {**evaluate_draws(again, config, classifier, args.sample_draws, args.intensity_match),

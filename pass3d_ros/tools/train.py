@@ -30,6 +30,7 @@ PROG = "pass3d_train"
 # takes it along), and Ctrl-C meanwhile is the one line and status 130 it is later, not a traceback.
 worker.die_with_parent()
 try:
+    from pass3d_ros.core.stage2.pointnet2 import GROUPINGS, TRAIN_GROUPING
     from pass3d_ros.evaluation.offline import parse_params
     from pass3d_ros.tools.cli import (
         EXIT_SIGINT,
@@ -84,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-n-feature", action="store_true", help="set the point-count feature n to 0")
     p.add_argument("--n-mode", choices=["ratio", "log"], default="log",
                    help="n = log(NUM / N) (default: bounded, trains stably) or the paper's (NUM - N) / N")
+    p.add_argument("--grouping", choices=GROUPINGS, default=TRAIN_GROUPING,
+                   help="set: FPS from the point nearest the centroid, nearest ball members (order-free); "
+                        "slot: FPS from slot 0, first ball members in slot order (weights up to 0.2)")
     p.add_argument("--no-intensity-augment", action="store_true",
                    help="no per-proposal intensity augmentation (gain, offset, gamma, zeroing, constant)")
     p.add_argument("--no-intensity", action="store_true",

@@ -33,7 +33,13 @@ import torch
 from tqdm import tqdm
 
 from pass3d_ros.core.stage1.config import Stage1Config
-from pass3d_ros.core.stage2.pointnet2 import ModelConfig, PointNet2Seg, count_parameters, make_config
+from pass3d_ros.core.stage2.pointnet2 import (
+    TRAIN_GROUPING,
+    ModelConfig,
+    PointNet2Seg,
+    count_parameters,
+    make_config,
+)
 from pass3d_ros.core.stage2.segmentation import (
     CheckpointError,
     check_finite,
@@ -93,6 +99,7 @@ class TrainOptions:
     no_augment: bool = False  # train on the inference view only (no 8 views)
     no_n_feature: bool = False  # point-count feature n set to 0
     n_mode: str = "log"
+    grouping: str = TRAIN_GROUPING  # pass3d_ros.core.stage2.pointnet2.GROUPINGS
     no_intensity_augment: bool = False  # no per-proposal intensity augmentation
     no_intensity: bool = False  # intensity fed as 0, in training and (stored in the config) inference
     seed: int = 0
@@ -226,6 +233,7 @@ class Trainer:
         self.config = make_config(o.config)
         self.config.n_feature = not o.no_n_feature
         self.config.n_mode = o.n_mode
+        self.config.grouping = o.grouping
         if o.no_intensity:
             self.config.extra["intensity"] = False
 
@@ -312,7 +320,8 @@ class Trainer:
         match (the checkpoint's, including the n feature and intensity settings)."""
         if self.init_model is None:
             return
-        if self.init_model.config.to_dict() != self.config.to_dict():
+        # The grouping has no weights: a network trained with one can start training with the other.
+        if {**self.init_model.config.to_dict(), "grouping": self.config.grouping} != self.config.to_dict():
             raise TrainingError(f"{self.options.init} was trained with another config "
                                 f"({self.init_model.config.name}); cannot start from it")
         self.model.load_state_dict(self.init_model.state_dict())

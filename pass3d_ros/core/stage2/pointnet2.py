@@ -28,6 +28,13 @@ from pass3d_ros.core.stage2 import pointnet2_cpu as _cpu
 # Per-point input features beside the local xyz: intensity and the point-count feature n.
 NUM_POINT_FEATURES = 2
 
+# How a set-abstraction level groups its N points. "slot" (every checkpoint before issue 37): FPS starts at slot 0
+# and a ball keeps its first members in slot order, so the answer depends on the order of the points. "set": FPS
+# starts at the point nearest the points' centroid and a ball keeps its nearest members (ties to the lower slot,
+# which only identical points share), so the answer is a function of the point set alone.
+GROUPINGS = ("slot", "set")
+TRAIN_GROUPING = "set"  # what a new training run uses
+
 
 @dataclass
 class SAConfig:
@@ -53,6 +60,7 @@ class ModelConfig:
     num_classes: int = NUM_CLASSES
     n_feature: bool = True  # False: the point-count feature n is 0 (the paper's ablation baseline)
     n_mode: str = "log"  # "log": log(NUM / N), bounded (trains stably); "ratio": the paper's (NUM - N) / N
+    grouping: str = "slot"  # one of GROUPINGS: how FPS starts and which points a ball keeps
     extra: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
@@ -82,6 +90,8 @@ class ModelConfig:
                 raise ValueError(f"SA level {level}: radii, nsamples and mlps differ in length")
         if self.sa and self.sa[0].centres > self.num_points:
             raise ValueError("SA1 has more centres than points per sample")
+        if self.grouping not in GROUPINGS:
+            raise ValueError(f"unknown grouping {self.grouping!r}, choose from {', '.join(GROUPINGS)}")
 
 
 def paper_config() -> ModelConfig:
@@ -148,13 +158,15 @@ def pairwise_sq_dist(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.bmm(left, right.transpose(1, 2)).clamp_min_(0.0)
 
 
-def farthest_point_sample(d2: torch.Tensor, count: int) -> torch.Tensor:
+def farthest_point_sample(d2: torch.Tensor, count: int, start: torch.Tensor | None = None) -> torch.Tensor:
     """Indices (B, count) of farthest point sampling given the squared distance matrix d2 (B, N, N) of
-    the points, starting at point 0 (deterministic)."""
+    the points, starting at point `start` (B,) or 0 (deterministic)."""
     b = d2.shape[0]
     idx = torch.zeros(b, count, dtype=torch.long, device=d2.device)
     rows = torch.arange(b, device=d2.device)
-    dist = d2[:, 0]
+    if start is not None:
+        idx[:, 0] = start
+    dist = d2[rows, idx[:, 0]]
     for i in range(1, count):
         last = dist.argmax(-1)
         idx[:, i] = last
@@ -169,13 +181,23 @@ def gather_points(values: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
     return values.reshape(b * n, c)[flat.reshape(-1)].reshape(*idx.shape, c)
 
 
-def ball_query(d2: torch.Tensor, radius: float, nsample: int) -> torch.Tensor:
+def ball_query(d2: torch.Tensor, radius: float, nsample: int, nearest: bool = False) -> torch.Tensor:
     """For squared distances d2 (B, S, N) of centres to points: the first `nsample` point indices within
-    `radius` of each centre, in index order, padded with the first one found (B, S, nsample).
+    `radius` of each centre, in index order (`nearest`: the nearest ones, nearest first, ties to the lower index),
+    padded with the first one found (B, S, nsample).
 
     Every centre must be one of the points (FPS centres are), so each ball holds at least one point.
     """
     b, s, n = d2.shape
+    if nearest:
+        inside = d2 <= radius * radius
+        key = torch.where(inside, d2.clamp_min(0.0), torch.full_like(d2, float("inf")))
+        order = torch.sort(key, dim=-1, stable=True).indices[..., :nsample]
+        found = torch.gather(inside, -1, order)
+        if nsample > n:  # fewer points than members asked for: the rest is padding
+            order = torch.cat([order, order[..., :1].expand(b, s, nsample - n)], dim=-1)
+            found = torch.cat([found, torch.zeros_like(found[..., :1]).expand(b, s, nsample - n)], dim=-1)
+        return torch.where(found, order, order[..., :1])
     inside = d2 <= radius * radius
     rank = inside.cumsum(-1) - 1
     keep = inside & (rank < nsample)
@@ -252,24 +274,36 @@ def _lifted(a: torch.Tensor, b: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
     return _cpu.lift_points(_np(a), _np(b))
 
 
-def sample_centres(xyz: torch.Tensor, count: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Farthest point sampling of xyz (B, N, 3): centre indices (B, count) and the centres' squared distances
-    to all points (B, count, N), as pairwise_sq_dist + farthest_point_sample give them. On CPU one numba
-    kernel computes only those rows (unclamped: its ball_query reads them as clamped)."""
+def centroid_nearest(xyz: torch.Tensor) -> torch.Tensor:
+    """Index (B,) of the point of xyz (B, N, 3) nearest the points' centroid (in float64, so the order the points
+    are summed in does not show), ties to the lower index: where "set" grouping starts FPS."""
+    both = xyz.detach().double()
+    return ((both - both.mean(dim=1, keepdim=True)) ** 2).sum(-1).argmin(dim=-1)
+
+
+def sample_centres(xyz: torch.Tensor, count: int, grouping: str = "slot") -> tuple[torch.Tensor, torch.Tensor]:
+    """Farthest point sampling of xyz (B, N, 3) as `grouping` starts it: centre indices (B, count) and the
+    centres' squared distances to all points (B, count, N), as pairwise_sq_dist + farthest_point_sample give
+    them. On CPU one numba kernel computes only those rows (unclamped: its ball_query reads them as clamped)."""
+    start = centroid_nearest(xyz) if grouping == "set" else None
     if _numba_ok(xyz):
-        idx, d2 = _cpu.farthest_point_sample(*_lifted(xyz, xyz), count)
+        first = np.zeros(xyz.shape[0], dtype=np.int64) if start is None else _np(start)
+        idx, d2 = _cpu.farthest_point_sample(*_lifted(xyz, xyz), count, first)
         return torch.from_numpy(idx), torch.from_numpy(d2)
     d2_all = pairwise_sq_dist(xyz, xyz)
-    idx = farthest_point_sample(d2_all, count)
+    idx = farthest_point_sample(d2_all, count, start)
     return idx, torch.gather(d2_all, 1, idx.unsqueeze(-1).expand(-1, -1, d2_all.shape[-1]))
 
 
-def ball_members(d2: torch.Tensor, radius: float, nsample: int) -> torch.Tensor:
-    """ball_query; on CPU a numba kernel (one pass per centre instead of a cumsum and a scatter)."""
+def ball_members(d2: torch.Tensor, radius: float, nsample: int, grouping: str = "slot") -> torch.Tensor:
+    """ball_query as `grouping` keeps members; on CPU a numba kernel (one pass per centre instead of a cumsum and
+    a scatter, or a sort)."""
+    nearest = grouping == "set"
     if not _numba_ok(d2):
-        return ball_query(d2, radius, nsample)
+        return ball_query(d2, radius, nsample, nearest)
     # torch compares a float32 tensor with a Python float in float32: so does the kernel.
-    return torch.from_numpy(_cpu.ball_query(_np(d2), np.float32(radius * radius), nsample))
+    kernel = _cpu.ball_query_nearest if nearest else _cpu.ball_query
+    return torch.from_numpy(kernel(_np(d2), np.float32(radius * radius), nsample))
 
 
 # -------------------------------------------------------------------------------------------- layers
@@ -315,19 +349,20 @@ class SharedMLP(nn.Module):
 class SetAbstractionMSG(nn.Module):
     """FPS centres, then per scale: ball query, group (relative xyz + features), shared MLP, max-pool."""
 
-    def __init__(self, cfg: SAConfig, in_features: int) -> None:
+    def __init__(self, cfg: SAConfig, in_features: int, grouping: str = "slot") -> None:
         super().__init__()
         self.cfg = cfg
+        self.grouping = grouping
         self.mlps = nn.ModuleList(SharedMLP(in_features + 3, widths) for widths in cfg.mlps)
         self.out_channels = sum(m.out_channels for m in self.mlps)
 
     def forward(self, xyz: torch.Tensor, feat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        centres_idx, d2 = sample_centres(xyz, self.cfg.centres)
+        centres_idx, d2 = sample_centres(xyz, self.cfg.centres, self.grouping)
         centres = gather_points(xyz, centres_idx)
         both = torch.cat([xyz, feat], dim=-1)
         outs = []
         for radius, nsample, mlp in zip(self.cfg.radii, self.cfg.nsamples, self.mlps, strict=True):
-            idx = ball_members(d2, radius, nsample)
+            idx = ball_members(d2, radius, nsample, self.grouping)
             # The first Linear acts on (point xyz - centre, features): project every point and centre once,
             # then group the projections (cheaper than projecting every grouped copy).
             first = mlp.layers[0]
@@ -409,7 +444,7 @@ class PointNet2Seg(nn.Module):
         channels = [NUM_POINT_FEATURES]
         self.sa = nn.ModuleList()
         for level in config.sa:
-            self.sa.append(SetAbstractionMSG(level, channels[-1]))
+            self.sa.append(SetAbstractionMSG(level, channels[-1], config.grouping))
             channels.append(self.sa[-1].out_channels)
         self.sa_all = SetAbstractionAll(config.global_mlp, channels[-1])
         coarse = self.sa_all.out_channels

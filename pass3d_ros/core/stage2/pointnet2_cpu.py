@@ -57,8 +57,9 @@ def _sq_dist(left: np.ndarray, i: int, p: int, right: np.ndarray, k: int, q: int
 
 
 @nb.njit(cache=True, nogil=True)
-def farthest_point_sample(left: np.ndarray, right: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """Farthest point sampling of B point sets from point 0, from their lifted rows left, right (B, 5, N),
+def farthest_point_sample(left: np.ndarray, right: np.ndarray, count: int, start: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """Farthest point sampling of B point sets from point start[b], from their lifted rows left, right (B, 5, N),
     channels first: centre indices (B, count) and the centres' squared distances to every point (B, count, N),
     unclamped. Ties go to the lowest index, as torch's argmax gives them."""
     b, n = left.shape[0], left.shape[2]
@@ -67,7 +68,7 @@ def farthest_point_sample(left: np.ndarray, right: np.ndarray, count: int) -> tu
     dist = np.empty(n, dtype=np.float32)
     for i in range(b):
         dist[:] = np.inf
-        last = 0
+        last = start[i]
         for k in range(count):
             idx[i, k] = last
             for j in range(n):
@@ -101,6 +102,38 @@ def ball_query(d2: np.ndarray, r2: np.float32, nsample: int) -> np.ndarray:
                 k += d2[i, c, j] <= r2
                 if k == nsample:
                     break
+            pad = found[0] if k > 0 else n
+            for m in range(nsample):
+                out[i, c, m] = found[m] if m < k else pad
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def ball_query_nearest(d2: np.ndarray, r2: np.float32, nsample: int) -> np.ndarray:
+    """(B, S, nsample): per row of d2 (B, S, N), the nsample columns with d2 <= r2 nearest first (d2 clamped at 0,
+    ties to the lower index, as torch's stable sort gives them), padded with the nearest one (with N where none
+    is)."""
+    b, s, n = d2.shape
+    out = np.empty((b, s, nsample), dtype=np.int64)
+    found = np.empty(nsample, dtype=np.int64)
+    near = np.empty(nsample, dtype=np.float32)
+    for i in range(b):
+        for c in range(s):
+            k = 0
+            for j in range(n):
+                v = d2[i, c, j]
+                if not v <= r2:
+                    continue
+                v = max(v, _ZERO)
+                if k == nsample and v >= near[k - 1]:
+                    continue
+                # Insert after every kept member at most as near (stable), dropping the farthest when full.
+                m = k if k < nsample else nsample - 1
+                while m > 0 and near[m - 1] > v:
+                    near[m], found[m] = near[m - 1], found[m - 1]
+                    m -= 1
+                near[m], found[m] = v, j
+                k = min(k + 1, nsample)
             pad = found[0] if k > 0 else n
             for m in range(nsample):
                 out[i, c, m] = found[m] if m < k else pad
@@ -245,8 +278,9 @@ def warm_up() -> None:
     """Compile every kernel (from numba's on-disk cache after the first time) on tiny float32 inputs."""
     xyz = np.random.default_rng(0).random((1, 8, 3)).astype(np.float32)
     left, right = lift_points(xyz, xyz)
-    _, d2 = farthest_point_sample(left, right, 4)
+    _, d2 = farthest_point_sample(left, right, 4, np.zeros(1, dtype=np.int64))
     idx = ball_query(d2, np.float32(0.25), 4)
+    ball_query_nearest(d2, np.float32(0.25), 4)
     feat = np.ones((1, 8, 2), dtype=np.float32)
     group_relative(feat, idx, np.ones((1, 4, 2), dtype=np.float32), True)
     weight, bias = np.ones((2, 2), dtype=np.float32), np.zeros(2, dtype=np.float32)

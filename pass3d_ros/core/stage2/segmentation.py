@@ -301,6 +301,13 @@ class ViewProbabilities(NamedTuple):
     proposals: int
 
 
+def default_sampling(config: ModelConfig) -> str:
+    """How inference samples a network's N points: the draw-free coverage sample for an order-free ("set")
+    network, so the same points always get the same labels; a seeded draw for "slot" networks, which read a
+    coverage sample no better than a draw (docs/experiments/trials-issue-37-sampling.md, trial 26)."""
+    return "coverage" if config.grouping == "set" else "draw"
+
+
 class Segmenter:
     """Stage-2 network classifier loaded from a checkpoint file or dict."""
 
@@ -322,7 +329,7 @@ class Segmenter:
         self.checkpoint_info = {k: v for k, v in checkpoint.items() if k not in ("state_dict", "optimizer")}
         self.max_proposals = max_proposals
         self.draw = 0  # which seeded N-point sample inference uses (canonical.inference_rng); 0 is the default
-        self.sampling = "draw"  # or "coverage": the draw-free sample (canonical.coverage_sample)
+        self.sampling = default_sampling(self.config)  # "draw" or "coverage" (canonical.SAMPLINGS)
         self.model = flush_subnormals(fuse_batchnorm(model) if fuse else model).to(self.device).eval()
 
     def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult:
