@@ -1,6 +1,7 @@
 """Laser lines held across a stream (pass3d_ros.core.stage1.held_lines.LineHolder), as the cluster node and every
 offline tool hold them: one search per stream, a new one for a new stream or when the held lines stop fitting, and a
-failed search repeated only after LINE_SEARCH_RETRY_S (offline: counted in scans, not wall time)."""
+failed search repeated after 1, 2, 4, 8 ... scan periods, at most LINE_SEARCH_RETRY_S apart (offline: counted in
+scans, not wall time), the count starting over when a search finds lines."""
 
 from __future__ import annotations
 
@@ -84,24 +85,87 @@ def test_a_scan_with_a_ring_field_keeps_what_was_held() -> None:
     assert result.ring_source == "field" and holder.held is lines
 
 
+def searched_scans(holder: LineHolder, scans: list[np.ndarray], searches: list[int]) -> tuple[list[int], list[str]]:
+    """Run `scans` through `holder`: the indices of the scans that searched for laser lines, and every ring source."""
+    searched, sources = [], []
+    for k, points in enumerate(scans):
+        before = len(searches)
+        sources.append(holder.propose(points).ring_source)
+        if len(searches) > before:
+            searched.append(k)
+    return searched, sources
+
+
 def test_offline_a_failed_search_is_repeated_after_the_retry_time_in_scans(searches: list[int],
                                                                             monkeypatch: pytest.MonkeyPatch) -> None:
-    """No clock: each scan counts SCAN_PERIOD_S, so a run's searches do not depend on how fast it runs."""
+    """No clock: each scan counts SCAN_PERIOD_S, so a run's searches do not depend on how fast it runs; the waits of
+    1, 2, 4 ... scans stop growing at LINE_SEARCH_RETRY_S (here 3 scans)."""
     monkeypatch.setattr(held_lines, "LINE_SEARCH_RETRY_S", 3 * held_lines.SCAN_PERIOD_S)
+    searched, sources = searched_scans(LineHolder(), [no_laser_lines_scan()] * 10, searches)
+    assert searched == [0, 1, 3, 6, 9] and set(sources) == {"elevation_bins"}
+
+
+def test_failed_searches_back_off_and_one_that_finds_lines_starts_over(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A stream whose first three searches find no lines searches on scans 0, 1, 3 and 7 (1, 2 and 4 scans apart),
+    bins by elevation in between, and from the search that finds its lines on reads every scan off them."""
+    calls: list[int] = []
+    search: Callable[..., ring.Rings | None] = ring.rings_from_lines
+
+    def failing_three_times(points: np.ndarray, sensor: str = "auto") -> ring.Rings | None:
+        calls.append(len(points))
+        return None if len(calls) <= 3 else search(points, sensor)
+
+    monkeypatch.setattr(ring, "rings_from_lines", failing_three_times)
     holder = LineHolder()
-    pts = no_laser_lines_scan()
-    for _ in range(7):
-        assert holder.propose(pts).ring_source == "elevation_bins"
-    assert len(searches) == 3  # scans 0, 3 and 6
+    searched, sources = searched_scans(holder, [shuffled(SCAN64, seed) for seed in range(12)], calls)
+    assert searched == [0, 1, 3, 7]
+    assert sources == ["elevation_bins"] * 7 + ["elevation_lines"] * 5
+    assert holder.failures == 0 and len(holder.held.a) == 64
 
 
-def test_a_clock_times_the_retry() -> None:
+def test_the_waits_double_from_one_scan_up_to_the_retry_time() -> None:
+    """Offline, a stream whose every search fails searches on scans 0, 1, 3, 7 ... 127 (each wait twice the last),
+    then every LINE_SEARCH_RETRY_S (100 scans)."""
+    holder = LineHolder()
+    searched = []
+    for k in range(400):
+        given = holder.lines()
+        if given is None:
+            searched.append(k)
+        holder.hold(given, ring.NO_LINES)  # a search that found none (given None), else a scan binned without one
+    assert searched == [0, 1, 3, 7, 15, 31, 63, 127, 227, 327]
+    waits = [held_lines.retry_wait(n) for n in (1, 2, 3, 4, 7, 8, 9, 10**6)]
+    assert waits == pytest.approx([0.1, 0.2, 0.4, 0.8, 6.4, 10.0, 10.0, 10.0])
+
+
+def test_a_clock_times_the_retries_and_found_lines_or_a_new_stream_start_over() -> None:
     now = [100.0]
     holder = LineHolder(clock=lambda: now[0])
-    holder.hold(None, ring.NO_LINES)
+    lines = ring.LaserLines(np.array([0.02, -0.02]), np.zeros(2))
+    holder.hold(None, ring.NO_LINES)  # the first search finds none
+    for wait in (0.1, 0.2, 0.4, 0.8, 1.6):
+        now[0] += wait - 0.01
+        assert holder.lines() is ring.NO_LINES  # too early: binned by elevation, no search
+        holder.hold(ring.NO_LINES, ring.NO_LINES)  # a scan binned without a search changes nothing
+        now[0] += 0.01
+        assert holder.lines() is None  # time to search again ...
+        holder.hold(None, ring.NO_LINES)  # ... and that search finds none either
+    assert holder.failures == 6
+    holder.hold(None, lines)
+    assert holder.failures == 0 and holder.lines() is lines
+    holder.hold(lines, ring.NO_LINES)  # the held lines stopped fitting and a new search found none: wait 1 again
+    now[0] += 0.09
     assert holder.lines() is ring.NO_LINES
-    now[0] += held_lines.LINE_SEARCH_RETRY_S
+    now[0] += 0.01
     assert holder.lines() is None
+    for _ in range(20):
+        holder.hold(None, ring.NO_LINES)
+    now[0] += held_lines.LINE_SEARCH_RETRY_S - 0.01
+    assert holder.lines() is ring.NO_LINES  # the waits stop growing at LINE_SEARCH_RETRY_S
+    now[0] += 0.01
+    assert holder.lines() is None
+    holder.follow("another stream")
+    assert holder.failures == 0 and holder.held is None
 
 
 def test_evaluate_stage1_holds_lines_per_spec(searches: list[int]) -> None:

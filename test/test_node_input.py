@@ -356,6 +356,7 @@ def test_stream_without_laser_lines_searches_again_only_after_the_retry_time(
     expected = propose(points)
     monkeypatch.setattr(ring, "rings_from_lines", counted)
     monkeypatch.setattr(held_lines, "LINE_SEARCH_RETRY_S", 3600.0)
+    monkeypatch.setattr(held_lines, "LINE_SEARCH_FIRST_RETRY_S", 3600.0)  # no retry on the clock's own time
     for k in range(4):
         if k == 3:
             monkeypatch.setattr(held_lines, "LINE_SEARCH_RETRY_S", 0.0)

@@ -43,7 +43,7 @@ class Stage1Result:
     ring_source: str = "field"  # how rings were obtained: see pass3d_ros.core.stage1.ring.RING_SOURCES
     ground_planes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (n_seg, 4): a x+b y+c z+d=0
     n_clusters: int = 0  # clusters before the gates (and before the split)
-    n_split: int = 0  # clusters cut into parts (Stage1Config.split_merged, split_protruding) and gated again
+    n_split: int = 0  # clusters cut into parts (Stage1Config.split_merged, split_rerun, split_protruding), gated again
     sensor: SensorScale | None = None  # the scan's resolution and the effective th_num / th_prop it ran with
     lines: _ring.LaserLines | None = None  # laser lines the rings were read from (NO_LINES: a search found none):
     # pass to the next scan's propose()
@@ -132,9 +132,9 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     n_split = 0
     # With a local ground the gates read heights above it (it passes through the split as the planes argument).
     surface = fit.local if fit.local is not None else fit.planes
-    if cfg.split_merged or cfg.split_protruding:
+    if cfg.split_merged or cfg.split_rerun or cfg.split_protruding:
         boxes, kept, label, n_split = _split.select_with_split(work, label, n_clusters, surface, fit.segment_edges,
-                                                               cfg)
+                                                               cfg, work_ring)
     else:
         boxes, kept = _refinement.select_proposals(work, label, n_clusters, surface, fit.segment_edges, cfg)
     floors = None if fit.local is None else _refinement.ground_floors(boxes, fit.local, cfg.th_dist)

@@ -123,6 +123,14 @@ class Stage1Config:
         0.4, "refinement: an empty stretch of the long axis this long between dense surfaces is a gap to cut at (m; "
         "below the 0.5 m between cars parked end to end)", 0.05, 5.0,
     )
+    split_rerun: bool = _param(
+        True, "refinement: cluster a cluster failing the footprint gate by its width alone (a road user with clutter "
+        "close beside it), and not cut at a gap, again by scan-line runs with th_ring and th_prop times rerun_scale, "
+        "and gate each part again", 0, 1,
+    )
+    rerun_scale: float = _param(
+        0.5, "refinement: split_rerun's th_ring and th_prop are the clustering's times this", 0.05, 1.0,
+    )
     split_protruding: bool = _param(
         False, "refinement: cut what protrudes below max_top from a dropped thin taller structure (a person against a "
         "mast or a wall) out of it as clusters of their own, and gate each again; off by default: on real KITTI scans "

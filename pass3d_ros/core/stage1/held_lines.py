@@ -5,9 +5,12 @@ A scan in no firing order and without a ring field (a column-major driver, a shu
 read off the laser lines of its sensor (pass3d_ros.core.stage1.ring). Searching for them costs 20-40 ms a scan; the
 lines are a property of the sensor, so a stream searches once and gives the lines it found to the following scans
 (`propose(..., lines=...)`), which check that they still fit and search again when they do not. A search that found none
-(`NO_LINES`) is not repeated on every scan either: the stream bins by elevation until `LINE_SEARCH_RETRY_S` has passed,
-then searches again. The cluster node and every offline tool (evaluation, segmentation, the stage-1 benchmark,
-training's samples) hold their lines through a `LineHolder`, so a stream costs the same everywhere.
+(`NO_LINES`) is not repeated on every scan either: the stream bins by elevation and searches again after one scan period
+(`LINE_SEARCH_FIRST_RETRY_S`), after each further failure twice as long (1, 2, 4, 8 ... scan periods), but at least
+every `LINE_SEARCH_RETRY_S`; a search that finds lines, or a new stream, starts the count over. A search that failed
+for a passing reason (a few odd scans) is made good within scans, not 10 s later, and a stream with no lines to find
+costs a search about every 10 s. The cluster node and every offline tool (evaluation, segmentation, the stage-1
+benchmark, training's samples) hold their lines through a `LineHolder`, so a stream costs the same everywhere.
 
 A driver's ring field is read in the order of its rings' measured elevations (pass3d_ros.core.stage1.ring_field);
 the order is measured on a stream's first scan with a field and held with the lines, so the stream pays for it once.
@@ -24,16 +27,25 @@ from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage1.ring import LaserLines
 from pass3d_ros.core.stage1.ring_field import RingFieldOrder
 
-LINE_SEARCH_RETRY_S = 10.0  # a stream whose laser-line search found none searches again after this long
 SCAN_PERIOD_S = 0.1  # offline (no clock), each scan counts as this long: a 10 Hz sensor's revolution
+LINE_SEARCH_FIRST_RETRY_S = SCAN_PERIOD_S  # after a failed laser-line search, the next one comes this much later ...
+LINE_SEARCH_RETRY_S = 10.0  # ... and after each further failure twice as long, but never longer than this
+
+
+def retry_wait(failures: int) -> float:
+    """How long (seconds) a stream waits to search for laser lines again after `failures` failed searches in a row
+    (at least 1): LINE_SEARCH_FIRST_RETRY_S doubled with each failure after the first, at most LINE_SEARCH_RETRY_S."""
+    return min(LINE_SEARCH_FIRST_RETRY_S * 2.0 ** min(max(failures, 1) - 1, 60), LINE_SEARCH_RETRY_S)
 
 
 class LineHolder:
-    """The laser lines of one stream, and when a search last found none.
+    """The laser lines of one stream, and when and how often in a row a search found none.
 
     `clock`: seconds (`time.monotonic` on a live stream); None counts scans, each `SCAN_PERIOD_S` long, so an
-    offline run does not depend on how fast it runs. `follow(key)` starts over when the stream changes (another
-    dataset, another sensor); a changed stage-1 config calls `reset()`."""
+    offline run does not depend on how fast it runs: a stream whose searches keep failing searches on scans 0, 1, 3,
+    7, 15 ... (1, 2, 4, 8 ... scans apart: `retry_wait`), then every LINE_SEARCH_RETRY_S / SCAN_PERIOD_S scans.
+    `follow(key)` starts over when the stream changes (another dataset, another sensor); a changed stage-1 config
+    calls `reset()`."""
 
     def __init__(self, clock: Callable[[], float] | None = None) -> None:
         self._clock = clock
@@ -41,6 +53,7 @@ class LineHolder:
         self._lines: LaserLines | None = None
         self._ring_order: RingFieldOrder | None = None
         self._searched_at = 0.0  # when a line search last found none (clock time)
+        self._failures = 0  # line searches in a row that found none
         self._key: Hashable = None
 
     def _now(self) -> float:
@@ -56,11 +69,18 @@ class LineHolder:
         """How the stream's ring field is read (None: no field seen yet)."""
         return self._ring_order
 
+    @property
+    def failures(self) -> int:
+        """Line searches in a row that found no lines (0 after one that found them, and on a new stream)."""
+        return self._failures
+
     def reset(self) -> None:
-        """Forget the lines and the ring field's order: the next scan without a firing order searches."""
+        """Forget the lines, the failed searches and the ring field's order: the next scan without a firing order
+        searches."""
         self._lines = None
         self._ring_order = None
         self._searched_at = 0.0
+        self._failures = 0
 
     def follow(self, key: Hashable) -> None:
         """The next scan belongs to stream `key` (a dataset spec): a new key forgets the lines."""
@@ -69,18 +89,22 @@ class LineHolder:
             self.reset()
 
     def lines(self) -> LaserLines | None:
-        """The laser lines to give the next scan: those held, but none (a new search) once a failed search
-        (`NO_LINES`) is LINE_SEARCH_RETRY_S old."""
+        """The laser lines to give the next scan: those held, but none (a new search) once the last failed search
+        (`NO_LINES`) is `retry_wait(failures)` old."""
         failed = self._lines is not None and self._lines.empty
-        if failed and self._now() - self._searched_at >= LINE_SEARCH_RETRY_S - 1e-9:  # 1e-9: scan counts in floats
+        if failed and self._now() - self._searched_at >= retry_wait(self._failures) - 1e-9:  # 1e-9: scans in floats
             return None
         return self._lines
 
     def hold(self, given: LaserLines | None, found: LaserLines | None) -> None:
         """Keep what a scan's ring recovery found (`Stage1Result.lines`; a firing-order scan finds nothing and keeps
-        what was held), and when a search that ran found no lines. `given`: what `lines()` gave that scan."""
+        what was held). A search that ran and found no lines is one more failure in a row, timed from now; lines
+        found start the count over. `given`: what `lines()` gave that scan."""
         if found is not None and found.empty and not (given is not None and given.empty):
             self._searched_at = self._now()
+            self._failures += 1
+        elif found is not None and not found.empty:
+            self._failures = 0
         self._lines = found or self._lines
         self._scans += 1
 

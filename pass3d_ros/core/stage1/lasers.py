@@ -1,9 +1,11 @@
 """Laser elevation tables of common spinning LiDARs, ring 0 the highest laser (KITTI's order).
 
-Angles are in degrees from the sensor's horizontal plane, as the makers' manuals and driver calibration files
-give them, sorted from the top laser down. A value marked approximate is a spec-sheet spread, not a per-unit
-calibration; ring recovery refits every laser's line to the scan itself (pass3d_ros.core.stage1.ring), so the table only
-has to tell how many lasers there are and roughly where.
+Angles are in degrees from the sensor's horizontal plane, as the makers' manuals and driver calibration files give
+them, sorted from the top laser down. A table marked approximate is a nominal spread or one unit's calibration, not
+the calibration of the unit at hand. Ring recovery refits every laser's line to the scan itself
+(pass3d_ros.core.stage1.ring), so the table only has to tell how many lasers there are and roughly where: each laser is
+looked for within half the gap to its neighbours, so a table further off than that (another beam configuration, a
+nominal spread that real units do not reach) seeds lines on the wrong lasers, and "auto" does better.
 """
 
 from __future__ import annotations
@@ -37,14 +39,43 @@ _PANDAR64 = (
     -4.558, -4.72, -4.892, -5.057, -5.229, -5.391, -5.565, -5.726, -5.898, -6.061, -7.063, -8.059, -9.06, -9.885,
     -11.032, -12.006, -12.974, -13.93, -18.889, -24.897,
 )
+# Hesai Pandar40P design values (HesaiLidar_General_SDK's default Pandar40P table, src/PandarGeneralRaw/src/
+# pandarGeneral_internal.cc): +15..-25 degrees, 1/3 degree steps between +2 and -6. Approximate: unit calibrations
+# differ by up to 0.21 degrees (tier4/nebula's Pandar40P.csv, HesaiLidar_SDK_2.0's Pandar40E3X angle correction file).
+_PANDAR40P = (15.0, 11.0, 8.0, 5.0, 3.0, *np.round(2.0 - np.arange(25) / 3.0, 3), *np.arange(-7.0, -14.5, -1.0),
+              -19.0, -25.0)
+# Hesai Pandar40, the original 40-laser model (narrower than the Pandar40P): HesaiLidar_General_ROS's angle
+# correction file config/Pandar40.csv, elevation column; +7.25..-15.59 degrees, 0.34 degree steps between +2.2 and
+# -5.9. Approximate: one unit's calibration (the same repository's config/correction.csv is 0.107 degrees lower
+# throughout; Apollo's hesai driver defaults run +6.96..-15.44 degrees, up to 0.29 degrees off).
+_PANDAR40 = (
+    7.25, 6.249, 5.243, 4.235, 3.222, 2.209, 1.874, 1.528, 1.194, 0.859, 0.513, 0.178, -0.161, -0.499, -0.838,
+    -1.177, -1.514, -1.853, -2.191, -2.529, -2.867, -3.204, -3.541, -3.879, -4.212, -4.554, -4.888, -5.219, -5.56,
+    -5.893, -6.894, -7.89, -8.88, -9.864, -10.841, -11.81, -12.767, -13.718, -14.659, -15.589,
+)
+# Ouster OS1-32, "uniform" beam configuration (gen 2): beam_altitude_angles of the OS-1-32-U0 unit in ouster-sdk's
+# test metadata (tests/metadata/2_0_rc2_os-992011000121-32U0_legacy.json, firmware v2.0.0-rc.2); +20.55..-21.48
+# degrees, gaps 1.24-1.42 degrees (narrowest at the edges). Approximate: one unit's calibration. Not an even spread
+# over the 45 degrees (+-22.5) quoted for gen-2 OS1s: that puts the top beam 2 degrees above this unit's, more than
+# half a gap, and seeds the lines on the wrong lasers (a synthetic scan of this unit: 67 % of its points in their
+# laser's ring, 100 % with this table). A "gradient" OS1-32 (beams packed near the horizon: +12.75..-15.32 degrees in
+# ouster-sdk's OS-1-32-G sample) fits no table here, and no data sheet found gives its angles: use "auto".
+_OS1_32 = (
+    20.548, 19.292, 18.017, 16.724, 15.414, 14.088, 12.747, 11.391, 10.022, 8.641, 7.249, 5.847, 4.438, 3.022, 1.601,
+    0.178, -1.245, -2.667, -4.084, -5.496, -6.899, -8.294, -9.678, -11.05, -12.409, -13.754, -15.084, -16.398,
+    -17.696, -18.975, -20.236, -21.476,
+)
 
 LASER_TABLES: dict[str, tuple[float, ...]] = {
     "hdl64e": _HDL64E,
     "hdl32e": _HDL32E,
     "vlp16": _VLP16,
     "vlp32c": _VLP32C,
+    "os1-32": _OS1_32,
     "os1-64": _OS1_64,
     "os1-128": _OS1_128,
+    "pandar40": _PANDAR40,
+    "pandar40p": _PANDAR40P,
     "pandar64": _PANDAR64,
 }
 SENSORS: tuple[str, ...] = ("auto", *LASER_TABLES)

@@ -12,17 +12,28 @@ angle has holes from its point spacing alone, and a uniform wall has no gap at a
 a cut cluster gets a new cluster id and goes through every gate again; a part that fails stays dropped, as the whole
 cluster was. Clusters that pass the gates are never touched: the proposals without the split all stay, first.
 
-`select_with_split` also runs the second kind of split on what is still dropped: road users protruding from a taller
+Scan-line runs again (`split_rerun`): a road user with clutter tenths of a metre beside it (a car by a bush or a hedge
+seen over its roof) joins it through one close pair of points; no empty stretch separates them along either axis, and
+the cluster fails the footprint gate by its width alone. Such a cluster, not longer than `max_length` and not cut at
+a gap, is clustered again on its own points by the same scan-line-run clustering (Zermas et al.) with th_ring and
+th_prop times `rerun_scale` (half: 0.25 m within a ring, 0.5 m between rings), and each part is gated again.
+Clusters that are too long are left to the gap cut: long walls, hedges and fences, cut into car-sized pieces, would
+only add background proposals.
+
+`select_with_split` also runs the last kind of split on what is still dropped: road users protruding from a taller
 structure (pass3d_ros.core.stage1.protrusion, `split_protruding`).
 """
 
 from __future__ import annotations
+
+import copy
 
 import numba as nb
 import numpy as np
 
 from pass3d_ros.core.stage1 import protrusion as _protrusion
 from pass3d_ros.core.stage1 import refinement as _refinement
+from pass3d_ros.core.stage1 import scanline as _scanline
 from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage1.ground import LocalGround
 from pass3d_ros.data.frame import Box3D
@@ -122,6 +133,38 @@ def cut_at_gaps(points: np.ndarray, label: np.ndarray, n_clusters: int, clusters
     return (out, int(n_total), int(n_cut)) if n_cut else (label, n_clusters, 0)
 
 
+def rerun_runs(points: np.ndarray, ring: np.ndarray, label: np.ndarray, n_clusters: int, clusters: np.ndarray,
+               config: Stage1Config) -> tuple[np.ndarray, int, int]:
+    """(labels, cluster count, clusters cut): the points of `clusters` clustered again by scan-line runs
+    (pass3d_ros.core.stage1.scanline) with th_ring and th_prop times `config.rerun_scale`, each cluster on its own
+    (a part is a cluster id and a new run label together); every part of a cluster that falls apart gets a new id from
+    `n_clusters` on. Labels are `label` itself when nothing was cut. `points` and `ring` in scan order, as clustering
+    read them."""
+    if len(clusters) == 0:
+        return label, n_clusters, 0
+    chosen = np.zeros(n_clusters, dtype=bool)
+    chosen[clusters] = True
+    members = np.flatnonzero((label >= 0) & chosen[np.maximum(label, 0)])
+    tight = copy.copy(config)  # two thresholds changed, both smaller: still in range, not validated again
+    tight.th_ring = config.th_ring * config.rerun_scale
+    tight.th_prop = config.th_prop * config.rerun_scale
+    runs, n_runs = _scanline.cluster_scanlines(points[members], ring[members], np.ones(len(members), dtype=bool),
+                                               tight)
+    key = label[members].astype(np.int64) * max(n_runs, 1) + runs
+    pairs, part = np.unique(key, return_inverse=True)
+    owner = pairs // max(n_runs, 1)
+    parts_of = np.bincount(owner, minlength=n_clusters)
+    cut = parts_of[owner] > 1  # per part: its cluster fell apart
+    if not cut.any():
+        return label, n_clusters, 0
+    new_id = np.full(len(pairs), -1, dtype=np.int64)
+    new_id[cut] = n_clusters + np.arange(int(cut.sum()))
+    out = label.copy()
+    moved = new_id[part] >= 0
+    out[members[moved]] = new_id[part[moved]]
+    return out, n_clusters + int(cut.sum()), int(np.count_nonzero(parts_of > 1))
+
+
 def _gate_parts(points: np.ndarray, label: np.ndarray, first: int, count: int, surface: np.ndarray | LocalGround,
                 segment_edges: np.ndarray, config: Stage1Config) -> tuple[list[Box3D], np.ndarray]:
     """Boxes and ids of the clusters `first` .. `first + count - 1` of `label` that pass every gate on their own."""
@@ -170,11 +213,12 @@ def _protrusion_candidates(n_total: int, kept: np.ndarray, z_lo: np.ndarray, z_h
 
 def select_with_split(
     points: np.ndarray, label: np.ndarray, n_clusters: int, planes: np.ndarray | LocalGround,
-    segment_edges: np.ndarray, config: Stage1Config,
+    segment_edges: np.ndarray, config: Stage1Config, ring: np.ndarray | None = None,
 ) -> tuple[list[Box3D], np.ndarray, np.ndarray, int]:
     """`select_proposals` with the splits: (boxes, kept cluster ids, labels with the parts' new ids, clusters split).
     The boxes and ids of `select_proposals` come first, unchanged; kept parts follow, first those cut at gaps
-    (`split_merged`, module docstring), then those protruding from dropped taller structures (`split_protruding`,
+    (`split_merged`, module docstring), then those of scan-line runs again (`split_rerun`; needs `ring`, the rings
+    clustering read, else skipped), then those protruding from dropped taller structures (`split_protruding`,
     pass3d_ros.core.stage1.protrusion). `planes`: the segment planes or the local ground, as the gates take them."""
     if n_clusters == 0:
         return [], np.zeros(0, dtype=np.int64), label, 0
@@ -190,6 +234,17 @@ def select_with_split(
                                                config)
             boxes += part_boxes
             kept = np.concatenate([kept, part_ids])
+    if config.split_rerun and ring is not None:
+        wide = fitted[~footprint & (rects[:, 2] <= config.max_length)]  # too wide, not too long
+        if n_split:  # only the clusters the gap cut left whole
+            wide = wide[np.bincount(out[out >= 0], minlength=n_total)[wide] > 0]
+        first = n_total
+        out, n_total, n_rerun = rerun_runs(points, ring, out, n_total, wide, config)
+        if n_rerun:
+            part_boxes, part_ids = _gate_parts(points, out, first, n_total - first, planes, segment_edges, config)
+            boxes += part_boxes
+            kept = np.concatenate([kept, part_ids])
+            n_split += n_rerun
     if config.split_protruding:
         chosen = _protrusion_candidates(n_total, kept, z_lo, z_hi, config)
         height = heights_above_ground(points, out, chosen, planes, segment_edges)
