@@ -396,9 +396,10 @@ def test_hidden_pedestrians_stand_behind_something_and_keep_the_rest_of_the_scen
     (drawn from their own stream); each of those stands farther from the sensor than something in its line of
     sight."""
     found = 0
+    later = frozenset({"groups", "lone_people"})  # placed after the hidden pedestrians
     for seed in range(6):
-        full = generate_scene(np.random.default_rng(np.random.SeedSequence([seed, 4])))
-        plain = generate_scene(np.random.default_rng(np.random.SeedSequence([seed, 4])), frozenset({"hidden"}))
+        full = generate_scene(np.random.default_rng(np.random.SeedSequence([seed, 4])), later)
+        plain = generate_scene(np.random.default_rng(np.random.SeedSequence([seed, 4])), later | {"hidden"})
         assert [(o.model, o.x, o.y) for o in full.objects[:len(plain.objects)]] == [
             (o.model, o.x, o.y) for o in plain.objects]
         for person in full.objects[len(plain.objects):]:
@@ -419,7 +420,8 @@ def test_partial_views_put_occluders_in_front_of_cars_and_keep_the_rest_of_the_s
         def scene(without: frozenset, seed: int = seed) -> Scene:
             return generate_scene(np.random.default_rng(np.random.SeedSequence([seed, 2])), without)
 
-        full, plain = scene(frozenset({"hidden"})), scene(frozenset({"hidden", "partial"}))
+        later = {"hidden", "groups", "lone_people"}  # placed after the occluders
+        full, plain = scene(frozenset(later)), scene(frozenset(later | {"partial"}))
         assert [(o.model, o.x, o.y) for o in full.objects[:len(plain.objects)]] == [
             (o.model, o.x, o.y) for o in plain.objects]
         cars = [o for o in plain.objects if o.label == CAR]
@@ -453,7 +455,7 @@ def test_hard_negatives_add_car_sized_background_and_thin_out_posts():
 
 def test_unknown_world_change_is_refused():
     with pytest.raises(DatasetError, match=r"unknown world change.*known: clutter, beside, hidden, partial, negatives, "
-                                           r"dark, mixed_pixels"):
+                                           r"groups, lone_people, dark, mixed_pixels"):
         list(open_dataset("synthetic:frames=1,seed=0,without=clutter+rain"))
     with pytest.raises(ValueError, match="rain"):
         generate_frame(0, 0, without=frozenset({"rain"}))

@@ -173,6 +173,16 @@ class SceneBuilder:
         """Ground height under a sensor-frame point."""
         return float(rc.ground_height_at(self.ground, self.bumps, self.waves, np.array([[x, y]]))[0])
 
+    def area_free(self, u: float, v: float, yaw_road: float, half: tuple[float, float], height: float = 2.0,
+                  margin: float = 0.0) -> bool:
+        """Whether a foreground object of footprint half extents `half` (x along `yaw_road`), centred at road
+        coordinates (u, v) and `height` tall, would keep FOREGROUND_GAP_M + `margin` from everything placed; places
+        nothing (a group checks the room it needs before its members stand closer together)."""
+        x, y = self.world_xy(u, v)
+        z = self.ground_z(x, y)
+        rect = (x, y, half[0] + margin, half[1] + margin, self.road_yaw() + yaw_road, z, z + height, 1.0, 0.0)
+        return self.footprints.free([rect])
+
     def place(self, parts: list[Part], u: float, v: float, yaw_road: float, label: int = BACKGROUND,
               kind: str = "", footprint: list[tuple[float, ...]] | None = None, veg: bool = False,
               z_offset: float = 0.0, model: str = "", clearance: float | None = None,

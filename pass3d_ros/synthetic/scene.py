@@ -7,7 +7,9 @@ pedestrians (alone, in groups, and standing behind parked cars and low things) a
 only in part, behind nearer road users, trees, boxes, hedges and low things in the sensor's line of sight. The
 objects themselves are modelled in `synthetic.objects`; `SceneBuilder` sets them on the ground. The street's
 cross-section is `synthetic.street`; the world changes that show things in part ("hidden", "partial") are
-`synthetic.occlusion`, the car-sized background and thinned posts ("negatives") `synthetic.hard_negatives`.
+`synthetic.occlusion`, the car-sized background and thinned posts ("negatives") `synthetic.hard_negatives`, the
+groups a hand's breadth apart, pedestrians beside riders ("groups") and lone far pedestrians with loads
+("lone_people") `synthetic.crowds`.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 from pass3d_ros.classes import CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.synthetic import raycast as rc
 from pass3d_ros.synthetic.builder import TOUCH_CLEARANCE_M, Scene, SceneBuilder
+from pass3d_ros.synthetic.crowds import add_groups, add_lone_pedestrians
 from pass3d_ros.synthetic.hard_negatives import add_hard_negatives, thinned_out
 from pass3d_ros.synthetic.objects import parked as pk
 from pass3d_ros.synthetic.objects import street_furniture as sf
@@ -209,7 +212,8 @@ _FRONTAGE_CLUTTER = (("wall_fragment", st.wall_fragment_parts, 2.0), ("hedge_fra
 _CLUTTER_SPACING_M = {"urban": 3.5, "residential": 4.5, "open": 9.0}  # mean kerb length per clutter item
 
 
-SCENE_CHANGES = ("clutter", "beside", "hidden", "partial", "negatives")  # what generate_scene(without=...) leaves out
+# What generate_scene(without=...) leaves out.
+SCENE_CHANGES = ("clutter", "beside", "hidden", "partial", "negatives", "groups", "lone_people")
 
 
 def _pick(rng: np.random.Generator, table: tuple[tuple[str, PartsFn, float], ...]) -> tuple[str, PartsFn]:
@@ -545,10 +549,13 @@ def generate_scene(rng: np.random.Generator, without: frozenset[str] = frozenset
     `without` leaves world changes out, for an ablation: "clutter" (street and lane clutter), "beside" (clutter
     standing against foreground objects), "hidden" (pedestrians placed behind parked cars and low things),
     "partial" (occluders in front of cars: cars seen as pieces, `occlusion.add_partial_views`), "negatives"
-    (car-sized low and leafy background, fewer thin posts: `hard_negatives.add_hard_negatives`); the rest of the
-    scene is drawn from the same stream, so it differs too (except without "hidden", "partial" or "negatives", drawn
-    from their own; without "negatives" or "partial" the objects placed after them, the hidden pedestrians, may stand
-    elsewhere).
+    (car-sized low and leafy background, fewer thin posts: `hard_negatives.add_hard_negatives`), "groups" (2-4
+    pedestrians a hand's breadth apart, pedestrians beside riders: `crowds.add_groups`), "lone_people" (lone
+    pedestrians far away, some holding a suitcase, a box or bags: `crowds.add_lone_pedestrians`); the rest of the
+    scene is drawn from the same stream, so it differs too (except without "hidden", "partial", "negatives", "groups"
+    or "lone_people", drawn from their own; without one of these the objects placed after it may stand elsewhere:
+    the hidden pedestrians after "negatives" and "partial", the lone pedestrians after those, "hidden" and "groups").
+    "groups" and "lone_people" come last: without both, the scene is the world before issue 37, object for object.
     """
     style = str(rng.choice(["urban", "residential", "open"], p=[0.45, 0.45, 0.1]))
     lay = road_layout(rng, style)
@@ -557,6 +564,8 @@ def generate_scene(rng: np.random.Generator, without: frozenset[str] = frozenset
     # The issue-28 changes draw from streams of their own, so leaving one out keeps the rest of the scene.
     negatives_rng = np.random.Generator(rng.bit_generator.jumped(2))
     partial_rng = np.random.Generator(rng.bit_generator.jumped(3))
+    groups_rng = np.random.Generator(rng.bit_generator.jumped(4))  # issue 37's people, placed last
+    lone_rng = np.random.Generator(rng.bit_generator.jumped(5))
     negatives = "negatives" not in without
     _add_roadside(b, rng, lay, style, clutter="clutter" not in without, thin_rng=negatives_rng if negatives else None)
     _add_vehicles(b, rng, lay, style)
@@ -577,4 +586,8 @@ def generate_scene(rng: np.random.Generator, without: frozenset[str] = frozenset
         add_partial_views(b, partial_rng, lay)
     if "hidden" not in without:
         add_hidden_pedestrians(b, hidden_rng)
+    if "groups" not in without:
+        add_groups(b, groups_rng, lay)
+    if "lone_people" not in without:
+        add_lone_pedestrians(b, lone_rng, lay)
     return b.build(np.array(lines), patches, *rho)

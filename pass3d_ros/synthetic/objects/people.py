@@ -7,7 +7,8 @@ Class rules, as KITTI's annotators draw them (and SqueezeSeg's point labels foll
   placed as its own object): KITTI keeps Cyclist for riders, and a riderless bicycle - parked or pushed - is
   never a Cyclist. One rule for both cases keeps "has a rider on it" the cue the network must learn;
 - a seated person (bench, chair, curb) is KITTI's Person_sitting, background (`seated_person_parts`);
-- what a pedestrian carries (bag, backpack, umbrella) is part of the pedestrian; a stroller they push is not.
+- what a pedestrian carries or holds (bag, backpack, umbrella, a box, a suitcase pulled by its handle) is part of
+  the pedestrian; a stroller they push is not.
 Target sizes (metres, L x W x H) are KITTI's training-label means as Frustum-PointNets tabulates them
 (Qi et al., CVPR 2018): Pedestrian 0.84 x 0.66 x 1.76 (arm swing and stride included), Person_sitting
 0.80 x 0.60 x 1.27, Cyclist 1.76 x 0.60 x 1.74.
@@ -23,6 +24,7 @@ import numpy as np
 from pass3d_ros.synthetic.materials import M_CLOTH, M_METAL, M_OTHER, M_SKIN, M_TIRE, cloth_rho
 from pass3d_ros.synthetic.parts import Part, box, cylinder, disc, ellipsoid, part_extent, rot_y
 
+LOADS = ("suitcase", "box", "bags")  # what `pedestrian(..., load=...)` holds in its hands
 ADULT_HEIGHT_M = (1.77, 0.09)  # mean, std of adults: with ~8% children the mix is near KITTI's 1.76 m box height
 
 
@@ -33,18 +35,20 @@ def _person_height(rng: np.random.Generator) -> float:
     return float(np.clip(rng.normal(*ADULT_HEIGHT_M), 1.5, 2.02))
 
 
-def pedestrian_parts(rng: np.random.Generator, pose: str = "auto", reach: float = 0.0) -> list[Part]:
+def pedestrian_parts(rng: np.random.Generator, pose: str = "auto", reach: float = 0.0, load: str = "") -> list[Part]:
     """Pedestrian (KITTI 'Pedestrian'): legs with feet, pelvis, torso, swinging arms, head; maybe carrying things.
 
     `pose` is "walk", "stand" or "auto" (mostly walking). `reach` > 0 holds the left hand out that far to the
-    left (y > 0), as when pushing a bicycle walking beside it. Body proportions put the top of the head at the
-    drawn height (hip 0.5 H, shoulder 0.82 H).
+    left (y > 0), as when pushing a bicycle walking beside it. `load` (one of LOADS, or "" for none) is something
+    held in the hands on top of what `_carried` draws: a wheeled suitcase pulled behind, a box carried in front,
+    a heavy bag in each hand. Body proportions put the top of the head at the drawn height (hip 0.5 H, shoulder
+    0.82 H).
     """
-    return pedestrian(rng, pose, reach)[0]
+    return pedestrian(rng, pose, reach, load)[0]
 
 
-def pedestrian(rng: np.random.Generator, pose: str = "auto",
-               reach: float = 0.0) -> tuple[list[Part], np.ndarray, np.ndarray]:
+def pedestrian(rng: np.random.Generator, pose: str = "auto", reach: float = 0.0,
+               load: str = "") -> tuple[list[Part], np.ndarray, np.ndarray]:
     """(parts, amodal_min, amodal_max) of a pedestrian (see `pedestrian_parts`).
 
     The amodal extent is what KITTI's annotators box: the body over its whole gait cycle, so a walker's box holds
@@ -84,10 +88,13 @@ def pedestrian(rng: np.random.Generator, pose: str = "auto",
                 hand - shoulder))), None))
         else:
             hands.append((shoulder, None, rng.uniform(0.02, 0.12)))
+    held: list[Part] = []
+    if load:  # drawn only when asked, so a pedestrian without a load takes the same draws as before
+        hands, held = _held_load(rng, load, hands, arm_len, height, s, girth)
     parts += _arms(hands, swing_gain * stride, arm_len, s, rho_top)
     head_c = np.array([math.sin(lean) * 0.35 * height, 0.0, shoulder_z + 0.115 * height])
     parts.append(ellipsoid(head_c, [0.1 * s, 0.08 * s, 0.065 * height], M_SKIN, float(rng.uniform(0.1, 0.5))))
-    parts += _carried(rng, s, girth, torso_c, shoulder_z, head_c, height)
+    parts += _carried(rng, s, girth, torso_c, shoulder_z, head_c, height) + held
     gait = list(parts)
     for end in (amplitude, -amplitude):
         gait += _legs(end, hip_z, s, girth, rho_legs) + _arms(hands, swing_gain * end, arm_len, s, rho_top)
@@ -137,6 +144,52 @@ def _carried(rng: np.random.Generator, s: float, girth: float, torso_c: np.ndarr
         parts.append(ellipsoid(top, [radius, radius, 0.12], M_CLOTH, cloth_rho(rng)))
         parts.append(cylinder(top, np.array([0.15, 0.15, shoulder_z - 0.1]), 0.012, M_METAL, 0.3))
     return parts
+
+
+def _held_load(rng: np.random.Generator, load: str, hands: list, arm_len: float, height: float, s: float,
+               girth: float) -> tuple[list, list[Part]]:
+    """(hands, parts) of a pedestrian holding `load` (see LOADS): the arms that hold it stop swinging.
+
+    A pulled suitcase trails behind the walker (the pedestrian 1.0-1.45 m long, 1.2 m on average: as long as a short
+    cyclist), a carried box sticks out in front, bags hang from both hands (0.8-0.9 m wide). Like `_carried`'s
+    bags, what the person holds is part of the pedestrian (KITTI boxes the person with what they carry).
+    """
+    if load not in LOADS:
+        raise ValueError(f"unknown load {load!r}, known: {', '.join(LOADS)}")
+    (left, _, left_spread), (right, _, _) = hands
+    rho = float(rng.uniform(0.05, 0.5))
+    if load == "suitcase":  # right hand back and down on the handle of a tilted wheeled case
+        back = rng.uniform(0.35, 0.6)
+        hand = right + arm_len * np.array([-math.sin(back), -0.05, -math.cos(back)])
+        hd, hw, hh = rng.uniform(0.1, 0.14), rng.uniform(0.17, 0.22), rng.uniform(0.26, 0.36)
+        tilt = rng.uniform(0.35, 0.6)
+        axis = np.array([math.sin(tilt), 0.0, math.cos(tilt)])  # the case's long axis, top toward the hand
+        handle = 0.05  # at least; a child's case is smaller, so that it stands on the ground below the hand
+        hh = min(hh, (hand[2] - handle * math.cos(tilt) - hd * math.sin(tilt)) / (2.0 * math.cos(tilt)))
+        top_z = 2.0 * hh * math.cos(tilt) + hd * math.sin(tilt)  # its bottom edge on the ground
+        handle = max((hand[2] - top_z) / math.cos(tilt), handle)
+        top = hand - handle * axis
+        parts = [box(top - hh * axis, [hd, hw, hh], M_OTHER, rho, rot_y(-tilt), rounding=(1.2, 1.3, 1.3)),
+                 cylinder(hand, top, 0.012, M_METAL, 0.3)]
+        return [(left, None, left_spread), (right, hand, None)], parts
+    if load == "box":  # a box in front of the chest, held at its sides
+        hx, hy, hz = rng.uniform(0.12, 0.22), rng.uniform(0.15, 0.25), rng.uniform(0.1, 0.2)
+        center = np.array([0.12 * s * girth + 0.08 + hx, 0.0, rng.uniform(0.52, 0.6) * height])
+        fixed = []
+        for shoulder, side in ((left, 1.0), (right, -1.0)):
+            hand = center + np.array([-0.3 * hx, side * (hy + 0.03), -0.3 * hz])
+            reach_to = hand - shoulder
+            fixed.append((shoulder, shoulder + reach_to * min(1.0, arm_len / float(np.linalg.norm(reach_to))), None))
+        return fixed, [box(center, [hx, hy, hz], M_OTHER, rho, rounding=(1.2, 1.3, 1.3))]
+    fixed, parts = [], []  # "bags": a heavy shopping bag in each hand, arms held a little out
+    for shoulder, side in ((left, 1.0), (right, -1.0)):
+        spread = rng.uniform(0.12, 0.22)
+        hand = shoulder + arm_len * np.array([rng.uniform(-0.05, 0.1), side * math.sin(spread), -math.cos(spread)])
+        hx, hy, hz = rng.uniform(0.13, 0.2), rng.uniform(0.04, 0.07), rng.uniform(0.13, 0.2)
+        fixed.append((shoulder, hand, None))
+        parts.append(box(hand + np.array([0.0, side * 0.02, -hz - 0.02]), [hx, hy, hz], M_OTHER,
+                         float(rng.uniform(0.05, 0.5)), rounding=(1.2, 1.3, 1.3)))
+    return fixed, parts
 
 
 def seated_person_parts(rng: np.random.Generator, seat: str = "bench") -> list[Part]:
