@@ -32,7 +32,7 @@ from pass3d_ros.weights import DEFAULT_WEIGHTS
 REPO_ROOT = Path(__file__).resolve().parents[1]
 ROS_TEST_MODULES = ["test_nodes.py", "test_evaluate.py", "test_recording.py", "test_node_input.py",
                     "test_realtime.py", "test_sensors_live.py", "test_transport.py", "test_quick_flow.py",
-                    "test_segmentation_guard.py", "test_diagnostics_truth.py"]
+                    "test_segmentation_guard.py", "test_diagnostics_truth.py", "test_detections.py"]
 collect_ignore = ROS_TEST_MODULES if os.environ.get("PASS3D_SKIP_ROS_TESTS") == "1" else []
 
 

@@ -28,9 +28,11 @@ IMPORTS = {
         "builtin_interfaces", "std_msgs", "sensor_msgs", "geometry_msgs", "visualization_msgs", "diagnostic_msgs")},
 }
 # Imported only where guarded, never needed to run: not runtime dependencies.
-OPTIONAL = {"rerun": "pass3d_view (the `view` extra)", "pypatchworkpp": "a benchmark's side-by-side peer"}
-# package.xml keys a ROS install brings that PyPI has no wheel for (DESIGN.md): the launch files' and rviz2's.
-ROS_INSTALL_ONLY = {"ros2launch", "launch_ros", "rviz2"}
+OPTIONAL = {"rerun": "pass3d_view (the `view` extra)", "pypatchworkpp": "a benchmark's side-by-side peer",
+            "vision_msgs": "/pass3d/detections and /pass3d/label_info (a ROS install's ros-jazzy-vision-msgs)"}
+# package.xml keys a ROS install brings that PyPI has no wheel for (DESIGN.md): the launch files', rviz2's and the
+# detections' message package.
+ROS_INSTALL_ONLY = {"ros2launch", "launch_ros", "rviz2", "vision_msgs"}
 
 
 def requirement_name(requirement: str) -> str:

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from pass3d_ros.core import stage2
+from pass3d_ros.core.objects import labelled_objects
 from pass3d_ros.core.stage1 import proposal_members, propose
 from pass3d_ros.core.stage2 import pointnet2
 from pass3d_ros.core.stage2.segmentation import Segmenter, make_checkpoint
@@ -63,6 +64,20 @@ def test_size_rules_labels_pngs_and_summary(
         np.testing.assert_array_equal(words, SEMANTIC_KITTI_IDS[expected])
         assert png_size(out / "bev" / f"{frame.name}.png") == (2 * bev.PANEL_PX + bev.GAP_PX, FIGURE_HEIGHT), \
             "labeled data: ground truth | prediction"
+        objects = json.loads((out / "objects" / f"{frame.name}.json").read_text())
+        assert objects["frame"] == frame.name and objects["objects"], "the synthetic street has objects"
+        for obj in objects["objects"]:
+            assert set(obj) == {"id", "class_id", "score", "center", "size", "yaw"}
+            assert obj["class_id"] in {"car", "pedestrian", "cyclist"} and 0 < obj["score"] <= 1
+            assert int(obj["id"]) >= 0 and all(v > 0 for v in obj["size"]) and len(obj["center"]) == 3
+        stage1 = propose(frame.points, frame.ring)
+        members = proposal_members(stage1.cluster_id, stage1.cluster_id2)
+        segmented = SizeRuleClassifier().segment(frame.points, members)
+        expected = labelled_objects(frame.points, members, segmented.proposal_class, segmented.labels,
+                                    segmented.confidence)
+        assert [(o["id"], o["class_id"]) for o in objects["objects"]] == [
+            (str(o.cluster_id), o.class_id) for o in expected], "one entry per object, as the node publishes them"
+    assert not list(out.rglob(".*.partial-*")), "each file written beside its destination, then renamed"
     report = json.loads((out / "summary.json").read_text())
     assert report["frames"] == 2 and report["classifier"] == "size_rules" and report["weights"] is None
     assert report["labeled_frames"] == 2 and 0.0 <= report["per_class"]["car"]["iou"] <= 1.0
@@ -119,6 +134,7 @@ def test_several_inputs_get_their_own_folders(tmp_path: Path) -> None:
                          "--no-progress", "--no-png"]) == 0
     assert (out / "00" / "labels" / "000000.label").is_file()
     assert (out / "01" / "labels" / "000001.label").is_file()
+    assert (out / "00" / "objects" / "000000.json").is_file() and (out / "01" / "objects" / "000001.json").is_file()
     assert json.loads((out / "summary.json").read_text())["folders"] == [str(out / "00"), str(out / "01")]
 
 

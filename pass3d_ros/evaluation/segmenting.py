@@ -1,7 +1,7 @@
 """Offline segmenting of whole datasets: stage 1 + stage 2 on every frame, each frame's labels written in
-SemanticKITTI's format (and a bird's-eye PNG), a summary.json with the stage times and, where the data has ground
-truth, the metrics. The output folder is built in a hidden sibling and moved into place only when complete.
-`pass3d_segment` is its command line."""
+SemanticKITTI's format, its objects as JSON (and a bird's-eye PNG), a summary.json with the stage times and, where the
+data has ground truth, the metrics. The output folder is built in a hidden sibling and moved into place only when
+complete. `pass3d_segment` is its command line."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from pass3d_ros.classes import NUM_CLASSES
 from pass3d_ros.core.metrics import ConfusionAccumulator
+from pass3d_ros.core.objects import LabelledObject, labelled_objects, objects_json
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
@@ -30,6 +31,7 @@ from pass3d_ros.data.outputs import (
     out_path,
     refuse_protected,
     write_marker,
+    write_text_atomic,
     writing,
 )
 from pass3d_ros.data.partials import partial_path, remove_stale_partials
@@ -135,6 +137,7 @@ def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Cl
             sub = "." if len(datasets) == 1 else f"{position:02d}"
             folder = build / sub
             (folder / "labels").mkdir(parents=True, exist_ok=True)
+            (folder / "objects").mkdir(exist_ok=True)
             if png:
                 (folder / "bev").mkdir(exist_ok=True)
             stats.folders.append(str(out if len(datasets) == 1 else out / sub))
@@ -144,8 +147,9 @@ def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Cl
                 if name in seen:
                     raise DatasetError(f"{dataset}: frame name {frame.name!r} repeats; outputs would overwrite")
                 seen.add(name)
-                labels, cluster_id = _segment_frame(str(dataset), frame, classifier, stats, config)
+                labels, cluster_id, objects = _segment_frame(str(dataset), frame, classifier, stats, config)
                 to_semantic_kitti(labels).astype("<u4").tofile(folder / "labels" / f"{name}.label")
+                write_text_atomic(folder / "objects" / f"{name}.json", objects_json(frame.name, objects))
                 if png:
                     image = frame_picture(frame.name, frame.points, labels, cluster_id, frame.labels, frame.instance)
                     write_png(folder / "bev" / f"{name}.png", image)
@@ -182,28 +186,30 @@ def _move_into_place(build: Path, out: Path) -> None:
 
 
 def _segment_frame(spec: str, frame: Frame, classifier: Classifier, stats: SegmentStats,
-                   config: Stage1Config | None) -> tuple[np.ndarray, np.ndarray]:
-    """Labels and proposal ids (-1 none) of one scan, through its stream's input checks: points they leave out
-    (non-finite, as KITTI raw may hold, or absurd) are background in no proposal and never reach the core."""
+                   config: Stage1Config | None) -> tuple[np.ndarray, np.ndarray, list[LabelledObject]]:
+    """Labels, proposal ids (-1 none) and objects of one scan, through its stream's input checks: points they leave
+    out (non-finite, as KITTI raw may hold, or absurd) are background in no proposal and never reach the core."""
     scan = prepared(stats.stream, spec, frame, config or Stage1Config())
     labels = np.zeros(len(frame.points), dtype=np.uint8)
     cluster_id = np.full(len(frame.points), -1, dtype=np.int32)
     if len(scan.points) == 0:
         stats.stage1_ms.append(0.0)
         stats.stage2_ms.append(0.0)
-        return labels, cluster_id
+        return labels, cluster_id, []
     result = stats.stream.propose(scan, config)
     started = time.perf_counter()
     members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
     stats.budget.add(sum(1 for m in members if len(m) > 0))
-    predicted = classifier.segment(stats.stream.on_training_scale(scan.points), members).labels
+    segmented = classifier.segment(stats.stream.on_training_scale(scan.points), members)
+    predicted = segmented.labels
     stats.stage2_ms.append(1e3 * (time.perf_counter() - started))
     stats.stage1_ms.append(result.timings_ms["total"])
+    objects = labelled_objects(scan.points, members, segmented.proposal_class, predicted, segmented.confidence)
     if scan.kept is None:
-        return predicted.astype(np.uint8), result.cluster_id
+        return predicted.astype(np.uint8), result.cluster_id, objects
     labels[scan.kept] = predicted
     cluster_id[scan.kept] = result.cluster_id
-    return labels, cluster_id
+    return labels, cluster_id, objects
 
 
 def _median(values: list[float]) -> float | None:

@@ -132,3 +132,13 @@ def nearest_proposals(points: np.ndarray, first: np.ndarray, second: np.ndarray,
     renumber = np.full(count + 1, -1, np.int64)  # index -1 (no proposal) reads the last entry: -1
     renumber[kept] = np.arange(limit)
     return renumber[first], renumber[second], limit
+
+
+def source_ids(raw: tuple[np.ndarray, np.ndarray], dense: tuple[np.ndarray, np.ndarray], count: int) -> np.ndarray:
+    """The message's cluster id of each dense proposal 0..count-1; `dense`: the `raw` primary and secondary ids after
+    `dense_ids` (and `nearest_proposals` when cut)."""
+    ids = np.full(count, -1, np.int64)
+    for raw_column, dense_column in zip(raw, dense, strict=True):
+        inside = dense_column >= 0
+        ids[dense_column[inside]] = raw_column[inside]
+    return ids

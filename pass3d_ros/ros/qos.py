@@ -41,3 +41,13 @@ def qos_profile(name: str, depth: int = 5) -> QoSProfile:
         reliability=reliability,
         durability=DurabilityPolicy.VOLATILE,
     )
+
+
+def latched_profile() -> QoSProfile:
+    """Reliable, transient local, keep-last 1: a subscriber that comes late still gets the last message sent."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )

@@ -1,4 +1,7 @@
-"""Stage-2 node: proposals cloud in, labeled cloud (label, confidence, rgb) and object boxes out."""
+"""Stage-2 node: proposals cloud in, labeled cloud (label, confidence, rgb) and objects (markers, detections) out.
+
+Detections (vision_msgs) go out where vision_msgs imports; see pass3d_ros.ros.detections.
+"""
 
 from __future__ import annotations
 
@@ -13,9 +16,9 @@ from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN, packed_rgb
 from pass3d_ros.core import scan_checks
+from pass3d_ros.core.objects import labelled_objects
 from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, open_classifier
-from pass3d_ros.core.stage2.canonical import fit_box_members
 from pass3d_ros.core.stage2.classifier_process import (
     ClassifierProcessDownError,
     ClassifierProcessHungError,
@@ -25,15 +28,15 @@ from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult, proposals_cut
 from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-from pass3d_ros.data.frame import Box3D
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, header_stamp_ns
 from pass3d_ros.ros import params
+from pass3d_ros.ros.detections import DetectionOutputs
 from pass3d_ros.ros.diagnostics import StepClock
 from pass3d_ros.ros.latest_frame import DROPPED, FrameCounters, LatestFrameWorker, Outcome
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
-from pass3d_ros.ros.proposals import ProposalFrame, dense_ids, nearest_proposals, proposal_frame
-from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES
+from pass3d_ros.ros.proposals import ProposalFrame, dense_ids, nearest_proposals, proposal_frame, source_ids
+from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES, qos_profile
 from pass3d_ros.ros.run import run_nodes
 
 HUNG_ERROR_S = 10.0  # a stage-2 process killed for hanging stays an ERROR on /diagnostics this long (seen at 1 Hz)
@@ -41,7 +44,11 @@ HUNG_ERROR_S = 10.0  # a stage-2 process killed for hanging stays an ERROR on /d
 NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "input_topic": ("/pass3d/proposals", "proposals cloud from cluster_proposal_node", None),
     "labeled_topic": ("/pass3d/labeled", "output: labeled cloud (label, confidence, rgb)", None),
-    "objects_topic": ("/pass3d/objects", "output: MarkerArray, one box and text per labeled proposal", None),
+    "objects_topic": ("/pass3d/objects", "output: MarkerArray, one box and text per labeled object", None),
+    "detections_topic": ("/pass3d/detections", "output: vision_msgs/Detection3DArray, one detection per labeled "
+                         "object (where vision_msgs is installed)", None),
+    "label_info_topic": ("/pass3d/label_info", "output: vision_msgs/LabelInfo, the class map (transient local, "
+                         "where vision_msgs is installed)", None),
     "input_qos": ("auto", INPUT_QOS_HELP, None),
     "output_qos": ("reliable", f"QoS of the outputs: {' or '.join(QOS_NAMES)}", None),
     "classifier": (DEFAULT_CLASSIFIER, f"{' or '.join(CLASSIFIERS)}: the PointNet++ or the geometric baseline", None),
@@ -86,29 +93,18 @@ def labeled_cloud(frame: ProposalFrame, result: SegmentResult, min_confidence: f
     return columns
 
 
-def object_boxes(points: np.ndarray, members: list[np.ndarray], result: SegmentResult) -> tuple[list[Box3D], list]:
-    """Boxes of the proposals classified as an object, with their classes."""
-    chosen = [i for i, c in enumerate(result.proposal_class) if c > BACKGROUND and len(members[i])]
-    if not chosen:
-        return [], []
-    fitted = fit_box_members(points, [members[i] for i in chosen])
-    boxes = [
-        Box3D(
-            center=np.array([fitted.center[k, 0], fitted.center[k, 1], fitted.zmin[k] + fitted.size[k, 2] / 2]),
-            size=fitted.size[k],
-            yaw=float(fitted.yaw[k]),
-            label=int(result.proposal_class[i]),
-        )
-        for k, i in enumerate(chosen)
-    ]
-    return boxes, [int(result.proposal_class[i]) for i in chosen]
+class Budgeted(NamedTuple):
+    """The proposals of a frame stage 2 classifies: their member points and their cluster ids in the message."""
+
+    members: list[np.ndarray]
+    ids: np.ndarray
 
 
 class Labeled(NamedTuple):
     """A segmented frame on its way to being published."""
 
     frame: ProposalFrame
-    members: list[np.ndarray]
+    proposals: Budgeted
     result: SegmentResult
     clock: StepClock
 
@@ -123,6 +119,7 @@ class SegmentationNode(PointCloudNode):
     COUNTS_INPUT_GAPS = False  # its input is the cluster node's output: those drops are counted there
     publisher: LatestFrameWorker[Labeled] | None = None  # the publishing thread (overlap and process); a class
     # default, because diagnostics may ask for the counters before __init__ has decided
+    detections: DetectionOutputs | None = None  # the vision_msgs publishers; None without vision_msgs
 
     def __init__(self, in_memory: bool = False, **kwargs: Any) -> None:
         super().__init__(PARAMETERS, **kwargs)
@@ -139,6 +136,11 @@ class SegmentationNode(PointCloudNode):
 
         self.labeled_pub = self.output_publisher(PointCloud2, "labeled_topic")
         self.objects_pub = self.output_publisher(MarkerArray, "objects_topic")
+        self.detections = DetectionOutputs.open(self, self.get_parameter("detections_topic").value,
+                                                self.get_parameter("label_info_topic").value,
+                                                qos_profile(self.get_parameter("output_qos").value))
+        if self.detections is not None:
+            self.detections.publish_label_info(self.get_parameter("min_confidence").value)
         self.overlap = in_memory and bool(self.get_parameter("overlap").value)
         self.start_worker(self._process, "stage2", subscribe=not in_memory)
         # With overlap and the classifier in a child process, a third thread encodes and publishes, so the stage-2
@@ -259,6 +261,8 @@ class SegmentationNode(PointCloudNode):
                 self.classifier.max_proposals = int(p.value)
             if p.name == "stage2_timeout" and isinstance(self.classifier, ProcessClassifier):
                 self.classifier.timeout_s = float(p.value)
+            if p.name == "min_confidence" and self.detections is not None:
+                self.detections.publish_label_info(p.value)  # LabelInfo's threshold follows it
         return params.result(True)
 
     def _process(self, item: PointCloud2 | ProposalFrame) -> Outcome | None:
@@ -275,7 +279,8 @@ class SegmentationNode(PointCloudNode):
         if len(points) == 0:
             self.get_logger().warning("skipping empty proposals cloud", throttle_duration_sec=LOG_PERIOD_S)
             return self.skipped("empty")
-        members = self._budget_members(frame)
+        proposals = self._budget(frame)
+        members = proposals.members
         stage2_points = self._on_training_scale(points)
         clock.mark("decode")
         try:
@@ -296,7 +301,7 @@ class SegmentationNode(PointCloudNode):
                 f"stage 2 took {clock.steps_ms['compute'] / 1e3:.1f} s, over stage2_timeout {timeout:g} s: the frame "
                 "is dropped, not published late", throttle_duration_sec=LOG_PERIOD_S)
             return DROPPED
-        labeled = Labeled(frame, members, result, clock)
+        labeled = Labeled(frame, proposals, result, clock)
         if self.publisher is None:
             self._publish(labeled)
         else:
@@ -324,9 +329,9 @@ class SegmentationNode(PointCloudNode):
         return ProposalFrame(frame.header, frame.points[keep], None if frame.ring is None else frame.ring[keep],
                              frame.cluster_id[keep], frame.cluster_id2[keep])
 
-    def _budget_members(self, frame: ProposalFrame) -> list[np.ndarray]:
-        """Member points of the frame's proposals, at most max_proposals of them (the nearest): the cut ones are
-        not classified, so their points are background; a cut is counted and warned about (throttled)."""
+    def _budget(self, frame: ProposalFrame) -> Budgeted:
+        """Member points and cluster ids of the frame's proposals, at most max_proposals of them (the nearest): the
+        cut ones are not classified, so their points are background; a cut is counted and warned about (throttled)."""
         first, second, count = dense_ids(frame.cluster_id, frame.cluster_id2)
         limit = int(self.get_parameter("max_proposals").value)
         cut = proposals_cut(count, limit)
@@ -337,11 +342,12 @@ class SegmentationNode(PointCloudNode):
                 f"{count} proposals in one frame, max_proposals {limit}: the nearest {limit} are classified, the "
                 f"points of the other {count - limit} labeled background", throttle_duration_sec=LOG_PERIOD_S)
             count = limit
-        return proposal_members(first, second, n_proposals=count)
+        ids = source_ids((frame.cluster_id, frame.cluster_id2), (first, second), count)
+        return Budgeted(proposal_members(first, second, n_proposals=count), ids)
 
     def _publish(self, labeled: Labeled) -> None:
-        """Encode and publish one segmented frame (and its object boxes when someone listens)."""
-        frame, members, result, clock = labeled
+        """Encode and publish one segmented frame (and its objects, as markers and detections, to whoever listens)."""
+        frame, proposals, result, clock = labeled
         if self.publisher is not None:
             clock.mark("handoff")  # the wait in the publishing thread's slot
         columns = labeled_cloud(frame, result, self.get_parameter("min_confidence").value)
@@ -349,20 +355,38 @@ class SegmentationNode(PointCloudNode):
         clock.mark("encode")
         self.labeled_pub.publish(cloud)
         clock.mark("publish")
-        if self.objects_pub.get_subscription_count() > 0:
-            boxes, classes = object_boxes(frame.points, members, result)
-            markers = boxes_to_markers(boxes, frame.header, "objects", classes, with_text=True)
-            clock.mark("encode")
-            self.objects_pub.publish(markers)
-            clock.mark("publish")
+        labels = columns["label"]
+        self._publish_objects(frame, proposals, result, labels, clock)
         self.stats.frame(clock.steps_ms)
-        labels = columns["label"]  # counted class by class: np.bincount of 120k uint8 labels took 1.3-3 ms
+        # counted class by class: np.bincount of 120k uint8 labels took 1.3-3 ms
         counts = [int(np.count_nonzero(labels == k)) for k in (CAR, PEDESTRIAN, CYCLIST)]
         self.get_logger().info(
-            f"{len(frame.points)} points, {len(members)} proposals, labeled car/ped/cyc points {counts}, "
+            f"{len(frame.points)} points, {len(proposals.members)} proposals, labeled car/ped/cyc points {counts}, "
             f"stage2 {sum(clock.steps_ms.values()):.1f} ms, dropped {self.counters().dropped}",
             throttle_duration_sec=LOG_PERIOD_S,
         )
+
+    def _publish_objects(self, frame: ProposalFrame, proposals: Budgeted, result: SegmentResult, labels: np.ndarray,
+                         clock: StepClock) -> None:
+        """The frame's objects (boxes of each labelled proposal's points of its class) as markers and as detections,
+        each only while something subscribes; `labels`: the published ones (after min_confidence)."""
+        markers = self.objects_pub.get_subscription_count() > 0
+        detections = self.detections is not None and self.detections.wanted()
+        if not (markers or detections):
+            return
+        objects = labelled_objects(frame.points, proposals.members, result.proposal_class, labels, result.confidence,
+                                   proposals.ids)
+        if markers:
+            boxes = [obj.box() for obj in objects]
+            array = boxes_to_markers(boxes, frame.header, "objects", [obj.label for obj in objects], with_text=True)
+            clock.mark("encode")
+            self.objects_pub.publish(array)
+            clock.mark("publish")
+        if detections:
+            message = self.detections.message(objects, frame.header)
+            clock.mark("encode")
+            self.detections.publish(message)
+            clock.mark("publish")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -3,15 +3,16 @@
     pass3d_segment --data SPEC [--data ...] --out DIR [--weights W] [--classifier network|size_rules]
                    [--param KEY=VALUE ...] [--max-proposals N] [--threads N] [--no-png] [--force] [--no-progress]
 
-Writes, per frame, `labels/NAME.label` in SemanticKITTI's format (one little-endian uint32 per point, in
-the scan's point order, instance bits 0) and, unless --no-png, `bev/NAME.png`, a bird's-eye picture: the
-prediction coloured by class with its object boxes, beside the ground truth when the data has labels. NAME is
-the reader's frame name. With several --data, each gets its own folder `OUT/NN/` (NN = position of the --data,
-from 00) so equal frame names cannot collide. `OUT/summary.json` records the
-inputs, the classifier, times per stage and, when the data has ground-truth labels, per-class precision,
-recall and IoU, how many proposals stage 2's budget (max_proposals, nearest first) cut ("budget"), and the
-intensity map each --data got ("intensity": stage 2 sees intensities on its training scale, as the segmentation
-node does; --no-intensity-match feeds them as read). `--param
+Writes, per frame, `labels/NAME.label` in SemanticKITTI's format (one little-endian uint32 per point, in the scan's
+point order, instance bits 0), `objects/NAME.json`, the objects as /pass3d/detections carries them ({"frame": NAME,
+"objects": [{"id", "class_id", "score", "center", "size", "yaw"}, ...]}: one oriented box per labelled proposal,
+fitted to its points of that class; docs/outputs.md) and, unless --no-png, `bev/NAME.png`, a bird's-eye picture:
+the prediction coloured by class with its object boxes, beside the ground truth when the data has labels. NAME is the
+reader's frame name. With several --data, each gets its own folder `OUT/NN/` (NN = position of the --data, from 00)
+so equal frame names cannot collide. `OUT/summary.json` records the inputs, the classifier, times per stage and, when
+the data has ground-truth labels, per-class precision, recall and IoU, how many proposals stage 2's budget
+(max_proposals, nearest first) cut ("budget"), and the intensity map each --data got ("intensity": stage 2 sees
+intensities on its training scale, as the segmentation node does; --no-intensity-match feeds them as read). `--param
 KEY=VALUE` (repeatable) overrides a stage-1 parameter, as in pass3d_evaluate (stage1.sensor=pandar64 or
 sensor=pandar64). The frames of one --data are a stream: laser lines found on one scan are reused by the next
 (pass3d_ros.core.stage1.held_lines).
@@ -19,8 +20,8 @@ sensor=pandar64). The frames of one --data are a stream: laser lines found on on
 The output is built in a hidden sibling folder (`.DIR.partial-PID`) and moved into DIR only when every frame and
 the summary are written, so a failed or interrupted run leaves DIR as it was (one left by a killed run is removed by
 the next). DIR gets a `.pass3d_output` marker; --force writes into a non-empty DIR only when it holds one (an output
-of this tool), and then the run's own entries (labels/, bev/, NN/, summary.json) replace those of the same name;
-other files stay. Never into the working folder, an input or a folder holding one. A full disk is one line; DIR is
+of this tool), and then the run's own entries (labels/, objects/, bev/, NN/, summary.json) replace those of the same
+name; other files stay. Never into the working folder, an input or a folder holding one. A full disk is one line; DIR is
 left as it was.
 
 Label ids: car 10, pedestrian 30 (person), cyclist 31 (bicyclist), background 0 (unlabeled): PASS3D
@@ -58,7 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="pass3d_segment", description=__doc__.splitlines()[0])
     parser.add_argument("--data", action="append", required=True, metavar="SPEC",
                         help="dataset FORMAT:PATH (repeatable), e.g. semantickitti:.../sequences/08, bag:run.mcap")
-    parser.add_argument("--out", required=True, metavar="DIR", help="output folder (labels/, bev/, summary.json)")
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="output folder (labels/, objects/, bev/, summary.json)")
     parser.add_argument("--classifier", choices=CLASSIFIERS, help="stage-2 classifier (default network)")
     parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
     parser.add_argument("--device", default="cpu", help="torch device for the network (default cpu)")
@@ -75,8 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "node does (default on)")
     parser.add_argument("--no-png", action="store_true", help="skip the bird's-eye-view PNGs")
     parser.add_argument("--force", action="store_true",
-                        help="write into a non-empty --out this tool wrote (this run's labels/, bev/, summary.json "
-                             "replace the old)")
+                        help="write into a non-empty --out this tool wrote (this run's labels/, objects/, bev/, "
+                             "summary.json replace the old)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -116,7 +118,8 @@ def _run(args: argparse.Namespace, log: Callable[[str], None]) -> int:
             f"labelled background): {budget['proposals_cut']} in {budget['frames_cut']} frame(s)")
     if report["per_class"]:
         log("\n".join(format_metrics(report["per_class"], report["mean_iou"])))
-    log(f"labels: {', '.join(f + '/labels' for f in stats.folders)}"
+    log(f"labels: {', '.join(f + '/labels' for f in stats.folders)}; objects: "
+        f"{', '.join(f + '/objects' for f in stats.folders)}"
         + ("" if args.no_png else f"; bird's-eye views: {', '.join(f + '/bev' for f in stats.folders)}")
         + f"; summary: {out / SUMMARY}")
     return 0

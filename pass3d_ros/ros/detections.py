@@ -1,0 +1,98 @@
+"""The objects as vision_msgs, for trackers and planners: `/pass3d/detections` (Detection3DArray, one Detection3D per
+object, the labelled cloud's header) and `/pass3d/label_info` (LabelInfo: the class map, latched).
+
+vision_msgs is optional: a ROS install has it (`ros-jazzy-vision-msgs`, package.xml); PyPI has no wheel. Where it
+does not import, `DetectionOutputs.open` logs one INFO line saying why and the node publishes its markers only.
+The objects themselves come from `pass3d_ros.core.objects`; this module only fills the messages.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+
+from pass3d_ros.classes import CLASS_NAMES
+from pass3d_ros.core.objects import LabelledObject
+from pass3d_ros.ros.qos import latched_profile
+
+try:
+    from vision_msgs import msg as vision
+except ImportError as exc:  # PyPI's ROS: no vision_msgs wheel
+    vision = None
+    MISSING: str | None = f"vision_msgs does not import ({exc})"
+else:
+    MISSING = None
+
+
+def detections_message(objects: Sequence[LabelledObject], header: Any) -> Any:
+    """A Detection3DArray: `header` (the labelled cloud's), one Detection3D per object with its oriented box, one
+    hypothesis (class name, mean confidence, the box's pose) and the cluster id as `id`."""
+    detections = []
+    for obj in objects:
+        detection = vision.Detection3D(header=header, id=str(obj.cluster_id))
+        _set_pose(detection.bbox.center, obj)
+        detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z = obj.size
+        result = vision.ObjectHypothesisWithPose()
+        result.hypothesis.class_id = obj.class_id
+        result.hypothesis.score = obj.score
+        _set_pose(result.pose.pose, obj)
+        detection.results = [result]
+        detections.append(detection)
+    return vision.Detection3DArray(header=header, detections=detections)
+
+
+def _set_pose(pose: Any, obj: LabelledObject) -> None:
+    """Fill a geometry_msgs/Pose with the object's box centre and its yaw about z."""
+    pose.position.x, pose.position.y, pose.position.z = obj.center
+    pose.orientation.z, pose.orientation.w = math.sin(obj.yaw / 2), math.cos(obj.yaw / 2)
+
+
+def label_info_message(threshold: float) -> Any:
+    """A LabelInfo: every class id with its name (the ids of /pass3d/labeled's `label`), and the confidence below
+    which a point is labelled background (`min_confidence`)."""
+    class_map = [vision.VisionClass(class_id=k, class_name=name) for k, name in enumerate(CLASS_NAMES)]
+    return vision.LabelInfo(class_map=class_map, threshold=float(threshold))
+
+
+class DetectionOutputs:
+    """The two vision_msgs publishers of a node; `open` gives None (logged once) where vision_msgs is missing."""
+
+    def __init__(self, node: Node, detections_topic: str, label_info_topic: str, qos: QoSProfile) -> None:
+        self.detections_pub = node.create_publisher(vision.Detection3DArray, detections_topic, qos)
+        self.label_info_pub = node.create_publisher(vision.LabelInfo, label_info_topic, latched_profile())
+
+    @classmethod
+    def open(cls, node: Node, detections_topic: str, label_info_topic: str, qos: QoSProfile
+             ) -> DetectionOutputs | None:
+        """The publishers, or None after one INFO line saying why detections are off (vision_msgs missing, or its
+        type support not loading)."""
+        reason = MISSING
+        if reason is None:
+            try:
+                return cls(node, detections_topic, label_info_topic, qos)
+            except Exception as exc:  # a vision_msgs whose type support does not load (a broken build)
+                reason = f"vision_msgs' type support does not load ({exc})"
+        node.get_logger().info(f"{detections_topic} and {label_info_topic} are off: {reason}; install vision_msgs "
+                               "(rosdep: ros-jazzy-vision-msgs) for them. Objects go out as markers only.")
+        return None
+
+    def wanted(self) -> bool:
+        """Whether anything subscribes to the detections."""
+        return self.detections_pub.get_subscription_count() > 0
+
+    @staticmethod
+    def message(objects: Sequence[LabelledObject], header: Any) -> Any:
+        """One frame's Detection3DArray (`detections_message`)."""
+        return detections_message(objects, header)
+
+    def publish(self, message: Any) -> None:
+        """Publish one frame's Detection3DArray."""
+        self.detections_pub.publish(message)
+
+    def publish_label_info(self, threshold: float) -> None:
+        """The class map (latched: late subscribers get it too)."""
+        self.label_info_pub.publish(label_info_message(threshold))

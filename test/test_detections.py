@@ -1,0 +1,189 @@
+"""/pass3d/detections and /pass3d/label_info (vision_msgs) through real nodes: the two nodes over
+/pass3d/proposals and the one-process pipeline; markers only, with one INFO line, where vision_msgs does not import.
+
+vision_msgs has no PyPI wheel: the tests that need it are skipped, with the reason, unless it imports (a ROS install,
+or the package built from source and put on PYTHONPATH / LD_LIBRARY_PATH, as .ci/colcon-check does).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+import rclpy.logging
+from helpers.ros import STAMP0, WAIT_S, Collector, Ros, columns, connect, scan_message
+from rclpy.logging import LoggingSeverity
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import PointCloud2
+from visualization_msgs.msg import Marker, MarkerArray
+
+from pass3d_ros.classes import CLASS_NAMES, FOREGROUND
+from pass3d_ros.core.objects import LabelledObject, labelled_objects
+from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
+from pass3d_ros.data.frame import Box3D, Frame
+from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
+from pass3d_ros.ros import detections
+from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+from pass3d_ros.ros.inprocess import in_memory_factories
+from pass3d_ros.ros.proposals import dense_ids, nearest_proposals, source_ids
+from pass3d_ros.ros.qos import latched_profile, qos_profile
+from pass3d_ros.ros.segmentation_node import SegmentationNode
+
+pytestmark = pytest.mark.ros
+
+needs_vision_msgs = pytest.mark.skipif(detections.MISSING is not None,
+                                       reason=f"{detections.MISSING}: no PyPI wheel; .ci/colcon-check builds it")
+OBJECT_NAMES = {CLASS_NAMES[k] for k in FOREGROUND}
+SIZE_RULES = [Parameter("classifier", value="size_rules")]
+FRAMES = 3
+
+
+def two_nodes(ros: Ros) -> None:
+    """cluster_proposal_node and segmentation_node, joined by /pass3d/proposals."""
+    ros.add(ClusterProposalNode(context=ros.context))
+    ros.add(SegmentationNode(context=ros.context, parameter_overrides=SIZE_RULES))
+
+
+def pipeline(ros: Ros) -> None:
+    """pass3d_pipeline's two nodes, joined in memory."""
+    cluster, segmentation = in_memory_factories()
+    ros.add(cluster(context=ros.context))
+    ros.add(segmentation(context=ros.context, parameter_overrides=SIZE_RULES))
+
+
+class Latched:
+    """A late subscriber to the latched /pass3d/label_info."""
+
+    def __init__(self, node: Node) -> None:
+        self.messages: list = []
+        self.got = threading.Event()
+        node.create_subscription(detections.vision.LabelInfo, "/pass3d/label_info", self._on, latched_profile())
+
+    def _on(self, msg: object) -> None:
+        self.messages.append(msg)
+        self.got.set()
+
+
+def offline_objects(frame: Frame) -> list[LabelledObject]:
+    """The objects stage 1 + size rules find in `frame`, computed offline."""
+    stage1 = propose(frame.points, frame.ring)
+    members = proposal_members(stage1.cluster_id, stage1.cluster_id2)
+    result = SizeRuleClassifier().segment(frame.points, members)
+    return labelled_objects(frame.points, members, result.proposal_class, result.labels, result.confidence)
+
+
+def yaw_of(orientation: object) -> float:
+    """The yaw of a quaternion that turns about z only."""
+    assert orientation.x == 0.0 and orientation.y == 0.0
+    return 2.0 * math.atan2(orientation.z, orientation.w)
+
+
+def test_source_ids_map_dense_proposals_back_to_the_message_ids() -> None:
+    first = np.array([4, 4, -1, 9, 9, 2, -1])
+    second = np.array([-1, 9, 7, -1, -1, -1, -1])
+    dense = dense_ids(first, second)
+    np.testing.assert_array_equal(source_ids((first, second), dense[:2], dense[2]), [2, 4, 7, 9])
+    points = np.array([[1, 0], [1, 0], [30, 0], [50, 0], [50, 0], [3, 0], [0, 0]], np.float32)
+    cut = nearest_proposals(points, *dense, limit=2)
+    np.testing.assert_array_equal(source_ids((first, second), cut[:2], cut[2]), [2, 4])  # the two nearest
+
+
+def test_without_vision_msgs_one_info_line_and_markers_only(ros: Ros, frame: Frame, monkeypatch: pytest.MonkeyPatch,
+                                                            capfd: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(detections, "MISSING", "vision_msgs does not import (No module named 'vision_msgs')")
+    rclpy.logging.get_logger("segmentation_node").set_level(LoggingSeverity.INFO)  # another test may have raised it
+    two_nodes(ros)
+    segmenter = next(node for node in ros.nodes if isinstance(node, SegmentationNode))
+    assert segmenter.detections is None
+    names = {name for name, _ in ros.probe.get_topic_names_and_types()}
+    assert "/pass3d/detections" not in names and "/pass3d/label_info" not in names
+    labeled = Collector(ros, PointCloud2, "/pass3d/labeled")
+    objects = Collector(ros, MarkerArray, "/pass3d/objects")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, labeled, objects)
+    pub.publish(scan_message(frame, STAMP0))
+    assert header_stamp_ns(objects.wait(1)[0].markers[0]) == STAMP0
+    err = capfd.readouterr().err
+    lines = [line for line in err.splitlines() if "/pass3d/detections and /pass3d/label_info are off" in line]
+    assert len(lines) == 1 and "INFO" in lines[0] and "No module named 'vision_msgs'" in lines[0], err
+
+
+@needs_vision_msgs
+def test_detections_message_fields() -> None:
+    obj = LabelledObject(center=(1.0, 2.0, 0.5), size=(4.0, 1.7, 1.5), yaw=0.4, label=1, score=0.75, cluster_id=12)
+    header = detections.vision.Detection3DArray().header
+    header.frame_id = "lidar"
+    message = detections.detections_message([obj], header)
+    assert message.header.frame_id == "lidar" and len(message.detections) == 1
+    detection = message.detections[0]
+    assert detection.id == "12" and detection.header.frame_id == "lidar"
+    center = detection.bbox.center
+    assert (center.position.x, center.position.y, center.position.z) == (1.0, 2.0, 0.5)
+    assert yaw_of(center.orientation) == pytest.approx(0.4)
+    assert (detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z) == (4.0, 1.7, 1.5)
+    (result,) = detection.results
+    assert result.hypothesis.class_id == "car" and result.hypothesis.score == 0.75
+    assert result.pose.pose.position.x == 1.0 and yaw_of(result.pose.pose.orientation) == pytest.approx(0.4)
+    info = detections.label_info_message(0.25)
+    assert [(c.class_id, c.class_name) for c in info.class_map] == list(enumerate(CLASS_NAMES))
+    assert info.threshold == pytest.approx(0.25)
+
+
+@needs_vision_msgs
+@pytest.mark.parametrize("layout", [two_nodes, pipeline], ids=["two_nodes", "pipeline"])
+def test_detections_per_labelled_frame_and_label_info_for_a_late_subscriber(
+        ros: Ros, frame: Frame, layout: Callable[[Ros], None]) -> None:
+    layout(ros)
+    labeled = Collector(ros, PointCloud2, "/pass3d/labeled")
+    markers = Collector(ros, MarkerArray, "/pass3d/objects")
+    found = Collector(ros, detections.vision.Detection3DArray, "/pass3d/detections")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, labeled, markers, found)
+    stamps = [STAMP0 + k * 100_000_000 for k in range(FRAMES)]
+    for count, stamp in enumerate(stamps, start=1):
+        pub.publish(scan_message(frame, stamp))  # one at a time: a busy node keeps only the newest frame
+        labeled.wait(count)
+        found.wait(count)
+
+    assert [header_stamp_ns(m) for m in found.messages] == [header_stamp_ns(m) for m in labeled.messages] == stamps
+    expected = offline_objects(frame)
+    assert len(expected) >= 2, "the synthetic street has objects"
+    for cloud_msg, array, boxes in zip(labeled.messages, found.messages, markers.wait(FRAMES), strict=True):
+        assert array.header.frame_id == cloud_msg.header.frame_id == "velodyne_test"
+        cloud = columns(cloud_msg)
+        assert [(d.id, d.results[0].hypothesis.class_id) for d in array.detections] == [
+            (str(o.cluster_id), o.class_id) for o in expected], "one detection per object"
+        wires = [m for m in boxes.markers if m.type == Marker.LINE_LIST]
+        assert len(wires) == len(array.detections), "the markers draw the same objects"
+        for detection in array.detections:
+            assert header_stamp_ns(detection) == header_stamp_ns(cloud_msg)
+            (result,) = detection.results
+            assert result.hypothesis.class_id in OBJECT_NAMES and 0.0 < result.hypothesis.score <= 1.0
+            size = detection.bbox.size
+            assert size.x > 0 and size.y > 0 and size.z > 0
+            label = CLASS_NAMES.index(result.hypothesis.class_id)
+            mine = (cloud["cluster_id"] == int(detection.id)) & (cloud["label"] == label)
+            center = detection.bbox.center.position
+            box = Box3D(np.array([center.x, center.y, center.z]), np.array([size.x, size.y, size.z]),
+                        yaw_of(detection.bbox.center.orientation))
+            xyz = np.column_stack([cloud["x"], cloud["y"], cloud["z"]])[mine]
+            assert box.contains(xyz, margin=(0.01, 0.01, 0.01)).all(), "the box holds its object's points"
+        for detection, obj in zip(array.detections, expected, strict=True):
+            center, size = detection.bbox.center.position, detection.bbox.size
+            assert (center.x, center.y, center.z) == pytest.approx(obj.center, abs=1e-4)
+            assert (size.x, size.y, size.z) == pytest.approx(obj.size, abs=1e-4)
+            assert detection.results[0].hypothesis.score == pytest.approx(obj.score, abs=1e-6)
+
+    late = Latched(ros.make_node("late_listener"))
+    assert late.got.wait(WAIT_S), "a late subscriber gets the latched LabelInfo"
+    time.sleep(0.3)
+    assert len(late.messages) == 1
+    info = late.messages[0]
+    assert [(c.class_id, c.class_name) for c in info.class_map] == list(enumerate(CLASS_NAMES))
+    assert info.threshold == 0.0
