@@ -83,6 +83,37 @@ def bootstrap_iou(
             "mean_iou": _interval(mean, frames, resamples, level)}
 
 
+def paired_iou_difference(
+    first: list[np.ndarray] | np.ndarray,
+    second: list[np.ndarray] | np.ndarray,
+    classes: tuple[int, ...] = FOREGROUND,
+    resamples: int = BOOTSTRAP_RESAMPLES,
+    level: float = BOOTSTRAP_LEVEL,
+    seed: int = BOOTSTRAP_SEED,
+) -> dict[int, dict]:
+    """Per class of `classes`: the pooled IoU of `second` minus that of `first` (two runs' per-frame confusion
+    matrices, F x k x k, the same frames in the same order) and its paired frame-bootstrap interval: each resample
+    draws the same frames for both runs, so what the frames share cancels. {class id: {"difference", **interval}}."""
+    a, b = np.asarray(first, dtype=np.int64), np.asarray(second, dtype=np.int64)
+    if a.shape != b.shape or a.ndim != 3:
+        raise ValueError(f"paired runs need the same F x k x k confusion matrices, got {a.shape} and {b.shape}")
+    frames = a.shape[0]
+    rng = np.random.default_rng(seed)
+    weights = np.vstack([np.ones(frames, dtype=np.int64),
+                         rng.multinomial(frames, np.full(frames, 1.0 / frames), size=resamples)])
+
+    def iou(stack: np.ndarray) -> np.ndarray:
+        sums = np.einsum("rf,fij->rij", weights, stack, optimize=True).astype(np.float64)
+        tp = np.diagonal(sums, axis1=1, axis2=2)
+        union = sums.sum(axis=2) + sums.sum(axis=1) - tp
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(union > 0, tp / union, np.nan)
+
+    delta = iou(b) - iou(a)
+    return {c: {"difference": None if np.isnan(delta[0, c]) else float(delta[0, c]),
+                **_interval(delta[1:, c], frames, resamples, level)} for c in classes}
+
+
 def bootstrap_ratio(numerator: np.ndarray, denominator: np.ndarray, resamples: int = BOOTSTRAP_RESAMPLES,
                     level: float = BOOTSTRAP_LEVEL, seed: int = BOOTSTRAP_SEED) -> dict:
     """Frame bootstrap interval of sum(numerator) / sum(denominator) over frames (one count of each per frame),
@@ -339,6 +370,7 @@ class SegmentationMetrics:
         summary = frame.summary()
         row["iou"] = {self.confusion.names[c]: summary["per_class"][self.confusion.names[c]]["iou"] for c in FOREGROUND}
         row["mean_iou"] = summary["mean_iou"]
+        row["confusion"] = frame.matrix.tolist()  # rows truth, columns prediction: what paired comparisons resample
         self.frames += 1
         self.per_frame.append(row)
         return row

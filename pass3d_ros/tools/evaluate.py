@@ -73,6 +73,7 @@ from pass3d_ros.evaluation.agreement import evaluate_agreement
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
 from pass3d_ros.evaluation.offline import evaluate_draws, evaluate_full, evaluate_stage1, iter_frames, parse_params
+from pass3d_ros.evaluation.paired import format_paired, paired, read_baseline
 from pass3d_ros.evaluation.report import PRINTERS
 from pass3d_ros.tools.cli import check_writable, number, run_tool
 
@@ -113,6 +114,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="full mode, network classifier in process: how stage 2 picks each proposal's points: "
                              "the seeded draw or the draw-free coverage sample (default: the weights' own, as the "
                              "nodes use it: coverage for order-free weights; --sample-draws: draw)")
+    parser.add_argument("--paired-with", type=Path, metavar="JSON",
+                        help="full mode: another full run's --json on the same frames; print each class's IoU "
+                             "difference (this run minus that one) with its paired frame-bootstrap interval "
+                             "(JSON: \"paired\")")
     parser.add_argument("--per-frame", action="store_true", help="print one row per frame too")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     live = parser.add_argument_group("live mode")
@@ -149,6 +154,8 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UserError("--limit does not apply with --live (choose the frames in the spec or bag)")
     if mode == "stage1" and (args.classifier or args.weights):
         raise UserError("--classifier and --weights do not apply with --stage1-only")
+    if mode != "full" and args.paired_with:
+        raise UserError("--paired-with applies to the full evaluation only")
     if mode != "full" and args.sample_draws != 1:
         option = {"stage1": "--stage1-only", "view_agreement": "--view-agreement", "live": "--live"}[mode]
         raise UserError(f"--sample-draws applies to the full evaluation only, not with {option}")
@@ -221,6 +228,7 @@ def main(argv: list[str] | None = None) -> int:
 def _evaluate(args: argparse.Namespace) -> int:
     if args.json:
         check_writable(args.json, folder=False, what="--json file")
+    baseline = read_baseline(args.paired_with) if args.paired_with else None
     try:
         mode, summary, status = run(args)
     except ModuleNotFoundError as exc:
@@ -231,7 +239,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     if frames_seen == 0:
         raise DatasetError(f"no frames in {', '.join(args.data)}")
     summary = {"mode": mode, "frames": summary["frames"], "data": list(args.data), **summary}
-    print(PRINTERS[mode](summary, per_frame=args.per_frame))
+    if baseline is not None:
+        summary["paired"] = paired(summary, baseline, str(args.paired_with))
+    print("\n".join([PRINTERS[mode](summary, per_frame=args.per_frame), *format_paired(summary.get("paired"))]))
     if args.json:
         write_text_atomic(args.json, json.dumps(summary, indent=2) + "\n")
         print(f"wrote {args.json}")
