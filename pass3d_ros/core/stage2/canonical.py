@@ -287,13 +287,39 @@ COVERAGE_CELL_M = 0.001  # coverage sampling orders points on a Morton curve of 
 _COVERAGE_BITS = 14  # per axis: 16.4 m of extent at 1 mm (coordinates past it are clipped)
 
 
-def _spread_bits(values: np.ndarray) -> np.ndarray:
-    """Each value's low 21 bits spread to every third bit (the 3-D Morton interleave)."""
-    x = values.astype(np.uint64) & np.uint64(0x1FFFFF)
-    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
-                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
-        x = (x | (x << np.uint64(shift))) & np.uint64(mask)
-    return x
+@nb.njit(cache=True, nogil=True)
+def _morton(x: int, y: int, z: int, bits: int) -> np.uint64:
+    """The 3-D Morton code of cell (x, y, z): bit b of x at 3b, of y at 3b + 1, of z at 3b + 2."""
+    code = np.uint64(0)
+    for b in range(bits):
+        code |= np.uint64(((x >> b) & 1) << (3 * b)) | np.uint64(((y >> b) & 1) << (3 * b + 1)) | np.uint64(
+            ((z >> b) & 1) << (3 * b + 2))
+    return code
+
+
+@nb.njit(cache=True, nogil=True)
+def _coverage_kernel(xyz: np.ndarray, offsets: np.ndarray, num_points: int, cell: np.float32, bits: int
+                     ) -> np.ndarray:
+    """Per proposal, the middle position of each of num_points equal strata of its points' Morton order (cells of
+    `cell` metres from the proposal's low corner, in float32, clipped to `bits` bits an axis; ties keep the input
+    order)."""
+    count = len(offsets) - 1
+    out = np.empty((count, num_points), dtype=np.int64)
+    top = (1 << bits) - 1
+    for p in range(count):
+        start, end = offsets[p], offsets[p + 1]
+        size = end - start
+        lx, ly, lz = xyz[start:end, 0].min(), xyz[start:end, 1].min(), xyz[start:end, 2].min()
+        codes = np.empty(size, dtype=np.uint64)
+        for q in range(size):
+            cx = min(max(int((xyz[start + q, 0] - lx) / cell), 0), top)
+            cy = min(max(int((xyz[start + q, 1] - ly) / cell), 0), top)
+            cz = min(max(int((xyz[start + q, 2] - lz) / cell), 0), top)
+            codes[q] = _morton(cx, cy, cz, bits)
+        order = np.argsort(codes, kind="mergesort")
+        for k in range(num_points):
+            out[p, k] = start + order[int(np.floor((k + 0.5) / num_points * size))]
+    return out
 
 
 def coverage_sample(xyz: np.ndarray, offsets: np.ndarray, num_points: int) -> np.ndarray:
@@ -307,16 +333,9 @@ def coverage_sample(xyz: np.ndarray, offsets: np.ndarray, num_points: int) -> np
         return np.zeros((0, num_points), dtype=np.int64)
     if np.any(counts <= 0):
         raise ValueError("coverage_sample: empty proposal")
-    batch = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
-    low = np.minimum.reduceat(xyz, offsets[:-1], axis=0)
-    cells = np.clip(((xyz - low[batch]) / COVERAGE_CELL_M).astype(np.int64), 0, (1 << _COVERAGE_BITS) - 1)
-    morton = _spread_bits(cells[:, 0]) | (_spread_bits(cells[:, 1]) << np.uint64(1)) | (
-        _spread_bits(cells[:, 2]) << np.uint64(2))
-    key = (batch.astype(np.uint64) << np.uint64(3 * _COVERAGE_BITS)) | morton
-    order = np.argsort(key, kind="stable")
-    strata = (np.arange(num_points) + 0.5) / num_points
-    within = np.floor(strata[None, :] * counts[:, None]).astype(np.int64)
-    return order[offsets[:-1, None] + within][:, _sample_order(num_points)]
+    positions = _coverage_kernel(np.ascontiguousarray(xyz, dtype=np.float32), np.asarray(offsets, dtype=np.int64),
+                                 num_points, np.float32(COVERAGE_CELL_M), _COVERAGE_BITS)
+    return positions[:, _sample_order(num_points)]
 
 
 @functools.lru_cache(maxsize=8)

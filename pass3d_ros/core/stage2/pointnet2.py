@@ -183,8 +183,8 @@ def gather_points(values: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
 
 def ball_query(d2: torch.Tensor, radius: float, nsample: int, nearest: bool = False) -> torch.Tensor:
     """For squared distances d2 (B, S, N) of centres to points: the first `nsample` point indices within
-    `radius` of each centre, in index order (`nearest`: the nearest ones, nearest first, ties to the lower index),
-    padded with the first one found (B, S, nsample).
+    `radius` of each centre, in index order (`nearest`: the nearest ones, ties to the lower index, listed in index
+    order too), padded with the first one listed (B, S, nsample).
 
     Every centre must be one of the points (FPS centres are), so each ball holds at least one point.
     """
@@ -197,7 +197,8 @@ def ball_query(d2: torch.Tensor, radius: float, nsample: int, nearest: bool = Fa
         if nsample > n:  # fewer points than members asked for: the rest is padding
             order = torch.cat([order, order[..., :1].expand(b, s, nsample - n)], dim=-1)
             found = torch.cat([found, torch.zeros_like(found[..., :1]).expand(b, s, nsample - n)], dim=-1)
-        return torch.where(found, order, order[..., :1])
+        listed = torch.where(found, order, torch.full_like(order, n)).sort(dim=-1).values  # index order, padding last
+        return torch.where(listed == n, listed[..., :1], listed)
     inside = d2 <= radius * radius
     rank = inside.cumsum(-1) - 1
     keep = inside & (rank < nsample)

@@ -109,34 +109,73 @@ def ball_query(d2: np.ndarray, r2: np.float32, nsample: int) -> np.ndarray:
 
 
 @nb.njit(cache=True, nogil=True)
+def _kth_smallest(a: np.ndarray, m: int, k: int) -> np.float32:
+    """The k-th smallest (0-based) of a[:m], by Hoare selection in place (a[:m] is reordered)."""
+    lo, hi = 0, m - 1
+    while lo < hi:
+        pivot = a[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            return a[k]
+    return a[k]
+
+
+@nb.njit(cache=True, nogil=True)
 def ball_query_nearest(d2: np.ndarray, r2: np.float32, nsample: int) -> np.ndarray:
-    """(B, S, nsample): per row of d2 (B, S, N), the nsample columns with d2 <= r2 nearest first (d2 clamped at 0,
-    ties to the lower index, as torch's stable sort gives them), padded with the nearest one (with N where none
-    is)."""
+    """(B, S, nsample): per row of d2 (B, S, N), the nsample columns with d2 <= r2 nearest (d2 clamped at 0, ties
+    to the lower index), listed in index order as `pointnet2.ball_query(nearest=True)` lists them, padded with the
+    first (with N where none is). A ball holding at most nsample points takes them all in one pass; a fuller one
+    finds the nsample-th distance by selection, not a sort."""
     b, s, n = d2.shape
     out = np.empty((b, s, nsample), dtype=np.int64)
-    found = np.empty(nsample, dtype=np.int64)
-    near = np.empty(nsample, dtype=np.float32)
+    near = np.empty(n, dtype=np.float32)
+    work = np.empty(n, dtype=np.float32)
+    index = np.empty(n, dtype=np.int64)
     for i in range(b):
         for c in range(s):
-            k = 0
+            m = 0
             for j in range(n):
                 v = d2[i, c, j]
-                if not v <= r2:
-                    continue
-                v = max(v, _ZERO)
-                if k == nsample and v >= near[k - 1]:
-                    continue
-                # Insert after every kept member at most as near (stable), dropping the farthest when full.
-                m = k if k < nsample else nsample - 1
-                while m > 0 and near[m - 1] > v:
-                    near[m], found[m] = near[m - 1], found[m - 1]
-                    m -= 1
-                near[m], found[m] = v, j
-                k = min(k + 1, nsample)
-            pad = found[0] if k > 0 else n
-            for m in range(nsample):
-                out[i, c, m] = found[m] if m < k else pad
+                if v <= r2:
+                    near[m], index[m] = max(v, _ZERO), j
+                    m += 1
+            k = 0
+            if m <= nsample:
+                for q in range(m):
+                    out[i, c, q] = index[q]
+                k = m
+            else:
+                work[:m] = near[:m]
+                cut = _kth_smallest(work, m, nsample - 1)
+                ties = nsample
+                for q in range(m):
+                    if near[q] < cut:
+                        ties -= 1
+                for q in range(m):
+                    v = near[q]
+                    if v < cut:
+                        out[i, c, k] = index[q]
+                        k += 1
+                    elif v == cut and ties > 0:
+                        ties -= 1
+                        out[i, c, k] = index[q]
+                        k += 1
+            pad = out[i, c, 0] if k > 0 else n
+            for q in range(k, nsample):
+                out[i, c, q] = pad
     return out
 
 
