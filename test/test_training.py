@@ -333,10 +333,11 @@ def test_init_starts_from_a_checkpoints_weights(tmp_path, capsys):
     common = ["--data", "constructed:train", "--config", "lite", "--epochs", "1", "--batch-size", "4",
               "--max-steps", "1", "--quiet", "--seed", "4"]
     run = functools.partial(train.run, proposer=instance_proposer, frame_source=lambda specs: iter(frames))
-    # The first run groups as the weights up to 0.2 did; grouping has no weights, so a "set" run may start there.
+    # The first run groups as the shipped weights do; grouping has no weights, so a "set" run may start there.
     assert run(train.build_parser().parse_args([*common, "--out", str(first), "--grouping", "slot"])) == 0
     start = torch.load(first / "best.pt", weights_only=True)["state_dict"]
-    argv = [*common, "--out", str(second), "--init", str(first / "best.pt"), "--lr", "0", "--weight-decay", "0"]
+    argv = [*common, "--out", str(second), "--init", str(first / "best.pt"), "--lr", "0", "--weight-decay", "0",
+            "--grouping", "set"]
     assert run(train.build_parser().parse_args(argv)) == 0
     assert f"initial weights: {first / 'best.pt'}" in capsys.readouterr().out
     tuned = torch.load(second / "last.pt", weights_only=True)

@@ -86,8 +86,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-mode", choices=["ratio", "log"], default="log",
                    help="n = log(NUM / N) (default: bounded, trains stably) or the paper's (NUM - N) / N")
     p.add_argument("--grouping", choices=GROUPINGS, default=TRAIN_GROUPING,
-                   help="set: FPS from the point nearest the centroid, nearest ball members (order-free); "
-                        "slot: FPS from slot 0, first ball members in slot order (weights up to 0.2)")
+                   help="slot: FPS from slot 0, first ball members in slot order (the shipped weights); set: FPS "
+                        "from the point nearest the centroid, nearest ball members (order-free: such weights sample "
+                        "by coverage, no draw)")
     p.add_argument("--no-intensity-augment", action="store_true",
                    help="no per-proposal intensity augmentation (gain, offset, gamma, zeroing, constant)")
     p.add_argument("--no-intensity", action="store_true",
