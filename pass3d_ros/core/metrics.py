@@ -46,6 +46,24 @@ def _interval(values: np.ndarray, frames: int, resamples: int, level: float) -> 
             "method": BOOTSTRAP_METHOD, "frames": frames, "degenerate": frames < 2}
 
 
+def _frame_weights(frames: int, resamples: int, seed: int) -> np.ndarray:
+    """(resamples, frames): how often each resample draws each frame (frames drawn with replacement)."""
+    return np.random.default_rng(seed).multinomial(frames, np.full(frames, 1.0 / frames), size=resamples)
+
+
+def _resampled_sums(weights: np.ndarray, stack: np.ndarray) -> np.ndarray:
+    """(R, k, k): the confusion matrices `stack` (F, k, k) summed with each row of `weights` (R, F)."""
+    return np.einsum("rf,fij->rij", weights, stack, optimize=True).astype(np.float64)
+
+
+def _pooled_iou(sums: np.ndarray) -> np.ndarray:
+    """(R, k): each class's IoU of each summed confusion matrix (R, k, k); NaN where a class has no union."""
+    tp = np.diagonal(sums, axis1=1, axis2=2)
+    union = sums.sum(axis=2) + sums.sum(axis=1) - tp
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(union > 0, tp / union, np.nan)
+
+
 def bootstrap_iou(
     matrices: list[np.ndarray] | np.ndarray,
     classes: tuple[int, ...] = FOREGROUND,
@@ -66,14 +84,8 @@ def bootstrap_iou(
         empty = np.full(resamples, np.nan)
         return {"per_class": [_interval(empty, 0, resamples, level) for _ in range(k)],
                 "mean_iou": _interval(empty, 0, resamples, level)}
-    rng = np.random.default_rng(seed)
-    weights = rng.multinomial(frames, np.full(frames, 1.0 / frames), size=resamples)  # times each frame is drawn
-    sums = np.einsum("rf,fij->rij", weights, stack, optimize=True).astype(np.float64)
-    tp = np.diagonal(sums, axis1=1, axis2=2)
-    truth, predicted = sums.sum(axis=2), sums.sum(axis=1)
-    union = truth + predicted - tp
-    with np.errstate(invalid="ignore", divide="ignore"):
-        iou = np.where(union > 0, tp / union, np.nan)
+    sums = _resampled_sums(_frame_weights(frames, resamples, seed), stack)
+    iou, truth = _pooled_iou(sums), sums.sum(axis=2)
     chosen = list(classes)
     present = truth[:, chosen] > 0
     with np.errstate(invalid="ignore"):
@@ -98,18 +110,8 @@ def paired_iou_difference(
     if a.shape != b.shape or a.ndim != 3:
         raise ValueError(f"paired runs need the same F x k x k confusion matrices, got {a.shape} and {b.shape}")
     frames = a.shape[0]
-    rng = np.random.default_rng(seed)
-    weights = np.vstack([np.ones(frames, dtype=np.int64),
-                         rng.multinomial(frames, np.full(frames, 1.0 / frames), size=resamples)])
-
-    def iou(stack: np.ndarray) -> np.ndarray:
-        sums = np.einsum("rf,fij->rij", weights, stack, optimize=True).astype(np.float64)
-        tp = np.diagonal(sums, axis1=1, axis2=2)
-        union = sums.sum(axis=2) + sums.sum(axis=1) - tp
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(union > 0, tp / union, np.nan)
-
-    delta = iou(b) - iou(a)
+    weights = np.vstack([np.ones(frames, dtype=np.int64), _frame_weights(frames, resamples, seed)])  # row 0: as run
+    delta = _pooled_iou(_resampled_sums(weights, b)) - _pooled_iou(_resampled_sums(weights, a))
     return {c: {"difference": None if np.isnan(delta[0, c]) else float(delta[0, c]),
                 **_interval(delta[1:, c], frames, resamples, level)} for c in classes}
 
@@ -122,7 +124,7 @@ def bootstrap_ratio(numerator: np.ndarray, denominator: np.ndarray, resamples: i
     frames = len(num)
     if frames == 0:
         return _interval(np.full(resamples, np.nan), 0, resamples, level)
-    weights = np.random.default_rng(seed).multinomial(frames, np.full(frames, 1.0 / frames), size=resamples)
+    weights = _frame_weights(frames, resamples, seed)
     top, bottom = weights @ num, weights @ den
     with np.errstate(invalid="ignore", divide="ignore"):
         return _interval(np.where(bottom > 0, top / bottom, np.nan), frames, resamples, level)
@@ -356,7 +358,7 @@ class SegmentationMetrics:
         self.confusion.frames.append(frame.matrix)
         relaxed = ignore_vehicles(truth, vehicle_other)
         self.vehicles_ignored.update(relaxed, predicted)
-        ignored = int(np.count_nonzero(np.asarray(relaxed) != np.asarray(truth)))
+        ignored = 0 if relaxed is truth else int(np.count_nonzero(relaxed != truth))  # truth itself: none left out
         self.ignored_points += ignored
         self.vehicle_frames += vehicle_other is not None
         self.frames_with_vehicles += ignored > 0
