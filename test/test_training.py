@@ -521,6 +521,34 @@ def test_unlabelled_samples_read_no_labels_and_pair_the_same_points():
     assert np.array_equal(inference.sample_xyz, weak_xyz) and np.array_equal(inference.sample_feat, weak_feat)
 
 
+def test_draw_pair_gives_the_student_another_draw_labelled_by_the_teacher_at_its_points():
+    from pass3d_ros.core.stage2.segmentation import predict_probabilities, prepare_proposals
+    from pass3d_ros.training.consistency import draw_pair, unlabelled_samples
+
+    samples = unlabelled_samples([UNLABELLED])
+    config = make_config("lite")
+    torch.manual_seed(0)
+    model = PointNet2Seg(config).train()
+    ids = np.arange(len(samples))
+    xyz, _feat, targets = draw_pair(samples, ids, config, np.random.default_rng(2), model, "cpu")
+    assert model.training  # the teacher pass leaves the mode as it was
+    assert xyz.shape == (len(ids), config.num_points, 3) and targets.shape == (len(ids), config.num_points, NUM_CLASSES)
+    # The teacher's pass, redone: the same seeds give its probabilities for every member point; the target of each
+    # student point is the teacher's probability at that very point.
+    seeds = np.random.default_rng(2).integers(2**63, size=2)
+    whole = prepare_proposals(samples.points, samples.members(ids), config, rng=np.random.default_rng(int(seeds[0])),
+                              boxes=samples.boxes)
+    probabilities = predict_probabilities(model.eval(), whole, "cpu")
+    student = prepare_proposals(samples.points, samples.members(ids), config, views=np.zeros(len(ids), np.int64),
+                                rng=np.random.default_rng(int(seeds[1])), boxes=samples.boxes, queries=False)
+    row_of = {int(point): row for row, point in enumerate(whole.query_index)}
+    expected = probabilities[[[row_of[int(p)] for p in draw] for draw in student.sample_index]]
+    assert np.allclose(targets.numpy(), expected, atol=1e-6)
+    # Another draw than the teacher's: big proposals hold other points.
+    big = np.flatnonzero(samples.counts[ids] > 2 * config.num_points)
+    assert len(big) and any(set(student.sample_index[p]) != set(whole.sample_index[p]) for p in big)
+
+
 def test_consistency_loss_counts_only_sure_points():
     from pass3d_ros.training.consistency import consistency_loss
 
@@ -550,6 +578,22 @@ def test_trainer_with_view_consistency_records_what_it_used(tmp_path):
     checkpoint = torch.load(result.last_path, weights_only=True)
     assert checkpoint["data"]["consistency"] == [UNLABELLED]
     assert checkpoint["train_args"]["consistency_batch"] == 3
+
+
+def test_trainer_with_draw_consistency_trains(tmp_path):
+    rng = np.random.default_rng(9)
+    frames = [constructed_frame(rng, f"t{i}") for i in range(4)]
+    options = TrainOptions(data=["constructed:train"], out=tmp_path, config="lite", epochs=1, batch_size=4,
+                           max_steps=2, background_keep=1.0, threads=1, quiet=True, consistency=[UNLABELLED],
+                           consistency_batch=3, consistency_threshold=0.0, consistency_draws=True)
+    threads = torch.get_num_threads()
+    try:
+        result = Trainer(options, proposer=instance_proposer, frame_source=lambda specs: iter(frames),
+                         command=["test"]).run()
+    finally:
+        torch.set_num_threads(threads)
+    assert result.history[0]["consistency_sure"] == 1.0 and np.isfinite(result.history[0]["train_loss"])
+    assert torch.load(result.last_path, weights_only=True)["train_args"]["consistency_draws"] is True
 
 
 def test_consistency_data_without_proposals_is_refused(tmp_path, capsys):

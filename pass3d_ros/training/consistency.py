@@ -6,6 +6,10 @@ answer in the inference view (eval mode, no gradient) is the target for a random
 with augmented intensity, on the points it is sure of (FixMatch, Sohn et al., NeurIPS 2020, with the canonical views
 and the intensity augmentation as the strong augmentation). No label of those scans is read; their intensities are
 put on the training scale per stream, as the segmentation node does.
+
+With `draws` (issue 37: stage 2's answer moved with the 256 points it drew), the student reads another random draw
+of the proposal's points than the teacher, so two draws must agree as well as two views: the teacher labels every
+point of the proposal (its inference pass, sample and queries) and the student's sampled points take those labels.
 """
 
 from __future__ import annotations
@@ -18,8 +22,8 @@ from torch.nn import functional
 
 from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage2 import canonical
-from pass3d_ros.core.stage2.pointnet2 import ModelConfig
-from pass3d_ros.core.stage2.segmentation import prepare_proposals, uses_intensity
+from pass3d_ros.core.stage2.pointnet2 import ModelConfig, PointNet2Seg
+from pass3d_ros.core.stage2.segmentation import predict_probabilities, prepare_proposals, uses_intensity
 from pass3d_ros.data.spec import open_dataset
 from pass3d_ros.training.real_scans import proposed_scans
 from pass3d_ros.training.samples import SampleSet, augment_intensity
@@ -73,6 +77,35 @@ def view_pair(samples: SampleSet, ids: np.ndarray, config: ModelConfig, rng: np.
     if uses_intensity(config):
         feat[:, :, 0] = augment_intensity(feat[:, :, 0], rng)
     return weak.sample_xyz, weak.sample_feat, strong.sample_xyz, feat
+
+
+def draw_pair(samples: SampleSet, ids: np.ndarray, config: ModelConfig, rng: np.random.Generator,
+              teacher: PointNet2Seg, device: torch.device | str) -> tuple[np.ndarray, np.ndarray, torch.Tensor]:
+    """Two independent random draws of proposals `ids`: the teacher's (the inference view, intensity as given, every
+    member point labelled through the network's queries, eval mode, no gradient) and the student's (a random view,
+    augmented intensity). Returns the student's (xyz, features) and the teacher's probabilities at each of the
+    student's sampled points (P, N, K)."""
+    ids = np.asarray(ids, dtype=np.int64)
+    every = samples.boxes
+    boxes = canonical.Boxes(every.center[ids], every.size[ids], every.yaw[ids], every.zmin[ids])
+    members = samples.members(ids)
+    seeds = rng.integers(2**63, size=2)
+    whole = prepare_proposals(samples.points, members, config, rng=np.random.default_rng(int(seeds[0])), boxes=boxes)
+    training = teacher.training
+    teacher.eval()
+    try:
+        probabilities = predict_probabilities(teacher, whole, device)  # (M, K), rows in whole.query_index order
+    finally:
+        teacher.train(training)
+    views = rng.integers(0, canonical.NUM_VIEWS, len(ids))
+    student = prepare_proposals(samples.points, members, config, views=views, rng=np.random.default_rng(int(seeds[1])),
+                                boxes=boxes, queries=False)
+    order = np.argsort(whole.query_index, kind="stable")
+    rows = order[np.searchsorted(whole.query_index[order], student.sample_index)]  # members are distinct points
+    feat = student.sample_feat
+    if uses_intensity(config):
+        feat[:, :, 0] = augment_intensity(feat[:, :, 0], rng)
+    return student.sample_xyz, feat, torch.from_numpy(probabilities[rows])
 
 
 def consistency_loss(student_logits: torch.Tensor, teacher_probs: torch.Tensor, threshold: float

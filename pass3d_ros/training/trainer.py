@@ -116,6 +116,7 @@ class TrainOptions:
     consistency_weight: float = view_consistency.DEFAULT_WEIGHT
     consistency_threshold: float = view_consistency.DEFAULT_THRESHOLD
     consistency_batch: int = view_consistency.DEFAULT_BATCH  # unlabelled proposals per step, all processes
+    consistency_draws: bool = False  # the student reads another random draw than the teacher (two draws must agree)
 
     def record(self) -> dict:
         """The options as a checkpoint stores them: plain values, paths as strings."""
@@ -248,7 +249,8 @@ class Trainer:
                 raise TrainingError(f"no proposals in {', '.join(o.consistency)} for view consistency")
             self._log(f"view consistency: {len(self.unlabelled)} unlabelled proposals of "
                       f"{len(self.unlabelled.frame_names)} scans, weight {o.consistency_weight}, "
-                      f"threshold {o.consistency_threshold}, {o.consistency_batch} a step")
+                      f"threshold {o.consistency_threshold}, {o.consistency_batch} a step"
+                      f"{', teacher and student on independent draws' if o.consistency_draws else ''}")
         common = {
             "frames": self.frame_source or _default_frames,
             "seed": o.seed,
@@ -424,13 +426,18 @@ class Trainer:
         o, device = self.options, self.dist.device
         share = max(1, -(-o.consistency_batch // self.dist.world))
         ids = rng.integers(0, len(self.unlabelled), share)
-        weak_xyz, weak_feat, strong_xyz, strong_feat = view_consistency.view_pair(self.unlabelled, ids, self.config,
-                                                                                  rng)
-        self.model.eval()
-        with torch.no_grad():
-            teacher = torch.softmax(self.model(torch.from_numpy(weak_xyz).to(device),
-                                               torch.from_numpy(weak_feat).to(device)).float(), dim=-1)
-        self.model.train()
+        if o.consistency_draws:
+            strong_xyz, strong_feat, teacher = view_consistency.draw_pair(self.unlabelled, ids, self.config, rng,
+                                                                          self.model, device)
+            teacher = teacher.to(device)
+        else:
+            weak_xyz, weak_feat, strong_xyz, strong_feat = view_consistency.view_pair(self.unlabelled, ids,
+                                                                                      self.config, rng)
+            self.model.eval()
+            with torch.no_grad():
+                teacher = torch.softmax(self.model(torch.from_numpy(weak_xyz).to(device),
+                                                   torch.from_numpy(weak_feat).to(device)).float(), dim=-1)
+            self.model.train()
         logits = self.net(torch.from_numpy(np.concatenate([xyz, strong_xyz])).to(device),
                           torch.from_numpy(np.concatenate([feat, strong_feat])).to(device))
         labelled = len(xyz)

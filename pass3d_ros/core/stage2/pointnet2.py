@@ -33,7 +33,8 @@ NUM_POINT_FEATURES = 2
 # starts at the point nearest the points' centroid and a ball keeps its nearest members (ties to the lower slot,
 # which only identical points share), so the answer is a function of the point set alone.
 GROUPINGS = ("slot", "set")
-TRAIN_GROUPING = "slot"  # a new training run's default: the shipped weights' ("set" lost a held-out sensor, trial 27)
+CHECKPOINT_GROUPING = "slot"  # a checkpoint that names no grouping was trained with this one
+TRAIN_GROUPING = CHECKPOINT_GROUPING  # a new run's default: the shipped one ("set" lost a held-out sensor, trial 27)
 
 
 @dataclass
@@ -60,7 +61,7 @@ class ModelConfig:
     num_classes: int = NUM_CLASSES
     n_feature: bool = True  # False: the point-count feature n is 0 (the paper's ablation baseline)
     n_mode: str = "log"  # "log": log(NUM / N), bounded (trains stably); "ratio": the paper's (NUM - N) / N
-    grouping: str = "slot"  # one of GROUPINGS: how FPS starts and which points a ball keeps
+    grouping: str = CHECKPOINT_GROUPING  # one of GROUPINGS: how FPS starts and which points a ball keeps
     extra: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
@@ -282,7 +283,8 @@ def centroid_nearest(xyz: torch.Tensor) -> torch.Tensor:
     return ((both - both.mean(dim=1, keepdim=True)) ** 2).sum(-1).argmin(dim=-1)
 
 
-def sample_centres(xyz: torch.Tensor, count: int, grouping: str = "slot") -> tuple[torch.Tensor, torch.Tensor]:
+def sample_centres(xyz: torch.Tensor, count: int, grouping: str = CHECKPOINT_GROUPING
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
     """Farthest point sampling of xyz (B, N, 3) as `grouping` starts it: centre indices (B, count) and the
     centres' squared distances to all points (B, count, N), as pairwise_sq_dist + farthest_point_sample give
     them. On CPU one numba kernel computes only those rows (unclamped: its ball_query reads them as clamped)."""
@@ -296,7 +298,7 @@ def sample_centres(xyz: torch.Tensor, count: int, grouping: str = "slot") -> tup
     return idx, torch.gather(d2_all, 1, idx.unsqueeze(-1).expand(-1, -1, d2_all.shape[-1]))
 
 
-def ball_members(d2: torch.Tensor, radius: float, nsample: int, grouping: str = "slot") -> torch.Tensor:
+def ball_members(d2: torch.Tensor, radius: float, nsample: int, grouping: str = CHECKPOINT_GROUPING) -> torch.Tensor:
     """ball_query as `grouping` keeps members; on CPU a numba kernel (one pass per centre instead of a cumsum and
     a scatter, or a sort)."""
     nearest = grouping == "set"
@@ -350,7 +352,7 @@ class SharedMLP(nn.Module):
 class SetAbstractionMSG(nn.Module):
     """FPS centres, then per scale: ball query, group (relative xyz + features), shared MLP, max-pool."""
 
-    def __init__(self, cfg: SAConfig, in_features: int, grouping: str = "slot") -> None:
+    def __init__(self, cfg: SAConfig, in_features: int, grouping: str = CHECKPOINT_GROUPING) -> None:
         super().__init__()
         self.cfg = cfg
         self.grouping = grouping
