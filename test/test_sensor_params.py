@@ -41,7 +41,7 @@ def recall_and_count(frame: Frame, config: Stage1Config) -> tuple[int, int]:
 def test_hdl64e_keeps_the_papers_values(hdl64_frames: list[Frame]) -> None:
     cfg = Stage1Config()
     assert (cfg.th_num_near, cfg.th_num_range, cfg.th_num_floor, cfg.th_prop, cfg.th_ring) == (30.0, 20.0, 5, 1.0, 0.5)
-    assert cfg.sensor == "auto" and cfg.sensor_scaling and cfg.sensor_height == 1.73
+    assert cfg.sensor == "auto" and cfg.sensor_scaling and cfg.seed_height == 1.73
     for frame in hdl64_frames:
         effective, scale = effective_config(cfg, frame.points, frame.ring, 64)
         assert effective is cfg and scale.density == 1.0

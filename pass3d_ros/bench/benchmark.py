@@ -14,6 +14,7 @@ from pass3d_ros.tools.cli import run_tool
 SUITES: dict[str, str] = {
     "codec": "pass3d_ros.bench.codec",
     "fuzz": "pass3d_ros.bench.codec_fuzz",
+    "layout": "pass3d_ros.bench.layout",
     "stage1": "pass3d_ros.bench.stage1",
     "stage2": "pass3d_ros.bench.stage2",
     "simulate": "pass3d_ros.bench.simulate",

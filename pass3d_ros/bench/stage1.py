@@ -210,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"  {'total CPU':<11} {medians['cpu']:7.3f}  (thread CPU time; wall time also counts waiting for a core)")
     report = {"frames": len(frames), "points_median": points, "repeat": args.repeat, "stage1_ms_median": medians}
     if not args.no_patchwork:
-        patchwork = time_patchwork(frames, args.repeat, config.sensor_height)
+        patchwork = time_patchwork(frames, args.repeat, config.seed_height)
         if patchwork is None:
             print(f"pypatchworkpp: absent (optional peer for a side-by-side ground timing: {PATCHWORK_HINT})")
             report["patchwork_ms_median"] = None

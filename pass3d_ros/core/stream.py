@@ -1,7 +1,8 @@
 """One sensor stream's state, held across its scans: the one object both nodes and every offline tool hold.
 
 What a stream's input needs is a property of its sensor, learned from its first scans and then held: the laser lines
-and the order of its ring field (pass3d_ros.core.stage1.held_lines), the full scale of its intensities
+and the order of its ring field (pass3d_ros.core.stage1.held_lines), the sensor's height and tilt above the ground
+(pass3d_ros.core.stage1.mounting: stage1.sensor_height auto runs on the held height), the full scale of its intensities
 (pass3d_ros.core.intensity_scale) and the map of its intensities onto stage 2's training scale
 (pass3d_ros.core.stage2.intensity_match). `ScanStream.prepare` applies the input checks every path applies
 (coordinates a LiDAR could return, intensities read as 0..1, a ring field within the sensor's lasers), so a scan is
@@ -20,6 +21,7 @@ from pass3d_ros.core.intensity_scale import FRAMES_TO_RAISE, StreamIntensityScal
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result
 from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage1.lasers import ring_limit
+from pass3d_ros.core.stage1.mounting import MountingHolder
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stage2.intensity_match import StreamIntensityMatch
 
@@ -55,16 +57,19 @@ class ScanStream:
 
     def __init__(self, clock: Callable[[], float] | None = None, intensity_match: bool = INTENSITY_MATCH) -> None:
         self.lines = LineHolder(clock)
+        self.mounting = MountingHolder()
         self.scale = StreamIntensityScale()
         self.match = StreamIntensityMatch()
         self.intensity_match = intensity_match
         self._key: Hashable = _NO_STREAM
         self._noted: set[str] = set()
         self.maps: dict[str, str] = {}  # the intensity map each stream key got (str of the key), for reports
+        self.mountings: dict[str, dict] = {}  # the mounting estimate of each stream key (MountingHolder.report)
 
     def reset(self) -> None:
         """Forget everything learned: the next scan is the stream's first."""
         self.lines.reset()
+        self.mounting.reset()
         self.scale = StreamIntensityScale()
         self.match.reset()
         self._noted.clear()
@@ -142,8 +147,16 @@ class ScanStream:
         return points, scan_checks.scan_summary(points)
 
     def propose(self, scan: PreparedScan, config: Stage1Config | None = None) -> Stage1Result:
-        """Stage 1 on a prepared scan, with the stream's held laser lines and ring-field order."""
-        return self.lines.propose(scan.points, scan.ring, config)
+        """Stage 1 on a prepared scan, with the stream's held laser lines and ring-field order, and with sensor_height
+        auto, its held mounting; the scan's ground then reads the mounting until it is held."""
+        config = config or Stage1Config()
+        result = self.lines.propose(scan.points, scan.ring, self.mounting.config_for(config))
+        if self.mounting.held is None:
+            self.mounting.update(scan.points, result.ground, result.ground_planes, config)
+            report = self.mounting.report()
+            if report is not None:
+                self.mountings[str(self._key)] = report
+        return result
 
     def on_training_scale(self, points: np.ndarray) -> np.ndarray:
         """`points` with intensities mapped onto stage 2's training scale (the map is fitted on the stream's first

@@ -97,7 +97,7 @@ def kept(values: np.ndarray | None, scan: PreparedScan) -> np.ndarray | None:
 def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
                     max_proposals: int = DEFAULT_MAX_PROPOSALS) -> dict:
     """Run stage 1 on every frame and accumulate its metrics; returns the summary with per-frame rows. Laser lines
-    are held across the frames of one spec (pass3d_ros.core.stage1.held_lines), as the cluster node holds them.
+    and the mounting are held across the frames of one spec (pass3d_ros.core.stream), as the cluster node holds them.
     "budget": the proposals a stage-2 budget of `max_proposals` would cut."""
     warm_up()
     metrics = Stage1Metrics()
@@ -111,6 +111,7 @@ def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
         row["proposals_cut"] = budget.add(result.n_proposals)  # a kept proposal has points
     summary = metrics.summary()
     summary["budget"] = budget.summary()
+    summary["mounting"] = stream.mountings
     summary["per_frame"] = metrics.per_frame
     return summary
 
@@ -182,6 +183,7 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     summary["background_proposals"] = {"front_view": int(background[0]), "called_object": int(background[1])}
     summary["budget"] = budget.summary()
     summary["intensity"] = stream.maps
+    summary["mounting"] = stream.mountings
     summary["per_frame"] = segmentation.per_frame
     return summary
 

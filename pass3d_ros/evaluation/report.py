@@ -106,6 +106,7 @@ def format_stage1(summary: dict, per_frame: bool = False) -> str:
     width = max(len(name) for name, _ in rows)
     lines += [f"  {name:<{width}}  {value}" for name, value in rows]
     lines += [f"  {line}" for line in _budget_line(summary.get("budget"), would=True)]
+    lines += [f"  {line}" for line in mounting_lines(summary.get("mounting"))]
     if per_frame:
         lines.append("")
         lines.append(f"  {'frame':<48} {'points':>7} {'props':>5} {'ms':>6} {'fg rec':>6} {'gnd P':>6} {'gnd R':>6}")
@@ -150,6 +151,7 @@ def format_full(summary: dict, per_frame: bool = False) -> str:
                      f"{background['front_view']}")
     lines += _budget_line(summary.get("budget"))
     lines += [f"intensity of {spec}: {text}" for spec, text in (summary.get("intensity") or {}).items()]
+    lines += mounting_lines(summary.get("mounting"))
     lines += format_draws(summary.get("draws"))
     if per_frame:
         lines.append("")
@@ -158,6 +160,15 @@ def format_full(summary: dict, per_frame: bool = False) -> str:
             lines.append(f"  {row['frame'][-48:]:<48} {row['points']:>7} {row['proposals']:>5} "
                          f"{row['stage1_ms']:>7.1f} {row['stage2_ms']:>7.1f} {_fmt(row['mean_iou']):>6}")
     return "\n".join(lines)
+
+
+def mounting_lines(mountings: dict | None) -> list[str]:
+    """One line per spec of the "mounting" section: the sensor's height and tilt its stream read
+    (pass3d_ros.core.stage1.mounting), held or from how many scans so far."""
+    return [f"mounting of {spec}: sensor {m['height_m']:.2f} m above the ground, tilted {m['tilt_deg']:.1f} deg "
+            f"(roll {m['roll_deg']:.1f}, pitch {m['pitch_deg']:.1f}; "
+            + ("held" if m["held"] else f"{m['scans']} scan(s), not yet held") + ")"
+            for spec, m in (mountings or {}).items()]
 
 
 def _draw_row(name: str, row: dict) -> str:

@@ -1,16 +1,30 @@
 """Offline segmenting of whole datasets: stage 1 + stage 2 on every frame, each frame's labels written in
 SemanticKITTI's format, its objects as JSON (and a bird's-eye PNG), a summary.json with the stage times and, where the
 data has ground truth, the metrics. The output folder is built in a hidden sibling and moved into place only when
-complete. `pass3d_segment` is its command line."""
+complete. `pass3d_segment` is its command line.
+
+Several processes (`Ranks`: pass3d_segment --nproc N, or torchrun) share one run. The frames of all --data, in order,
+are cut into one contiguous block per rank (`blocks`), not dealt out frame by frame: a block is a run of consecutive
+scans, so each rank's frames stay a stream (pass3d_ros.core.stream.ScanStream learns the laser lines, the intensity
+scale and the intensity map from a stream's first scans and keeps adjusting them), and a cut falls mid-stream at most
+once per rank. A rank whose block starts inside a --data first warms its stream on that --data's earlier frames
+(`warm`, on by default): input checks and stage 1 only, no stage 2 and nothing written, so its stream state, and hence
+its labels and objects, are those of a single process, byte for byte. Without the warm-up (`warm=False`) the laser
+lines, the intensity scale and the intensity map of such a rank are learned afresh from its block's first scans, and
+its first frames can differ from a single process's. Rank 0 builds the hidden sibling and its folders, every rank
+writes its own frames' files there, and rank 0, once every rank's counts reached it, writes the summary (confusion,
+counts and times summed or pooled over the ranks, never averaged percentages) and moves the folder into place.
+With several machines, --out must be on a file system every one of them sees."""
 
 from __future__ import annotations
 
 import json
 import shutil
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -18,10 +32,10 @@ from tqdm import tqdm
 from pass3d_ros.classes import NUM_CLASSES
 from pass3d_ros.core.metrics import ConfusionAccumulator
 from pass3d_ros.core.objects import LabelledObject, labelled_objects, objects_json
-from pass3d_ros.core.stage1 import Stage1Config, proposal_members
+from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, proposal_members
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.stream import ScanStream
+from pass3d_ros.core.stream import PreparedScan, ScanStream
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import (
     OutputError,
@@ -56,6 +70,39 @@ class SegmentStats:
     labeled_frames: int = 0
     budget: BudgetCuts = field(default_factory=BudgetCuts)  # proposals stage 2's max_proposals cut
     stream: ScanStream = field(default_factory=ScanStream)  # each --data's stream state (pass3d_ros.core.stream)
+    intensity: dict[str, str] = field(default_factory=dict)  # the intensity map each --data got (str of the map)
+    ranks: list[dict] = field(default_factory=list)  # per rank: frames, first frame, seconds, warm-up frames, seconds
+    seconds: float = 0.0  # from the start of the work to the summary
+
+
+def _alone(value: Any) -> list[Any]:
+    return [value]
+
+
+def _same(value: Any) -> Any:
+    return value
+
+
+@dataclass(frozen=True)
+class Ranks:
+    """The processes a run is shared by, and the two collectives it needs: `gather` (every rank's value, in rank
+    order, on every rank) and `broadcast` (rank 0's value on every rank). The default is a single process;
+    pass3d_segment passes torch.distributed's."""
+
+    rank: int = 0
+    world: int = 1
+    gather: Callable[[Any], list[Any]] = _alone
+    broadcast: Callable[[Any], Any] = _same
+
+    @property
+    def main(self) -> bool:
+        """Whether this rank builds the output folder and writes the summary."""
+        return self.rank == 0
+
+
+def blocks(total: int, world: int) -> list[tuple[int, int]]:
+    """Each rank's [start, stop) of `total` frames in order: contiguous blocks whose sizes differ by one at most."""
+    return [(total * rank // world, total * (rank + 1) // world) for rank in range(world)]
 
 
 def to_semantic_kitti(labels: np.ndarray) -> np.ndarray:
@@ -92,27 +139,48 @@ def segment(
     force: bool = False,
     progress: bool = True,
     intensity_match: bool = INTENSITY_MATCH,
+    ranks: Ranks | None = None,
+    warm: bool = True,
 ) -> SegmentStats:
     """Stage 1 (`config`, default the paper's) + `classifier` on every frame of `specs`; writes labels, PNGs and
     summary.json under `out`, built in a hidden sibling and moved into place only when complete. Each --data's
-    intensities reach stage 2 on the training scale (`intensity_match`), as the segmentation node does."""
+    intensities reach stage 2 on the training scale (`intensity_match`), as the segmentation node does. With several
+    `ranks`, each segments its block of the frames (warming its stream first when `warm`: see the module's
+    docstring); rank 0 gets the whole run's stats, another rank its own share's."""
     if not specs:
         raise DatasetError("no --data given")
+    ranks = ranks or Ranks()
+    started = time.perf_counter()
     datasets = resolve_datasets(specs)
     out = out_path(out)
     check_out_dir(out, force, dataset_paths(datasets))
     build = build_folder(out)
-    remove_stale_partials(out.resolve())
     try:
         with writing(out):
-            build.mkdir(parents=True)
-            write_marker(build, "pass3d_segment")
-            stats = _segment_all(datasets, out, build, classifier, config, png, progress, intensity_match)
+            if ranks.main:
+                remove_stale_partials(out.resolve())
+                build.mkdir(parents=True)
+                write_marker(build, "pass3d_segment")
+                _make_folders(build, len(datasets), png)
+            build = Path(ranks.broadcast(str(build)))  # every rank writes into rank 0's folder
+            if not build.is_dir():
+                raise OutputError(f"{build}: rank 0's build folder of {out} is not visible to rank {ranks.rank}; "
+                                  "with several machines --out must be on a file system they all share")
+            stats = _segment_all(datasets, out, build, classifier, config, png, progress and ranks.main,
+                                 intensity_match, ranks, warm)
+            shares = ranks.gather(_share(stats))
+            if not ranks.main:
+                return stats
+            stats = _merged(shares, stats)
+            if stats.frames == 0:
+                raise DatasetError(f"{', '.join(map(str, datasets))}: no frames")
+            stats.seconds = time.perf_counter() - started
             report = summary(stats, [str(spec) for spec in specs], classifier.kind, classifier.weights)
             (build / SUMMARY).write_text(json.dumps(report, indent=2) + "\n")
             _move_into_place(build, out)
     except BaseException:
-        shutil.rmtree(build, ignore_errors=True)
+        if ranks.main:
+            shutil.rmtree(build, ignore_errors=True)
         raise
     return stats
 
@@ -125,28 +193,71 @@ def build_folder(out: Path) -> Path:
     return partial_path(resolved)
 
 
+def _make_folders(build: Path, count: int, png: bool) -> None:
+    """The folders every rank writes into: labels/, objects/ (and bev/) per --data (in `NN/` with several)."""
+    for position in range(count):
+        folder = build / ("." if count == 1 else f"{position:02d}")
+        (folder / "labels").mkdir(parents=True, exist_ok=True)
+        (folder / "objects").mkdir(exist_ok=True)
+        if png:
+            (folder / "bev").mkdir(exist_ok=True)
+
+
+def _count(dataset: Dataset) -> int:
+    """The frame count of `dataset`: the reader's when it tells cheaply, else by going through them once."""
+    count = dataset.count()
+    return count if count is not None else sum(1 for _ in dataset.shard(lambda _k: False))
+
+
+def _own_frames(dataset: Dataset, low: int, high: int, warm: bool) -> Iterator[tuple[bool, Frame]]:
+    """(mine, frame) for the frames of `dataset` before `high`: positions from `low` are this rank's; the earlier
+    ones come (mine False) only when `warm`, to replay the stream's learning."""
+    if high <= low:
+        return
+    start = 0 if warm else low
+    for k, frame in enumerate(dataset.shard(lambda k: start <= k < high)):
+        if k >= high:
+            return
+        if frame is not None:
+            yield k >= low, frame
+
+
 def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Classifier,
-                 config: Stage1Config | None, png: bool, progress: bool, intensity_match: bool) -> SegmentStats:
-    """Every frame's labels (and PNG) into `build`; `stats.folders` names where they will be, under `out`."""
+                 config: Stage1Config | None, png: bool, progress: bool, intensity_match: bool,
+                 ranks: Ranks | None = None, warm: bool = True) -> SegmentStats:
+    """This rank's frames' labels (and PNGs) into `build` (its folders made); `stats.folders` names where they will
+    be, under `out`, and `stats.ranks` holds this rank's one row."""
+    ranks = ranks or Ranks()
+    started = time.perf_counter()
     counts = [dataset.count() for dataset in datasets]
-    total = None if None in counts else sum(c for c in counts if c is not None)
+    if ranks.world > 1:
+        counts = [c if c is not None else _count(d) for c, d in zip(counts, datasets, strict=True)]
+    first, stop = blocks(sum(counts), ranks.world)[ranks.rank] if None not in counts else (0, None)
+    total = None if stop is None else stop - first
     stats = SegmentStats(budget=BudgetCuts(classifier.max_proposals),
                          stream=ScanStream(intensity_match=intensity_match and classifier.kind != "size_rules"))
+    warmed, warm_seconds, offset = 0, 0.0, 0
     with tqdm(total=total, unit="frame", desc="segment", disable=None if progress else True) as bar:
-        for position, dataset in enumerate(datasets):
+        for position, (dataset, count) in enumerate(zip(datasets, counts, strict=True)):
             sub = "." if len(datasets) == 1 else f"{position:02d}"
             folder = build / sub
-            (folder / "labels").mkdir(parents=True, exist_ok=True)
-            (folder / "objects").mkdir(exist_ok=True)
-            if png:
-                (folder / "bev").mkdir(exist_ok=True)
             stats.folders.append(str(out if len(datasets) == 1 else out / sub))
+            low = 0 if stop is None else max(first - offset, 0)
+            high = (1 << 62) if stop is None else min(stop - offset, count)
+            offset += count or 0
             seen: set[str] = set()
-            for frame in dataset.frames():
+            tick = time.perf_counter()  # a warm-up frame costs its reading and its stream step
+            for mine, frame in _own_frames(dataset, low, high, warm):
                 name = _safe_name(frame.name)
                 if name in seen:
                     raise DatasetError(f"{dataset}: frame name {frame.name!r} repeats; outputs would overwrite")
                 seen.add(name)
+                if not mine:
+                    _stream_step(str(dataset), frame, stats.stream, config)
+                    warm_seconds += time.perf_counter() - tick
+                    warmed += 1
+                    tick = time.perf_counter()
+                    continue
                 labels, cluster_id, objects = _segment_frame(str(dataset), frame, classifier, stats, config)
                 to_semantic_kitti(labels).astype("<u4").tofile(folder / "labels" / f"{name}.label")
                 write_text_atomic(folder / "objects" / f"{name}.json", objects_json(frame.name, objects))
@@ -159,8 +270,43 @@ def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Cl
                 stats.frames += 1
                 stats.points += len(frame.points)
                 bar.update(1)
-    if stats.frames == 0:
+                tick = time.perf_counter()
+    if stats.frames == 0 and ranks.world == 1:
         raise DatasetError(f"{', '.join(map(str, datasets))}: no frames")
+    stats.intensity = dict(stats.stream.maps)
+    stats.seconds = time.perf_counter() - started
+    stats.ranks = [{"rank": ranks.rank, "first_frame": first, "frames": stats.frames,
+                    "seconds": round(stats.seconds, 3), "warm_frames": warmed, "warm_seconds": round(warm_seconds, 3)}]
+    return stats
+
+
+def _share(stats: SegmentStats) -> dict:
+    """What rank 0 needs of a rank's stats to write the summary (small and picklable)."""
+    return {"frames": stats.frames, "points": stats.points, "labeled_frames": stats.labeled_frames,
+            "stage1_ms": stats.stage1_ms, "stage2_ms": stats.stage2_ms, "matrix": stats.confusion.matrix,
+            "frame_matrices": stats.confusion.frames, "budget": (stats.budget.proposals, stats.budget.frames),
+            "intensity": stats.intensity, "ranks": stats.ranks}
+
+
+def _merged(shares: list[dict], mine: SegmentStats) -> SegmentStats:
+    """The whole run's stats from every rank's share (in rank order, hence frame order): counts and confusion
+    matrices summed, per-frame times pooled, the first intensity map of each --data kept."""
+    if len(shares) == 1:
+        return mine
+    stats = SegmentStats(folders=mine.folders, budget=BudgetCuts(mine.budget.max_proposals), stream=mine.stream)
+    for share in shares:
+        stats.frames += share["frames"]
+        stats.points += share["points"]
+        stats.labeled_frames += share["labeled_frames"]
+        stats.stage1_ms += share["stage1_ms"]
+        stats.stage2_ms += share["stage2_ms"]
+        stats.confusion.matrix += share["matrix"]
+        stats.confusion.frames += share["frame_matrices"]
+        stats.budget.proposals += share["budget"][0]
+        stats.budget.frames += share["budget"][1]
+        for key, value in share["intensity"].items():
+            stats.intensity.setdefault(key, value)
+        stats.ranks += share["ranks"]
     return stats
 
 
@@ -185,22 +331,32 @@ def _move_into_place(build: Path, out: Path) -> None:
     build.rmdir()
 
 
+def _stream_step(spec: str, frame: Frame, stream: ScanStream,
+                 config: Stage1Config | None) -> tuple[PreparedScan, Stage1Result | None, np.ndarray | None]:
+    """What a frame teaches its stream, and all a warm-up does: the input checks, stage 1 with the held lines, and
+    the points on stage 2's training scale (None for a scan with no point left)."""
+    scan = prepared(stream, spec, frame, config or Stage1Config())
+    if len(scan.points) == 0:
+        return scan, None, None
+    result = stream.propose(scan, config)
+    return scan, result, stream.on_training_scale(scan.points)
+
+
 def _segment_frame(spec: str, frame: Frame, classifier: Classifier, stats: SegmentStats,
                    config: Stage1Config | None) -> tuple[np.ndarray, np.ndarray, list[LabelledObject]]:
     """Labels, proposal ids (-1 none) and objects of one scan, through its stream's input checks: points they leave
     out (non-finite, as KITTI raw may hold, or absurd) are background in no proposal and never reach the core."""
-    scan = prepared(stats.stream, spec, frame, config or Stage1Config())
+    scan, result, training = _stream_step(spec, frame, stats.stream, config)
     labels = np.zeros(len(frame.points), dtype=np.uint8)
     cluster_id = np.full(len(frame.points), -1, dtype=np.int32)
-    if len(scan.points) == 0:
+    if result is None or training is None:
         stats.stage1_ms.append(0.0)
         stats.stage2_ms.append(0.0)
         return labels, cluster_id, []
-    result = stats.stream.propose(scan, config)
     started = time.perf_counter()
     members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
     stats.budget.add(sum(1 for m in members if len(m) > 0))
-    segmented = classifier.segment(stats.stream.on_training_scale(scan.points), members)
+    segmented = classifier.segment(training, members)
     predicted = segmented.labels
     stats.stage2_ms.append(1e3 * (time.perf_counter() - started))
     stats.stage1_ms.append(result.timings_ms["total"])
@@ -229,8 +385,10 @@ def summary(stats: SegmentStats, specs: Sequence[str], kind: str, weights: str |
         "points": stats.points,
         "ms_per_frame": {"stage1": _median(stats.stage1_ms), "stage2": _median(stats.stage2_ms)},
         "budget": stats.budget.summary(),
-        "intensity": stats.stream.maps,
+        "intensity": stats.intensity,
         "labeled_frames": stats.labeled_frames,
         "per_class": metrics["per_class"] if metrics else None,
         "mean_iou": metrics["mean_iou"] if metrics else None,
+        "seconds": round(stats.seconds, 3),
+        "ranks": stats.ranks,
     }

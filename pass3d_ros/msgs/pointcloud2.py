@@ -12,6 +12,8 @@ Decisions:
   Encoding always writes the machine's byte order.
 - Fields with an empty name are padding and are skipped (PCL writes such fields).
 - Decoding requires x, y and z; so does encoding, so every encoded cloud decodes.
+- `Extended` (an input cloud's bytes as they are, columns appended, rows chosen) is encoded straight into the
+  message's buffer: outputs in the input's own layout (pass3d_ros.ros.input_layout) cost one copy per point.
 """
 
 from __future__ import annotations
@@ -298,6 +300,81 @@ def columns_to_cloud(columns: Mapping[str, Any]) -> np.ndarray:
     return cloud
 
 
+class Extended(NamedTuple):
+    """A cloud to encode as `extend_cloud(cloud, columns, rows=rows, drop=drop)` builds it; `encode` builds it straight
+    into the message's buffer (one copy of the bytes instead of two)."""
+
+    cloud: np.ndarray
+    columns: Mapping[str, Any] | None = None
+    rows: np.ndarray | None = None
+    drop: tuple[str, ...] = ()
+
+
+def extend_cloud(cloud: np.ndarray, columns: Mapping[str, Any] | None = None, *,
+                 rows: np.ndarray | None = None, drop: tuple[str, ...] = ()) -> np.ndarray:
+    """A new packed structured array: `cloud`'s fields with their bytes, dtypes (byte order too) and offsets as they
+    are, less `drop` and less any field `columns` names (unnamed: its bytes stay as padding, zeros past the last field
+    kept, where the row is cut); then `columns` (1-D, one value per row of the result) appended at 4-byte aligned
+    offsets.
+
+    `rows`: the rows kept, in order (indices or a boolean mask), all when None. The kept bytes go over in one copy per
+    point (a void item, not field by field), so a cloud of any layout (Ouster's nine fields, a driver's padding) costs
+    about the same; `encode(Extended(...))` builds the same bytes in the message without this array's copy.
+    """
+    return _fill_extended(Extended(cloud, columns, rows, drop), lambda size: np.zeros(size, np.uint8))[0]
+
+
+def _extended_dtype(spec: Extended) -> tuple[np.dtype, int, dict[str, np.ndarray], np.ndarray | None, int]:
+    """The dtype `extend_cloud` builds, the bytes kept per input point, the columns, the rows (indices), the length."""
+    cloud = spec.cloud
+    if not isinstance(cloud, np.ndarray) or cloud.dtype.names is None or cloud.ndim != 1:
+        raise PointCloud2Error(f"expected a 1-D structured array, got {type(cloud).__name__} "
+                               f"{getattr(cloud, 'dtype', '')}")
+    columns = {name: np.asarray(values) for name, values in (spec.columns or {}).items()}
+    kept = [name for name in cloud.dtype.names if name not in columns and name not in spec.drop]
+    fields = cloud.dtype.fields
+    end = max((fields[name][1] + fields[name][0].itemsize for name in kept), default=0)
+    rows, length = None, len(cloud)
+    if spec.rows is not None:
+        rows = np.asarray(spec.rows)
+        rows = np.flatnonzero(rows) if rows.dtype == bool else rows
+        length = len(rows)
+    names, formats, offsets = list(kept), [fields[name][0] for name in kept], [fields[name][1] for name in kept]
+    offset = -(-end // 4) * 4
+    for name, values in columns.items():
+        if values.shape != (length,):
+            raise PointCloud2Error(f"column {name!r} has shape {values.shape}, expected ({length},)")
+        names.append(name)
+        formats.append(values.dtype)
+        offsets.append(offset)
+        offset += values.dtype.itemsize
+    itemsize = max(-(-offset // 4) * 4, 1)
+    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": itemsize})
+    return dtype, end, columns, rows, length
+
+
+def _head(cloud: np.ndarray, size: int) -> np.ndarray:
+    """A view of the first `size` bytes of each point of `cloud` (any strides) as void items."""
+    head = np.dtype({"names": ["b"], "formats": [np.dtype((np.void, size))], "offsets": [0],
+                     "itemsize": cloud.itemsize})
+    return cloud.view(head)["b"]
+
+
+def _fill_extended(spec: Extended, allocate: Any) -> tuple[np.ndarray, Any]:
+    """`extend_cloud`'s array, built in `allocate(bytes)` (zeroed), and that buffer."""
+    dtype, end, columns, rows, length = _extended_dtype(spec)
+    data = allocate(length * dtype.itemsize)
+    if not length:
+        return np.zeros(0, dtype), data
+    out = np.frombuffer(data, dtype=dtype)
+    if end:  # the first `end` bytes of each point as one void item (numpy copies those with one memcpy each)
+        source = _head(spec.cloud, end)
+        _head(out, end)[...] = source if rows is None else source[rows]
+    for name, values in columns.items():
+        out[name] = values
+    return out, data
+
+
 def cloud_fields(dtype: np.dtype) -> list[tuple[str, int, int, int]]:
     """(name, offset, datatype, count) per field of a structured dtype, checked encodable."""
     if dtype.names is None:
@@ -413,12 +490,20 @@ def _zeroed_bytes(size: int) -> array.array:
     return array.array("B", b"\0") * size
 
 
-def _packed_data(cloud: np.ndarray | Mapping[str, Any], is_rosbags: bool) -> tuple[np.ndarray, list, Any]:
+def _packed_data(cloud: np.ndarray | Mapping[str, Any] | Extended, is_rosbags: bool) -> tuple[np.ndarray, list, Any]:
     """The cloud in the machine's byte order, its fields, and the message's `data` holding it.
 
     Columns are written straight into the buffer the message keeps (for rclpy an array.array('B'), whose
     setter takes it as is), so a 120k-point cloud is packed once rather than packed and then copied.
     """
+    if isinstance(cloud, Extended):
+        dtype = _extended_dtype(cloud)[0]
+        if _native(dtype) != dtype:  # a big-endian input: built apart, then converted as any structured array
+            cloud = extend_cloud(cloud.cloud, cloud.columns, rows=cloud.rows, drop=cloud.drop)
+        else:
+            fields = cloud_fields(dtype)
+            packed, data = _fill_extended(cloud, _zeroed_bytes if not is_rosbags else lambda n: np.zeros(n, np.uint8))
+            return packed, fields, data
     if isinstance(cloud, Mapping):
         arrays, dtype, length = _columns_layout(cloud)
         fields = cloud_fields(dtype)
@@ -448,7 +533,7 @@ def _packed_data(cloud: np.ndarray | Mapping[str, Any], is_rosbags: bool) -> tup
 
 
 def encode(
-    cloud: np.ndarray | Mapping[str, Any],
+    cloud: np.ndarray | Mapping[str, Any] | Extended,
     *,
     frame_id: str = "",
     stamp_ns: int = 0,
@@ -458,7 +543,8 @@ def encode(
     height: int = 1,
     is_dense: bool | None = None,
 ) -> Any:
-    """A PointCloud2 (rclpy, or rosbags given `typestore`/`msg_class`) from a structured array or columns.
+    """A PointCloud2 (rclpy, or rosbags given `typestore`/`msg_class`) from a structured array, columns, or an
+    `Extended` cloud (built in the message's buffer).
 
     Fields come from the dtype; `header` wins over frame_id/stamp_ns; the data is copied. `is_dense` is
     computed (no NaN coordinate) unless given.
@@ -493,5 +579,12 @@ def encode(
         is_dense=is_dense,
     )
     if not is_rosbags:
-        msg.data = data  # rclpy's constructor copies `data` element-wise; its setter keeps an array.array as is
+        # rclpy's constructor copies `data` element-wise; its setter keeps an array.array as is only while it checks
+        # fields (Jazzy: ROS_PYTHON_CHECK_FIELDS=1), else copies it again (~1 ms for 8 MB): check for this one
+        checks = getattr(msg, "_check_fields", None)
+        if checks is not None:
+            msg._check_fields = True
+        msg.data = data
+        if checks is not None:
+            msg._check_fields = checks
     return msg

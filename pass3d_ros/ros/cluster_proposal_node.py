@@ -13,11 +13,19 @@ from visualization_msgs.msg import MarkerArray
 from pass3d_ros.core import scan_checks
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, warm_up
 from pass3d_ros.core.stage1.config import STAGE1_PREFIX
+from pass3d_ros.core.stage1.mounting import problems as mounting_problems
 from pass3d_ros.core.stage1.ring_field import RingFieldOrder
 from pass3d_ros.core.stream import Note, ScanStream
-from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode_xyzi, encode
+from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode, to_xyzi
 from pass3d_ros.msgs.pointcloud2 import warm_up as warm_up_codec
 from pass3d_ros.ros import params
+from pass3d_ros.ros.input_layout import (
+    AS_INPUT,
+    STAGE1_COLUMNS,
+    check_layout,
+    full_proposals_cloud,
+    input_source,
+)
 from pass3d_ros.ros.latest_frame import Outcome
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
@@ -39,6 +47,11 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
                        "elevations; a field that does not fit them is ignored), else recover rings from the points",
                        None),
     "publish_boxes": (True, "publish the proposal boxes MarkerArray", None),
+    "output_layout": ("compact", "compact: /pass3d/proposals carries the points stage 1 read; as_input: every input "
+                      "point and field in the input's layout, so segmentation_node can publish as_input (give both "
+                      "nodes the same value)", None),
+    "publish_background": (False, "true: /pass3d/proposals carries every input point and field, as for output_layout "
+                           "as_input (so segmentation_node can publish the background cloud)", None),
 }
 PARAMETERS = params.NodeParameters("cluster_proposal_node", NODE_PARAMETERS, {STAGE1_PREFIX: Stage1Config})
 
@@ -59,6 +72,10 @@ class ClusterProposalNode(PointCloudNode):
         self._stream = ScanStream(clock=time.monotonic)  # what the stream's scans taught: laser lines, ring order,
         # intensity scale (pass3d_ros.core.stream)
         self._noted: dict[str, float] = {}  # when each topic of the input checks was last logged
+        # proposals in the input's layout (pass3d_ros.ros.input_layout), for segmentation_node's as_input / background
+        self._full = (check_layout(self.get_parameter("output_layout").value) == AS_INPUT
+                      or bool(self.get_parameter("publish_background").value))
+        self._replaced_warned = False
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         started = time.perf_counter()
@@ -75,7 +92,8 @@ class ClusterProposalNode(PointCloudNode):
 
     def _on_set_parameters(self, changed: list[Parameter]) -> Any:
         """Refuse invalid stage-1 values; apply valid ones to the next frame."""
-        start_up_only = ("input_topic", "proposals_topic", "boxes_topic", "input_qos", "output_qos")
+        start_up_only = ("input_topic", "proposals_topic", "boxes_topic", "input_qos", "output_qos", "output_layout",
+                         "publish_background")
         fixed = [p.name for p in changed if p.name in start_up_only]
         if fixed:
             return params.result(False, f"{', '.join(fixed)} can only be set at start-up")
@@ -126,19 +144,50 @@ class ClusterProposalNode(PointCloudNode):
                 f"ring field: does not fit the points (only {100 * order.fit_share:.0f} % of returns sit at their "
                 "ring's elevation); ignored, rings recovered from the points (set use_ring_field false to silence)")
 
+    _mounting_said: tuple[Any, Any] = (None, None)  # the held mounting last logged, and the sensor_height it was
+    # checked against (a class default: each node assigns its own)
+
+    def _report_mounting(self) -> None:
+        """Log the stream's mounting once it is held (INFO), and what it says is wrong (WARN: a hand-set
+        sensor_height more than 0.3 m off it, a tilt over 5 deg), again only when the held mounting or the
+        sensor_height changes (pass3d_ros.core.stage1.mounting)."""
+        held = self._stream.mounting.held
+        if held is None or (held, self.config.sensor_height) == self._mounting_said:
+            return
+        if held is not self._mounting_said[0]:
+            self.get_logger().info(f"mounting: {held}")
+        self._mounting_said = (held, self.config.sensor_height)
+        for problem in mounting_problems(self.config, held):
+            self.get_logger().warning(f"mounting: {problem}")
+
     def diagnostic_extras(self) -> tuple[dict[str, float | int | str], list[str]]:
         """`ring_field`: the numbering measured in the input's ring field (none, top_down, bottom_up, driver_order,
-        unfit); an unfit field turns the status WARN."""
+        unfit); an unfit field turns the status WARN. `mounting`: none, estimating (scans read so far) or held;
+        `sensor_height_m`, `sensor_tilt_deg`, `sensor_roll_deg`, `sensor_pitch_deg`: the estimate
+        (pass3d_ros.core.stage1.mounting); a held one that disagrees with a hand-set sensor_height by more than 0.3 m,
+        or is tilted over 5 deg, turns the status WARN."""
         order = self._ring_order
         warnings = ["ring field does not fit the points: ignored, rings recovered"] if order and not order.fits else []
-        return {"ring_field": "none" if order is None else order.convention}, warnings
+        values: dict[str, float | int | str] = {"ring_field": "none" if order is None else order.convention}
+        holder = self._stream.mounting
+        estimate = holder.estimate
+        values["mounting"] = ("held" if holder.held is not None else
+                              f"estimating ({holder.readings} of {holder.scans} scans)" if estimate else "none")
+        if estimate is not None:
+            values.update({"sensor_height_m": round(estimate.height_m, 3),
+                           "sensor_tilt_deg": round(estimate.tilt_deg, 2),
+                           "sensor_roll_deg": round(estimate.roll_deg, 2),
+                           "sensor_pitch_deg": round(estimate.pitch_deg, 2)})
+        warnings += [f"mounting: {problem}" for problem in mounting_problems(self.config, holder.held)]
+        return values, warnings
 
     def _process(self, msg: PointCloud2) -> Outcome | None:
         """One frame: decode, propose, publish; a malformed or empty frame is logged and skipped."""
         received = time.perf_counter()
         clock = self.step_clock()
         try:
-            scan = decode_xyzi(msg, skip_nans=True)
+            decoded = decode(msg)
+            scan = to_xyzi(decoded, skip_nans=True)
         except PointCloud2Error as exc:
             self.get_logger().warning(f"skipping malformed PointCloud2: {exc}", throttle_duration_sec=LOG_PERIOD_S)
             return self.skipped("malformed")
@@ -153,15 +202,28 @@ class ClusterProposalNode(PointCloudNode):
         clock.mark("decode")
         result = self._stream.propose(prepared, self.config)
         clock.mark("compute")
+        self._report_mounting()
         self._report_sensor(result)
         self._report_ring_field(result)
         field_used = prepared.ring is not None and result.ring_order is not None and result.ring_order.fits
         out_ring = field if field_used else result.ring
+        # the input as it came: always in memory (a view; the segmentation node decides), on the wire when asked
+        source = input_source(decoded, msg.height, msg.width, len(scan.points), prepared.kept) \
+            if self.sink is not None or self._full else None
         if self.sink is not None:
-            self.sink(ProposalFrame(msg.header, points, out_ring, result.cluster_id, result.cluster_id2))
+            self.sink(ProposalFrame(msg.header, points, out_ring, result.cluster_id, result.cluster_id2, source))
             clock.mark("sink")
         if self.sink is None or self.proposals_pub.get_subscription_count() > 0:
-            cloud = encode(proposals_cloud(points, result, out_ring), header=msg.header)
+            if self._full:
+                replaced = source.replaced(STAGE1_COLUMNS)
+                if replaced and not self._replaced_warned:
+                    self._replaced_warned = True
+                    self.get_logger().warning(f"the input's field(s) {', '.join(replaced)} are replaced by stage 1's "
+                                              "on /pass3d/proposals (output_layout as_input / publish_background)")
+                full = full_proposals_cloud(source, points, result.cluster_id, result.cluster_id2, result.ground)
+                cloud = encode(full, header=msg.header, height=source.height, is_dense=source.is_dense)
+            else:
+                cloud = encode(proposals_cloud(points, result, out_ring), header=msg.header)
             clock.mark("encode")
             self.proposals_pub.publish(cloud)
             clock.mark("publish")

@@ -2,7 +2,9 @@
 
 The cluster node gives a `ProposalFrame` to a sink (the segmentation node's `submit_proposals`) instead of
 serialising 120k points into /pass3d/proposals and deserialising them again; it still publishes that cloud
-(and the marker arrays) while something else subscribes. The two-process layout keeps the message path.
+(and the marker arrays) while something else subscribes. The two-process layout keeps the message path. The frame
+also carries the decoded input (`source`, a view of the message: no copy), so the segmentation node's `output_layout`
+as_input and `publish_background` work here whatever the cluster node's own values (pass3d_ros.ros.input_layout).
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from pass3d_ros.core.stage1.config import closest
+from pass3d_ros.core.stage1.config import closest, is_auto_field
 
 C = TypeVar("C")
 
@@ -77,13 +77,26 @@ def describe(description: str, value_range: tuple[float, float] | None, default:
     return descriptor
 
 
+def auto_descriptor(description: str, value_range: tuple[float, float]) -> ParameterDescriptor:
+    """A descriptor of a number-or-auto field (`sensor_height`): dynamically typed, so a YAML's 0.6 (a double) and the
+    default "auto" (a string) are both accepted; ROS checks a double against the range, the config the rest."""
+    descriptor = describe(description, value_range, 0.0)
+    descriptor.dynamic_typing = True
+    return descriptor
+
+
 def declare_config(node: Node, config: Any, prefix: str = "") -> None:
-    """Declare one parameter per dataclass field; field metadata gives `description` and `range`."""
+    """Declare one parameter per dataclass field; field metadata gives `description` and `range` (and `auto`: a field
+    taking "auto" or a number, declared dynamically typed)."""
     for field in dataclasses.fields(config):
         default = getattr(config, field.name)
         if isinstance(default, tuple):
             default = list(default)
-        descriptor = describe(field.metadata.get("description", field.name), field.metadata.get("range"), default)
+        description = field.metadata.get("description", field.name)
+        if is_auto_field(field):
+            descriptor = auto_descriptor(description, field.metadata["range"])
+        else:
+            descriptor = describe(description, field.metadata.get("range"), default)
         node.declare_parameter(prefix + field.name, default, descriptor)
 
 
@@ -170,8 +183,9 @@ def _markdown_value(value: Any) -> str:
 
 
 def _markdown_range(value_range: tuple[float, float] | None, default: Any) -> str:
-    """A closed range as `lo .. hi`, blank where the parameter has none (strings, booleans, lists)."""
-    if value_range is None or isinstance(default, (bool, str, list, tuple)):
+    """A closed range as `lo .. hi`, blank where the parameter has none (strings, booleans, lists; a string default
+    with a range is a number-or-auto field: its numbers' range)."""
+    if value_range is None or isinstance(default, (bool, list, tuple)):
         return ""
     return f"{value_range[0]:g} .. {value_range[1]:g}"
 

@@ -3,6 +3,12 @@ checks a received one passes, and the proposal budget (at most `max_proposals`, 
 
 Both nodes and the in-memory pipeline use this module: the cluster node writes the message (or hands the frame over in
 memory), the segmentation node reads it. Nothing here needs rclpy.
+
+Two forms of the message (docs/outputs.md): compact (the default; the points stage 1 read: x, y, z, intensity 0..1,
+ring, ground, cluster_id, cluster_id2) and, when the cluster node's `output_layout` is `as_input` or its
+`publish_background` is true, the input's own layout (every input point and field, organized as it came) plus
+cluster_id, cluster_id2, ground and `stage1_intensity` (NaN where stage 1 did not read the point); the reader tells
+them apart by that field and keeps the input as the frame's `source` (pass3d_ros.ros.input_layout).
 """
 
 from __future__ import annotations
@@ -16,7 +22,8 @@ from sensor_msgs.msg import PointCloud2
 
 from pass3d_ros.core.stage1 import Stage1Result, proposal_members
 from pass3d_ros.core.stage2.segmentation import nearest_kept
-from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, to_xyzi
+from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, finite_mask, to_xyzi
+from pass3d_ros.ros.input_layout import STAGE1_COLUMNS, STAGE1_INTENSITY, InputSource, read_rows
 
 REQUIRED_FIELDS = ("cluster_id",)
 ID_FIELDS = ("cluster_id", "cluster_id2")
@@ -31,6 +38,7 @@ class ProposalFrame:
     ring: np.ndarray | None  # (N,) ring index, or None
     cluster_id: np.ndarray  # (N,) primary proposal id, -1 = none
     cluster_id2: np.ndarray  # (N,) secondary proposal id (overlapping enlarged boxes), -1 = none
+    source: InputSource | None = None  # the input as it came (pipeline, or proposals in the input's layout)
 
 
 ProposalSink = Callable[[ProposalFrame], None]
@@ -53,20 +61,21 @@ def proposals_cloud(points: np.ndarray, result: Stage1Result, ring: np.ndarray |
     }
 
 
-def proposal_ids(cloud: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The cluster_id and cluster_id2 columns as int64, checked to be integers in -1..N-1 (N points).
+def proposal_ids(cloud: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The cluster_id and cluster_id2 columns as int64, checked to be integers in -1..N-1 (N points; `rows`: only
+    those rows count, N = len(rows)).
 
     Anything else is a malformed message (PointCloud2Error naming the field): work must follow the number of
     points, never the id values a sender chose.
     """
     names = cloud.dtype.names or ()
-    n = len(cloud)
+    n = len(cloud) if rows is None else len(rows)
     ids = []
     for name in ID_FIELDS:
         if name not in names:
             ids.append(np.full(n, -1, np.int64))
             continue
-        column = cloud[name]
+        column = cloud[name] if rows is None else cloud[name][rows]
         if column.dtype.kind not in "iu":
             raise PointCloud2Error(f"field {name!r} has dtype {column.dtype}, expected an integer type (INT8..UINT32)")
         values = column.astype(np.int64)
@@ -80,15 +89,40 @@ def proposal_ids(cloud: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def proposal_frame(msg: PointCloud2) -> ProposalFrame:
-    """A /pass3d/proposals message as arrays (PointCloud2Error when it is not one); NaN points are left out."""
-    cloud = decode(msg, skip_nans=True)
+    """A /pass3d/proposals message as arrays (PointCloud2Error when it is not one); NaN points are left out. A message
+    in the input's layout (a `stage1_intensity` field) gives the rows stage 1 read, and the whole input as `source`."""
+    cloud = decode(msg)
     names = cloud.dtype.names or ()
+    if STAGE1_INTENSITY in names:
+        return _full_frame(msg, cloud)
+    keep = finite_mask(cloud)
+    cloud = cloud if keep.all() else cloud[keep]
     missing = [name for name in REQUIRED_FIELDS if name not in names]
     if missing:
         raise PointCloud2Error(f"no {', '.join(missing)} field: is this a /pass3d/proposals cloud?")
     first, second = proposal_ids(cloud)
     points = to_xyzi(cloud, with_ring=False).points
     return ProposalFrame(msg.header, points, cloud["ring"] if "ring" in names else None, first, second)
+
+
+def _full_frame(msg: PointCloud2, cloud: np.ndarray) -> ProposalFrame:
+    """A proposals message in the input's layout as a frame of the rows stage 1 read, the input kept as its source."""
+    names = cloud.dtype.names or ()
+    missing = [name for name in STAGE1_COLUMNS if name not in names]
+    if missing:
+        raise PointCloud2Error(f"a {STAGE1_INTENSITY} field without {', '.join(missing)}: is this /pass3d/proposals?")
+    if cloud[STAGE1_INTENSITY].dtype.kind != "f":
+        raise PointCloud2Error(f"field {STAGE1_INTENSITY!r} has dtype {cloud[STAGE1_INTENSITY].dtype}, expected float")
+    rows = read_rows(cloud)
+    first, second = proposal_ids(cloud, rows)
+    points = np.empty((len(rows), 4), np.float32)
+    for column, name in enumerate(("x", "y", "z", STAGE1_INTENSITY)):
+        points[:, column] = cloud[name][rows]
+    ring_field = "ring" if "ring" in names else "channel" if "channel" in names else None
+    ring = None if ring_field is None else cloud[ring_field][rows]
+    source = InputSource(cloud[[name for name in names if name not in STAGE1_COLUMNS]], int(msg.height),
+                         int(msg.width), bool(msg.is_dense), None if len(rows) == len(cloud) else rows)
+    return ProposalFrame(msg.header, points, ring, first, second, source)
 
 
 def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:

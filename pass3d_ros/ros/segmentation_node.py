@@ -1,10 +1,13 @@
 """Stage-2 node: proposals cloud in, labeled cloud (label, confidence, rgb) and objects (markers, detections) out.
 
-Detections (vision_msgs) go out where vision_msgs imports; see pass3d_ros.ros.detections.
+Detections (vision_msgs) go out where vision_msgs imports; see pass3d_ros.ros.detections. The labeled cloud in the
+input's own layout (`output_layout: as_input`) and the background cloud (`publish_background`) are built from the
+frame's source, the input as it came; see pass3d_ros.ros.input_layout.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from typing import Any, NamedTuple
@@ -32,6 +35,15 @@ from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, header_stamp_n
 from pass3d_ros.ros import params
 from pass3d_ros.ros.detections import DetectionOutputs
 from pass3d_ros.ros.diagnostics import StepClock
+from pass3d_ros.ros.input_layout import (
+    AS_INPUT,
+    LABEL_COLUMNS,
+    OUTPUT_LAYOUT_HELP,
+    background_cloud,
+    check_layout,
+    compact_background,
+    labeled_as_input,
+)
 from pass3d_ros.ros.latest_frame import DROPPED, FrameCounters, LatestFrameWorker, Outcome
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
@@ -44,6 +56,12 @@ HUNG_ERROR_S = 10.0  # a stage-2 process killed for hanging stays an ERROR on /d
 NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "input_topic": ("/pass3d/proposals", "proposals cloud from cluster_proposal_node", None),
     "labeled_topic": ("/pass3d/labeled", "output: labeled cloud (label, confidence, rgb)", None),
+    "output_layout": ("compact", f"{OUTPUT_LAYOUT_HELP}; as_input needs cluster_proposal_node's output_layout as_input "
+                      "too (pass3d_pipeline: always there)", None),
+    "publish_background": (False, "publish background_topic: the input without the points labeled car, pedestrian or "
+                           "cyclist, every input field as it came, input order, height 1 (for odometry / SLAM; while "
+                           "something subscribes)", None),
+    "background_topic": ("/pass3d/background", "output: the background cloud (publish_background)", None),
     "objects_topic": ("/pass3d/objects", "output: MarkerArray, one box and text per labeled object", None),
     "detections_topic": ("/pass3d/detections", "output: vision_msgs/Detection3DArray, one detection per labeled "
                          "object (where vision_msgs is installed)", None),
@@ -123,6 +141,7 @@ class SegmentationNode(PointCloudNode):
 
     def __init__(self, in_memory: bool = False, **kwargs: Any) -> None:
         super().__init__(PARAMETERS, **kwargs)
+        self.output_layout = check_layout(self.get_parameter("output_layout").value)
         self.points_dropped = 0  # input points with implausible coordinates, left out
         self.proposals_cut = 0  # input proposals beyond max_proposals, labeled background
         self.frames_down = 0  # frames dropped because the stage-2 process was down (or killed for hanging)
@@ -136,6 +155,9 @@ class SegmentationNode(PointCloudNode):
 
         self.labeled_pub = self.output_publisher(PointCloud2, "labeled_topic")
         self.objects_pub = self.output_publisher(MarkerArray, "objects_topic")
+        self.background_pub = self.output_publisher(PointCloud2, "background_topic") \
+            if self.get_parameter("publish_background").value else None
+        self._warned: set[str] = set()  # the once-only warnings given (no source, replaced fields)
         self.detections = DetectionOutputs.open(self, self.get_parameter("detections_topic").value,
                                                 self.get_parameter("label_info_topic").value,
                                                 qos_profile(self.get_parameter("output_qos").value))
@@ -326,8 +348,12 @@ class SegmentationNode(PointCloudNode):
         dropped = int(np.count_nonzero(~keep))
         self.points_dropped += dropped
         self.get_logger().warning(scan_checks.dropped_points_warning(dropped), throttle_duration_sec=LOG_PERIOD_S)
+        source = frame.source
+        if source is not None:
+            positions = np.arange(len(frame.points)) if source.positions is None else source.positions
+            source = dataclasses.replace(source, positions=positions[keep])
         return ProposalFrame(frame.header, frame.points[keep], None if frame.ring is None else frame.ring[keep],
-                             frame.cluster_id[keep], frame.cluster_id2[keep])
+                             frame.cluster_id[keep], frame.cluster_id2[keep], source)
 
     def _budget(self, frame: ProposalFrame) -> Budgeted:
         """Member points and cluster ids of the frame's proposals, at most max_proposals of them (the nearest): the
@@ -351,11 +377,24 @@ class SegmentationNode(PointCloudNode):
         if self.publisher is not None:
             clock.mark("handoff")  # the wait in the publishing thread's slot
         columns = labeled_cloud(frame, result, self.get_parameter("min_confidence").value)
-        cloud = encode(columns, header=frame.header, is_dense=True)  # NaN points never reach stage 2
+        source = frame.source
+        if self.output_layout == AS_INPUT and source is None:
+            self._warn_once("as_input", "output_layout as_input, but the proposals carry only the points stage 1 read: "
+                            "publishing compact; set output_layout as_input on cluster_proposal_node too")
+        if self.output_layout == AS_INPUT and source is not None:
+            replaced = source.replaced(LABEL_COLUMNS)
+            if replaced:
+                self._warn_once("replaced", f"output_layout as_input: the input's field(s) {', '.join(replaced)} are "
+                                "replaced by this node's")
+            cloud = encode(labeled_as_input(source, columns), header=frame.header, height=source.height,
+                           is_dense=source.is_dense)
+        else:
+            cloud = encode(columns, header=frame.header, is_dense=True)  # NaN points never reach stage 2
         clock.mark("encode")
         self.labeled_pub.publish(cloud)
         clock.mark("publish")
         labels = columns["label"]
+        self._publish_background(frame, columns, clock)
         self._publish_objects(frame, proposals, result, labels, clock)
         self.stats.frame(clock.steps_ms)
         # counted class by class: np.bincount of 120k uint8 labels took 1.3-3 ms
@@ -365,6 +404,28 @@ class SegmentationNode(PointCloudNode):
             f"stage2 {sum(clock.steps_ms.values()):.1f} ms, dropped {self.counters().dropped}",
             throttle_duration_sec=LOG_PERIOD_S,
         )
+
+    def _warn_once(self, key: str, text: str) -> None:
+        """Log `text` as a warning the first time `key` comes up."""
+        if key not in self._warned:
+            self._warned.add(key)
+            self.get_logger().warning(text)
+
+    def _publish_background(self, frame: ProposalFrame, columns: dict, clock: StepClock) -> None:
+        """The input without its object points, while something subscribes; from the compact columns (warned once)
+        when the frame has no source."""
+        if self.background_pub is None or self.background_pub.get_subscription_count() == 0:
+            return
+        if frame.source is None:
+            self._warn_once("background", "publish_background: the proposals carry only the points stage 1 read, so "
+                            "the background cloud has only x, y, z, intensity, ring; the input's other fields need "
+                            "output_layout as_input or publish_background true on cluster_proposal_node")
+            cloud = encode(compact_background(columns), header=frame.header, is_dense=True)
+        else:
+            cloud = encode(background_cloud(frame.source, columns["label"]), header=frame.header)
+        clock.mark("encode")
+        self.background_pub.publish(cloud)
+        clock.mark("publish")
 
     def _publish_objects(self, frame: ProposalFrame, proposals: Budgeted, result: SegmentResult, labels: np.ndarray,
                          clock: StepClock) -> None:

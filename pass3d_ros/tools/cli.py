@@ -15,12 +15,14 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
+from typing import NoReturn
 
 import torch
 from rosbags.rosbag2 import ReaderError, WriterError
 
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import OutputError, error_text, is_disk_full
+from pass3d_ros.training import worker
 
 EXIT_USAGE = 2
 EXIT_SIGINT = 130
@@ -63,6 +65,14 @@ def _interrupt_status(exc: BaseException) -> int | None:
         seen.add(id(link))
         link = link.__cause__ or link.__context__
     return _received[-1] if _received else None
+
+
+class RankParser(argparse.ArgumentParser):
+    """argparse with a one-line error (exit 2), silent on ranks that do not report (under torchrun every rank parses
+    the same command line)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n" if worker.reports() else None)
 
 
 def number(kind: type[int] | type[float] = float, low: float | None = None, high: float | None = None, *,

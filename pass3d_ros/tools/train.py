@@ -20,7 +20,6 @@ import io
 import os
 import sys
 from pathlib import Path
-from typing import NoReturn
 
 from pass3d_ros.training import worker
 
@@ -36,6 +35,7 @@ try:
         EXIT_SIGINT,
         EXIT_SIGTERM,
         EXIT_USAGE,
+        RankParser,
         check_writable,
         number,
         run_tool,
@@ -57,17 +57,9 @@ except KeyboardInterrupt:
     sys.exit(130)  # EXIT_SIGINT, whose import was cut short
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with a one-line error (exit 2), silent on ranks that do not report (under torchrun every rank parses
-    the same command line)."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n" if worker.reports() else None)
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The command line of pass3d_train."""
-    p = _Parser(prog=PROG, description=__doc__.splitlines()[0])
+    p = RankParser(prog=PROG, description=__doc__.splitlines()[0])
     p.add_argument("--data", action="append", required=True, metavar="SPEC", help="training data FORMAT:PATH")
     p.add_argument("--val-data", action="append", default=[], metavar="SPEC", help="validation data FORMAT:PATH")
     p.add_argument("--config", choices=["paper", "lite"], default="lite", help="model configuration")

@@ -53,9 +53,25 @@ def _param(default: Any, description: str, lo: float, hi: float) -> Any:
     return field(default=default, metadata={"description": description, "range": (lo, hi)})
 
 
+def _auto_param(description: str, lo: float, hi: float) -> Any:
+    """A config field that is either AUTO (learned from the stream's scans) or a number in the closed range."""
+    return field(default=AUTO, metadata={"description": description, "range": (lo, hi), "auto": True})
+
+
 def _choice(default: str, description: str, choices: tuple[str, ...]) -> Any:
     """A string config field whose metadata carries its description and allowed values (no range)."""
     return field(default=default, metadata={"description": description, "range": None, "choices": choices})
+
+
+AUTO = "auto"  # the value of a number-or-auto field (sensor_height) that the stream learns from its scans
+AUTO_START_HEIGHT_M = 1.73  # sensor_height auto: the seed bound's height until the stream holds its mounting (KITTI's
+# 1.73 m, the old default: with below_ground_margin 1 m it lets every mount up to 2.73 m seed; see
+# pass3d_ros.core.stage1.mounting)
+
+
+def is_auto_field(f: Any) -> bool:
+    """Whether dataclass field `f` takes AUTO or a number (its ROS parameter is dynamically typed)."""
+    return bool(f.metadata.get("auto"))
 
 
 # (lower, upper): parameters whose values must not cross; each pair bounds one quantity from both sides.
@@ -150,7 +166,12 @@ class Stage1Config:
         True, "refinement: scale th_num to the scan's angular resolution (pass3d_ros.core.stage1.sensor_params); the "
         "HDL-64E keeps the paper's values", 0, 1,
     )
-    sensor_height: float = _param(1.73, "ground: sensor height above the road (m, KITTI)", 0.0, 10.0)
+    sensor_height: float | str = _auto_param(
+        "ground: sensor height above the road (m; 1.73 on KITTI's car); it bounds the ground seeds from below. auto: "
+        "the height above the ground near the sensor, the median over a stream's first 5 scans, then held "
+        "(pass3d_ros.core.stage1.mounting; 1.73 until held, and while the estimate is within 0.3 m of it). With a "
+        "number the estimate is still made: the cluster node warns when it differs by more than 0.3 m", 0.0, 10.0,
+    )
     below_ground_margin: float = _param(1.0, "ground: points lower than sensor_height + this never seed (m)", 0.0, 10.0)
     ground_x_extent: float = _param(80.0, "ground: segments split x in [-extent, extent] evenly (m)", 1.0, 500.0)
     ground_seed_band: float = _param(20.0, "ground: only points with |y| below this seed and fit planes (m)", 0.5, 1e3)
@@ -176,6 +197,9 @@ class Stage1Config:
         for f in fields(self):
             if f.type in _NORMAL_TYPES:
                 setattr(self, f.name, _NORMAL_TYPES[f.type](getattr(self, f.name)))
+            elif is_auto_field(f):
+                value = getattr(self, f.name)
+                setattr(self, f.name, AUTO if isinstance(value, str) else float(value))
         self.enlarge = tuple(float(v) for v in self.enlarge)
         self.validate()
 
@@ -190,6 +214,10 @@ class Stage1Config:
                 problems.append(f"{f.name}={value!r} must be a list of numbers")
             elif f.type in _TYPE_CHECKS and not _TYPE_CHECKS[f.type][0](value):
                 problems.append(f"{f.name}={value!r} must be {_TYPE_CHECKS[f.type][1]}")
+            elif is_auto_field(f) and not (_is_number(value) or (isinstance(value, str)
+                                                                 and value.strip().lower() == AUTO)):
+                lo, hi = f.metadata["range"]
+                problems.append(f"{f.name}={value!r} must be {AUTO} or a number in [{lo:g}, {hi:g}]")
         return problems
 
     def validate(self) -> None:
@@ -207,6 +235,8 @@ class Stage1Config:
                 continue
             lo, hi = f.metadata["range"]
             values = getattr(self, f.name)
+            if is_auto_field(f) and isinstance(values, str):
+                continue
             for v in values if isinstance(values, (tuple, list)) else (values,):
                 if not lo <= v <= hi:
                     problems.append(f"{f.name}={v:g} outside [{lo:g}, {hi:g}]")
@@ -225,6 +255,12 @@ class Stage1Config:
             named = [name + (f" (did you mean {near}?)" if (near := closest(name, known)) else "") for name in unknown]
             raise ConfigError(f"Stage1Config: unknown parameter(s) {', '.join(named)}")
         return cls(**dict(values))
+
+    @property
+    def seed_height(self) -> float:
+        """The sensor height the ground seeds are bounded from (m): sensor_height, or AUTO_START_HEIGHT_M while it
+        is auto and no stream has put its held estimate in (pass3d_ros.core.stage1.mounting.MountingHolder)."""
+        return AUTO_START_HEIGHT_M if self.sensor_height == AUTO else float(self.sensor_height)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all parameters (for logs and JSON)."""
@@ -265,6 +301,8 @@ def parse_value(name: str, text: str) -> Any:
         literal = _NOT_LITERAL
     if kind == "str":
         return literal if isinstance(literal, str) else text
+    if kind == "float | str":  # a number, or auto (any other word is returned for Stage1Config to refuse)
+        return literal if literal is not _NOT_LITERAL and not isinstance(literal, bool) else text
     if literal is not _NOT_LITERAL:
         return literal
     if kind == "bool" and text.lower() in _TRUE + _FALSE:

@@ -8,9 +8,10 @@ the plane are ground (two-sided); the plane is fitted `n_iter` times in all, eac
 previous fit.
 
 Robustness the paper leaves open, needed on full 360-degree KITTI scans: points more than
-`below_ground_margin` under the expected road (-sensor_height) never seed; only points within a lateral band
-|y| < `ground_seed_band` seed and fit (terrain falling away 30 m to the side is not the road); sparse height
-bins below the road (a pit, stray returns) cannot set the LPR; an outer segment whose plane is degenerate, too
+`below_ground_margin` under the expected road (-sensor_height; `Stage1Config.seed_height`: while sensor_height is
+auto, 1.73 m until the stream holds its estimate, pass3d_ros.core.stage1.mounting) never seed; only points within a
+lateral band |y| < `ground_seed_band` seed and fit (terrain falling away 30 m to the side is not the road); sparse
+height bins below the road (a pit, stray returns) cannot set the LPR; an outer segment whose plane is degenerate, too
 steep, or steps away from its inner neighbour at their shared edge takes the neighbour's plane. The LPR and
 the fits read about one point in `fit_stride` (the same planes at a fraction of the cost): the points of every
 `fit_stride`-th narrow azimuth sector, so they read the same points whatever order the scan comes in (stage 1 fits
@@ -384,7 +385,7 @@ def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = T
     width = 2.0 * config.ground_x_extent / n_seg
     edges = -config.ground_x_extent + width * np.arange(n_seg + 1)
     if len(pts) == 0:
-        planes = np.tile([0.0, 0.0, 1.0, config.sensor_height], (n_seg, 1))
+        planes = np.tile([0.0, 0.0, 1.0, config.seed_height], (n_seg, 1))
         local = _local_ground(planes, edges, np.zeros((0, 0, 0), dtype=np.uint16), 0.0, config)
         return GroundFit(np.zeros(0, dtype=bool), planes, edges, local)
     # The local ground's grid covers every cluster centre the range gate keeps and its widest window.
@@ -397,7 +398,7 @@ def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = T
     ground, planes = _ground_kernel(
         pts, np.take(pts, sample, axis=0), edges, int(config.n_lpr), int(config.n_iter), config.th_seeds,
         config.th_dist,
-        -(config.sensor_height + config.below_ground_margin), float(np.cos(np.deg2rad(config.ground_max_slope_deg))),
+        -(config.seed_height + config.below_ground_margin), float(np.cos(np.deg2rad(config.ground_max_slope_deg))),
         config.ground_seed_band, config.ground_lpr_outlier_share, config.ground_max_step, int(config.fit_stride),
         hist, origin,
     )

@@ -1,0 +1,141 @@
+"""Outputs in the input's own layout: `output_layout: as_input` and the background cloud (`publish_background`).
+
+`compact` (the default) publishes on /pass3d/labeled the points stage 1 read (finite, plausible returns), with x, y,
+z, intensity (0..1), ring, cluster_id, label, confidence, rgb. `as_input` publishes every input point in the input's
+order and layout (height, width, organized or not; NaN, no-return and implausible points kept with label 0,
+confidence 0, cluster_id -1) with every input field as it came (dtype and value: Ouster's `t`, `reflectivity`, a
+uint16 `intensity`), plus cluster_id, confidence, rgb and label, so `label[i]` belongs to input point i. An input
+field of one of those four names is replaced (one WARN). The background cloud is the input less the points labelled
+car, pedestrian or cyclist (after min_confidence), every input field as it came, in input order, unorganized
+(height 1): non-returns and NaN points stay as they came, for odometry and SLAM.
+
+Design:
+- `InputSource` is the input as decoded (`decode`, a zero-copy view of the message), the positions in it of the points
+  stage 1 read, and its height, width and is_dense. Positions compose the cluster node's NaN filter (`to_xyzi`) with
+  `ScanStream.prepare`'s `kept`. Holding it costs a reference to the message, no copy.
+- In `pass3d_pipeline` the cluster node always attaches it to the `ProposalFrame` (free), and the segmentation node
+  decides by its own `output_layout` and `publish_background`.
+- Between two processes the source must cross /pass3d/proposals: when the cluster node's `output_layout` is
+  `as_input` or its `publish_background` is true, that message carries every input point and field in the input's
+  layout plus stage 1's columns (`full_proposals_cloud`): cluster_id, cluster_id2 (-1 = none), ground (uint8) and
+  `stage1_intensity` (float32: the 0..1 intensity stage 1 read, NaN for points it did not read). The segmentation node
+  recognises that cloud by the `stage1_intensity` field, rebuilds the frame from the rows where it is a number and
+  keeps the whole cloud (less the stage-1 columns) as the source. One NaN-able column marks both "read" and the value
+  stage 1 read (it was scaled into 0..1 by intensity_scale and the stream's scale, which the input's own intensity
+  field is not), so no separate flag is needed. An input field named like a stage-1 column is replaced (WARN once in
+  the cluster node). The compact message is unchanged byte for byte.
+- Outputs are `Extended` clouds (pass3d_ros.msgs.pointcloud2) that `encode` builds straight into the message's buffer:
+  each point's input bytes copied as one void item, the new columns appended (4-byte aligned), the input's height kept.
+  A field-by-field copy would cost in proportion to the input's fields, and building an array first then copying it
+  into the message a second copy; docs/outputs.md gives the measured cost per frame.
+- Asked for `as_input` with compact proposals (a cluster node left at compact), the segmentation node publishes
+  compact and warns once; asked for the background without a source, it publishes the compact columns of the
+  background points and warns once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from pass3d_ros.classes import BACKGROUND, packed_rgb
+from pass3d_ros.msgs.pointcloud2 import Extended, finite_mask
+
+COMPACT = "compact"
+AS_INPUT = "as_input"
+OUTPUT_LAYOUTS: tuple[str, ...] = (COMPACT, AS_INPUT)
+OUTPUT_LAYOUT_HELP = ("compact: the points stage 1 read, x y z intensity(0..1) ring + labels; as_input: every input "
+                      "point in the input's order and layout (organized too), every input field as it came, + "
+                      "cluster_id confidence rgb label (label 0 where not a return)")
+STAGE1_INTENSITY = "stage1_intensity"  # float32 0..1, NaN where stage 1 did not read the point
+STAGE1_COLUMNS: tuple[str, ...] = ("cluster_id", "cluster_id2", "ground", STAGE1_INTENSITY)
+LABEL_COLUMNS: tuple[str, ...] = ("cluster_id", "confidence", "rgb", "label")
+COMPACT_BACKGROUND: tuple[str, ...] = ("x", "y", "z", "intensity", "ring")  # without a source
+
+
+def check_layout(value: str) -> str:
+    """`value` when it is an output layout, else ValueError naming the choices."""
+    if value not in OUTPUT_LAYOUTS:
+        raise ValueError(f"output_layout {value!r} unknown, expected {' or '.join(OUTPUT_LAYOUTS)}")
+    return value
+
+
+@dataclass(frozen=True)
+class InputSource:
+    """The input scan as it came, and where stage 1's points sit in it."""
+
+    cloud: np.ndarray  # (height * width,) structured: the input's fields only, every point, row-major
+    height: int
+    width: int
+    is_dense: bool  # no NaN coordinate among the input's points
+    positions: np.ndarray | None  # (N,) row in `cloud` of each point stage 1 read; None: point i is row i
+
+    def scatter(self, values: np.ndarray, fill: float | int) -> np.ndarray:
+        """A column over every input row: `values` (one per point stage 1 read) at their rows, `fill` elsewhere."""
+        if self.positions is None:
+            return values
+        column = np.full(len(self.cloud), fill, values.dtype)
+        column[self.positions] = values
+        return column
+
+    def replaced(self, names: tuple[str, ...]) -> list[str]:
+        """The input's fields among `names` (an output replaces them)."""
+        return [name for name in names if name in (self.cloud.dtype.names or ())]
+
+
+def input_source(cloud: np.ndarray, height: int, width: int, read: int, kept: np.ndarray | None) -> InputSource:
+    """The source of a decoded input `cloud` from which `to_xyzi(skip_nans=True)` kept `read` points and
+    `ScanStream.prepare` then kept the positions `kept` of those (None: all)."""
+    finite = None if read == len(cloud) else np.flatnonzero(finite_mask(cloud))
+    positions = kept if finite is None else finite if kept is None else finite[kept]
+    return InputSource(cloud, height, width, finite is None, positions)
+
+
+def full_proposals_cloud(source: InputSource, points: np.ndarray, cluster_id: np.ndarray, cluster_id2: np.ndarray,
+                         ground: np.ndarray) -> Extended:
+    """/pass3d/proposals in the input's layout: every input row and field plus stage 1's columns (module docstring),
+    to `encode` with the input's height."""
+    return Extended(source.cloud, {
+        "cluster_id": source.scatter(cluster_id.astype(np.int32), -1),
+        "cluster_id2": source.scatter(cluster_id2.astype(np.int32), -1),
+        "ground": source.scatter(ground.astype(np.uint8), 0),
+        STAGE1_INTENSITY: source.scatter(points[:, 3].astype(np.float32), np.nan),
+    })
+
+
+def read_rows(cloud: np.ndarray) -> np.ndarray:
+    """The rows of a full proposals cloud stage 1 read: `stage1_intensity` a number (a row with implausible
+    coordinates there all the same is left out by the segmentation node's check of every received frame)."""
+    return np.flatnonzero(~np.isnan(cloud[STAGE1_INTENSITY]))
+
+
+def labeled_as_input(source: InputSource, columns: Mapping[str, np.ndarray]) -> Extended:
+    """/pass3d/labeled in the input's layout, from the compact columns (`labeled_cloud`): the input's fields and
+    rows, with cluster_id, confidence, rgb and label (-1, 0, grey, 0 at points stage 1 did not read), to `encode`
+    with the input's height."""
+    labels = source.scatter(columns["label"], BACKGROUND)
+    return Extended(source.cloud, {
+        "cluster_id": source.scatter(columns["cluster_id"], -1),
+        "confidence": source.scatter(columns["confidence"], 0.0),
+        "rgb": packed_rgb(labels) if source.positions is not None else columns["rgb"],
+        "label": labels,
+    })
+
+
+def background_rows(source: InputSource, labels: np.ndarray) -> np.ndarray:
+    """The input rows not labelled an object (`labels`: one per point stage 1 read), in input order."""
+    return np.flatnonzero(source.scatter(labels, BACKGROUND) == BACKGROUND)
+
+
+def background_cloud(source: InputSource, labels: np.ndarray) -> Extended:
+    """The input without its points labelled car, pedestrian or cyclist, every field as it came, input order (to
+    `encode` as one row)."""
+    return Extended(source.cloud, rows=background_rows(source, labels))
+
+
+def compact_background(columns: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Without a source: the compact x, y, z, intensity (and ring) columns of the background points."""
+    keep = columns["label"] == BACKGROUND
+    return {name: np.asarray(columns[name])[keep] for name in COMPACT_BACKGROUND if name in columns}
