@@ -11,7 +11,7 @@ import pytest
 
 from pass3d_ros.core.stage1 import proposal_members, propose
 from pass3d_ros.core.stage2 import canonical, open_classifier
-from pass3d_ros.core.stage2.segmentation import Segmenter, prepare_proposals
+from pass3d_ros.core.stage2.segmentation import Segmenter, predict_probabilities, prepare_proposals
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.evaluation.offline import evaluate_draws, iter_frames, spread
@@ -143,3 +143,32 @@ def test_evaluate_sampling_coverage_runs_and_is_refused_where_it_cannot_apply(tm
     assert evaluate.main(["--data", "synthetic:frames=1,seed=3", "--sampling", "coverage", "--sample-draws", "2",
                           "--no-progress"]) == 2
     assert "the coverage sample has no draw" in capsys.readouterr().err
+
+
+def test_average_draws_averages_the_probabilities_of_a_disjoint_draw_set(frame: Frame) -> None:
+    members = members_of(frame)
+    segmenter = Segmenter(DEFAULT_WEIGHTS)
+    assert segmenter.average_draws == 1 and segmenter.draw_set() == range(1)
+    probs = []
+    for draw in range(4):
+        segmenter.draw = draw
+        batch = prepare_proposals(frame.points, members, segmenter.config, draw=draw)
+        probs.append(predict_probabilities(segmenter.model, batch, segmenter.device))
+    segmenter.average_draws = 2
+    for draw_set, draws in ((0, [0, 1]), (1, [2, 3])):
+        segmenter.draw = draw_set
+        assert list(segmenter.draw_set()) == draws
+        result = segmenter.segment(frame.points, members)
+        mean = (probs[draws[0]] + probs[draws[1]]) / 2
+        expected = np.zeros(len(frame.points), np.uint8)
+        assert len(np.unique(batch.query_index)) == len(batch.query_index)  # no point in two proposals here
+        expected[batch.query_index] = mean.argmax(axis=1)
+        np.testing.assert_array_equal(result.labels, expected)
+    segmenter.sampling = "coverage"
+    assert segmenter.draw_set() == range(1)
+
+
+def test_average_draws_refused_outside_the_seeded_network(capsys: pytest.CaptureFixture) -> None:
+    for extra in (["--stage1-only"], ["--classifier", "size_rules"], ["--sampling", "coverage"]):
+        assert evaluate.main(["--data", SPEC, "--average-draws", "2", *extra, "--no-progress"]) == 2
+        assert "--average-draws" in capsys.readouterr().err

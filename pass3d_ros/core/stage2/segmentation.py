@@ -329,6 +329,7 @@ class Segmenter:
         self.checkpoint_info = {k: v for k, v in checkpoint.items() if k not in ("state_dict", "optimizer")}
         self.max_proposals = max_proposals
         self.draw = 0  # which seeded N-point sample inference uses (canonical.inference_rng); 0 is the default
+        self.average_draws = 1  # draw sample sets of this many seeded draws each, their probabilities averaged
         self.sampling = default_sampling(self.config)  # "draw" or "coverage" (canonical.SAMPLINGS)
         self.model = flush_subnormals(fuse_batchnorm(model) if fuse else model).to(self.device).eval()
 
@@ -340,14 +341,25 @@ class Segmenter:
         if len(chosen) == 0:
             labels, conf = scatter_predictions(len(points), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0))
             return SegmentResult(labels, conf, proposal_class)
-        batch = prepare_proposals(points, [np.asarray(members[i]) for i in chosen], self.config, draw=self.draw,
-                                  sampling=self.sampling)
-        probs = predict_probabilities(self.model, batch, self.device)
+        chosen_members = [np.asarray(members[i]) for i in chosen]
+        probs, batch = None, None
+        for draw in self.draw_set():
+            batch = prepare_proposals(points, chosen_members, self.config, draw=draw, sampling=self.sampling)
+            draw_probs = predict_probabilities(self.model, batch, self.device)
+            probs = draw_probs if probs is None else probs + draw_probs
+        probs /= self.average_draws if self.sampling == "draw" else 1
         pred = probs.argmax(axis=1)
         conf = probs[np.arange(len(pred)), pred]
         labels, confidence = scatter_predictions(len(points), batch.query_index, pred.astype(np.uint8), conf)
         proposal_class[chosen] = proposal_majority(batch.query_batch, pred, len(chosen), self.config.num_classes)
         return SegmentResult(labels, confidence, proposal_class)
+
+    def draw_set(self) -> range:
+        """The seeded draws (canonical.inference_rng) inference averages: set `draw` of `average_draws` draws, so
+        set 0 holds the default draw 0 and the sets are disjoint; the coverage sample has no draw (one pass)."""
+        if self.sampling != "draw":
+            return range(1)
+        return range(self.draw * self.average_draws, (self.draw + 1) * self.average_draws)
 
     def view_probabilities(self, points: np.ndarray, members: list[np.ndarray]) -> ViewProbabilities:
         """Class probabilities of every member point of the non-empty `members` in each of the 8 canonical views
