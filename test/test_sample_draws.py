@@ -172,3 +172,27 @@ def test_average_draws_refused_outside_the_seeded_network(capsys: pytest.Capture
     for extra in (["--stage1-only"], ["--classifier", "size_rules"], ["--sampling", "coverage"]):
         assert evaluate.main(["--data", SPEC, "--average-draws", "2", *extra, "--no-progress"]) == 2
         assert "--average-draws" in capsys.readouterr().err
+
+
+def test_average_below_reads_again_only_the_unsure_proposals(frame: Frame) -> None:
+    members = members_of(frame)
+    segmenter = Segmenter(DEFAULT_WEIGHTS)
+    one = segmenter.segment(frame.points, members)
+    segmenter.average_draws = 4
+    every = segmenter.segment(frame.points, members)
+    segmenter.average_below = 2.0  # every proposal is less sure than that: the same as averaging all
+    np.testing.assert_array_equal(segmenter.segment(frame.points, members).labels, every.labels)
+    segmenter.average_below = 0.0  # none: the first draw alone, which is draw 0 for set 0
+    np.testing.assert_array_equal(segmenter.segment(frame.points, members).labels, one.labels)
+    probs = []
+    for draw in range(4):
+        batch = prepare_proposals(frame.points, members, segmenter.config, draw=draw)
+        probs.append(predict_probabilities(segmenter.model, batch, segmenter.device))
+    sure = np.bincount(batch.query_batch, weights=probs[0].max(axis=1)) / np.bincount(batch.query_batch)
+    segmenter.average_below = float(np.median(sure))
+    unsure = np.isin(batch.query_batch, np.flatnonzero(sure < segmenter.average_below))
+    assert 0 < unsure.sum() < len(unsure)
+    expected = np.where(unsure[:, None], sum(probs) / 4, probs[0]).argmax(axis=1)
+    labels = np.zeros(len(frame.points), np.uint8)
+    labels[batch.query_index] = expected
+    np.testing.assert_array_equal(segmenter.segment(frame.points, members).labels, labels)

@@ -41,6 +41,7 @@ seeded by its point count; N > 1 reruns the evaluation with draws 0..N-1 of that
 for the mean IoU, the IoU of each draw, their mean and the draw-to-draw range (draw 0's report is the default one).
 --average-draws K: stage 2 reads each proposal from K seeded draws and averages their class probabilities (an
 experiment, docs/experiments/trials-issue-37-sampling.md, trial 29); with --sample-draws N, N disjoint sets of K.
+--average-below P: only proposals whose points' mean winning probability in the first draw is below P (trial 30).
 
 `--json PATH` writes the summary, nested; docs/evaluate_json.md describes its keys. Full and view-agreement
 runs map each spec's intensities onto the training scale (--no-intensity-match: as read).
@@ -115,6 +116,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--average-draws", type=number(int, 1, 64), default=1, metavar="K",
                         help="stage 2 reads each proposal from K seeded draws and averages their probabilities "
                              "(an experiment, trial 29; with --sample-draws: disjoint sets of K)")
+    parser.add_argument("--average-below", type=number(float, 0.0, 1.0), metavar="P",
+                        help="with --average-draws: read again only proposals whose points' mean winning probability "
+                             "in the first draw is below P (trial 30)")
     parser.add_argument("--sampling", choices=SAMPLINGS,
                         help="full mode, network classifier in process: how stage 2 picks each proposal's points: "
                              "the seeded draw or the draw-free coverage sample (default: the weights' own, as the "
@@ -170,6 +174,8 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UserError("--sample-draws draws the seeded sample again and again: the coverage sample has no draw")
     if args.average_draws != 1 and (mode != "full" or args.classifier == "size_rules" or args.sampling == "coverage"):
         raise UserError("--average-draws applies to the full evaluation with the network classifier's seeded draw")
+    if args.average_below is not None and args.average_draws == 1:
+        raise UserError("--average-below needs --average-draws K > 1")
     if args.sample_draws != 1 and args.classifier == "size_rules":
         raise UserError("--sample-draws needs the network classifier (size_rules draws no sample)")
     if mode == "view_agreement" and args.classifier == "size_rules":
@@ -205,8 +211,10 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
             classifier.sampling = sampling
         if isinstance(classifier, Segmenter):
             classifier.average_draws = args.average_draws
+            classifier.average_below = args.average_below
             settings["classifier"]["sampling"] = classifier.sampling
             settings["classifier"]["average_draws"] = args.average_draws
+            settings["classifier"]["average_below"] = args.average_below
         if args.sample_draws > 1:
             again = functools.partial(iter_frames, datasets, args.limit, not args.no_progress)
             return {**evaluate_draws(again, config, classifier, args.sample_draws, args.intensity_match),

@@ -330,6 +330,7 @@ class Segmenter:
         self.max_proposals = max_proposals
         self.draw = 0  # which seeded N-point sample inference uses (canonical.inference_rng); 0 is the default
         self.average_draws = 1  # draw sample sets of this many seeded draws each, their probabilities averaged
+        self.average_below: float | None = None  # average only proposals less sure than this (None: all)
         self.sampling = default_sampling(self.config)  # "draw" or "coverage" (canonical.SAMPLINGS)
         self.model = flush_subnormals(fuse_batchnorm(model) if fuse else model).to(self.device).eval()
 
@@ -342,17 +343,39 @@ class Segmenter:
             labels, conf = scatter_predictions(len(points), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0))
             return SegmentResult(labels, conf, proposal_class)
         chosen_members = [np.asarray(members[i]) for i in chosen]
-        probs, batch = None, None
-        for draw in self.draw_set():
-            batch = prepare_proposals(points, chosen_members, self.config, draw=draw, sampling=self.sampling)
-            draw_probs = predict_probabilities(self.model, batch, self.device)
-            probs = draw_probs if probs is None else probs + draw_probs
-        probs /= self.average_draws if self.sampling == "draw" else 1
+        probs, batch = self._averaged_probabilities(points, chosen_members)
         pred = probs.argmax(axis=1)
         conf = probs[np.arange(len(pred)), pred]
         labels, confidence = scatter_predictions(len(points), batch.query_index, pred.astype(np.uint8), conf)
         proposal_class[chosen] = proposal_majority(batch.query_batch, pred, len(chosen), self.config.num_classes)
         return SegmentResult(labels, confidence, proposal_class)
+
+    def _averaged_probabilities(self, points: np.ndarray, members: list[np.ndarray]
+                                ) -> tuple[np.ndarray, ProposalBatch]:
+        """Class probabilities of every member point from the first draw of `draw_set`, averaged with the set's
+        other draws for every proposal (average_below None) or only for those whose points' mean winning
+        probability in the first draw is below average_below. A proposal's probabilities do not depend on the
+        other proposals of its batch, so the unsure ones are read again on their own."""
+        draws = list(self.draw_set())
+        batch = prepare_proposals(points, members, self.config, draw=draws[0], sampling=self.sampling)
+        probs = predict_probabilities(self.model, batch, self.device)
+        if len(draws) == 1:
+            return probs, batch
+        if self.average_below is None:
+            again = np.arange(len(members))
+        else:
+            sums = np.bincount(batch.query_batch, weights=probs.max(axis=1), minlength=len(members))
+            again = np.flatnonzero(sums / np.bincount(batch.query_batch, minlength=len(members)) < self.average_below)
+            if len(again) == 0:
+                return probs, batch
+        rows = np.flatnonzero(np.isin(batch.query_batch, again))  # their points, in proposal order as below
+        total = probs[rows].astype(np.float64)
+        for draw in draws[1:]:
+            subset = prepare_proposals(points, [members[i] for i in again], self.config, draw=draw,
+                                       sampling=self.sampling)
+            total += predict_probabilities(self.model, subset, self.device)
+        probs[rows] = total / len(draws)
+        return probs, batch
 
     def draw_set(self) -> range:
         """The seeded draws (canonical.inference_rng) inference averages: set `draw` of `average_draws` draws, so
