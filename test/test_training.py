@@ -536,17 +536,30 @@ def test_draw_pair_gives_the_student_another_draw_labelled_by_the_teacher_at_its
     # The teacher's pass, redone: the same seeds give its probabilities for every member point; the target of each
     # student point is the teacher's probability at that very point.
     seeds = np.random.default_rng(2).integers(2**63, size=2)
-    whole = prepare_proposals(samples.points, samples.members(ids), config, rng=np.random.default_rng(int(seeds[0])),
+    whole = prepare_proposals(samples.points, samples.members(ids), config, rng=np.random.default_rng(int(seeds[1])),
                               boxes=samples.boxes)
     probabilities = predict_probabilities(model.eval(), whole, "cpu")
     student = prepare_proposals(samples.points, samples.members(ids), config, views=np.zeros(len(ids), np.int64),
-                                rng=np.random.default_rng(int(seeds[1])), boxes=samples.boxes, queries=False)
+                                rng=np.random.default_rng(int(seeds[0])), boxes=samples.boxes, queries=False)
     row_of = {int(point): row for row, point in enumerate(whole.query_index)}
     expected = probabilities[[[row_of[int(p)] for p in draw] for draw in student.sample_index]]
     assert np.allclose(targets.numpy(), expected, atol=1e-6)
     # Another draw than the teacher's: big proposals hold other points.
     big = np.flatnonzero(samples.counts[ids] > 2 * config.num_points)
     assert len(big) and any(set(student.sample_index[p]) != set(whole.sample_index[p]) for p in big)
+    # A teacher of three draws: the mean of the three draws' probabilities, the student's draw as before.
+    _xyz, _feat, mean_targets = draw_pair(samples, ids, config, np.random.default_rng(2), model, "cpu", 3)
+    seeds = np.random.default_rng(2).integers(2**63, size=4)
+    draws = [predict_probabilities(model.eval(), prepare_proposals(samples.points, samples.members(ids), config,
+                                                                   rng=np.random.default_rng(int(s)),
+                                                                   boxes=samples.boxes), "cpu") for s in seeds[1:]]
+    model.train()
+    student = prepare_proposals(samples.points, samples.members(ids), config, views=np.zeros(len(ids), np.int64),
+                                rng=np.random.default_rng(int(seeds[0])), boxes=samples.boxes, queries=False)
+    expected = (sum(d.astype(np.float64) for d in draws) / 3)[[[row_of[int(p)] for p in draw] for draw in
+                                                                student.sample_index]]
+    assert np.allclose(mean_targets.numpy(), expected, atol=1e-6)
+    assert np.abs(mean_targets.numpy() - targets.numpy()).max() > 1e-5  # not the one draw (an untrained net: small)
 
 
 def test_consistency_loss_counts_only_sure_points():
@@ -585,7 +598,7 @@ def test_trainer_with_draw_consistency_trains(tmp_path):
     frames = [constructed_frame(rng, f"t{i}") for i in range(4)]
     options = TrainOptions(data=["constructed:train"], out=tmp_path, config="lite", epochs=1, batch_size=4,
                            max_steps=2, background_keep=1.0, threads=1, quiet=True, consistency=[UNLABELLED],
-                           consistency_batch=3, consistency_threshold=0.0, consistency_draws=True)
+                           consistency_batch=3, consistency_threshold=0.0, consistency_draws=2)
     threads = torch.get_num_threads()
     try:
         result = Trainer(options, proposer=instance_proposer, frame_source=lambda specs: iter(frames),
@@ -593,7 +606,7 @@ def test_trainer_with_draw_consistency_trains(tmp_path):
     finally:
         torch.set_num_threads(threads)
     assert result.history[0]["consistency_sure"] == 1.0 and np.isfinite(result.history[0]["train_loss"])
-    assert torch.load(result.last_path, weights_only=True)["train_args"]["consistency_draws"] is True
+    assert torch.load(result.last_path, weights_only=True)["train_args"]["consistency_draws"] == 2
 
 
 def test_consistency_data_without_proposals_is_refused(tmp_path, capsys):

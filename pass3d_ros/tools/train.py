@@ -107,9 +107,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="inference-view probability a point's target needs")
     p.add_argument("--consistency-batch", type=number(int, 1), default=consistency.DEFAULT_BATCH,
                    help="unlabelled proposals per optimizer step, over all processes")
-    p.add_argument("--consistency-draws", action="store_true",
+    p.add_argument("--consistency-draws", type=number(int, 1, 64), nargs="?", const=1, default=0, metavar="K",
                    help="the consistency term's student reads another random draw of each proposal's points than "
-                        "its teacher, so two draws must agree as well as two views")
+                        "its teacher, whose probabilities are the mean of K draws (default 1), so draws must agree "
+                        "as well as views")
     p.add_argument("--rebuild-cache", action="store_true", help="rerun stage 1 even if a sample cache exists")
     p.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
                    help="no progress bars (as in the other tools; --quiet is the old name)")

@@ -116,7 +116,8 @@ class TrainOptions:
     consistency_weight: float = view_consistency.DEFAULT_WEIGHT
     consistency_threshold: float = view_consistency.DEFAULT_THRESHOLD
     consistency_batch: int = view_consistency.DEFAULT_BATCH  # unlabelled proposals per step, all processes
-    consistency_draws: bool = False  # the student reads another random draw than the teacher (two draws must agree)
+    consistency_draws: int = 0  # K > 0: the student reads another random draw than the teacher, whose
+    # probabilities are the mean of K draws (two draws must agree); 0: the student reads the teacher's draw
 
     def record(self) -> dict:
         """The options as a checkpoint stores them: plain values, paths as strings."""
@@ -247,10 +248,11 @@ class Trainer:
             self.unlabelled = view_consistency.unlabelled_samples(o.consistency, self.stage1)
             if len(self.unlabelled) == 0:
                 raise TrainingError(f"no proposals in {', '.join(o.consistency)} for view consistency")
+            draws = (f", teacher ({o.consistency_draws} draws averaged) and student on independent draws"
+                     if o.consistency_draws else "")
             self._log(f"view consistency: {len(self.unlabelled)} unlabelled proposals of "
                       f"{len(self.unlabelled.frame_names)} scans, weight {o.consistency_weight}, "
-                      f"threshold {o.consistency_threshold}, {o.consistency_batch} a step"
-                      f"{', teacher and student on independent draws' if o.consistency_draws else ''}")
+                      f"threshold {o.consistency_threshold}, {o.consistency_batch} a step{draws}")
         common = {
             "frames": self.frame_source or _default_frames,
             "seed": o.seed,
@@ -428,7 +430,7 @@ class Trainer:
         ids = rng.integers(0, len(self.unlabelled), share)
         if o.consistency_draws:
             strong_xyz, strong_feat, teacher = view_consistency.draw_pair(self.unlabelled, ids, self.config, rng,
-                                                                          self.model, device)
+                                                                          self.model, device, o.consistency_draws)
             teacher = teacher.to(device)
         else:
             weak_xyz, weak_feat, strong_xyz, strong_feat = view_consistency.view_pair(self.unlabelled, ids,
