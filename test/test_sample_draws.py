@@ -196,3 +196,36 @@ def test_average_below_reads_again_only_the_unsure_proposals(frame: Frame) -> No
     labels = np.zeros(len(frame.points), np.uint8)
     labels[batch.query_index] = expected
     np.testing.assert_array_equal(segmenter.segment(frame.points, members).labels, labels)
+
+
+def test_content_sample_is_a_function_of_the_point_set() -> None:
+    rng = np.random.default_rng(4)
+    for count in (40, 256, 1000):
+        points = rng.normal(size=(count, 4)).astype(np.float32)
+        sample = canonical.content_sample(points, 256, 0)
+        assert len(sample) == 256 and set(sample.tolist()) <= set(range(count))
+        if count >= 256:
+            assert len(np.unique(sample)) == 256
+        else:
+            assert set(sample[:count].tolist()) == set(range(count))
+        perm = rng.permutation(count)
+        np.testing.assert_array_equal(points[perm][canonical.content_sample(points[perm], 256, 0)], points[sample])
+        other = canonical.content_sample(points, 256, 1)
+        assert not np.array_equal(other, sample)
+
+
+def test_content_sampling_gives_the_same_labels_in_any_order(frame: Frame) -> None:
+    from pass3d_ros.core.stage1 import proposal_members as members_from_ids
+
+    segmenter = Segmenter(DEFAULT_WEIGHTS)
+    segmenter.sampling = "content"
+    perm = np.random.default_rng(0).permutation(len(frame.points))
+    labels = []
+    for order in (np.arange(len(frame.points)), perm):
+        result = propose(frame.points[order], frame.ring[order])
+        members = members_from_ids(result.cluster_id, result.cluster_id2, result.n_proposals)
+        out = np.empty(len(order), np.uint8)
+        out[order] = segmenter.segment(frame.points[order], members).labels
+        labels.append(out)
+    assert np.isin(labels[0], [1, 2, 3]).sum() > 100
+    np.testing.assert_array_equal(labels[0], labels[1])

@@ -121,8 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "in the first draw is below P (trial 30)")
     parser.add_argument("--sampling", choices=SAMPLINGS,
                         help="full mode, network classifier in process: how stage 2 picks each proposal's points: "
-                             "the seeded draw or the draw-free coverage sample (default: the weights' own, as the "
-                             "nodes use it: coverage for order-free weights; --sample-draws: draw)")
+                             "the seeded draw, the draw-free coverage sample, or a draw picked by the points' content "
+                             "(trial 32) (default: the weights' own, as the nodes use it: coverage for order-free "
+                             "weights; --sample-draws: draw)")
     parser.add_argument("--paired-with", type=Path, metavar="JSON",
                         help="full mode: another full run's --json on the same frames; print each class's IoU "
                              "difference (this run minus that one) with its paired frame-bootstrap interval "
@@ -204,7 +205,7 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
     kind, weights = classifier.kind, classifier.weights
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
     if mode == "full":
-        sampling = "draw" if args.sample_draws > 1 else args.sampling
+        sampling = args.sampling or ("draw" if args.sample_draws > 1 else None)
         if sampling is not None:
             if not isinstance(classifier, Segmenter):
                 raise UserError("--sampling needs the network classifier in this process")

@@ -282,7 +282,40 @@ def inference_sample(count: int, num_points: int, draw: int = 0) -> np.ndarray:
     return indices
 
 
-SAMPLINGS: tuple[str, ...] = ("draw", "coverage")  # how inference picks each proposal's N points
+_HASH_MIX = np.array([0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0x27D4EB2F165667C5], np.uint64)
+
+
+def point_hashes(points: np.ndarray, draw: int = 0) -> np.ndarray:
+    """A 64-bit hash of each point's four float32 values (x, y, z, intensity) and the draw index (murmur3's 64-bit
+    finalizer over a multiply-xor mix): a function of the point alone, so of no list order."""
+    bits = np.ascontiguousarray(points[:, :4], dtype=np.float32).view(np.uint32).astype(np.uint64)
+    h = np.bitwise_xor.reduce(bits * _HASH_MIX, axis=1) ^ np.uint64((0x94D049BB133111EB * (draw + 1)) % 2**64)
+    for shift, factor in ((33, 0xFF51AFD7ED558CCD), (33, 0xC4CEB9FE1A85EC53)):
+        h ^= h >> np.uint64(shift)
+        h *= np.uint64(factor)
+    return h ^ (h >> np.uint64(33))
+
+
+def content_sample(points: np.ndarray, num_points: int, draw: int = 0) -> np.ndarray:
+    """`num_points` positions into one proposal's `points` (count, >= 4) picked by their content, not their order:
+    with enough points the `num_points` of smallest `point_hashes`, listed in hash order (a uniform random subset in
+    random order, as `sample_indices`); with fewer, all of them in hash order and the repeats `sample_indices` would
+    add, from a generator seeded by the proposal's content (the xor of its hashes), count and draw."""
+    count = len(points)
+    if count <= 0:
+        raise ValueError("content_sample: empty proposal")
+    h = point_hashes(points, draw)
+    if count > num_points:
+        chosen = np.argpartition(h, num_points - 1)[:num_points]
+        return chosen[np.argsort(h[chosen], kind="stable")]
+    order = np.argsort(h, kind="stable")
+    if count == num_points:
+        return order
+    rng = np.random.default_rng([int(np.bitwise_xor.reduce(h)), count, draw])
+    return np.concatenate([order, order[rng.integers(0, count, num_points - count)]])
+
+
+SAMPLINGS: tuple[str, ...] = ("draw", "coverage", "content")  # how inference picks each proposal's N points
 COVERAGE_CELL_M = 0.001  # coverage sampling orders points on a Morton curve of their coordinates at this resolution
 _COVERAGE_BITS = 14  # per axis: 16.4 m of extent at 1 mm (coordinates past it are clipped)
 

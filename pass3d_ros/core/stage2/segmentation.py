@@ -122,7 +122,9 @@ def prepare_proposals(
     else:
         pos = np.empty((count, num), dtype=np.int64)
         for p, size in enumerate(counts):
-            if rng is None:
+            if rng is None and sampling == "content":
+                pos[p] = offsets[p] + canonical.content_sample(points[index[offsets[p]:offsets[p + 1]]], num, draw)
+            elif rng is None:
                 pos[p] = offsets[p] + canonical.inference_sample(int(size), num, draw)
             else:
                 pos[p] = offsets[p] + canonical.sample_indices(int(size), num, rng)
@@ -379,8 +381,9 @@ class Segmenter:
 
     def draw_set(self) -> range:
         """The seeded draws (canonical.inference_rng) inference averages: set `draw` of `average_draws` draws, so
-        set 0 holds the default draw 0 and the sets are disjoint; the coverage sample has no draw (one pass)."""
-        if self.sampling != "draw":
+        set 0 holds the default draw 0 and the sets are disjoint (seeded and content draws alike); the coverage
+        sample has no draw (one pass)."""
+        if self.sampling == "coverage":
             return range(1)
         return range(self.draw * self.average_draws, (self.draw + 1) * self.average_draws)
 
