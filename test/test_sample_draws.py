@@ -52,7 +52,8 @@ def test_segment_draw_zero_keeps_todays_labels(frame: Frame, monkeypatch: pytest
     members = members_of(frame)
     assert max(len(m) for m in members) > 256
     segmenter = Segmenter(DEFAULT_WEIGHTS)
-    assert segmenter.draw == 0
+    assert segmenter.draw == 0 and segmenter.sampling == "content"  # the shipped weights' default (trial 32)
+    segmenter.sampling = "draw"
     default = segmenter.segment(frame.points, members)
 
     def todays(count: int, num_points: int, draw: int = 0) -> np.ndarray:
@@ -152,7 +153,7 @@ def test_average_draws_averages_the_probabilities_of_a_disjoint_draw_set(frame: 
     probs = []
     for draw in range(4):
         segmenter.draw = draw
-        batch = prepare_proposals(frame.points, members, segmenter.config, draw=draw)
+        batch = prepare_proposals(frame.points, members, segmenter.config, draw=draw, sampling=segmenter.sampling)
         probs.append(predict_probabilities(segmenter.model, batch, segmenter.device))
     segmenter.average_draws = 2
     for draw_set, draws in ((0, [0, 1]), (1, [2, 3])):
@@ -186,7 +187,7 @@ def test_average_below_reads_again_only_the_unsure_proposals(frame: Frame) -> No
     np.testing.assert_array_equal(segmenter.segment(frame.points, members).labels, one.labels)
     probs = []
     for draw in range(4):
-        batch = prepare_proposals(frame.points, members, segmenter.config, draw=draw)
+        batch = prepare_proposals(frame.points, members, segmenter.config, draw=draw, sampling=segmenter.sampling)
         probs.append(predict_probabilities(segmenter.model, batch, segmenter.device))
     sure = np.bincount(batch.query_batch, weights=probs[0].max(axis=1)) / np.bincount(batch.query_batch)
     segmenter.average_below = float(np.median(sure))
@@ -217,8 +218,7 @@ def test_content_sample_is_a_function_of_the_point_set() -> None:
 def test_content_sampling_gives_the_same_labels_in_any_order(frame: Frame) -> None:
     from pass3d_ros.core.stage1 import proposal_members as members_from_ids
 
-    segmenter = Segmenter(DEFAULT_WEIGHTS)
-    segmenter.sampling = "content"
+    segmenter = Segmenter(DEFAULT_WEIGHTS)  # its default sampling: content
     perm = np.random.default_rng(0).permutation(len(frame.points))
     labels = []
     for order in (np.arange(len(frame.points)), perm):
@@ -229,3 +229,15 @@ def test_content_sampling_gives_the_same_labels_in_any_order(frame: Frame) -> No
         labels.append(out)
     assert np.isin(labels[0], [1, 2, 3]).sum() > 100
     np.testing.assert_array_equal(labels[0], labels[1])
+
+
+def test_point_hashes_are_the_documented_mix() -> None:
+    points = np.random.default_rng(1).normal(size=(500, 4)).astype(np.float32)
+    bits = points.view(np.uint32).astype(np.uint64)
+    for draw in (0, 3):
+        h = np.bitwise_xor.reduce(bits * canonical._HASH_MIX, axis=1) ^ np.uint64(
+            (0x94D049BB133111EB * (draw + 1)) % 2**64)
+        for factor in (0xFF51AFD7ED558CCD, 0xC4CEB9FE1A85EC53):
+            h ^= h >> np.uint64(33)
+            h *= np.uint64(factor)
+        np.testing.assert_array_equal(canonical.point_hashes(points, draw), h ^ (h >> np.uint64(33)))

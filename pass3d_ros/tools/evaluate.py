@@ -36,8 +36,9 @@ pass3d_ros/weights/pass3d_lite.pt; or --classifier size_rules, the geometric bas
 torch's CPU threads (default 1: on the 2-core development machine, shared with other work, one thread ran
 the lite network faster than two).
 
---sample-draws N (full mode, network classifier): stage 2 samples 256 points of each proposal from a generator
-seeded by its point count; N > 1 reruns the evaluation with draws 0..N-1 of that sample and adds, per class and
+--sample-draws N (full mode, network classifier): stage 2 samples 256 points of each proposal, picked by a hash of
+the points' content (or, with --sampling draw, by a generator seeded by its point count); N > 1 reruns the
+evaluation with draws 0..N-1 of that sample and adds, per class and
 for the mean IoU, the IoU of each draw, their mean and the draw-to-draw range (draw 0's report is the default one).
 --average-draws K: stage 2 reads each proposal from K seeded draws and averages their class probabilities (an
 experiment, docs/experiments/trials-issue-37-sampling.md, trial 29); with --sample-draws N, N disjoint sets of K.
@@ -121,9 +122,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "in the first draw is below P (trial 30)")
     parser.add_argument("--sampling", choices=SAMPLINGS,
                         help="full mode, network classifier in process: how stage 2 picks each proposal's points: "
-                             "the seeded draw, the draw-free coverage sample, or a draw picked by the points' content "
-                             "(trial 32) (default: the weights' own, as the nodes use it: coverage for order-free "
-                             "weights; --sample-draws: draw)")
+                             "the count-seeded draw, the draw-free coverage sample, or a draw picked by the points' "
+                             "content (default: the weights' own, as the nodes use it: content, coverage for "
+                             "order-free weights, where --sample-draws uses draw)")
     parser.add_argument("--paired-with", type=Path, metavar="JSON",
                         help="full mode: another full run's --json on the same frames; print each class's IoU "
                              "difference (this run minus that one) with its paired frame-bootstrap interval "
@@ -205,7 +206,8 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
     kind, weights = classifier.kind, classifier.weights
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
     if mode == "full":
-        sampling = args.sampling or ("draw" if args.sample_draws > 1 else None)
+        coverage = isinstance(classifier, Segmenter) and classifier.sampling == "coverage"
+        sampling = args.sampling or ("draw" if args.sample_draws > 1 and coverage else None)  # coverage: no draws
         if sampling is not None:
             if not isinstance(classifier, Segmenter):
                 raise UserError("--sampling needs the network classifier in this process")

@@ -7,9 +7,10 @@ and the canonical transform are numba kernels (a frame's ~30 proposals in about 
 Views: a view puts the origin at one bottom vertex of the box with the axes along the box edges, the box in
 the first octant. Views 0..3 are the four right-handed frames (origin at vertex 0..3: the 4 rotations),
 views 4..7 are their mirror images (x and y swapped, left-handed). Training draws any of the 8; inference
-uses the right-handed view at the vertex nearest the sensor, and a generator seeded from the proposal's
-point count (and a draw index, 0 by default) for the N-point sample, so a proposal's input depends on its
-points alone.
+uses the right-handed view at the vertex nearest the sensor and, for the shipped ("slot") weights, the N-point
+sample `content_sample` picks by a hash of each point's values (and a draw index, 0 by default), so a proposal's
+input depends on its points alone, in any order (trial 32; before, a generator seeded from the point count picked
+positions in the members' input order: `inference_sample`, `--sampling draw`).
 """
 
 from __future__ import annotations
@@ -286,32 +287,50 @@ _HASH_MIX = np.array([0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9
 
 
 def point_hashes(points: np.ndarray, draw: int = 0) -> np.ndarray:
-    """A 64-bit hash of each point's four float32 values (x, y, z, intensity) and the draw index (murmur3's 64-bit
-    finalizer over a multiply-xor mix): a function of the point alone, so of no list order."""
-    bits = np.ascontiguousarray(points[:, :4], dtype=np.float32).view(np.uint32).astype(np.uint64)
-    h = np.bitwise_xor.reduce(bits * _HASH_MIX, axis=1) ^ np.uint64((0x94D049BB133111EB * (draw + 1)) % 2**64)
-    for shift, factor in ((33, 0xFF51AFD7ED558CCD), (33, 0xC4CEB9FE1A85EC53)):
-        h ^= h >> np.uint64(shift)
-        h *= np.uint64(factor)
-    return h ^ (h >> np.uint64(33))
+    """A 64-bit hash of each point's float32 values (x, y, z and intensity, or only the first three columns given)
+    and the draw index (murmur3's 64-bit finalizer over a multiply-xor mix): a function of the point alone, so of no
+    list order. A network that does not read intensity hashes x, y, z only, so its labels do not depend on it."""
+    bits = np.ascontiguousarray(points[:, :4], dtype=np.float32).view(np.uint32)
+    return _hash_kernel(bits, _HASH_MIX, np.uint64((0x94D049BB133111EB * (draw + 1)) % 2**64))
+
+
+@nb.njit(cache=True, nogil=True)
+def _hash_kernel(bits: np.ndarray, mix: np.ndarray, salt: np.uint64) -> np.ndarray:
+    """point_hashes in one pass (uint64 arithmetic wraps, as numpy's)."""
+    out = np.empty(bits.shape[0], dtype=np.uint64)
+    for i in range(bits.shape[0]):
+        h = np.uint64(bits[i, 0]) * mix[0]
+        for k in range(1, bits.shape[1]):
+            h ^= np.uint64(bits[i, k]) * mix[k]
+        h ^= salt
+        h ^= h >> np.uint64(33)
+        h *= np.uint64(0xFF51AFD7ED558CCD)
+        h ^= h >> np.uint64(33)
+        h *= np.uint64(0xC4CEB9FE1A85EC53)
+        out[i] = h ^ (h >> np.uint64(33))
+    return out
 
 
 def content_sample(points: np.ndarray, num_points: int, draw: int = 0) -> np.ndarray:
-    """`num_points` positions into one proposal's `points` (count, >= 4) picked by their content, not their order:
+    """`num_points` positions into one proposal's `points` (count, 3 or 4) picked by their content, not their order:
     with enough points the `num_points` of smallest `point_hashes`, listed in hash order (a uniform random subset in
     random order, as `sample_indices`); with fewer, all of them in hash order and the repeats `sample_indices` would
     add, from a generator seeded by the proposal's content (the xor of its hashes), count and draw."""
-    count = len(points)
+    return content_positions(point_hashes(points, draw), num_points, draw)
+
+
+def content_positions(hashes: np.ndarray, num_points: int, draw: int = 0) -> np.ndarray:
+    """`content_sample` from one proposal's `point_hashes` (hashed once for a whole frame)."""
+    count = len(hashes)
     if count <= 0:
         raise ValueError("content_sample: empty proposal")
-    h = point_hashes(points, draw)
     if count > num_points:
-        chosen = np.argpartition(h, num_points - 1)[:num_points]
-        return chosen[np.argsort(h[chosen], kind="stable")]
-    order = np.argsort(h, kind="stable")
+        chosen = np.argpartition(hashes, num_points - 1)[:num_points]
+        return chosen[np.argsort(hashes[chosen], kind="stable")]
+    order = np.argsort(hashes, kind="stable")
     if count == num_points:
         return order
-    rng = np.random.default_rng([int(np.bitwise_xor.reduce(h)), count, draw])
+    rng = np.random.default_rng([int(np.bitwise_xor.reduce(hashes)), count, draw])
     return np.concatenate([order, order[rng.integers(0, count, num_points - count)]])
 
 

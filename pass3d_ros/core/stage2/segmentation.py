@@ -100,8 +100,9 @@ def prepare_proposals(
 ) -> ProposalBatch:
     """Canonical frames and N-point samples of non-empty proposals `members` (indices into points (N, 4)).
 
-    Inference (views None, rng None): the vertex nearest the sensor and, with `sampling` "draw", a generator seeded
-    from each proposal's point count (and `draw`, 0 by default: see canonical.inference_rng), or with "coverage"
+    Inference (views None, rng None): the vertex nearest the sensor and, with `sampling` "content", the points of
+    canonical.content_sample (draw `draw`), with "draw", a generator seeded from each proposal's point count (and
+    `draw`, 0 by default: see canonical.inference_rng), or with "coverage"
     the draw-free sample of canonical.coverage_sample, so the result depends on the input alone. Training passes
     views and rng (and queries=False: only the sampled points are transformed).
     """
@@ -121,9 +122,12 @@ def prepare_proposals(
         pos = canonical.coverage_sample(points[index, :3], offsets, num)
     else:
         pos = np.empty((count, num), dtype=np.int64)
+        hashes = None
+        if rng is None and sampling == "content":  # a network blind to intensity hashes x, y, z only
+            hashes = canonical.point_hashes(points[index] if uses_intensity(config) else points[index, :3], draw)
         for p, size in enumerate(counts):
-            if rng is None and sampling == "content":
-                pos[p] = offsets[p] + canonical.content_sample(points[index[offsets[p]:offsets[p + 1]]], num, draw)
+            if hashes is not None:
+                pos[p] = offsets[p] + canonical.content_positions(hashes[offsets[p]:offsets[p + 1]], num, draw)
             elif rng is None:
                 pos[p] = offsets[p] + canonical.inference_sample(int(size), num, draw)
             else:
@@ -305,9 +309,10 @@ class ViewProbabilities(NamedTuple):
 
 def default_sampling(config: ModelConfig) -> str:
     """How inference samples a network's N points: the draw-free coverage sample for an order-free ("set")
-    network, so the same points always get the same labels; a seeded draw for "slot" networks, which read a
-    coverage sample no better than a draw (docs/experiments/trials-issue-37-sampling.md, trial 26)."""
-    return "coverage" if config.grouping == "set" else "draw"
+    network, so the same points always get the same labels; for "slot" networks a draw picked by the points' content
+    (canonical.content_sample: the same points, the same labels, in any order), chosen over the count-seeded draw by
+    trial 32's rule (docs/experiments/trials-issue-37-sampling.md)."""
+    return "coverage" if config.grouping == "set" else "content"
 
 
 class Segmenter:
@@ -333,7 +338,7 @@ class Segmenter:
         self.draw = 0  # which seeded N-point sample inference uses (canonical.inference_rng); 0 is the default
         self.average_draws = 1  # draw sample sets of this many seeded draws each, their probabilities averaged
         self.average_below: float | None = None  # average only proposals less sure than this (None: all)
-        self.sampling = default_sampling(self.config)  # "draw" or "coverage" (canonical.SAMPLINGS)
+        self.sampling = default_sampling(self.config)  # one of canonical.SAMPLINGS
         self.model = flush_subnormals(fuse_batchnorm(model) if fuse else model).to(self.device).eval()
 
     def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult:
