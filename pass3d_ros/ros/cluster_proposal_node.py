@@ -75,7 +75,6 @@ class ClusterProposalNode(PointCloudNode):
         # proposals in the input's layout (pass3d_ros.ros.input_layout), for segmentation_node's as_input / background
         self._full = (check_layout(self.get_parameter("output_layout").value) == AS_INPUT
                       or bool(self.get_parameter("publish_background").value))
-        self._replaced_warned = False
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         started = time.perf_counter()
@@ -216,10 +215,9 @@ class ClusterProposalNode(PointCloudNode):
         if self.sink is None or self.proposals_pub.get_subscription_count() > 0:
             if self._full:
                 replaced = source.replaced(STAGE1_COLUMNS)
-                if replaced and not self._replaced_warned:
-                    self._replaced_warned = True
-                    self.get_logger().warning(f"the input's field(s) {', '.join(replaced)} are replaced by stage 1's "
-                                              "on /pass3d/proposals (output_layout as_input / publish_background)")
+                if replaced:
+                    self.warn_once("replaced", f"the input's field(s) {', '.join(replaced)} are replaced by stage 1's "
+                                   "on /pass3d/proposals (output_layout as_input / publish_background)")
                 full = full_proposals_cloud(source, points, result.cluster_id, result.cluster_id2, result.ground)
                 cloud = encode(full, header=msg.header, height=source.height, is_dense=source.is_dense)
             else:

@@ -68,8 +68,15 @@ class PointCloudNode(Node):
         self.stats = NodeStats(count_gaps=self.COUNTS_INPUT_GAPS)
         self.skip_reasons: Counter[str] = Counter()  # skipped frames by reason ("malformed", "empty")
         self.output_watch = OutputWatch()
+        self._warned: set[str] = set()  # the keys of the once-only warnings given (warn_once)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+
+    def warn_once(self, key: str, text: str) -> None:
+        """Log `text` as a warning the first time `key` comes up (a setting that stays wrong, said once)."""
+        if key not in self._warned:
+            self._warned.add(key)
+            self.get_logger().warning(text)
 
     def output_publisher(self, msg_type: type, topic_parameter: str) -> Publisher:
         """A publisher on the topic the parameter `topic_parameter` names, with the `output_qos` profile."""

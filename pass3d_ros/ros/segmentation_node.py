@@ -157,7 +157,6 @@ class SegmentationNode(PointCloudNode):
         self.objects_pub = self.output_publisher(MarkerArray, "objects_topic")
         self.background_pub = self.output_publisher(PointCloud2, "background_topic") \
             if self.get_parameter("publish_background").value else None
-        self._warned: set[str] = set()  # the once-only warnings given (no source, replaced fields)
         self.detections = DetectionOutputs.open(self, self.get_parameter("detections_topic").value,
                                                 self.get_parameter("label_info_topic").value,
                                                 qos_profile(self.get_parameter("output_qos").value))
@@ -379,12 +378,12 @@ class SegmentationNode(PointCloudNode):
         columns = labeled_cloud(frame, result, self.get_parameter("min_confidence").value)
         source = frame.source
         if self.output_layout == AS_INPUT and source is None:
-            self._warn_once("as_input", "output_layout as_input, but the proposals carry only the points stage 1 read: "
+            self.warn_once("as_input", "output_layout as_input, but the proposals carry only the points stage 1 read: "
                             "publishing compact; set output_layout as_input on cluster_proposal_node too")
         if self.output_layout == AS_INPUT and source is not None:
             replaced = source.replaced(LABEL_COLUMNS)
             if replaced:
-                self._warn_once("replaced", f"output_layout as_input: the input's field(s) {', '.join(replaced)} are "
+                self.warn_once("replaced", f"output_layout as_input: the input's field(s) {', '.join(replaced)} are "
                                 "replaced by this node's")
             cloud = encode(labeled_as_input(source, columns), header=frame.header, height=source.height,
                            is_dense=source.is_dense)
@@ -405,19 +404,13 @@ class SegmentationNode(PointCloudNode):
             throttle_duration_sec=LOG_PERIOD_S,
         )
 
-    def _warn_once(self, key: str, text: str) -> None:
-        """Log `text` as a warning the first time `key` comes up."""
-        if key not in self._warned:
-            self._warned.add(key)
-            self.get_logger().warning(text)
-
     def _publish_background(self, frame: ProposalFrame, columns: dict, clock: StepClock) -> None:
         """The input without its object points, while something subscribes; from the compact columns (warned once)
         when the frame has no source."""
         if self.background_pub is None or self.background_pub.get_subscription_count() == 0:
             return
         if frame.source is None:
-            self._warn_once("background", "publish_background: the proposals carry only the points stage 1 read, so "
+            self.warn_once("background", "publish_background: the proposals carry only the points stage 1 read, so "
                             "the background cloud has only x, y, z, intensity, ring; the input's other fields need "
                             "output_layout as_input or publish_background true on cluster_proposal_node")
             cloud = encode(compact_background(columns), header=frame.header, is_dense=True)
