@@ -52,8 +52,7 @@ def test_segment_draw_zero_keeps_todays_labels(frame: Frame, monkeypatch: pytest
     members = members_of(frame)
     assert max(len(m) for m in members) > 256
     segmenter = Segmenter(DEFAULT_WEIGHTS)
-    assert segmenter.draw == 0 and segmenter.sampling == "content"  # the shipped weights' default (trial 32)
-    segmenter.sampling = "draw"
+    assert segmenter.draw == 0 and segmenter.sampling == "draw"  # the shipped weights' default
     default = segmenter.segment(frame.points, members)
 
     def todays(count: int, num_points: int, draw: int = 0) -> np.ndarray:
@@ -218,7 +217,8 @@ def test_content_sample_is_a_function_of_the_point_set() -> None:
 def test_content_sampling_gives_the_same_labels_in_any_order(frame: Frame) -> None:
     from pass3d_ros.core.stage1 import proposal_members as members_from_ids
 
-    segmenter = Segmenter(DEFAULT_WEIGHTS)  # its default sampling: content
+    segmenter = Segmenter(DEFAULT_WEIGHTS)
+    segmenter.sampling = "content"
     perm = np.random.default_rng(0).permutation(len(frame.points))
     labels = []
     for order in (np.arange(len(frame.points)), perm):

@@ -36,8 +36,8 @@ pass3d_ros/weights/pass3d_lite.pt; or --classifier size_rules, the geometric bas
 torch's CPU threads (default 1: on the 2-core development machine, shared with other work, one thread ran
 the lite network faster than two).
 
---sample-draws N (full mode, network classifier): stage 2 samples 256 points of each proposal, picked by a hash of
-the points' content (or, with --sampling draw, by a generator seeded by its point count); N > 1 reruns the
+--sample-draws N (full mode, network classifier): stage 2 samples 256 points of each proposal from a generator
+seeded by its point count (or, with --sampling content, by a hash of the points' content); N > 1 reruns the
 evaluation with draws 0..N-1 of that sample and adds, per class and
 for the mean IoU, the IoU of each draw, their mean and the draw-to-draw range (draw 0's report is the default one).
 --average-draws K: stage 2 reads each proposal from K seeded draws and averages their class probabilities (an
@@ -123,7 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--sampling", choices=SAMPLINGS,
                         help="full mode, network classifier in process: how stage 2 picks each proposal's points: "
                              "the count-seeded draw, the draw-free coverage sample, or a draw picked by the points' "
-                             "content (default: the weights' own, as the nodes use it: content, coverage for "
+                             "content (default: the weights' own, as the nodes use it: draw, coverage for "
                              "order-free weights, where --sample-draws uses draw)")
     parser.add_argument("--paired-with", type=Path, metavar="JSON",
                         help="full mode: another full run's --json on the same frames; print each class's IoU "

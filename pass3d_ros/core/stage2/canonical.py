@@ -7,10 +7,10 @@ and the canonical transform are numba kernels (a frame's ~30 proposals in about 
 Views: a view puts the origin at one bottom vertex of the box with the axes along the box edges, the box in
 the first octant. Views 0..3 are the four right-handed frames (origin at vertex 0..3: the 4 rotations),
 views 4..7 are their mirror images (x and y swapped, left-handed). Training draws any of the 8; inference
-uses the right-handed view at the vertex nearest the sensor and, for the shipped ("slot") weights, the N-point
-sample `content_sample` picks by a hash of each point's values (and a draw index, 0 by default), so a proposal's
-input depends on its points alone, in any order (trial 32; before, a generator seeded from the point count picked
-positions in the members' input order: `inference_sample`, `--sampling draw`).
+uses the right-handed view at the vertex nearest the sensor and, for the shipped ("slot") weights, a generator
+seeded from the proposal's point count (and a draw index, 0 by default) that picks positions in the members' list
+(`inference_sample`), so a proposal's input depends on its points and their order. `content_sample` (`--sampling
+content`, trial 32) picks by a hash of each point's values instead: the same points in any order.
 """
 
 from __future__ import annotations
