@@ -9,11 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.classes import CLASS_NAMES
+from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
 from pass3d_ros.core.stage2 import canonical, open_classifier
 from pass3d_ros.core.stage2.segmentation import Segmenter, predict_probabilities, prepare_proposals
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.evaluation.agreement import evaluate_agreement
 from pass3d_ros.evaluation.offline import evaluate_draws, iter_frames, spread
 from pass3d_ros.tools import evaluate
 from pass3d_ros.weights import DEFAULT_WEIGHTS
@@ -98,10 +100,57 @@ def test_sample_draws_json_and_report(tmp_path: Path, capsys: pytest.CaptureFixt
     assert [row["iou"][0] for row in draws["classes"].values()] == [row["iou"] for row in data["classes"].values()]
     printed = capsys.readouterr().out
     assert "draw-to-draw range" in printed and "IoU % over 3 draws" in printed
+    for row in data["per_frame"]:  # each frame's confusion over the 3 draws: 3 times its points
+        assert np.array(row["confusion_draws"]).sum() == 3 * np.array(row["confusion"]).sum()
 
 
-@pytest.mark.parametrize("extra", [["--stage1-only"], ["--live"], ["--view-agreement"],
-                                   ["--classifier", "size_rules"]])
+def test_paired_runs_of_several_draws_pool_each_frame_over_its_draws(tmp_path: Path,
+                                                                     capsys: pytest.CaptureFixture) -> None:
+    """Two runs of 3 draws each, the second with the content draw: the paired difference is of the draws' pooled
+    IoU (the per-frame confusion summed over the draws), not of draw 0's; against one draw, draw 0's."""
+    first, second, single = tmp_path / "seeded.json", tmp_path / "content.json", tmp_path / "one.json"
+    data = ["--data", SPEC, "--no-progress"]
+    assert evaluate.main([*data, "--sample-draws", "3", "--json", str(first)]) == 0
+    assert evaluate.main([*data, "--sample-draws", "3", "--sampling", "content", "--json", str(second),
+                          "--paired-with", str(first)]) == 0
+    assert "each frame pooled over 3 and 3 draws" in capsys.readouterr().out
+    ours, theirs = (json.loads(p.read_text()) for p in (second, first))
+    assert ours["paired"]["pooled_draws"] == [3, 3]
+
+    def pooled_iou(summary: dict, name: str) -> float:
+        total = np.sum([row["confusion_draws"] for row in summary["per_frame"]], axis=0)
+        c = CLASS_NAMES.index(name)
+        return total[c, c] / (total[c].sum() + total[:, c].sum() - total[c, c])
+
+    car = ours["paired"]["classes"]["car"]["difference"]
+    assert car == pytest.approx(pooled_iou(ours, "car") - pooled_iou(theirs, "car"))
+    assert evaluate.main([*data, "--json", str(single), "--paired-with", str(first)]) == 0
+    one = json.loads(single.read_text())["paired"]
+    assert one["pooled_draws"] is None
+    assert one["classes"]["car"]["difference"] == pytest.approx(0.0)  # draw 0 against draw 0: the same labels
+
+
+def test_view_agreement_over_draws(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """--view-agreement --sample-draws 2: draw 0's table, then each class's agreement per draw with its mean and
+    range; draw 1's agreement is that of a run whose classifier reads draw 1."""
+    out = tmp_path / "agreement.json"
+    assert evaluate.main(["--view-agreement", "--data", SPEC, "--sample-draws", "2", "--json", str(out),
+                          "--no-progress"]) == 0
+    summary = json.loads(out.read_text())
+    draws = summary["draws"]
+    assert draws["count"] == 2 and draws["measure"] == "agreement"
+    assert "view agreement % over 2 draws" in capsys.readouterr().out
+    for name, row in draws["classes"].items():
+        assert row["agreement"][0] == summary["agreement"][name]["agreement"]
+        assert row["proposals"][0] == summary["agreement"][name]["proposals"] and len(row["proposals"]) == 2
+    segmenter = open_classifier(None, "network")
+    segmenter.draw = 1
+    again = evaluate_agreement(iter_frames([SPEC], None, False), Stage1Config(), segmenter)
+    assert [again["agreement"][name]["agreement"] for name in draws["classes"]] == \
+        [row["agreement"][1] for row in draws["classes"].values()]
+
+
+@pytest.mark.parametrize("extra", [["--stage1-only"], ["--live"], ["--classifier", "size_rules"]])
 def test_sample_draws_refused_combinations_exit_2(extra: list[str], capsys: pytest.CaptureFixture) -> None:
     assert evaluate.main(["--data", SPEC, "--sample-draws", "2", *extra, "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
@@ -139,7 +188,7 @@ def test_evaluate_sampling_coverage_runs_and_is_refused_where_it_cannot_apply(tm
     assert json.loads(out.read_text())["classifier"]["sampling"] == "coverage"
     assert evaluate.main(["--data", "synthetic:frames=1,seed=3", "--sampling", "coverage", "--stage1-only",
                           "--no-progress"]) == 2
-    assert "--sampling applies to the full evaluation" in capsys.readouterr().err
+    assert "--sampling applies to the full and view-agreement evaluations" in capsys.readouterr().err
     assert evaluate.main(["--data", "synthetic:frames=1,seed=3", "--sampling", "coverage", "--sample-draws", "2",
                           "--no-progress"]) == 2
     assert "the coverage sample has no draw" in capsys.readouterr().err

@@ -8,7 +8,7 @@ real scans. A proposal counts under the class most of its views give it.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
@@ -18,7 +18,7 @@ from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
 from pass3d_ros.core.stage2.segmentation import Segmenter, nearest_first
 from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.evaluation.offline import INTENSITY_MATCH, prepared
+from pass3d_ros.evaluation.offline import INTENSITY_MATCH, prepared, spread
 
 AGREEMENT_CLASSES = (CAR, PEDESTRIAN, CYCLIST)
 
@@ -77,3 +77,23 @@ def evaluate_agreement(frames: Iterator[tuple[str, Frame]], config: Stage1Config
                           **{CLASS_NAMES[c]: row[i].tolist() for i, c in enumerate(AGREEMENT_CLASSES)}})
     return {"frames": len(per_frame), "agreement": agreement.summary(), "intensity": stream.maps,
             "per_frame": per_frame}
+
+
+def evaluate_agreement_draws(frames: Callable[[], Iterator[tuple[str, Frame]]], config: Stage1Config,
+                             classifier: Segmenter, draws: int, intensity_match: bool = INTENSITY_MATCH) -> dict:
+    """`evaluate_agreement` once per N-point sample draw 0..draws-1 (`frames()` yields the frames afresh each time):
+    draw 0's summary plus "draws": {"count", "measure": "agreement", "classes": {class: spread of the unanimous
+    share, with "proposals" per draw}}; one draw's agreement moves with the draw as its IoU does."""
+    summaries = []
+    try:
+        for draw in range(draws):
+            classifier.draw = draw
+            summaries.append(evaluate_agreement(frames(), config, classifier, intensity_match))
+    finally:
+        classifier.draw = 0
+    first = summaries[0]
+    first["draws"] = {"count": draws, "measure": "agreement", "classes": {
+        name: {**spread([s["agreement"][name]["agreement"] for s in summaries], key="agreement"),
+               "proposals": [s["agreement"][name]["proposals"] for s in summaries]}
+        for name in first["agreement"]}}
+    return first

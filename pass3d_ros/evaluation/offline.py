@@ -188,19 +188,20 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     return summary
 
 
-def spread(values: list[float | None]) -> dict:
-    """{"iou": the values as given, "mean", "min", "max"} over those that are not None (all None: null)."""
+def spread(values: list[float | None], key: str = "iou") -> dict:
+    """{key: the values as given, "mean", "min", "max"} over those that are not None (all None: null)."""
     known = [v for v in values if v is not None]
     if not known:
-        return {"iou": list(values), "mean": None, "min": None, "max": None}
-    return {"iou": list(values), "mean": float(np.mean(known)), "min": float(min(known)), "max": float(max(known))}
+        return {key: list(values), "mean": None, "min": None, "max": None}
+    return {key: list(values), "mean": float(np.mean(known)), "min": float(min(known)), "max": float(max(known))}
 
 
 def evaluate_draws(frames: Callable[[], Iterator[tuple[str, Frame]]], config: Stage1Config, classifier: Classifier,
                    draws: int, intensity_match: bool = INTENSITY_MATCH) -> dict:
     """`evaluate_full` once per N-point sample draw 0..draws-1 (canonical.inference_rng; `frames()` yields the
     frames afresh each time): draw 0's summary, plus "draws": {"count", "classes": {class: spread}, "mean_iou":
-    spread} with each draw's IoU. Needs the in-process network classifier (UserError otherwise)."""
+    spread} with each draw's IoU, and per frame "confusion_draws", its confusion summed over the draws (what a
+    paired comparison pools). Needs the in-process network classifier (UserError otherwise)."""
     if draws < 1:
         raise UserError(f"--sample-draws must be >= 1, got {draws}")
     if not isinstance(classifier, Segmenter):
@@ -213,6 +214,8 @@ def evaluate_draws(frames: Callable[[], Iterator[tuple[str, Frame]]], config: St
     finally:
         classifier.draw = 0
     first = summaries[0]
+    for rows in zip(*(s["per_frame"] for s in summaries), strict=True):
+        rows[0]["confusion_draws"] = np.sum([row["confusion"] for row in rows], axis=0).tolist()
     first["draws"] = {
         "count": draws,
         "classes": {name: spread([s["classes"][name]["iou"] for s in summaries]) for name in first["classes"]},

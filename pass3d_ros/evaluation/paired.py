@@ -30,23 +30,30 @@ def read_baseline(path: Path) -> dict:
 
 
 def paired(summary: dict, baseline: dict, source: str) -> dict:
-    """This run minus `baseline`, per foreground class: {"with": source, "classes": {name: {"difference", interval}}};
-    UserError when the two runs did not score the same frames in the same order."""
+    """This run minus `baseline`, per foreground class: {"with": source, "pooled_draws": [ours, theirs] or null,
+    "classes": {name: {"difference", interval}}}. When both runs drew several samples (`--sample-draws`), each
+    frame's confusion is pooled over its run's draws, so the difference is of the draws' pooled IoU, not of one
+    draw each. UserError when the two runs did not score the same frames in the same order."""
     ours, theirs = [row["frame"] for row in summary["per_frame"]], [row["frame"] for row in baseline["per_frame"]]
     if ours != theirs:
         raise UserError(f"--paired-with {source}: it scored other frames ({len(theirs)}, this run {len(ours)}; "
                         "the same --data and --limit make a pair)")
-    first = np.array([row["confusion"] for row in baseline["per_frame"]])
-    second = np.array([row["confusion"] for row in summary["per_frame"]])
+    pooled = all("confusion_draws" in row for row in summary["per_frame"] + baseline["per_frame"])
+    key = "confusion_draws" if pooled else "confusion"
+    first = np.array([row[key] for row in baseline["per_frame"]])
+    second = np.array([row[key] for row in summary["per_frame"]])
     differences = paired_iou_difference(first, second, FOREGROUND)
-    return {"with": source, "classes": {CLASS_NAMES[c]: differences[c] for c in FOREGROUND}}
+    draws = [summary["draws"]["count"], baseline["draws"]["count"]] if pooled else None
+    return {"with": source, "pooled_draws": draws, "classes": {CLASS_NAMES[c]: differences[c] for c in FOREGROUND}}
 
 
 def format_paired(result: dict | None) -> list[str]:
     """Lines: each class's IoU difference in points and its paired interval; none without a pair."""
     if not result:
         return []
-    lines = [f"IoU difference, this run minus {result['with']} (paired frame bootstrap):"]
+    draws = result.get("pooled_draws")
+    pooled = f", each frame pooled over {draws[0]} and {draws[1]} draws" if draws else ""
+    lines = [f"IoU difference, this run minus {result['with']} (paired frame bootstrap{pooled}):"]
     for name, row in result["classes"].items():
         diff = row["difference"]
         text = "n/a" if diff is None else f"{100.0 * diff:+.1f}"

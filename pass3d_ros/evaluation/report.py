@@ -171,24 +171,26 @@ def mounting_lines(mountings: dict | None) -> list[str]:
             for spec, m in (mountings or {}).items()]
 
 
-def _draw_row(name: str, row: dict) -> str:
-    """One line of the draws table: each draw's IoU, their mean and min..max, in %."""
-    each = " ".join(f"{percent_text(v):>6}" for v in row["iou"])
+def _draw_row(name: str, row: dict, key: str = "iou") -> str:
+    """One line of the draws table: each draw's value (`key`), their mean and min..max, in %."""
+    each = " ".join(f"{percent_text(v):>6}" for v in row[key])
     span = "n/a" if row["min"] is None else f"{percent_text(row['min']).strip()}..{percent_text(row['max']).strip()}"
     return f"{name:<12}{each}  {percent_text(row['mean']):>6}  {span}"
 
 
 def format_draws(draws: dict | None) -> list[str]:
-    """Table lines of the "draws" section: per class (and the mean IoU) the IoU % of each N-point sample draw,
-    their mean and the draw-to-draw range; none without draws."""
+    """Table lines of the "draws" section: per class (and the mean IoU) the IoU % (or, in a view-agreement run,
+    the agreement %) of each N-point sample draw, their mean and the draw-to-draw range; none without draws."""
     if not draws:
         return []
-    count = draws["count"]
-    lines = ["", f"IoU % over {count} draws of the N-point sample (the table above is draw 0):",
+    count, key = draws["count"], draws.get("measure", "iou")
+    measure = "view agreement" if key == "agreement" else "IoU"
+    lines = ["", f"{measure} % over {count} draws of the N-point sample (the table above is draw 0):",
              f"{'class':<12}" + " ".join(f"{'d' + str(d):>6}" for d in range(count))
              + f"  {'mean':>6}  draw-to-draw range"]
-    lines += [_draw_row(name, row) for name, row in draws["classes"].items()]
-    lines.append(_draw_row("mean IoU", draws["mean_iou"]))
+    lines += [_draw_row(name, row, key) for name, row in draws["classes"].items()]
+    if "mean_iou" in draws:
+        lines.append(_draw_row("mean IoU", draws["mean_iou"], key))
     return lines
 
 

@@ -36,10 +36,11 @@ pass3d_ros/weights/pass3d_lite.pt; or --classifier size_rules, the geometric bas
 torch's CPU threads (default 1: on the 2-core development machine, shared with other work, one thread ran
 the lite network faster than two).
 
---sample-draws N (full mode, network classifier): stage 2 samples 256 points of each proposal from a generator
-seeded by its point count (or, with --sampling content, by a hash of the points' content); N > 1 reruns the
-evaluation with draws 0..N-1 of that sample and adds, per class and
-for the mean IoU, the IoU of each draw, their mean and the draw-to-draw range (draw 0's report is the default one).
+--sample-draws N (full and view-agreement modes, network classifier): stage 2 samples 256 points of each proposal
+from a generator seeded by its point count (or, with --sampling content, by a hash of the points' content); N > 1
+reruns the evaluation with draws 0..N-1 of that sample and adds, per class (and for the mean IoU), the IoU or view
+agreement of each draw, their mean and the draw-to-draw range (draw 0's report is the default one). With
+--paired-with, two runs that both drew N > 1 samples are compared on each frame's confusion pooled over its draws.
 --average-draws K: stage 2 reads each proposal from K seeded draws and averages their class probabilities (an
 experiment, docs/experiments/trials-issue-37-sampling.md, trial 29); with --sample-draws N, N disjoint sets of K.
 --average-below P: only proposals whose points' mean winning probability in the first draw is below P (trial 30).
@@ -73,7 +74,7 @@ from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
-from pass3d_ros.evaluation.agreement import evaluate_agreement
+from pass3d_ros.evaluation.agreement import evaluate_agreement, evaluate_agreement_draws
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
 from pass3d_ros.evaluation.offline import evaluate_draws, evaluate_full, evaluate_stage1, iter_frames, parse_params
@@ -111,9 +112,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="map each --data's intensities onto the network's training scale, as the segmentation "
                         "node does (default on; the map is fitted on a spec's first frames, then held)")
     parser.add_argument("--sample-draws", type=number(int, 1), default=1, metavar="N",
-                        help="full mode, network classifier in process: run the evaluation once per draw 0..N-1 of "
-                             "the seeded N-point sample of each proposal and report each class's IoU per draw, their "
-                             "mean and draw-to-draw range (JSON: \"draws\"); draw 0 is the default sample (default 1)")
+                        help="full and view-agreement modes, network classifier in process: run the evaluation "
+                             "once per draw 0..N-1 of the seeded N-point sample of each proposal and report each "
+                             "class's IoU (or view agreement) per draw, their mean and draw-to-draw range (JSON: "
+                             "\"draws\"); draw 0 is the default sample (default 1)")
     parser.add_argument("--average-draws", type=number(int, 1, 64), default=1, metavar="K",
                         help="stage 2 reads each proposal from K seeded draws and averages their probabilities "
                              "(an experiment, trial 29; with --sample-draws: disjoint sets of K)")
@@ -121,7 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="with --average-draws: read again only proposals whose points' mean winning probability "
                              "in the first draw is below P (trial 30)")
     parser.add_argument("--sampling", choices=SAMPLINGS,
-                        help="full mode, network classifier in process: how stage 2 picks each proposal's points: "
+                        help="full and view-agreement modes, network classifier in process: how stage 2 picks "
+                             "each proposal's points: "
                              "the count-seeded draw, the draw-free coverage sample, or a draw picked by the points' "
                              "content (default: the weights' own, as the nodes use it: draw, coverage for "
                              "order-free weights, where --sample-draws uses draw)")
@@ -167,11 +170,11 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UserError("--classifier and --weights do not apply with --stage1-only")
     if mode != "full" and args.paired_with:
         raise UserError("--paired-with applies to the full evaluation only")
-    if mode != "full" and args.sample_draws != 1:
-        option = {"stage1": "--stage1-only", "view_agreement": "--view-agreement", "live": "--live"}[mode]
-        raise UserError(f"--sample-draws applies to the full evaluation only, not with {option}")
-    if args.sampling is not None and (mode != "full" or args.classifier == "size_rules"):
-        raise UserError("--sampling applies to the full evaluation with the network classifier")
+    if mode not in ("full", "view_agreement") and args.sample_draws != 1:
+        option = {"stage1": "--stage1-only", "live": "--live"}[mode]
+        raise UserError(f"--sample-draws applies to the full and view-agreement evaluations, not with {option}")
+    if args.sampling is not None and (mode not in ("full", "view_agreement") or args.classifier == "size_rules"):
+        raise UserError("--sampling applies to the full and view-agreement evaluations with the network classifier")
     if args.sampling == "coverage" and args.sample_draws != 1:
         raise UserError("--sample-draws draws the seeded sample again and again: the coverage sample has no draw")
     if args.average_draws != 1 and (mode != "full" or args.classifier == "size_rules" or args.sampling == "coverage"):
@@ -205,13 +208,14 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
                                  max_proposals=args.max_proposals)  # --live: checked before the run
     kind, weights = classifier.kind, classifier.weights
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
-    if mode == "full":
+    if mode in ("full", "view_agreement"):
         coverage = isinstance(classifier, Segmenter) and classifier.sampling == "coverage"
         sampling = args.sampling or ("draw" if args.sample_draws > 1 and coverage else None)  # coverage: no draws
         if sampling is not None:
             if not isinstance(classifier, Segmenter):
                 raise UserError("--sampling needs the network classifier in this process")
             classifier.sampling = sampling
+    if mode == "full":
         if isinstance(classifier, Segmenter):
             classifier.average_draws = args.average_draws
             classifier.average_below = args.average_below
@@ -225,6 +229,13 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
         frames = iter_frames(datasets, args.limit, not args.no_progress)
         return {**evaluate_full(frames, config, classifier, args.intensity_match), **settings}, 0
     if mode == "view_agreement":
+        if not isinstance(classifier, Segmenter):
+            raise UserError("--view-agreement needs the network classifier in this process")
+        settings["classifier"]["sampling"] = classifier.sampling
+        if args.sample_draws > 1:
+            again = functools.partial(iter_frames, datasets, args.limit, not args.no_progress)
+            return {**evaluate_agreement_draws(again, config, classifier, args.sample_draws, args.intensity_match),
+                    **settings}, 0
         frames = iter_frames(datasets, args.limit, not args.no_progress)
         return {**evaluate_agreement(frames, config, classifier, args.intensity_match), **settings}, 0
     options = LiveOptions(lockstep=args.lockstep, rate=args.rate, record_out=args.record_out, timeout_s=args.timeout,
