@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         total.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
         t0 = time.perf_counter()
-        batch = prepare_proposals(points, kept, config)
+        batch = prepare_proposals(points, kept, config, sampling=segmenter.sampling)
         t1 = time.perf_counter()
         predict_probabilities(segmenter.model, batch, segmenter.device)
         prep.append(t1 - t0)

@@ -36,8 +36,9 @@ pass3d_ros/weights/pass3d_lite.pt; or --classifier size_rules, the geometric bas
 torch's CPU threads (default 1: on the 2-core development machine, shared with other work, one thread ran
 the lite network faster than two).
 
---sample-draws N (full and view-agreement modes, network classifier): stage 2 samples 256 points of each proposal
-from a generator seeded by its point count (or, with --sampling content, by a hash of the points' content); N > 1
+--sample-draws N (full and view-agreement modes, network classifier): stage 2 picks 256 points of each proposal of
+more points by a hash of their content and the draw (or, with --sampling draw, from a generator seeded by the
+proposal's point count and the draw; a smaller proposal is read whole, its repeats drawn); N > 1
 reruns the evaluation with draws 0..N-1 of that sample and adds, per class (and for the mean IoU), the IoU or view
 agreement of each draw, their mean and the draw-to-draw range (draw 0's report is the default one). With
 --paired-with, two runs that both drew N > 1 samples are compared on each frame's confusion pooled over its draws.
@@ -126,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="full and view-agreement modes, network classifier in process: how stage 2 picks "
                              "each proposal's points: "
                              "the count-seeded draw, the draw-free coverage sample, or a draw picked by the points' "
-                             "content (default: the weights' own, as the nodes use it: draw, coverage for "
+                             "content (default: the weights' own, as the nodes use it: content, coverage for "
                              "order-free weights, where --sample-draws uses draw)")
     parser.add_argument("--paired-with", type=Path, metavar="JSON",
                         help="full mode: another full run's --json on the same frames; print each class's IoU "

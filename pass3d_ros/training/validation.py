@@ -12,7 +12,12 @@ from tqdm import tqdm
 
 from pass3d_ros.core.metrics import ConfusionAccumulator
 from pass3d_ros.core.stage2.pointnet2 import PointNet2Seg
-from pass3d_ros.core.stage2.segmentation import predict_probabilities, prepare_proposals, scatter_predictions
+from pass3d_ros.core.stage2.segmentation import (
+    default_sampling,
+    predict_probabilities,
+    prepare_proposals,
+    scatter_predictions,
+)
 from pass3d_ros.training.samples import SampleSet
 
 
@@ -32,7 +37,8 @@ def validate(model: PointNet2Seg, samples: SampleSet, device: str, progress: boo
         size = int(samples.frame_sizes[f])
         labels = np.zeros(size, dtype=np.uint8)
         if len(ids):
-            batch = prepare_proposals(samples.points, samples.members(ids), model.config)
+            batch = prepare_proposals(samples.points, samples.members(ids), model.config,
+                                      sampling=default_sampling(model.config))  # as inference samples
             probs = predict_probabilities(model, batch, device)
             pred = probs.argmax(1)
             labels, _ = scatter_predictions(

@@ -7,10 +7,11 @@ and the canonical transform are numba kernels (a frame's ~30 proposals in about 
 Views: a view puts the origin at one bottom vertex of the box with the axes along the box edges, the box in
 the first octant. Views 0..3 are the four right-handed frames (origin at vertex 0..3: the 4 rotations),
 views 4..7 are their mirror images (x and y swapped, left-handed). Training draws any of the 8; inference
-uses the right-handed view at the vertex nearest the sensor and, for the shipped ("slot") weights, a generator
-seeded from the proposal's point count (and a draw index, 0 by default) that picks positions in the members' list
-(`inference_sample`), so a proposal's input depends on its points and their order. `content_sample` (`--sampling
-content`, trial 32) picks by a hash of each point's values instead: the same points in any order.
+uses the right-handed view at the vertex nearest the sensor and, for the shipped ("slot") weights,
+`content_sample`: a proposal of more than N points gives the N points of smallest hash of their values (and a draw
+index, 0 by default), the same points in any order; a smaller one is read whole in input order (trial 34). The
+count-seeded draw (`inference_sample`, `--sampling draw`, the default until trial 34) picks positions in the
+members' list from a generator seeded by the point count, so its input depends on the points' order too.
 """
 
 from __future__ import annotations
@@ -264,9 +265,9 @@ def sample_indices(count: int, num_points: int, rng: np.random.Generator) -> np.
 
 
 def inference_rng(count: int, draw: int = 0) -> np.random.Generator:
-    """The deterministic per-proposal generator of inference, seeded from the proposal's point count.
+    """The per-proposal generator of the count-seeded draw (`--sampling draw`), seeded from the point count.
 
-    Draw 0 is the default sample; draw d > 0 another fixed generator (seeded from (count, d)), for measuring
+    Draw 0 is that sampler's default; draw d > 0 another fixed generator (seeded from (count, d)), for measuring
     how much the choice of sampled points moves the result.
     """
     if draw < 0:
@@ -312,10 +313,12 @@ def _hash_kernel(bits: np.ndarray, mix: np.ndarray, salt: np.uint64) -> np.ndarr
 
 
 def content_sample(points: np.ndarray, num_points: int, draw: int = 0) -> np.ndarray:
-    """`num_points` positions into one proposal's `points` (count, 3 or 4) picked by their content, not their order:
-    with enough points the `num_points` of smallest `point_hashes`, listed in hash order (a uniform random subset in
-    random order, as `sample_indices`); with fewer, all of them in hash order and the repeats `sample_indices` would
-    add, from a generator seeded by the proposal's content (the xor of its hashes), count and draw."""
+    """`num_points` positions into one proposal's `points` (count, 3 or 4). With more points than that, picked by
+    their content, not their order: the `num_points` of smallest `point_hashes`, listed in hash order (a uniform
+    random subset in random order, as `sample_indices`). With as many or fewer, every point in input order, as
+    `sample_indices` lists them, and the repeats it would add drawn from a generator seeded by the proposal's content
+    (the xor of its hashes), count and draw: the network reads a small proposal in scan order, as it was trained,
+    and a new order per draw made its class a dice roll (trial 34, docs/experiments/trials-issue-37-sampling.md)."""
     return content_positions(point_hashes(points, draw), num_points, draw)
 
 
@@ -327,11 +330,11 @@ def content_positions(hashes: np.ndarray, num_points: int, draw: int = 0) -> np.
     if count > num_points:
         chosen = np.argpartition(hashes, num_points - 1)[:num_points]
         return chosen[np.argsort(hashes[chosen], kind="stable")]
-    order = np.argsort(hashes, kind="stable")
+    order = np.arange(count)
     if count == num_points:
         return order
     rng = np.random.default_rng([int(np.bitwise_xor.reduce(hashes)), count, draw])
-    return np.concatenate([order, order[rng.integers(0, count, num_points - count)]])
+    return np.concatenate([order, rng.integers(0, count, num_points - count)])
 
 
 SAMPLINGS: tuple[str, ...] = ("draw", "coverage", "content")  # how inference picks each proposal's N points

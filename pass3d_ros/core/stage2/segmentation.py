@@ -309,11 +309,11 @@ class ViewProbabilities(NamedTuple):
 
 def default_sampling(config: ModelConfig) -> str:
     """How inference samples a network's N points: the draw-free coverage sample for an order-free ("set")
-    network, so the same points always get the same labels; the count-seeded draw for "slot" networks. The content
-    draw (canonical.content_sample: the same labels in any order) passed trial 32's rule but lowered the label-free
-    car view agreement on Ouster and Pandar64 by 9-11 points, a check that rule left out, so it is not the default
-    (docs/experiments/trials-issue-37-sampling.md)."""
-    return "coverage" if config.grouping == "set" else "draw"
+    network, so the same points always get the same labels; for "slot" networks the content draw
+    (canonical.content_sample: a large proposal's points picked by their content, so its labels depend on neither
+    the input order nor an arbitrary count-seeded roll; a small one read in input order). It replaced the
+    count-seeded draw by trial 34's rule (docs/experiments/trials-issue-37-sampling.md)."""
+    return "coverage" if config.grouping == "set" else "content"
 
 
 class Segmenter:
