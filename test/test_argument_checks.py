@@ -199,16 +199,37 @@ def wait_for(condition: Callable[[], bool], seconds: float, what: str) -> None:
         time.sleep(0.02)
 
 
+def _sigint_as_a_shell_leaves_it() -> None:
+    """In the child before exec: SIGINT unblocked and at its default, as a terminal's Ctrl-C finds a command, whatever
+    the test process inherited or set (a worker thread's mask is inherited through fork and exec)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def sigint_state(pid: int) -> str:
+    """Whether process `pid` blocks or ignores SIGINT, from /proc (for a failure's message)."""
+    try:
+        fields = dict(line.split(":\t", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+                      if ":\t" in line)
+    except OSError:
+        return "process gone"
+    bit = 1 << (signal.SIGINT - 1)
+    return ", ".join(f"{name} {'yes' if int(fields.get(key, '0'), 16) & bit else 'no'}"
+                     for name, key in (("blocked", "SigBlk"), ("ignored", "SigIgn"), ("caught", "SigCgt")))
+
+
 @pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="needs /proc")
 def test_ctrl_c_while_train_imports_torch_is_one_line(tmp_path: Path) -> None:
     """SIGINT while pass3d_train still imports torch: status 130 and one line, no traceback, no output folder."""
     out = tmp_path / "run"
     for _attempt in range(5):  # a starved test process can see the short run end before it sees torch load
         proc = subprocess.Popen([*TRAIN, "--data", SPEC, "--out", str(out), "--quiet"], stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True, env=plain_env())
+                                stderr=subprocess.PIPE, text=True, env=plain_env(),
+                                preexec_fn=_sigint_as_a_shell_leaves_it)
         try:
             wait_for(lambda p=proc: importing_torch(p.pid) or p.poll() is not None, 60, "torch never loaded")
             interrupted = proc.poll() is None
+            state = sigint_state(proc.pid)
             if interrupted:
                 proc.send_signal(signal.SIGINT)
             _, err = proc.communicate(timeout=60)
@@ -218,7 +239,7 @@ def test_ctrl_c_while_train_imports_torch_is_one_line(tmp_path: Path) -> None:
             break
         shutil.rmtree(out, ignore_errors=True)
     assert interrupted, "the run always ended before the test saw torch load"
-    assert proc.returncode == 130, err
+    assert proc.returncode == 130, f"status {proc.returncode}, SIGINT in the child when sent: {state}; {err}"
     assert err.count("\n") == 1 and err.startswith("pass3d_train: interrupted") and "Traceback" not in err, err
     assert not out.exists()
 
