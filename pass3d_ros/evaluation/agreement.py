@@ -18,7 +18,7 @@ from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
 from pass3d_ros.core.stage2.segmentation import Segmenter, nearest_first
 from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.evaluation.offline import INTENSITY_MATCH, prepared, spread
+from pass3d_ros.evaluation.offline import INTENSITY_MATCH, each_draw, prepared, spread
 
 AGREEMENT_CLASSES = (CAR, PEDESTRIAN, CYCLIST)
 
@@ -84,13 +84,7 @@ def evaluate_agreement_draws(frames: Callable[[], Iterator[tuple[str, Frame]]], 
     """`evaluate_agreement` once per N-point sample draw 0..draws-1 (`frames()` yields the frames afresh each time):
     draw 0's summary plus "draws": {"count", "measure": "agreement", "classes": {class: spread of the unanimous
     share, with "proposals" per draw}}; one draw's agreement moves with the draw as its IoU does."""
-    summaries = []
-    try:
-        for draw in range(draws):
-            classifier.draw = draw
-            summaries.append(evaluate_agreement(frames(), config, classifier, intensity_match))
-    finally:
-        classifier.draw = 0
+    summaries = each_draw(classifier, draws, lambda: evaluate_agreement(frames(), config, classifier, intensity_match))
     first = summaries[0]
     first["draws"] = {"count": draws, "measure": "agreement", "classes": {
         name: {**spread([s["agreement"][name]["agreement"] for s in summaries], key="agreement"),

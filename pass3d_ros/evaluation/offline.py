@@ -196,23 +196,30 @@ def spread(values: list[float | None], key: str = "iou") -> dict:
     return {key: list(values), "mean": float(np.mean(known)), "min": float(min(known)), "max": float(max(known))}
 
 
+def each_draw(classifier: Segmenter, draws: int, run: Callable[[], dict]) -> list[dict]:
+    """`run()`'s summary with the classifier reading its N-point sample draw 0, 1, ... draws-1 in turn; the
+    classifier is left on draw 0."""
+    summaries = []
+    try:
+        for draw in range(draws):
+            classifier.draw = draw
+            summaries.append(run())
+    finally:
+        classifier.draw = 0
+    return summaries
+
+
 def evaluate_draws(frames: Callable[[], Iterator[tuple[str, Frame]]], config: Stage1Config, classifier: Classifier,
                    draws: int, intensity_match: bool = INTENSITY_MATCH) -> dict:
-    """`evaluate_full` once per N-point sample draw 0..draws-1 (canonical.inference_rng; `frames()` yields the
-    frames afresh each time): draw 0's summary, plus "draws": {"count", "classes": {class: spread}, "mean_iou":
+    """`evaluate_full` once per N-point sample draw 0..draws-1 (`each_draw`; `frames()` yields the frames afresh
+    each time): draw 0's summary, plus "draws": {"count", "classes": {class: spread}, "mean_iou":
     spread} with each draw's IoU, and per frame "confusion_draws", its confusion summed over the draws (what a
     paired comparison pools). Needs the in-process network classifier (UserError otherwise)."""
     if draws < 1:
         raise UserError(f"--sample-draws must be >= 1, got {draws}")
     if not isinstance(classifier, Segmenter):
         raise UserError(f"--sample-draws needs the in-process network classifier, not {classifier.kind}")
-    summaries = []
-    try:
-        for draw in range(draws):
-            classifier.draw = draw
-            summaries.append(evaluate_full(frames(), config, classifier, intensity_match))
-    finally:
-        classifier.draw = 0
+    summaries = each_draw(classifier, draws, lambda: evaluate_full(frames(), config, classifier, intensity_match))
     first = summaries[0]
     for rows in zip(*(s["per_frame"] for s in summaries), strict=True):
         rows[0]["confusion_draws"] = np.sum([row["confusion"] for row in rows], axis=0).tolist()

@@ -114,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "node does (default on; the map is fitted on a spec's first frames, then held)")
     parser.add_argument("--sample-draws", type=number(int, 1), default=1, metavar="N",
                         help="full and view-agreement modes, network classifier in process: run the evaluation "
-                             "once per draw 0..N-1 of the seeded N-point sample of each proposal and report each "
+                             "once per draw 0..N-1 of each proposal's N-point sample and report each "
                              "class's IoU (or view agreement) per draw, their mean and draw-to-draw range (JSON: "
                              "\"draws\"); draw 0 is the default sample (default 1)")
     parser.add_argument("--average-draws", type=number(int, 1, 64), default=1, metavar="K",

@@ -330,11 +330,9 @@ def content_positions(hashes: np.ndarray, num_points: int, draw: int = 0) -> np.
     if count > num_points:
         chosen = np.argpartition(hashes, num_points - 1)[:num_points]
         return chosen[np.argsort(hashes[chosen], kind="stable")]
-    order = np.arange(count)
     if count == num_points:
-        return order
-    rng = np.random.default_rng([int(np.bitwise_xor.reduce(hashes)), count, draw])
-    return np.concatenate([order, rng.integers(0, count, num_points - count)])
+        return np.arange(count)
+    return sample_indices(count, num_points, np.random.default_rng([int(np.bitwise_xor.reduce(hashes)), count, draw]))
 
 
 SAMPLINGS: tuple[str, ...] = ("draw", "coverage", "content")  # how inference picks each proposal's N points
