@@ -65,6 +65,16 @@ def test_two_processes_write_one_plain_checkpoint(ddp_run: tuple[Path, str]) -> 
 
 
 @pytest.mark.slow
+def test_two_processes_stop_together_at_the_time_budget(tmp_path: Path) -> None:
+    """--minutes under two processes: the ranks agree on the step to stop at (no rank left waiting in a
+    collective), and the short epoch is validated and saved once."""
+    stdout = torchrun(tmp_path, "--epochs", "3", "--minutes", "1e-9", "--val-data", "synthetic:frames=1,seed=4").stdout
+    assert stdout.count("time budget of 1e-09 min reached in epoch 1 after 1 of 3 steps") == 1, stdout
+    history = json.loads((tmp_path / "history.json").read_text())
+    assert len(history) == 1 and history[0]["stopped"] == "time budget" and "val" in history[0]
+
+
+@pytest.mark.slow
 def test_resume_under_two_processes(ddp_run: tuple[Path, str], tmp_path: Path) -> None:
     out, _ = ddp_run
     for name in ("last.pt", "best.pt", "history.json"):

@@ -240,6 +240,39 @@ def test_trainer_brings_loss_down_and_validation_iou_up(tmp_path):
     assert result.best_score == max(ious)
 
 
+def test_time_budget_stops_at_the_step_that_crosses_it_and_keeps_that_epoch(tmp_path, capsys):
+    """--minutes: a budget spent before the first step ends the run after one step, that short epoch validated and
+    saved with a record that says so; a budget not reached changes nothing."""
+    rng = np.random.default_rng(4)
+    frames = {"constructed:train": [constructed_frame(rng, f"t{i}") for i in range(5)],
+              "constructed:val": [constructed_frame(rng, f"v{i}") for i in range(2)]}
+
+    def source(specs):
+        for spec in specs:
+            yield from frames[spec]
+
+    def run(minutes, out):
+        options = TrainOptions(data=["constructed:train"], val_data=["constructed:val"], out=out, config="lite",
+                               epochs=3, batch_size=4, background_keep=1.0, threads=1, quiet=True, minutes=minutes)
+        return Trainer(options, proposer=instance_proposer, frame_source=source, command=["test"]).run()
+
+    threads = torch.get_num_threads()
+    try:
+        spent = run(1e-9, tmp_path / "spent")
+        unspent = run(60.0, tmp_path / "unspent")
+    finally:
+        torch.set_num_threads(threads)
+    assert spent.stopped == "time budget" and len(spent.history) == 1
+    record = spent.history[0]
+    assert record["stopped"] == "time budget" and record["steps"] == 1 and record["planned"] == 4, record
+    assert "val" in record and spent.best_path.is_file() and spent.last_path.is_file()
+    saved = torch.load(spent.last_path, weights_only=True)
+    assert saved["epoch"] == 0 and saved["history"][0]["stopped"] == "time budget"
+    assert "time budget of 1e-09 min reached in epoch 1 after 1 of 4 steps" in capsys.readouterr().out
+    assert unspent.stopped is None and len(unspent.history) == 3
+    assert not any("stopped" in r for r in unspent.history)
+
+
 # -------------------------------------------------------------------------------------------- pass3d_train
 
 

@@ -93,6 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--background-keep", type=number(float, 0.0, 1.0), default=0.3,
                    help="share of background proposals kept")
     p.add_argument("--max-steps", type=number(int, 0), default=0, help="cap on batches per epoch (0: all)")
+    p.add_argument("--minutes", type=number(float, 0.0), default=0.0, metavar="M",
+                   help="wall-time budget from the start, samples included (0: none): the epoch it ends in is "
+                        "validated and saved, then the run stops")
     p.add_argument("--threads", type=number(int, 0), default=0, help="torch CPU threads (0: torch default)")
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                    help="override a Stage1Config parameter for the stage-1 run that builds the samples, repeatable "

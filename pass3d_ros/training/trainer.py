@@ -108,6 +108,7 @@ class TrainOptions:
     weight_decay: float = 1e-4
     background_keep: float = 0.3  # share of background proposals kept
     max_steps: int = 0  # cap on batches per epoch (0: all)
+    minutes: float = 0.0  # wall-time budget from the start of the run, samples included (0: none): see Trainer
     threads: int = 0  # torch CPU threads (0: torch default)
     rebuild_cache: bool = False  # rerun stage 1 even if a sample cache exists
     quiet: bool = False  # no progress bars
@@ -134,12 +135,17 @@ class TrainResult:
     best_score: float
     last_path: Path
     best_path: Path
+    stopped: str | None = None  # why the run ended before its last epoch ("time budget"); None when it did not
 
 
 class Trainer:
     """One training run of the stage-2 network. `proposer` and `frame_source` replace stage 1 and the dataset
     readers (tests, constructed data); `command` is the command line a checkpoint records (default sys.argv);
-    `stage1` the stage-1 parameters that build the samples (default: Stage1Config())."""
+    `stage1` the stage-1 parameters that build the samples (default: Stage1Config()).
+
+    With a time budget (`minutes`), the step that ends past it is the last: that epoch, however short, is validated
+    and saved like a full one, its record says so ("stopped", "steps" of "planned"), and the run ends; validation
+    and writing come after the budget (a few seconds to a minute on CPU). Data-parallel, the ranks stop together."""
 
     config: ModelConfig
     train_set: SampleSet
@@ -173,10 +179,13 @@ class Trainer:
         self.init_model: PointNet2Seg | None = None  # the network `init` names, loaded before any work
         self.saved_epoch: int | None = None  # the last epoch this run wrote into last.pt (1-based)
         self.dist = distributed.Dist(device=options.device)
+        self.deadline: float | None = None  # time.monotonic() at which the budget runs out (None: no budget)
 
     def run(self) -> TrainResult:
         """Train as the options say; raises TrainingError when there is nothing to train on or the
         checkpoint to resume from has another model configuration, CheckpointError when it is missing."""
+        if self.options.minutes:
+            self.deadline = time.monotonic() + 60.0 * self.options.minutes
         self.dist = distributed.setup(self.options.device)
         try:
             return self._run()
@@ -197,13 +206,19 @@ class Trainer:
         self._resume()
         self._distribute()
         self._describe_model()
+        stopped = None
         for epoch in range(self.start_epoch, self.options.epochs):
             record = self._train_epoch(epoch)
             score = self._validate(record)
             improved = self._keep_record(record, score)
             self._save_checkpoints(record, improved)
+            stopped = record.get("stopped")
+            if stopped is not None:
+                self._log(f"time budget of {self.options.minutes:g} min reached in epoch {epoch + 1} after "
+                          f"{record['steps']} of {record['planned']} steps: that epoch was validated and saved")
+                break
         self._log(f"checkpoints: {self.last_path}, {self.best_path} (best score {self.best_score:.4f})")
-        return TrainResult(self.history, self.best_score, self.last_path, self.best_path)
+        return TrainResult(self.history, self.best_score, self.last_path, self.best_path, stopped)
 
     def _log(self, line: str) -> None:
         """Print a log line (rank 0 only)."""
@@ -382,6 +397,7 @@ class Trainer:
         bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{o.epochs}", unit="batch",
                    disable=None if self.progress else True)
         started = time.perf_counter()
+        stopped = None
         for step in bar:
             batch = order[step * batch_size : (step + 1) * batch_size]
             if world > 1:  # this rank's share; a batch smaller than the world repeats proposals
@@ -392,6 +408,9 @@ class Trainer:
                                     f"{step + 1}; no checkpoint of this epoch written, try a smaller --lr "
                                     f"(this run: {o.lr:g})")
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}", refresh=False)
+            if self._out_of_time() and step + 1 < steps:
+                stopped = "time budget"
+                break
         if not all(torch.isfinite(value).all() for value in self.model.state_dict().values()
                    if value.is_floating_point()):
             raise DivergedError(f"training diverged: the weights are no longer finite after epoch {epoch + 1}, step "
@@ -400,9 +419,18 @@ class Trainer:
         self.scheduler.step()
         loss = distributed.mean(self.dist, float(np.mean(losses)))
         record = {"epoch": epoch, "train_loss": loss, "seconds": time.perf_counter() - started}
+        if stopped is not None or (self._out_of_time() and epoch + 1 < o.epochs):
+            record.update(stopped="time budget", steps=len(losses), planned=steps)
         if self._sure:
             record["consistency_sure"] = distributed.mean(self.dist, float(np.mean(self._sure)))
         return record
+
+    def _out_of_time(self) -> bool:
+        """Whether the time budget has run out, on any rank (a collective when data-parallel: every rank asks
+        after every step, so they stop at the same one)."""
+        if self.deadline is None:
+            return False
+        return distributed.mean(self.dist, float(time.monotonic() >= self.deadline)) > 0.0
 
     def _train_step(self, ids: np.ndarray, rng: np.random.Generator) -> float:
         """One optimizer step on the proposals `ids` (a random view each unless no_augment, intensity augmented
