@@ -1,0 +1,82 @@
+"""The label-free check of adaptation: what stage 2 says about held-out scans of the user's sensor, with no label.
+
+Per scan: stage 1 once, then stage 2 in all 8 canonical views for each of `draws` point samples. Reported: the view
+agreement per class (the share of proposals all 8 views give the class their majority gives; pass3d_ros.evaluation.
+agreement) as a mean and range over the draws, proposals per scan, and the share of proposals each class takes per
+range bin (by the views' majority, draw 0): a network at home on a sensor agrees with itself across views and draws,
+and an adaptation that starts calling every far blob a car shows in the shares before any label would.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from pass3d_ros.classes import CLASS_NAMES
+from pass3d_ros.core.metrics import OBJECT_RANGE_EDGES_M, range_bin_names
+from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
+from pass3d_ros.core.stage2.segmentation import Segmenter, nearest_first
+from pass3d_ros.core.stream import ScanStream
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.evaluation.agreement import ViewAgreement
+from pass3d_ros.evaluation.offline import INTENSITY_MATCH, prepared, spread
+
+
+def majority(views: np.ndarray) -> np.ndarray:
+    """The class most of each proposal's 8 views give (P,) (ties: the lower class), as ViewAgreement counts it."""
+    views = np.asarray(views, dtype=np.int64)
+    if len(views) == 0:
+        return np.zeros(0, dtype=np.int64)
+    return np.stack([(views == c).sum(axis=1) for c in range(len(CLASS_NAMES))], axis=1).argmax(axis=1)
+
+
+def check_scans(frames: Iterable[tuple[str, Frame]], config: Stage1Config, classifier: Segmenter, draws: int = 1,
+                intensity_match: bool = INTENSITY_MATCH) -> dict:
+    """The label-free check (module docstring) over (spec, frame) pairs; labels, if any, are not read."""
+    if draws < 1:
+        raise ValueError(f"draws must be >= 1, got {draws}")
+    warm_up()
+    classifier.warm_up()
+    stream = ScanStream(intensity_match=intensity_match)
+    agreements = [ViewAgreement() for _ in range(draws)]
+    bins = len(OBJECT_RANGE_EDGES_M) + 1
+    shares = np.zeros((bins, len(CLASS_NAMES)), dtype=np.int64)
+    proposals = []
+    try:
+        for spec, frame in frames:
+            scan = prepared(stream, spec, frame, config)
+            result = stream.propose(scan, config)
+            members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
+            members = [members[i] for i in nearest_first(scan.points, members, classifier.max_proposals)]
+            members = [m for m in members if len(m)]
+            points = stream.on_training_scale(scan.points)
+            proposals.append(len(members))
+            for draw, agreement in enumerate(agreements):
+                classifier.draw = draw
+                views = classifier.view_classes(points, members)
+                agreement.update(views)
+                if draw == 0 and len(members):
+                    ranges = np.array([np.hypot(*points[m, :2].mean(axis=0)) for m in members])
+                    where = np.searchsorted(OBJECT_RANGE_EDGES_M, ranges, side="right")
+                    np.add.at(shares, (where, majority(views)), 1)
+    finally:
+        classifier.draw = 0
+    summaries = [a.summary() for a in agreements]
+    totals = shares.sum(axis=1, keepdims=True)
+    return {
+        "scans": len(proposals),
+        "draws": draws,
+        "proposals_per_scan": {"median": float(np.median(proposals)) if proposals else None,
+                               "mean": float(np.mean(proposals)) if proposals else None},
+        "agreement": {name: {**spread([s[name]["agreement"] for s in summaries], key="agreement"),
+                             "proposals": [s[name]["proposals"] for s in summaries],
+                             "interval": summaries[0][name]["interval"]}
+                      for name in summaries[0]},
+        "class_shares": {bin_name: {"proposals": int(totals[b, 0]),
+                                    **{CLASS_NAMES[c]: float(shares[b, c] / totals[b, 0]) if totals[b, 0] else None
+                                       for c in range(len(CLASS_NAMES))}}
+                         for b, bin_name in enumerate(range_bin_names())},
+        "intensity": stream.maps,
+        "mounting": stream.mountings,
+    }
