@@ -9,11 +9,14 @@ import pytest
 
 from pass3d_ros.adapt.check import check_scans, majority
 from pass3d_ros.adapt.holdout import MIN_SCANS_EACH, split_scans
+from pass3d_ros.adapt.sensor import fitting_table, nearest_simulated, read_sensor
 from pass3d_ros.classes import CLASS_NAMES
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.data.errors import UserError
+from pass3d_ros.data.frame import Frame
 from pass3d_ros.evaluation.agreement import evaluate_agreement
 from pass3d_ros.synthetic.dataset import generate_frame
+from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 
 
 @pytest.mark.parametrize(("count", "share", "stretches", "gap"), [(8, 0.25, 2, 1), (40, 0.25, 2, 1), (101, 0.3, 3, 2),
@@ -62,3 +65,37 @@ def test_label_free_check_reads_no_labels_and_agrees_with_the_view_agreement_eva
         if shares["proposals"]:
             assert sum(shares[c] for c in CLASS_NAMES) == pytest.approx(1.0)
     assert shipped.draw == 0, "the classifier is left on draw 0"
+
+
+@pytest.mark.parametrize("name", SENSOR_NAMES)
+def test_each_simulated_sensor_is_read_as_itself(name):
+    """A recording of a simulated sensor reads as that sensor and fits its laser table; without its ring field
+    (rings then come from the laser lines) too, for the sensors sent column by column."""
+    frame = generate_frame(seed=11, index=0, sensor=name)
+    reading = read_sensor([("synthetic", frame)], Stage1Config())
+    assert reading.nearest_simulated == name and reading.distance < 0.5, reading
+    assert reading.laser_table == name and reading.n_rings == len(np.unique(frame.ring)), reading
+    if name in ("vlp16", "hdl32e", "pandar64"):
+        blind = Frame(name=frame.name, points=frame.points)
+        reading = read_sensor([("synthetic", blind)], Stage1Config())
+        assert reading.nearest_simulated == name and reading.ring_source != "field", reading
+
+
+def test_a_guessed_ring_count_is_left_out_of_the_comparison():
+    """Rings binned by elevation only guess the count: a 32-laser HDL-32E binned into 64 rings still reads as the
+    HDL-32E by its azimuth step and lowest laser, where counting the guess would call it a 64-laser sensor."""
+    assert nearest_simulated(0, np.nan, 0.166, -30.7)[0] == "hdl32e"
+    assert nearest_simulated(64, 0.665, 0.166, -30.7)[0] != "hdl32e"
+
+
+def test_a_laser_table_is_named_only_when_exactly_one_fits():
+    assert fitting_table(64, 2.9, -23.9) == "hdl64e"  # Pandar64's top laser (+15) would be far above the returns
+    assert fitting_table(64, 11.0, -24.9) == "pandar64"  # its top lasers see sky: returns up to 11 degrees
+    assert fitting_table(32, 10.0, -10.5) == "auto"  # no 32-laser table reaches only -10.5 degrees
+    assert fitting_table(48, 10.0, -20.0) == "auto"
+
+
+def test_a_recording_without_points_is_refused():
+    empty = Frame(name="e", points=np.zeros((0, 4), np.float32))
+    with pytest.raises(UserError, match="no scan of the recording holds a point"):
+        read_sensor([("x", empty)], Stage1Config())
