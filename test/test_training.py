@@ -16,9 +16,10 @@ from pass3d_ros.core.stage2.pointnet2 import PointNet2Seg, make_config
 from pass3d_ros.core.stage2.segmentation import CheckpointError, Segmenter, load_model, make_checkpoint
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.tools import train
+from pass3d_ros.training import consistency
 from pass3d_ros.training.losses import class_alpha, cross_entropy, focal_loss, make_loss
 from pass3d_ros.training.samples import SampleSet, build_samples, cached_samples, training_batch
-from pass3d_ros.training.trainer import Trainer, TrainOptions
+from pass3d_ros.training.trainer import Trainer, TrainingError, TrainOptions
 from pass3d_ros.training.validation import validate
 
 # ------------------------------------------------------------------------------------------------ losses
@@ -626,6 +627,30 @@ def test_trainer_with_view_consistency_records_what_it_used(tmp_path):
     assert checkpoint["train_args"]["consistency_batch"] == 3
 
 
+def test_trainer_takes_unlabelled_proposals_built_by_its_caller(tmp_path):
+    """pass3d_adapt builds the consistency proposals of the scans it adapts on itself: the Trainer takes them
+    (named in the checkpoint as the caller names them), and refuses them beside --consistency specs."""
+    from pass3d_ros.data.spec import open_dataset
+
+    rng = np.random.default_rng(9)
+    frames = [constructed_frame(rng, f"t{i}") for i in range(4)]
+    unlabelled = consistency.unlabelled_samples_of((UNLABELLED, f) for f in open_dataset(UNLABELLED))
+    assert len(unlabelled) == len(consistency.unlabelled_samples([UNLABELLED])) > 0
+    options = TrainOptions(data=["constructed:train"], out=tmp_path, config="lite", epochs=1, batch_size=4,
+                           max_steps=2, background_keep=1.0, threads=1, quiet=True, consistency_batch=3,
+                           consistency_threshold=0.0)
+    threads = torch.get_num_threads()
+    try:
+        result = Trainer(options, proposer=instance_proposer, frame_source=lambda specs: iter(frames),
+                         command=["test"], unlabelled=unlabelled, unlabelled_name="my drive, scans 0-9").run()
+    finally:
+        torch.set_num_threads(threads)
+    assert result.history[0]["consistency_sure"] == 1.0
+    assert torch.load(result.last_path, weights_only=True)["data"]["consistency"] == ["my drive, scans 0-9"]
+    with pytest.raises(TrainingError, match="either the --consistency specs or the given proposals"):
+        Trainer(dataclasses.replace(options, consistency=[UNLABELLED]), unlabelled=unlabelled)
+
+
 def test_trainer_with_draw_consistency_trains(tmp_path):
     rng = np.random.default_rng(9)
     frames = [constructed_frame(rng, f"t{i}") for i in range(4)]
@@ -650,7 +675,6 @@ def test_consistency_data_without_proposals_is_refused(tmp_path, capsys):
     frames = [constructed_frame(rng, "t0")]
     options = TrainOptions(data=["constructed:train"], out=tmp_path / "run", epochs=1, quiet=True,
                            consistency=[f"semantickitti:{empty}"])
-    from pass3d_ros.training.trainer import TrainingError
 
     with pytest.raises(TrainingError, match=r"no proposals in semantickitti:.* for view consistency"):
         Trainer(options, proposer=instance_proposer, frame_source=lambda specs: iter(frames), command=["test"]).run()

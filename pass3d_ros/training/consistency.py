@@ -27,6 +27,7 @@ from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage2 import canonical
 from pass3d_ros.core.stage2.pointnet2 import ModelConfig, PointNet2Seg
 from pass3d_ros.core.stage2.segmentation import predict_probabilities, prepare_proposals, uses_intensity
+from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import open_dataset
 from pass3d_ros.training.real_scans import proposed_scans
 from pass3d_ros.training.samples import SampleSet, augment_intensity
@@ -39,8 +40,12 @@ DEFAULT_BATCH = 8  # unlabelled proposals per optimizer step, over all processes
 def unlabelled_samples(specs: Iterable[str], stage1: Stage1Config | None = None) -> SampleSet:
     """Every non-empty stage-1 proposal of the frames of `specs` (laser lines and the intensity map held per spec,
     intensities on the training scale); labels are all background placeholders and are never read."""
+    return unlabelled_samples_of(((spec, frame) for spec in specs for frame in open_dataset(spec)), stage1)
+
+
+def unlabelled_samples_of(frames: Iterable[tuple[str, Frame]], stage1: Stage1Config | None = None) -> SampleSet:
+    """`unlabelled_samples` of (spec, frame) pairs already read (a recording's scans chosen by the caller)."""
     points, index, counts, frame_ids, names, sizes = [], [], [], [], [], []
-    frames = ((spec, frame) for spec in specs for frame in open_dataset(spec))
     for scan in proposed_scans(frames, stage1):
         for member in scan.members:
             points.append(scan.points[member])

@@ -141,7 +141,9 @@ class TrainResult:
 class Trainer:
     """One training run of the stage-2 network. `proposer` and `frame_source` replace stage 1 and the dataset
     readers (tests, constructed data); `command` is the command line a checkpoint records (default sys.argv);
-    `stage1` the stage-1 parameters that build the samples (default: Stage1Config()).
+    `stage1` the stage-1 parameters that build the samples (default: Stage1Config()); `unlabelled` the proposals of
+    unlabelled scans for view consistency when the caller has built them (pass3d_adapt: the recording's scans to
+    adapt on; consistency_samples names them), instead of `options.consistency`'s specs.
 
     With a time budget (`minutes`), the step that ends past it is the last: that epoch, however short, is validated
     and saved like a full one, its record says so ("stopped", "steps" of "planned"), and the run ends; validation
@@ -163,7 +165,11 @@ class Trainer:
         frame_source: FrameSource | None = None,
         command: Sequence[str] | None = None,
         stage1: Stage1Config | None = None,
+        unlabelled: SampleSet | None = None,
+        unlabelled_name: str = "",
     ) -> None:
+        if unlabelled is not None and options.consistency:
+            raise TrainingError("view consistency reads either the --consistency specs or the given proposals")
         self.options = options
         self.stage1 = stage1
         self.proposer = proposer
@@ -174,7 +180,8 @@ class Trainer:
         self.progress = not options.quiet
         self.start_epoch, self.best_score, self.history = 0, -math.inf, []
         self.data_info: dict = {}
-        self.unlabelled: SampleSet | None = None  # proposals of the `consistency` scans
+        self.unlabelled: SampleSet | None = unlabelled  # proposals of the `consistency` scans (or the caller's)
+        self.unlabelled_names = list(options.consistency) or ([unlabelled_name or "given"] if unlabelled else [])
         self._sure: list[float] = []  # the epoch's shares of unlabelled points sure enough to be a target
         self.init_model: PointNet2Seg | None = None  # the network `init` names, loaded before any work
         self.saved_epoch: int | None = None  # the last epoch this run wrote into last.pt (1-based)
@@ -258,11 +265,11 @@ class Trainer:
         """Unlabelled samples for view consistency (first: a bad spec fails before the long part), then training
         (background partly discarded) and validation samples, from the caches or stage 1."""
         o = self.options
-        if o.consistency:
-            # small: every rank builds it alike
+        if o.consistency:  # small: every rank builds it alike
             self.unlabelled = view_consistency.unlabelled_samples(o.consistency, self.stage1)
+        if self.unlabelled is not None:
             if len(self.unlabelled) == 0:
-                raise TrainingError(f"no proposals in {', '.join(o.consistency)} for view consistency")
+                raise TrainingError(f"no proposals in {', '.join(self.unlabelled_names)} for view consistency")
             draws = (f", teacher ({o.consistency_draws} draws averaged) and student on independent draws"
                      if o.consistency_draws else "")
             self._log(f"view consistency: {len(self.unlabelled)} unlabelled proposals of "
@@ -293,7 +300,7 @@ class Trainer:
             "val_samples": self.val_set.describe() if self.val_set is not None else None,
             "background_keep": o.background_keep,
             "stage1_params": stage1_overrides(self.stage1),
-            "consistency": list(o.consistency),
+            "consistency": list(self.unlabelled_names),
         }
 
     def _samples(
