@@ -86,7 +86,7 @@ def test_default_sensor_is_unchanged():
 
 def test_spec_parses_sensor():
     spec = parse_synthetic_spec("sensor=VLP16,frames=2,seed=5")
-    assert spec == {"frames": 2, "seed": 5, "start": 0, "sensor": "vlp16", "without": frozenset()}
+    assert spec == {"frames": 2, "seed": 5, "start": 0, "sensor": "vlp16", "height": None, "without": frozenset()}
     assert parse_synthetic_spec("frames=1,without=dark+clutter")["without"] == frozenset({"dark", "clutter"})
     assert parse_synthetic_spec("frames=1")["sensor"] == "hdl64e"
     with pytest.raises(DatasetError, match="unknown sensor"):
@@ -104,6 +104,20 @@ def test_mount_height_and_driver_intensity():
     values = np.array([0.0, 0.5, 1.0], dtype=np.float32)
     assert driver_intensity(sensor_model("vlp16"), values).tolist() == [0.0, 128.0, 255.0]
     assert driver_intensity(sensor_model("os1-64"), values)[-1] == 65535.0
+
+
+@pytest.mark.parametrize("name", ["hdl64e", "pandar64"])
+def test_spec_height_mounts_the_sensor_that_high(name):
+    """height=H (pass3d_adapt scans the nearest simulated sensor at the user's measured mount): the road lies H m
+    below the sensor, and the same scene without it at the model's 1.73 m."""
+    for text, expected in ((f"synthetic:sensor={name},frames=1,seed=3,height=2.1", 2.1),
+                           (f"synthetic:sensor={name},frames=1,seed=3", 1.73)):
+        frame = next(iter(open_dataset(text)))
+        near = frame.ground & (np.linalg.norm(frame.points[:, :2], axis=1) < 8.0)
+        assert abs(np.median(frame.points[near, 2]) + expected) < 0.15, text
+    for bad in ("height=abc", "height=9", "height=nan", "height=0.1"):
+        with pytest.raises(DatasetError, match=r"height must be a number of metres in 0\.3\.\.4"):
+            parse_synthetic_spec(f"frames=1,{bad}")
 
 
 def test_stage1_finds_proposals_on_a_vlp16_scan():

@@ -4,8 +4,9 @@ A frame is one HDL-64E revolution ray-cast into a random street scene: points in
 ring, top laser first), per-point labels, instance ids, ground mask and ring, one box per car, van, truck,
 pedestrian and cyclist that has points (instance id = the box's position in the list, foreground only), and
 a 10 Hz stamp. Everything is drawn from SeedSequence([seed, index]), so a (seed, index) pair always gives the
-same bytes. Spec: `synthetic:frames=N,seed=S[,start=K][,sensor=NAME][,without=CHANGE+CHANGE]` yields frames
-K .. K+N-1 of seed S, generated on the fly (`without`: WORLD_CHANGES left out, for an ablation). Another sensor
+same bytes. Spec: `synthetic:frames=N,seed=S[,start=K][,sensor=NAME][,height=H][,without=CHANGE+CHANGE]` yields
+frames K .. K+N-1 of seed S, generated on the fly (`height`: the sensor mounted H m above the road instead of its
+model's; `without`: WORLD_CHANGES left out, for an ablation). Another sensor
 (`generate_frame(seed, index, sensor_model("vlp16"))`, names in
 sensor.SENSOR_NAMES) scans the same scenes from the same mount height (unless its model says otherwise) and gives
 its points in its ROS 2 driver's order (ring 0 still the top laser, intensity still in [0, 1]).
@@ -69,6 +70,7 @@ LANE_MARK_HALF_WIDTH = 0.07
 MIXED_EDGE_SHARE = 0.05
 EDGE_JUMP_M = 1.0  # a depth edge: neighbouring beams of a ring differ by more than this (and 10 % of the range)
 DEFAULT_SENSOR = HDL64E()
+HEIGHT_RANGE_M = (0.3, 4.0)  # mount heights a spec's height= accepts: a small robot's deck to a truck's roof
 
 
 @dataclass
@@ -324,15 +326,26 @@ def generate_frame(seed: int, index: int, sensor: LidarModel | str = DEFAULT_SEN
 
 
 def parse_synthetic_spec(text: str) -> dict[str, Any]:
-    """`frames=N,seed=S[,start=K][,sensor=NAME][,without=CHANGE+CHANGE]` -> {'frames': N, 'seed': S, 'start': K,
-    'sensor': NAME, 'without': frozenset}; DatasetError on anything else (sensor defaults to hdl64e, KITTI's;
-    `without` names WORLD_CHANGES to leave out, for an ablation)."""
+    """`frames=N,seed=S[,start=K][,sensor=NAME][,height=H][,without=CHANGE+CHANGE]` -> {'frames': N, 'seed': S,
+    'start': K, 'sensor': NAME, 'height': H or None, 'without': frozenset}; DatasetError on anything else (sensor
+    defaults to hdl64e, KITTI's; height to the model's mount, HEIGHT_RANGE_M; `without` names WORLD_CHANGES to leave
+    out, for an ablation)."""
     values: dict[str, Any] = {"frames": 10, "seed": 0, "start": 0}
     sensor = "hdl64e"
+    height: float | None = None
     without: frozenset[str] = frozenset()
     for item in filter(None, (part.strip() for part in text.split(","))):
         key, sep, value = item.partition("=")
         key = key.strip()
+        if sep and key == "height":
+            try:
+                height = float(value)
+            except ValueError:
+                height = float("nan")
+            if not HEIGHT_RANGE_M[0] <= height <= HEIGHT_RANGE_M[1]:
+                raise DatasetError(f"synthetic spec {text!r}: height must be a number of metres in "
+                                   f"{HEIGHT_RANGE_M[0]:g}..{HEIGHT_RANGE_M[1]:g}, got {value.strip()!r}")
+            continue
         if sep and key == "sensor":
             sensor = value.strip().lower()
             if sensor not in SENSOR_NAMES:
@@ -347,7 +360,7 @@ def parse_synthetic_spec(text: str) -> dict[str, Any]:
             continue
         if not sep or key not in values:
             raise DatasetError(f"synthetic spec {text!r}: expected frames=N,seed=S[,start=K][,sensor=NAME]"
-                               f"[,without=CHANGE+CHANGE], got {item!r}")
+                               f"[,height=H][,without=CHANGE+CHANGE], got {item!r}")
         try:
             values[key] = int(value)
         except ValueError as exc:
@@ -355,17 +368,20 @@ def parse_synthetic_spec(text: str) -> dict[str, Any]:
     if min(values.values()) < 0:
         raise DatasetError(f"synthetic spec {text!r}: frames, seed and start must not be negative")
     values["sensor"] = sensor
+    values["height"] = height
     values["without"] = without
     return values
 
 
 def _spec_sensor(spec: dict[str, Any]) -> LidarModel:
+    if spec["height"] is not None:
+        return sensor_model(str(spec["sensor"]), mount_height_m=spec["height"])
     return DEFAULT_SENSOR if spec["sensor"] == "hdl64e" else sensor_model(str(spec["sensor"]))
 
 
 def read_synthetic(path: str) -> Iterator[Frame]:
-    """Frames of the spec `synthetic:frames=N,seed=S[,start=K][,sensor=NAME][,without=...]`, generated as they
-    are read."""
+    """Frames of the spec `synthetic:frames=N,seed=S[,start=K][,sensor=NAME][,height=H][,without=...]`, generated
+    as they are read."""
     spec = parse_synthetic_spec(path)
     sensor = _spec_sensor(spec)
 
