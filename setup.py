@@ -41,6 +41,7 @@ CONSOLE_SCRIPTS = [
     "pass3d_view = pass3d_ros.tools.view:main",
     "pass3d_params_yaml = pass3d_ros.tools.params_yaml:main",
     "pass3d_pseudo_label = pass3d_ros.tools.pseudo_label:main",
+    "pass3d_adapt = pass3d_ros.tools.adapt:main",
 ]
 
 setup(

@@ -4,6 +4,10 @@ range)."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,11 +16,13 @@ from pass3d_ros.adapt.holdout import MIN_SCANS_EACH, split_scans
 from pass3d_ros.adapt.sensor import fitting_table, nearest_simulated, read_sensor
 from pass3d_ros.classes import CLASS_NAMES
 from pass3d_ros.core.stage1 import Stage1Config
+from pass3d_ros.core.stage2.segmentation import Segmenter
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.evaluation.agreement import evaluate_agreement
 from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
+from pass3d_ros.tools import params_yaml
 
 
 @pytest.mark.parametrize(("count", "share", "stretches", "gap"), [(8, 0.25, 2, 1), (40, 0.25, 2, 1), (101, 0.3, 3, 2),
@@ -99,3 +105,86 @@ def test_a_recording_without_points_is_refused():
     empty = Frame(name="e", points=np.zeros((0, 4), np.float32))
     with pytest.raises(UserError, match="no scan of the recording holds a point"):
         read_sensor([("x", empty)], Stage1Config())
+
+
+# ------------------------------------------------------------------------------------------------ pass3d_adapt
+
+TINY = ["--data", "synthetic:sensor=vlp16,frames=10,seed=5", "--minutes", "2", "--draws", "1", "--guard-scenes", "2",
+        "--anchor-frames", "4", "--no-progress", "--threads", "1"]
+
+
+def test_pass3d_adapt_end_to_end_writes_weights_the_nodes_load(tmp_path, capsys):
+    """The whole tool on a tiny synthetic recording: an accepted adaptation writes a folder whose weights load, whose
+    parameter file names them, and whose report holds the check before and after and the guard."""
+    import yaml
+
+    from pass3d_ros.tools import adapt
+
+    out = tmp_path / "my_vlp16"
+    assert adapt.main([*TINY, "--out", str(out), "--epochs", "2"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [".pass3d_output", "pass3d_params.yaml", "report.json",
+                                                      "report.md", "view.png", "weights.pt"]
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"] == "accepted" and report["refused"] == []
+    assert report["sensor"]["nearest_simulated"] == "vlp16"
+    assert set(report["scans"]["adapt"]).isdisjoint(report["scans"]["check"])
+    assert report["before"]["scans"] == report["after"]["scans"] == len(report["scans"]["check"])
+    guard = report["guard"]
+    assert guard["before"]["spec"].startswith("synthetic:sensor=vlp16,frames=2,seed=97,height=")
+    assert guard["after"]["draws"]["mean_iou"]["mean"] >= guard["before"]["draws"]["mean_iou"]["mean"] - 0.01
+    params = yaml.safe_load((out / "pass3d_params.yaml").read_text())
+    weights = params["/**/segmentation_node"]["ros__parameters"]["weights"]
+    assert Path(weights) == (out / "weights.pt").resolve()
+    assert params["/**/cluster_proposal_node"]["ros__parameters"]["stage1"]["sensor"] == "vlp16"
+    for spec in params_yaml.NODES:  # every name written is one the node declares
+        body = params[f"/**/{spec.node_name}"]["ros__parameters"]
+        names = {k for k, v in body.items() if not isinstance(v, dict)}
+        names |= {f"{k}.{kk}" for k, v in body.items() if isinstance(v, dict) for kk in v}
+        declared = set(spec.table) | {p + f.name for p, c in spec.configs.items() for f in dataclasses.fields(c)}
+        assert names <= declared, names - declared
+    segmenter = Segmenter(weights)
+    assert segmenter.checkpoint_info["adapted"]["data"] == ["synthetic:sensor=vlp16,frames=10,seed=5"]
+    assert segmenter.checkpoint_info["adapted"]["epochs"] == 2
+    assert "accepted" in capsys.readouterr().out
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "work and build folders removed"
+
+    assert adapt.main([*TINY, "--out", str(out)]) == 2  # exists: --force needed
+    assert "--force replaces it" in capsys.readouterr().err
+
+
+def test_pass3d_adapt_refuses_weights_that_fail_the_guard(tmp_path, capsys, monkeypatch):
+    """A guard that fails (here: one no adaptation can pass) writes the report, no weights, and exits 1."""
+    from pass3d_ros.adapt import run
+    from pass3d_ros.tools import adapt
+
+    monkeypatch.setattr(run, "GUARD_DROP", -100.0)
+    out = tmp_path / "refused"
+    assert adapt.main([*TINY, "--out", str(out), "--epochs", "1"]) == 1
+    assert sorted(p.name for p in out.iterdir()) == [".pass3d_output", "report.json", "report.md", "view.png"]
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"] == "refused" and report["refused"][0].startswith("guard: unseen synthetic vlp16")
+    assert "refused, no weights written: guard" in capsys.readouterr().err
+
+
+def test_pass3d_adapt_ctrl_c_keeps_the_last_epoch_marked_partial(tmp_path, capsys, monkeypatch):
+    """Ctrl-C in the fine-tune's second epoch: exit 130 and the first epoch's weights, marked partial, unchecked."""
+    from pass3d_ros.tools import adapt
+    from pass3d_ros.training.trainer import Trainer
+
+    real_epoch = Trainer._train_epoch
+
+    def interrupted(self, epoch):
+        if epoch == 1:
+            raise KeyboardInterrupt
+        return real_epoch(self, epoch)
+
+    monkeypatch.setattr(Trainer, "_train_epoch", interrupted)
+    out = tmp_path / "partial"
+    assert adapt.main([*TINY, "--out", str(out), "--epochs", "3"]) == 130
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"] == "partial" and report["after"] is None
+    segmenter = Segmenter(out / "weights.pt")
+    assert segmenter.checkpoint_info["adapted"]["partial"] == "interrupted"
+    assert segmenter.checkpoint_info["adapted"]["epochs"] == 1
+    assert "PARTIAL" in (out / "pass3d_params.yaml").read_text()
+    assert "partial weights of the last finished epoch" in capsys.readouterr().err

@@ -43,6 +43,7 @@ class SensorReading:
     nearest_simulated: str  # pass3d_ros.synthetic.sensor.SENSOR_NAMES
     distance: float  # between the two signatures (0: the same; over FAR_DISTANCE: no simulated sensor is close)
     laser_table: str  # a LASER_TABLES name whose rings and span fit, else "auto"
+    intensity_divisor: float  # the full scale the stream divides intensities by (1.0: already 0..1)
     mounting: dict | None
     intensity: dict
 
@@ -123,5 +124,6 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
         scans=len(tops), n_rings=n_rings, ring_source=source, vertical_deg=values[0],
         horizontal_deg=values[1], top_deg=top, bottom_deg=bottom, nearest_simulated=nearest, distance=distance,
         laser_table=fitting_table(n_rings, top, bottom) if source in COUNTED_SOURCES else "auto",
+        intensity_divisor=float(stream.scale.divisor or 1.0),
         mounting=next(iter(stream.mountings.values()), None), intensity=dict(stream.maps),
     )

@@ -103,6 +103,21 @@ def check_force(out: Path, *, ours: Callable[[Path], bool], kind: str, inputs: I
                       f"remove it yourself or choose another {what}")
 
 
+def marked_folder_out(text: str | Path, datasets: Iterable[object], force: bool, kind: str) -> Path:
+    """The resolved `--out` folder of a tool that writes a marked folder from `datasets`: refused when empty,
+    protected or an input (`refuse_protected`); an existing one only with `force`, and only one this package wrote
+    (`check_force`: it holds the MARKER, or it is empty). `kind` names the folder in the error."""
+    given = out_path(text)
+    inputs = dataset_paths(datasets)
+    refuse_protected(given, inputs)
+    out = given.resolve()
+    if out.exists() or out.is_symlink():
+        if not force:
+            raise UserError(f"--out {text} exists; --force replaces it")
+        check_force(out, ours=has_marker, kind=kind, inputs=inputs)
+    return out
+
+
 def dataset_paths(datasets: Iterable[object]) -> list[Path]:
     """The paths on disk the datasets read (each one's `path` that exists), for `protected_reason`'s inputs."""
     paths = []

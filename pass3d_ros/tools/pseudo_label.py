@@ -31,16 +31,7 @@ from pass3d_ros.core.stage2.segmentation import Segmenter
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.outputs import (
-    check_force,
-    dataset_paths,
-    has_marker,
-    out_path,
-    refuse_protected,
-    swap_into_place,
-    write_marker,
-    writing,
-)
+from pass3d_ros.data.outputs import marked_folder_out, swap_into_place, write_marker, writing
 from pass3d_ros.data.partials import partial_path, remove_stale_partials
 from pass3d_ros.data.semantickitti import write_semantickitti_frame
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
@@ -79,15 +70,8 @@ def _numbered(frames: Iterator[Frame]) -> Iterator[Frame]:
 def _run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise UserError(f"--threads must be >= 1, got {args.threads}")
-    given = out_path(args.out)
     datasets = resolve_datasets(args.data)
-    inputs = dataset_paths(datasets)
-    refuse_protected(given, inputs)
-    out = given.resolve()
-    if out.exists() or out.is_symlink():
-        if not args.force:
-            raise UserError(f"--out {args.out} exists; --force replaces it")
-        check_force(out, ours=has_marker, kind="a pseudo-label folder", inputs=inputs)
+    out = marked_folder_out(args.out, datasets, args.force, "a pseudo-label folder")
     config = parse_params(args.param)
     check_writable(out, folder=True, what="--out folder")
     limit_threads(args.threads)

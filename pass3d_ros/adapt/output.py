@@ -1,0 +1,156 @@
+"""The folder `pass3d_adapt` writes: `weights.pt` (only weights that passed every guard, or the last finished epoch's
+after a Ctrl-C, marked partial), `pass3d_params.yaml` (the nodes' parameters for this sensor), `report.json`,
+`report.md` and `view.png` (a held-out scan before and after). Built in a hidden sibling and moved into place whole
+(pass3d_ros.data.outputs), so an interrupted write leaves no folder that looks complete.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+
+from pass3d_ros.adapt.run import GUARD_DROP, AdaptResult
+from pass3d_ros.classes import CLASS_NAMES
+from pass3d_ros.data.outputs import swap_into_place, write_marker, writing
+from pass3d_ros.data.partials import partial_path
+from pass3d_ros.drawing.bev import Panel, render_figure, write_png
+
+PROG = "pass3d_adapt"
+
+
+def write_folder(result: AdaptResult, out: Path, data: list[str]) -> Path:
+    """Write the folder for `result` at `out` (replacing what is there: the caller checked it may); returns `out`."""
+    build = partial_path(out)
+    try:
+        with writing(out):
+            build.mkdir(parents=True)
+            write_marker(build, PROG)
+            weights = out / "weights.pt"
+            if result.weights is not None and (result.accepted or result.partial):
+                checkpoint = dict(result.weights)
+                if result.partial:
+                    checkpoint["adapted"] = {**checkpoint.get("adapted", {}), "partial": result.partial}
+                torch.save(checkpoint, build / "weights.pt")
+                (build / "pass3d_params.yaml").write_text(params_yaml(result, weights, data))
+            report = report_dict(result, data)
+            (build / "report.json").write_text(json.dumps(report, indent=1) + "\n")
+            if result.view is not None:
+                v = result.view
+                write_png(build / "view.png", render_figure([Panel("before", v["points"], v["before"]),
+                                                             Panel("after", v["points"], v["after"])]))
+            (build / "report.md").write_text(report_markdown(report, result.view is not None))
+            swap_into_place(build, out)
+    except BaseException:
+        shutil.rmtree(build, ignore_errors=True)
+        raise
+    return out
+
+
+def params_yaml(result: AdaptResult, weights: Path, data: list[str]) -> str:
+    """The nodes' parameters for this sensor, as `--ros-args --params-file` and the launch files read them."""
+    s = result.sensor
+    stage1: dict = {"sensor": s.laser_table}
+    if s.mounting:
+        stage1["sensor_height"] = float(s.mounting["height_m"])
+    cluster: dict = {"stage1": stage1}
+    if s.intensity_divisor != 1.0:
+        cluster["intensity_scale"] = float(1.0 / s.intensity_divisor)
+    doc = {"/**/cluster_proposal_node": {"ros__parameters": cluster},
+           "/**/segmentation_node": {"ros__parameters": {"weights": str(weights.resolve())}}}
+    head = (f"# Written by {PROG} on {time.strftime('%Y-%m-%d %H:%M')} from {', '.join(data)}.\n"
+            f"# Sensor read: {s.n_rings} rings ({s.ring_source}), lowest laser {s.bottom_deg:.1f} deg, nearest "
+            f"simulated {s.nearest_simulated}; laser table {s.laser_table}.\n"
+            + ("# PARTIAL: interrupted during the fine-tune; these weights were never checked.\n"
+               if result.partial else ""))
+    return head + yaml.safe_dump(doc, sort_keys=False)
+
+
+def report_dict(result: AdaptResult, data: list[str]) -> dict:
+    """Everything measured, as plain values (report.json)."""
+    verdict = ("partial" if result.partial else "accepted" if result.accepted
+               else "refused" if result.weights is not None else "no weights")
+    return {
+        "data": list(data), "verdict": verdict, "refused": list(result.refused), "partial": result.partial,
+        "seconds": round(result.seconds, 1), "sensor": result.sensor.to_dict(),
+        "scans": {"read": len(result.scan_names), "adapt": _names(result, result.split.adapt),
+                  "check": _names(result, result.split.check), "left_out": len(result.split.left_out)},
+        "before": result.before, "after": result.after,
+        "guard": {"drop_allowed": GUARD_DROP, "before": result.guard_before, "after": result.guard_after},
+        "training": {k: v for k, v in result.training.items() if k != "history"},
+        "history": result.training.get("history", []),
+    }
+
+
+def _names(result: AdaptResult, positions: np.ndarray) -> list[str]:
+    return [result.scan_names[int(i)] for i in positions]
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.1f}"
+
+
+def report_markdown(report: dict, picture: bool) -> str:
+    """report.md: the verdict, then before / after tables a reader can act on."""
+    lines = [f"# pass3d_adapt: {report['verdict']}", ""]
+    if report["verdict"] == "accepted":
+        lines += ["The adapted weights passed the guard. Use them:",
+                  "`ros2 launch pass3d_ros pass3d.launch.py params_file:=" + "pass3d_params.yaml`", ""]
+    elif report["verdict"] == "refused":
+        lines += ["No weights written: " + "; ".join(report["refused"]) + ".", ""]
+    elif report["verdict"] == "partial":
+        lines += ["Interrupted during the fine-tune: `weights.pt` holds the last finished epoch, never checked; "
+                  "do not deploy it without running again.", ""]
+    s = report["sensor"]
+    lines += [f"Data: {', '.join(report['data'])}; {report['scans']['read']} scans read, "
+              f"{len(report['scans']['adapt'])} adapted on, {len(report['scans']['check'])} held out "
+              f"({report['scans']['left_out']} between them left out); {report['seconds'] / 60:.1f} min.",
+              f"Sensor: {s['n_rings']} rings ({s['ring_source']}), resolution {s['vertical_deg']:.2f} x "
+              f"{s['horizontal_deg']:.3f} deg, lowest laser {s['bottom_deg']:.1f} deg; nearest simulated sensor "
+              f"{s['nearest_simulated']} (distance {s['distance']:.2f}); laser table {s['laser_table']}; mounting "
+              f"{s['mounting']}.", ""]
+    before, after = report["before"], report["after"]
+    lines += ["## Held-out scans, no labels", "",
+              "View agreement: the share of proposals all 8 canonical views give the same class (mean over "
+              f"{before['draws']} point draws, range, and draw 0's 90 % scan-bootstrap interval).", "",
+              "| class | before | after |", "|---|---|---|"]
+    for name in before["agreement"]:
+        lines.append(f"| {name} | {_agreement_cell(before['agreement'][name])} | "
+                     f"{_agreement_cell(after['agreement'][name]) if after else '-'} |")
+    lines += ["", f"Proposals per scan: median {before['proposals_per_scan']['median']}.", "",
+              "Share of proposals each class takes, by range (views' majority, draw 0):", "",
+              "| range (m) | proposals | before: " + " / ".join(CLASS_NAMES) + " | after |", "|---|---|---|---|"]
+    for bin_name, row in before["class_shares"].items():
+        other = after["class_shares"][bin_name] if after else None
+        lines.append(f"| {bin_name} | {row['proposals']} | {' / '.join(_pct(row[c]) for c in CLASS_NAMES)} | "
+                     f"{' / '.join(_pct(other[c]) for c in CLASS_NAMES) if other else '-'} |")
+    guard = report["guard"]
+    lines += ["", "## Guard: unseen synthetic scenes of the nearest simulated sensor", "",
+              f"`{guard['before']['spec']}`: mean IoU over draws {_guard_cell(guard['before'])} before, "
+              f"{_guard_cell(guard['after']) if guard['after'] else '-'} after; the adapted weights may lose at most "
+              f"{guard['drop_allowed']:g} point.", ""]
+    if picture:
+        lines += ["## A held-out scan", "", "![before and after](view.png)", ""]
+    lines += ["When not to ship the result: a refused or partial verdict; agreement that fell; shares that moved "
+              "toward one class at all ranges (the network calling everything a car is self-consistent too).", ""]
+    return "\n".join(lines)
+
+
+def _agreement_cell(row: dict) -> str:
+    if row["mean"] is None:
+        return "no proposals"
+    interval = row["interval"]
+    low, high = (interval.get("low"), interval.get("high")) if isinstance(interval, dict) else (None, None)
+    bounds = f" [{_pct(low)}, {_pct(high)}]" if low is not None and high is not None else ""
+    return (f"{_pct(row['mean'])} % ({_pct(row['min'])}..{_pct(row['max'])}){bounds}, "
+            f"{sum(row['proposals'])} proposals")
+
+
+def _guard_cell(guard: dict) -> str:
+    d = guard["draws"]["mean_iou"]
+    return f"{_pct(d['mean'])} ({_pct(d['min'])}..{_pct(d['max'])})"

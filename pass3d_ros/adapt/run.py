@@ -1,0 +1,291 @@
+"""One adaptation of stage 2 to a user's sensor, from an unlabelled recording (`pass3d_adapt`).
+
+`Adaptation(options).run()` reads the recording (at most `max_scans`, evenly spaced in time), reads its sensor as a
+stream would (adapt/sensor.py), holds out stretches of it (adapt/holdout.py), checks the starting weights on them
+without labels (adapt/check.py) and on unseen synthetic scenes of the nearest simulated sensor at the measured mount
+(the guard), fine-tunes from those weights with view consistency on the scans adapted on and labelled synthetic
+scans of the same simulated sensor (the anchor) within the time budget, averages the result with the starting
+weights (as the shipped weights were made), checks and guards again, and judges: weights that lose more than
+GUARD_DROP mean IoU on the guard scenes are refused. The folder is written by adapt/output.py.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from pass3d_ros.adapt.check import check_scans
+from pass3d_ros.adapt.holdout import Split, split_scans
+from pass3d_ros.adapt.sensor import SensorReading, read_sensor
+from pass3d_ros.core.stage1 import Stage1Config, proposal_members
+from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint, read_checkpoint
+from pass3d_ros.core.stream import ScanStream
+from pass3d_ros.data.errors import UserError
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.spec import Dataset, open_dataset, resolve_dataset
+from pass3d_ros.evaluation.offline import evaluate_draws, prepared
+from pass3d_ros.training.consistency import unlabelled_samples_of
+from pass3d_ros.training.trainer import Trainer, TrainOptions
+
+GUARD_DROP = 1.0  # mean IoU points the guard scenes may lose (mean over draws), as issue 39 sets it
+GUARD_SEED = 97  # unseen synthetic scenes: no shipped training run drew from this seed
+ANCHOR_SEED = 51  # labelled synthetic scenes the fine-tune keeps learning from, so the labels are not forgotten
+AVERAGE_ALPHA = 0.5  # the adapted weights: this share of the fine-tune, the rest the starting weights
+RESERVE = 1.2  # the time after the fine-tune is budgeted as this many times the checks before it took
+
+
+@dataclass
+class AdaptOptions:
+    """What `pass3d_adapt` was asked for (its flags, same names and defaults)."""
+
+    data: list[str]
+    weights: str | None = None  # the starting weights (None: the shipped ones)
+    minutes: float = 20.0  # the whole run's wall-time budget
+    max_scans: int = 120  # scans read from the recording, evenly spaced
+    draws: int = 2  # point-sample draws of each check and guard
+    guard_scenes: int = 10
+    anchor_frames: int = 100
+    epochs: int = 12  # the fine-tune's most epochs (the budget usually ends it first)
+    lr: float = 3e-4
+    seed: int = 0
+    progress: bool = True
+    stage1: Stage1Config = field(default_factory=Stage1Config)
+
+
+@dataclass
+class AdaptResult:
+    """Everything the report and the folder need."""
+
+    sensor: SensorReading
+    split: Split
+    scan_names: list[str]
+    before: dict
+    guard_before: dict
+    after: dict | None = None
+    guard_after: dict | None = None
+    weights: dict | None = None  # the adapted checkpoint (None: none made)
+    training: dict = field(default_factory=dict)
+    refused: list[str] = field(default_factory=list)  # the guards that failed, each with its numbers
+    partial: str | None = None  # why the run ended early ("interrupted"), None when it did not
+    seconds: float = 0.0
+    view: dict | None = None  # a held-out scan's points and labels before and after, for the picture
+
+    @property
+    def accepted(self) -> bool:
+        """Whether the adapted weights passed every guard (and the run finished)."""
+        return self.weights is not None and not self.refused and self.partial is None
+
+
+class Adaptation:
+    """One run of `pass3d_adapt`: `run()` lists its steps. `work` is a folder for the fine-tune's files."""
+
+    def __init__(self, options: AdaptOptions, work: Path, log: Callable[[str], None] = print) -> None:
+        self.options = options
+        self.work = work
+        self.log = log
+        self.started = time.monotonic()
+        self.scans: list[tuple[str, Frame]] = []
+        self.start_checkpoint: dict = {}
+        self.result: AdaptResult | None = None
+
+    def run(self) -> AdaptResult:
+        """Read, check, fine-tune, check again and judge; a Ctrl-C during the fine-tune ends the run with the
+        weights of the last finished epoch (partial, unchecked) and is raised again once the result is kept."""
+        self._read_recording()
+        self._read_sensor_and_split()
+        self._check_before()
+        try:
+            self._fine_tune()
+        except KeyboardInterrupt:
+            self._keep_partial()
+            raise
+        self._check_after()
+        self._judge()
+        return self._finish()
+
+    # ------------------------------------------------------------------------------------------------ steps
+
+    def _read_recording(self) -> None:
+        """At most max_scans scans of the recording, evenly spaced over each spec, in time order."""
+        o = self.options
+        each = max(1, o.max_scans // len(o.data))
+        for spec in o.data:
+            dataset = resolve_dataset(spec)
+            count = _count(dataset)
+            stride = max(1, -(-count // each)) if count else 1
+            kept = 0
+            for k, frame in enumerate(open_dataset(dataset)):
+                if k % stride == 0 and kept < each:
+                    self.scans.append((spec, frame))
+                    kept += 1
+        if not self.scans:
+            raise UserError(f"no scans in {', '.join(o.data)}")
+        self.log(f"read {len(self.scans)} scans of {', '.join(o.data)}")
+
+    def _read_sensor_and_split(self) -> None:
+        """The sensor as a stream reads it, and the held-out stretches."""
+        self.sensor = read_sensor(self.scans, self.options.stage1)
+        self.split = split_scans(len(self.scans))
+        far = " (no simulated sensor is close: the guard is only indicative)" if self.sensor.distance > 1.0 else ""
+        self.log(f"sensor: {self.sensor.n_rings} rings ({self.sensor.ring_source}), nearest simulated "
+                 f"{self.sensor.nearest_simulated}{far}; {self.split.describe()}")
+
+    def _check_before(self) -> None:
+        """The starting weights on the held-out scans and on the guard scenes."""
+        t0 = time.monotonic()
+        self.start_checkpoint, _ = read_checkpoint(self.options.weights or _shipped())
+        start = self._segmenter(self.start_checkpoint)
+        self.before = self._check(start)
+        self.guard_before = self._guard(start)
+        self.check_seconds = time.monotonic() - t0
+        self.log(f"before: {_agreement_line(self.before)}; guard mean IoU {_guard_mean(self.guard_before):.1f}")
+
+    def _fine_tune(self) -> None:
+        """From the starting weights: the anchor's labelled synthetic scans and view consistency on the scans adapted
+        on, until the budget left (minus the checks after it) runs out; then averaged with the starting weights."""
+        o = self.options
+        spent = (time.monotonic() - self.started) / 60.0
+        left = o.minutes - spent - RESERVE * self.check_seconds / 60.0
+        if left <= 0.0:
+            raise UserError(f"--minutes {o.minutes:g} leaves no time to fine-tune: reading and checking took "
+                            f"{spent:.1f} min and the checks after it need about {self.check_seconds / 60:.1f}; "
+                            "give more minutes or fewer --max-scans")
+        adapt_scans = [self.scans[i] for i in self.split.adapt]
+        unlabelled = unlabelled_samples_of(adapt_scans, o.stage1)
+        start_path = self.work / "start.pt"
+        torch.save(self.start_checkpoint, start_path)
+        options = TrainOptions(data=[self._anchor_spec()], out=self.work / "train", init=start_path,
+                               epochs=o.epochs, lr=o.lr, seed=o.seed, quiet=not o.progress, minutes=left)
+        name = f"{len(adapt_scans)} scans of {', '.join(o.data)} (pass3d_adapt)"
+        self.trainer = Trainer(options, command=["pass3d_adapt"], unlabelled=unlabelled, unlabelled_name=name)
+        self.log(f"fine-tune: up to {left:.1f} min, {len(unlabelled)} unlabelled proposals, anchor "
+                 f"{self._anchor_spec()}")
+        result = self.trainer.run()
+        self.training = {"epochs": len(result.history), "stopped": result.stopped, "minutes": left,
+                         "history": result.history, "unlabelled_proposals": len(unlabelled)}
+        self.adapted = self._averaged(torch.load(result.last_path, weights_only=True))
+
+    def _keep_partial(self) -> None:
+        """After a Ctrl-C in the fine-tune: the last finished epoch's weights, averaged, kept as partial."""
+        last = self.work / "train" / "last.pt"
+        self.adapted = self._averaged(torch.load(last, weights_only=True)) if last.is_file() else None
+        self.after = self.guard_after = None
+        self.result = self._finish(partial="interrupted")
+
+    def _check_after(self) -> None:
+        """The adapted weights on the same held-out scans and guard scenes."""
+        adapted = self._segmenter(self.adapted)
+        self.after = self._check(adapted)
+        self.guard_after = self._guard(adapted)
+        self.log(f"after: {_agreement_line(self.after)}; guard mean IoU {_guard_mean(self.guard_after):.1f}")
+
+    def _judge(self) -> None:
+        """The guard: the unseen synthetic scenes of the nearest simulated sensor may lose at most GUARD_DROP."""
+        self.refused = []
+        drop = _guard_mean(self.guard_before) - _guard_mean(self.guard_after)
+        if drop > GUARD_DROP:
+            self.refused.append(f"guard: unseen synthetic {self.sensor.nearest_simulated} scenes lost {drop:.1f} "
+                                f"mean IoU points (at most {GUARD_DROP:g})")
+
+    def _finish(self, partial: str | None = None) -> AdaptResult:
+        result = AdaptResult(
+            sensor=self.sensor, split=self.split, scan_names=[f"{s}#{f.name}" for s, f in self.scans],
+            before=self.before, guard_before=self.guard_before, after=getattr(self, "after", None),
+            guard_after=getattr(self, "guard_after", None), weights=getattr(self, "adapted", None),
+            training=getattr(self, "training", {}), refused=list(getattr(self, "refused", [])), partial=partial,
+            seconds=time.monotonic() - self.started, view=self._view() if partial is None else None)
+        self.result = result
+        return result
+
+    # ---------------------------------------------------------------------------------------------- helpers
+
+    def _segmenter(self, checkpoint: dict) -> Segmenter:
+        segmenter = Segmenter(checkpoint)
+        segmenter.warm_up()
+        return segmenter
+
+    def _check(self, segmenter: Segmenter) -> dict:
+        held = [self.scans[i] for i in self.split.check]
+        return check_scans(held, self.options.stage1, segmenter, self.options.draws)
+
+    def _guard_spec(self) -> str:
+        return (f"synthetic:sensor={self.sensor.nearest_simulated},frames={self.options.guard_scenes},"
+                f"seed={GUARD_SEED}{self._height()}")
+
+    def _anchor_spec(self) -> str:
+        return (f"synthetic:sensor={self.sensor.nearest_simulated},frames={self.options.anchor_frames},"
+                f"seed={ANCHOR_SEED}{self._height()}")
+
+    def _height(self) -> str:
+        height = (self.sensor.mounting or {}).get("height_m")
+        return f",height={min(max(float(height), 0.3), 4.0):.2f}" if height else ""
+
+    def _guard(self, segmenter: Segmenter) -> dict:
+        spec = self._guard_spec()
+        if not hasattr(self, "_guard_frames"):
+            self._guard_frames = list(open_dataset(spec))
+        frames: Callable[[], Iterator[tuple[str, Frame]]] = lambda: ((spec, f) for f in self._guard_frames)  # noqa: E731
+        summary = evaluate_draws(frames, self.options.stage1, segmenter, self.options.draws)
+        return {"spec": spec, "draws": summary["draws"]}
+
+    def _averaged(self, fine_tuned: dict) -> dict:
+        """The fine-tune's floating tensors averaged with the starting weights' (AVERAGE_ALPHA), with provenance."""
+        start = self.start_checkpoint["state_dict"]
+        tuned = fine_tuned["state_dict"]
+        state = {k: AVERAGE_ALPHA * tuned[k] + (1 - AVERAGE_ALPHA) * start[k] if tuned[k].is_floating_point()
+                 else tuned[k] for k in tuned}
+        model, _ = load_model({**self.start_checkpoint, "state_dict": state})
+        info = {k: v for k, v in self.start_checkpoint.items() if k not in ("state_dict", "optimizer", "scheduler")}
+        info.pop("format", None)
+        info.pop("version", None)
+        info.pop("config", None)
+        info.pop("classes", None)
+        info["adapted"] = {"data": list(self.options.data), "from": self.options.weights or "shipped",
+                           "sensor": self.sensor.to_dict(), "anchor": self._anchor_spec(),
+                           "epochs": fine_tuned.get("epoch", -1) + 1, "alpha": AVERAGE_ALPHA,
+                           "history": fine_tuned.get("history", [])}
+        return make_checkpoint(model, **info)
+
+    def _view(self) -> dict | None:
+        """A held-out scan (the middle one) labelled by the starting and the adapted weights."""
+        if getattr(self, "adapted", None) is None or len(self.split.check) == 0:
+            return None
+        spec, frame = self.scans[self.split.check[len(self.split.check) // 2]]
+        stream = ScanStream()
+        scan = prepared(stream, spec, frame, self.options.stage1)
+        result = stream.propose(scan, self.options.stage1)
+        members = [m for m in proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals) if len(m)]
+        points = stream.on_training_scale(scan.points)
+        labels = [self._segmenter(c).segment(points, members).labels for c in (self.start_checkpoint, self.adapted)]
+        return {"name": f"{spec}#{frame.name}", "points": scan.points, "before": labels[0], "after": labels[1]}
+
+
+def _count(dataset: Dataset) -> int | None:
+    try:
+        return dataset.count()
+    except Exception:  # a reader that cannot count: every scan is read, the first max_scans kept
+        return None
+
+
+def _shipped() -> str:
+    from pass3d_ros.core.stage2 import DEFAULT_WEIGHTS
+
+    return str(DEFAULT_WEIGHTS)
+
+
+def _agreement_line(check: dict) -> str:
+    parts = []
+    for name, row in check["agreement"].items():
+        if row["mean"] is not None:
+            parts.append(f"{name} agreement {100 * row['mean']:.1f} % ({sum(row['proposals'])} proposals)")
+    return ", ".join(parts) or "no proposal called an object"
+
+
+def _guard_mean(guard: dict) -> float:
+    value = guard["draws"]["mean_iou"]["mean"]
+    return float("nan") if value is None else 100.0 * float(value)
+
