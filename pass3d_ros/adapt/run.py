@@ -90,7 +90,14 @@ class Adaptation:
         self.started = time.monotonic()
         self.scans: list[tuple[str, Frame]] = []
         self.start_checkpoint: dict = {}
-        self.result: AdaptResult | None = None
+        self.check_seconds = 0.0
+        self.after: dict | None = None
+        self.guard_after: dict | None = None
+        self.adapted: dict | None = None  # the averaged checkpoint, once the fine-tune made one
+        self.training: dict = {}
+        self.refused: list[str] = []
+        self.result: AdaptResult | None = None  # set by run(), or by a Ctrl-C in the fine-tune (partial)
+        self._guard_frames: list[Frame] | None = None
 
     def run(self) -> AdaptResult:
         """Read, check, fine-tune, check again and judge; a Ctrl-C during the fine-tune ends the run with the
@@ -192,11 +199,11 @@ class Adaptation:
                                 f"mean IoU points (at most {GUARD_DROP:g})")
 
     def _finish(self, partial: str | None = None) -> AdaptResult:
+        """The result of the run so far (`partial`: why it ended early)."""
         result = AdaptResult(
             sensor=self.sensor, split=self.split, scan_names=[f"{s}#{f.name}" for s, f in self.scans],
-            before=self.before, guard_before=self.guard_before, after=getattr(self, "after", None),
-            guard_after=getattr(self, "guard_after", None), weights=getattr(self, "adapted", None),
-            training=getattr(self, "training", {}), refused=list(getattr(self, "refused", [])), partial=partial,
+            before=self.before, guard_before=self.guard_before, after=self.after, guard_after=self.guard_after,
+            weights=self.adapted, training=self.training, refused=list(self.refused), partial=partial,
             seconds=time.monotonic() - self.started, view=self._view() if partial is None else None)
         self.result = result
         return result
@@ -204,11 +211,13 @@ class Adaptation:
     # ---------------------------------------------------------------------------------------------- helpers
 
     def _segmenter(self, checkpoint: dict) -> Segmenter:
+        """A warmed-up classifier of `checkpoint` (a dict: nothing is written to disk)."""
         segmenter = Segmenter(checkpoint)
         segmenter.warm_up()
         return segmenter
 
     def _check(self, segmenter: Segmenter) -> dict:
+        """The label-free check of `segmenter` on the held-out scans."""
         held = [self.scans[i] for i in self.split.check]
         return check_scans(held, self.options.stage1, segmenter, self.options.draws)
 
@@ -225,10 +234,15 @@ class Adaptation:
         return f",height={min(max(float(height), 0.3), 4.0):.2f}" if height else ""
 
     def _guard(self, segmenter: Segmenter) -> dict:
+        """`segmenter` on the guard scenes (generated once, kept), over the draws."""
         spec = self._guard_spec()
-        if not hasattr(self, "_guard_frames"):
+        if self._guard_frames is None:
             self._guard_frames = list(open_dataset(spec))
-        frames: Callable[[], Iterator[tuple[str, Frame]]] = lambda: ((spec, f) for f in self._guard_frames)  # noqa: E731
+        scenes = self._guard_frames
+
+        def frames() -> Iterator[tuple[str, Frame]]:
+            return ((spec, frame) for frame in scenes)
+
         summary = evaluate_draws(frames, self.options.stage1, segmenter, self.options.draws)
         return {"spec": spec, "draws": summary["draws"]}
 
@@ -252,7 +266,7 @@ class Adaptation:
 
     def _view(self) -> dict | None:
         """A held-out scan (the middle one) labelled by the starting and the adapted weights."""
-        if getattr(self, "adapted", None) is None or len(self.split.check) == 0:
+        if self.adapted is None or len(self.split.check) == 0:
             return None
         spec, frame = self.scans[self.split.check[len(self.split.check) // 2]]
         stream = ScanStream()
