@@ -107,6 +107,20 @@ def test_a_recording_without_points_is_refused():
         read_sensor([("x", empty)], Stage1Config())
 
 
+def test_report_notes_range_bins_whose_object_share_moved():
+    """Agreement can rise because far blobs all became background: the report says so per range bin."""
+    from pass3d_ros.adapt.output import share_notes
+
+    def shares(*backgrounds):
+        return {"class_shares": {name: {"proposals": 20, "background": b} for name, b in
+                                 zip(("0-15", "15-30", "30-50", "50+"), backgrounds, strict=True)}}
+
+    notes = share_notes(shares(0.5, 0.8, 0.95, 0.86), shares(0.45, 0.5, 0.97, 0.98))
+    assert len(notes) == 2 and notes[0].startswith("15-30 m: proposals called an object 20.0 % before, 50.0 %")
+    assert notes[1].startswith("50+ m: proposals called an object 14.0 % before, 2.0 % after")
+    assert share_notes(shares(0.5, 0.8, 0.95, 0.86), None) == []
+
+
 # ------------------------------------------------------------------------------------------------ pass3d_adapt
 
 TINY = ["--data", "synthetic:sensor=vlp16,frames=10,seed=5", "--minutes", "2", "--draws", "1", "--guard-scenes", "2",

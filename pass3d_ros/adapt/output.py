@@ -22,6 +22,8 @@ from pass3d_ros.data.partials import partial_path
 from pass3d_ros.drawing.bev import Panel, render_figure, write_png
 
 PROG = "pass3d_adapt"
+SHARE_MOVE = 2.0  # a range bin whose share of proposals called an object moves by this factor either way is noted
+SHARE_FLOOR = 0.1  # ... when the larger of the two shares is at least this
 
 
 def write_folder(result: AdaptResult, out: Path, data: list[str]) -> Path:
@@ -82,9 +84,26 @@ def report_dict(result: AdaptResult, data: list[str]) -> dict:
                   "check": _names(result, result.split.check), "left_out": len(result.split.left_out)},
         "before": result.before, "after": result.after,
         "guard": {"drop_allowed": GUARD_DROP, "before": result.guard_before, "after": result.guard_after},
+        "notes": share_notes(result.before, result.after),
         "training": {k: v for k, v in result.training.items() if k != "history"},
         "history": result.training.get("history", []),
     }
+
+
+def share_notes(before: dict, after: dict | None) -> list[str]:
+    """Range bins where the share of held-out proposals called an object moved by SHARE_MOVE or more: a network can
+    agree with itself more by calling far blobs background (or everything a car), which agreement alone hides."""
+    if after is None:
+        return []
+    notes = []
+    for bin_name, row in before["class_shares"].items():
+        if not row["proposals"]:
+            continue
+        old, new = 1.0 - (row["background"] or 0.0), 1.0 - (after["class_shares"][bin_name]["background"] or 0.0)
+        if max(old, new) >= SHARE_FLOOR and (new * SHARE_MOVE <= old or old * SHARE_MOVE <= new):
+            notes.append(f"{bin_name} m: proposals called an object {100 * old:.1f} % before, {100 * new:.1f} % "
+                         f"after ({row['proposals']} proposals): look at view.png before trusting the agreement")
+    return notes
 
 
 def _names(result: AdaptResult, positions: np.ndarray) -> list[str]:
@@ -106,6 +125,8 @@ def report_markdown(report: dict, picture: bool) -> str:
     elif report["verdict"] == "partial":
         lines += ["Interrupted during the fine-tune: `weights.pt` holds the last finished epoch, never checked; "
                   "do not deploy it without running again.", ""]
+    if report["notes"]:
+        lines += ["Notes: " + "; ".join(report["notes"]) + ".", ""]
     s = report["sensor"]
     lines += [f"Data: {', '.join(report['data'])}; {report['scans']['read']} scans read, "
               f"{len(report['scans']['adapt'])} adapted on, {len(report['scans']['check'])} held out "
