@@ -107,6 +107,21 @@ def test_a_recording_without_points_is_refused():
         read_sensor([("x", empty)], Stage1Config())
 
 
+def test_input_notes_are_printed_once_a_spec_over_the_passes(shipped, capsys):
+    """pass3d_adapt reads its scans in several passes, each with its own stream: an input note (here a 0..255
+    intensity) is printed once for the run, not once a pass."""
+    frame = generate_frame(seed=9, index=0, sensor="vlp16")
+    frame.points[:, 3] *= 255.0
+    printed: set[str] = set()
+    read_sensor([("x", frame)], Stage1Config(), printed=printed)
+    first = capsys.readouterr().err
+    assert first.count("x: intensity:") == 1, first
+    check_scans([("x", frame)], Stage1Config(), shipped, printed=printed)
+    assert "intensity" not in capsys.readouterr().err
+    check_scans([("x", frame)], Stage1Config(), shipped)  # without the set: once a stream, as before
+    assert capsys.readouterr().err.count("x: intensity:") == 1
+
+
 def test_report_notes_range_bins_whose_object_share_moved():
     """Agreement can rise because far blobs all became background: the report says so per range bin."""
     from pass3d_ros.adapt.output import share_notes

@@ -32,8 +32,9 @@ def majority(views: np.ndarray) -> np.ndarray:
 
 
 def check_scans(frames: Iterable[tuple[str, Frame]], config: Stage1Config, classifier: Segmenter, draws: int = 1,
-                intensity_match: bool = INTENSITY_MATCH) -> dict:
-    """The label-free check (module docstring) over (spec, frame) pairs; labels, if any, are not read."""
+                intensity_match: bool = INTENSITY_MATCH, printed: set[str] | None = None) -> dict:
+    """The label-free check (module docstring) over (spec, frame) pairs; labels, if any, are not read. `printed`:
+    input-check lines already printed (evaluation.offline.prepared)."""
     if draws < 1:
         raise ValueError(f"draws must be >= 1, got {draws}")
     warm_up()
@@ -45,7 +46,7 @@ def check_scans(frames: Iterable[tuple[str, Frame]], config: Stage1Config, class
     proposals = []
     try:
         for spec, frame in frames:
-            scan = prepared(stream, spec, frame, config)
+            scan = prepared(stream, spec, frame, config, printed)
             result = stream.propose(scan, config)
             members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
             members = [members[i] for i in nearest_first(scan.points, members, classifier.max_proposals)]

@@ -98,6 +98,7 @@ class Adaptation:
         self.refused: list[str] = []
         self.result: AdaptResult | None = None  # set by run(), or by a Ctrl-C in the fine-tune (partial)
         self._guard_frames: list[Frame] | None = None
+        self.printed: set[str] = set()  # input-check topics printed per spec: each once over the run's passes
 
     def run(self) -> AdaptResult:
         """Read, check, fine-tune, check again and judge; a Ctrl-C during the fine-tune ends the run with the
@@ -135,7 +136,7 @@ class Adaptation:
 
     def _read_sensor_and_split(self) -> None:
         """The sensor as a stream reads it, and the held-out stretches."""
-        self.sensor = read_sensor(self.scans, self.options.stage1)
+        self.sensor = read_sensor(self.scans, self.options.stage1, printed=self.printed)
         self.split = split_scans(len(self.scans))
         far = " (no simulated sensor is close: the guard is only indicative)" if self.sensor.distance > 1.0 else ""
         self.log(f"sensor: {self.sensor.n_rings} rings ({self.sensor.ring_source}), nearest simulated "
@@ -219,7 +220,7 @@ class Adaptation:
     def _check(self, segmenter: Segmenter) -> dict:
         """The label-free check of `segmenter` on the held-out scans."""
         held = [self.scans[i] for i in self.split.check]
-        return check_scans(held, self.options.stage1, segmenter, self.options.draws)
+        return check_scans(held, self.options.stage1, segmenter, self.options.draws, printed=self.printed)
 
     def _guard_spec(self) -> str:
         return (f"synthetic:sensor={self.sensor.nearest_simulated},frames={self.options.guard_scenes},"
@@ -270,7 +271,7 @@ class Adaptation:
             return None
         spec, frame = self.scans[self.split.check[len(self.split.check) // 2]]
         stream = ScanStream()
-        scan = prepared(stream, spec, frame, self.options.stage1)
+        scan = prepared(stream, spec, frame, self.options.stage1, self.printed)
         result = stream.propose(scan, self.options.stage1)
         members = [m for m in proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals) if len(m)]
         points = stream.on_training_scale(scan.points)

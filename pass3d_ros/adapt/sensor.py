@@ -89,13 +89,13 @@ def fitting_table(n_rings: int, top: float, bottom: float) -> str:
 
 
 def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
-                intensity_match: bool = INTENSITY_MATCH) -> SensorReading:
+                intensity_match: bool = INTENSITY_MATCH, printed: set[str] | None = None) -> SensorReading:
     """Stage 1 over the (spec, frame) pairs of one sensor, one stream state held across them as a node holds it;
-    UserError when no scan has points."""
+    UserError when no scan has points. `printed`: input-check lines already printed (evaluation.offline.prepared)."""
     stream = ScanStream(intensity_match=intensity_match)
     rings, sources, vertical, horizontal, tops, bottoms = [], Counter(), [], [], [], []
     for spec, frame in frames:
-        scan = prepared(stream, spec, frame, config)
+        scan = prepared(stream, spec, frame, config, printed=printed)
         if len(scan.points) == 0:
             continue
         result = stream.propose(scan, config)

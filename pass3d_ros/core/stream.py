@@ -168,8 +168,8 @@ class ScanStream:
             self.maps[str(self._key)] = str(self.match.map)
         return self.match.on_training_scale(points)
 
-    def first_notes(self, scan: PreparedScan) -> list[str]:
+    def first_notes(self, scan: PreparedScan) -> list[Note]:
         """The scan's notes on topics this stream has not noted yet: what an offline tool prints once a stream."""
-        fresh = [note.text for note in scan.notes if note.topic not in self._noted]
+        fresh = [note for note in scan.notes if note.topic not in self._noted]
         self._noted.update(note.topic for note in scan.notes)
         return fresh

@@ -79,13 +79,19 @@ class BudgetCuts:
         return {"max_proposals": self.max_proposals, "proposals_cut": self.proposals, "frames_cut": self.frames}
 
 
-def prepared(stream: ScanStream, spec: str, frame: Frame, config: Stage1Config) -> PreparedScan:
+def prepared(stream: ScanStream, spec: str, frame: Frame, config: Stage1Config,
+             printed: set[str] | None = None) -> PreparedScan:
     """`frame` through the input checks of its spec's stream (as the cluster node checks a live scan), printing
-    on stderr what they repaired, once a topic per stream."""
+    on stderr what they repaired, once a topic per stream; with `printed` ("SPEC|TOPIC" keys already printed,
+    updated) a tool that reads the same scans in several streams prints each topic of a spec once."""
     stream.follow(spec)
     scan = stream.prepare(frame.points, frame.ring, config)
-    for text in stream.first_notes(scan):
-        print(f"{spec}: {text}", file=sys.stderr)
+    for note in stream.first_notes(scan):
+        key = f"{spec}|{note.topic}"
+        if printed is None or key not in printed:
+            print(f"{spec}: {note.text}", file=sys.stderr)
+        if printed is not None:
+            printed.add(key)
     return scan
 
 
