@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pass3d_ros.adapt.check import check_scans, majority
+from pass3d_ros.adapt.check import check_scans
 from pass3d_ros.adapt.holdout import MIN_SCANS_EACH, split_scans
 from pass3d_ros.adapt.sensor import fitting_table, nearest_simulated, read_sensor
 from pass3d_ros.classes import CLASS_NAMES
@@ -19,7 +19,7 @@ from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage2.segmentation import Segmenter
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.evaluation.agreement import evaluate_agreement
+from pass3d_ros.evaluation.agreement import evaluate_agreement, majority
 from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 from pass3d_ros.tools import params_yaml

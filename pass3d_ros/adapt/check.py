@@ -19,16 +19,8 @@ from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
 from pass3d_ros.core.stage2.segmentation import Segmenter, nearest_first
 from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.evaluation.agreement import ViewAgreement
+from pass3d_ros.evaluation.agreement import ViewAgreement, majority
 from pass3d_ros.evaluation.offline import INTENSITY_MATCH, prepared, spread
-
-
-def majority(views: np.ndarray) -> np.ndarray:
-    """The class most of each proposal's 8 views give (P,) (ties: the lower class), as ViewAgreement counts it."""
-    views = np.asarray(views, dtype=np.int64)
-    if len(views) == 0:
-        return np.zeros(0, dtype=np.int64)
-    return np.stack([(views == c).sum(axis=1) for c in range(len(CLASS_NAMES))], axis=1).argmax(axis=1)
 
 
 def check_scans(frames: Iterable[tuple[str, Frame]], config: Stage1Config, classifier: Segmenter, draws: int = 1,

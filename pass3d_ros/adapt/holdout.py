@@ -35,6 +35,17 @@ class Split:
                 f"{len(self.left_out)} between them left out")
 
 
+def fewest_scans(share: float = DEFAULT_SHARE, stretches: int = DEFAULT_STRETCHES, gap: int = DEFAULT_GAP) -> int:
+    """The fewest scans `split_scans` can split with these settings."""
+    count = 1
+    while True:
+        try:
+            split_scans(count, share, stretches, gap)
+            return count
+        except UserError:
+            count += 1
+
+
 def split_scans(count: int, share: float = DEFAULT_SHARE, stretches: int = DEFAULT_STRETCHES,
                 gap: int = DEFAULT_GAP) -> Split:
     """`count` scans in time order split into `stretches` held-out stretches of about `share` of them in all,

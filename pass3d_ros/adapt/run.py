@@ -20,7 +20,7 @@ import torch
 
 from pass3d_ros.adapt.check import check_scans
 from pass3d_ros.adapt.holdout import Split, split_scans
-from pass3d_ros.adapt.sensor import SensorReading, read_sensor
+from pass3d_ros.adapt.sensor import FAR_DISTANCE, SensorReading, read_sensor
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members
 from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint, read_checkpoint
 from pass3d_ros.core.stream import ScanStream
@@ -28,6 +28,7 @@ from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_dataset, resolve_dataset
 from pass3d_ros.evaluation.offline import evaluate_draws, prepared
+from pass3d_ros.synthetic.dataset import HEIGHT_RANGE_M
 from pass3d_ros.training.consistency import unlabelled_samples_of
 from pass3d_ros.training.trainer import Trainer, TrainOptions
 
@@ -98,6 +99,7 @@ class Adaptation:
         self.refused: list[str] = []
         self.result: AdaptResult | None = None  # set by run(), or by a Ctrl-C in the fine-tune (partial)
         self._guard_frames: list[Frame] | None = None
+        self.segmenters: dict[str, Segmenter] = {}  # "before" / "after": built once, read by the checks and the view
         self.printed: set[str] = set()  # input-check topics printed per spec: each once over the run's passes
 
     def run(self) -> AdaptResult:
@@ -138,7 +140,8 @@ class Adaptation:
         """The sensor as a stream reads it, and the held-out stretches."""
         self.sensor = read_sensor(self.scans, self.options.stage1, printed=self.printed)
         self.split = split_scans(len(self.scans))
-        far = " (no simulated sensor is close: the guard is only indicative)" if self.sensor.distance > 1.0 else ""
+        far = (" (no simulated sensor is close: the guard is only indicative)"
+               if self.sensor.distance > FAR_DISTANCE else "")
         self.log(f"sensor: {self.sensor.n_rings} rings ({self.sensor.ring_source}), nearest simulated "
                  f"{self.sensor.nearest_simulated}{far}; {self.split.describe()}")
 
@@ -146,7 +149,7 @@ class Adaptation:
         """The starting weights on the held-out scans and on the guard scenes."""
         t0 = time.monotonic()
         self.start_checkpoint, _ = read_checkpoint(self.options.weights or _shipped())
-        start = self._segmenter(self.start_checkpoint)
+        start = self.segmenters["before"] = self._segmenter(self.start_checkpoint)
         self.before = self._check(start)
         self.guard_before = self._guard(start)
         self.check_seconds = time.monotonic() - t0
@@ -169,10 +172,10 @@ class Adaptation:
         options = TrainOptions(data=[self._anchor_spec()], out=self.work / "train", init=start_path,
                                epochs=o.epochs, lr=o.lr, seed=o.seed, quiet=not o.progress, minutes=left)
         name = f"{len(adapt_scans)} scans of {', '.join(o.data)} (pass3d_adapt)"
-        self.trainer = Trainer(options, command=["pass3d_adapt"], unlabelled=unlabelled, unlabelled_name=name)
+        trainer = Trainer(options, command=["pass3d_adapt"], unlabelled=unlabelled, unlabelled_name=name)
         self.log(f"fine-tune: up to {left:.1f} min, {len(unlabelled)} unlabelled proposals, anchor "
                  f"{self._anchor_spec()}")
-        result = self.trainer.run()
+        result = trainer.run()
         self.training = {"epochs": len(result.history), "stopped": result.stopped, "minutes": left,
                          "history": result.history, "unlabelled_proposals": len(unlabelled)}
         self.adapted = self._averaged(torch.load(result.last_path, weights_only=True))
@@ -186,7 +189,7 @@ class Adaptation:
 
     def _check_after(self) -> None:
         """The adapted weights on the same held-out scans and guard scenes."""
-        adapted = self._segmenter(self.adapted)
+        adapted = self.segmenters["after"] = self._segmenter(self.adapted)
         self.after = self._check(adapted)
         self.guard_after = self._guard(adapted)
         self.log(f"after: {_agreement_line(self.after)}; guard mean IoU {_guard_mean(self.guard_after):.1f}")
@@ -232,7 +235,7 @@ class Adaptation:
 
     def _height(self) -> str:
         height = (self.sensor.mounting or {}).get("height_m")
-        return f",height={min(max(float(height), 0.3), 4.0):.2f}" if height else ""
+        return f",height={min(max(float(height), HEIGHT_RANGE_M[0]), HEIGHT_RANGE_M[1]):.2f}" if height else ""
 
     def _guard(self, segmenter: Segmenter) -> dict:
         """`segmenter` on the guard scenes (generated once, kept), over the draws."""
@@ -254,11 +257,8 @@ class Adaptation:
         state = {k: AVERAGE_ALPHA * tuned[k] + (1 - AVERAGE_ALPHA) * start[k] if tuned[k].is_floating_point()
                  else tuned[k] for k in tuned}
         model, _ = load_model({**self.start_checkpoint, "state_dict": state})
-        info = {k: v for k, v in self.start_checkpoint.items() if k not in ("state_dict", "optimizer", "scheduler")}
-        info.pop("format", None)
-        info.pop("version", None)
-        info.pop("config", None)
-        info.pop("classes", None)
+        made = ("format", "version", "config", "classes", "state_dict", "optimizer", "scheduler")  # make_checkpoint's
+        info = {k: v for k, v in self.start_checkpoint.items() if k not in made}
         info["adapted"] = {"data": list(self.options.data), "from": self.options.weights or "shipped",
                            "sensor": self.sensor.to_dict(), "anchor": self._anchor_spec(),
                            "epochs": fine_tuned.get("epoch", -1) + 1, "alpha": AVERAGE_ALPHA,
@@ -267,7 +267,7 @@ class Adaptation:
 
     def _view(self) -> dict | None:
         """A held-out scan (the middle one) labelled by the starting and the adapted weights."""
-        if self.adapted is None or len(self.split.check) == 0:
+        if "after" not in self.segmenters or len(self.split.check) == 0:
             return None
         spec, frame = self.scans[self.split.check[len(self.split.check) // 2]]
         stream = ScanStream()
@@ -275,7 +275,7 @@ class Adaptation:
         result = stream.propose(scan, self.options.stage1)
         members = [m for m in proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals) if len(m)]
         points = stream.on_training_scale(scan.points)
-        labels = [self._segmenter(c).segment(points, members).labels for c in (self.start_checkpoint, self.adapted)]
+        labels = [self.segmenters[when].segment(points, members).labels for when in ("before", "after")]
         return {"name": f"{spec}#{frame.name}", "points": scan.points, "before": labels[0], "after": labels[1]}
 
 

@@ -23,6 +23,18 @@ from pass3d_ros.evaluation.offline import INTENSITY_MATCH, each_draw, prepared, 
 AGREEMENT_CLASSES = (CAR, PEDESTRIAN, CYCLIST)
 
 
+def view_votes(views: np.ndarray) -> np.ndarray:
+    """Per proposal, how many of its views give each class (P, classes)."""
+    views = np.asarray(views, dtype=np.int64)
+    return np.stack([(views == c).sum(axis=1) for c in range(len(CLASS_NAMES))], axis=1) if len(views) else \
+        np.zeros((0, len(CLASS_NAMES)), dtype=np.int64)
+
+
+def majority(views: np.ndarray) -> np.ndarray:
+    """The class most of each proposal's views give (P,) (ties: the lower class): the class a proposal counts under."""
+    return view_votes(views).argmax(axis=1)
+
+
 class ViewAgreement:
     """Per frame and class: proposals the views' majority gives that class, and how many of them all 8 views do."""
 
@@ -34,11 +46,11 @@ class ViewAgreement:
         views = np.asarray(views, dtype=np.int64)
         row = np.zeros((len(AGREEMENT_CLASSES), 2), dtype=np.int64)
         if len(views):
-            votes = np.stack([(views == c).sum(axis=1) for c in range(len(CLASS_NAMES))], axis=1)
-            majority = votes.argmax(axis=1)
+            votes = view_votes(views)
+            chosen_class = votes.argmax(axis=1)
             unanimous = votes.max(axis=1) == views.shape[1]
             for i, cls in enumerate(AGREEMENT_CLASSES):
-                chosen = majority == cls
+                chosen = chosen_class == cls
                 row[i] = chosen.sum(), (chosen & unanimous).sum()
         self.counts.append(row)
         return row

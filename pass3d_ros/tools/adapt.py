@@ -23,11 +23,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-from pass3d_ros.adapt.holdout import split_scans
+from pass3d_ros.adapt.holdout import fewest_scans
 from pass3d_ros.adapt.output import write_folder
 from pass3d_ros.adapt.run import Adaptation, AdaptOptions
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import marked_folder_out
 from pass3d_ros.data.partials import remove_stale_partials
 from pass3d_ros.data.spec import resolve_datasets
@@ -48,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--weights", metavar="W", help="starting weights (default: the shipped ones)")
     p.add_argument("--minutes", type=number(float, 0.0, low_open=True), default=DEFAULTS.minutes, metavar="M",
                    help=f"wall-time budget of the whole run (default {DEFAULTS.minutes:g})")
-    p.add_argument("--max-scans", type=number(int, split_scans_minimum()), default=DEFAULTS.max_scans, metavar="N",
+    p.add_argument("--max-scans", type=number(int, fewest_scans()), default=DEFAULTS.max_scans, metavar="N",
                    help=f"scans read from the recording, evenly spaced (default {DEFAULTS.max_scans})")
     p.add_argument("--draws", type=number(int, 1), default=DEFAULTS.draws, metavar="D",
                    help=f"point-sample draws of each check (default {DEFAULTS.draws})")
@@ -66,17 +65,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace an existing --out this tool wrote")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
-
-
-def split_scans_minimum() -> int:
-    """The fewest scans a recording can be split into adapt and check scans with the default split."""
-    count = 1
-    while True:
-        try:
-            split_scans(count)
-            return count
-        except UserError:
-            count += 1
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -143,7 +143,7 @@ class Trainer:
     readers (tests, constructed data); `command` is the command line a checkpoint records (default sys.argv);
     `stage1` the stage-1 parameters that build the samples (default: Stage1Config()); `unlabelled` the proposals of
     unlabelled scans for view consistency when the caller has built them (pass3d_adapt: the recording's scans to
-    adapt on; consistency_samples names them), instead of `options.consistency`'s specs.
+    adapt on; `unlabelled_name` names them in the checkpoint), instead of `options.consistency`'s specs.
 
     With a time budget (`minutes`), the step that ends past it is the last: that epoch, however short, is validated
     and saved like a full one, its record says so ("stopped", "steps" of "planned"), and the run ends; validation
