@@ -274,6 +274,41 @@ def test_time_budget_stops_at_the_step_that_crosses_it_and_keeps_that_epoch(tmp_
     assert not any("stopped" in r for r in unspent.history)
 
 
+
+def test_fit_epochs_sets_the_epochs_the_budget_holds_and_the_schedule_ends_on_the_last(tmp_path):
+    """fit_epochs: after an epoch of 3 s with about 10 s left, 1 + 3 epochs fit (at most `epochs`); the cosine
+    schedule is stretched over them, so the learning rate reaches its floor at the fitted last epoch, not before."""
+    import time
+
+    def fitted(cap, left, seconds):
+        options = TrainOptions(data=["x"], out=tmp_path, epochs=cap, lr=1e-3, minutes=1.0, fit_epochs=True)
+        trainer = Trainer(options, command=["test"])
+        trainer.optimizer = torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=options.lr)
+        trainer.scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(trainer.optimizer, T_max=cap,
+                                                                       eta_min=options.lr / 100)
+        trainer.optimizer.step()
+        trainer.scheduler.step()  # the first epoch's
+        trainer.deadline = time.monotonic() + left
+        trainer._fit_epochs(0, seconds)
+        return trainer
+
+    trainer = fitted(40, 10.0, 3.0)
+    assert trainer.epochs == 4 and trainer.scheduler.T_max == 4
+    rates = []
+    for _ in range(3):
+        trainer.optimizer.step()
+        trainer.scheduler.step()
+        rates.append(trainer.optimizer.param_groups[0]["lr"])
+    assert rates[0] > rates[1] > 1e-5 and rates[2] == pytest.approx(1e-5), rates
+    assert fitted(2, 100.0, 3.0).epochs == 2  # never more than asked
+    assert fitted(40, 1.0, 3.0).epochs == 1  # no time for a second: the first was the last
+    options = TrainOptions(data=["x"], out=tmp_path, epochs=7, minutes=1.0)  # not asked to fit: unchanged
+    trainer = Trainer(options, command=["test"])
+    trainer.deadline = time.monotonic() + 1.0
+    trainer._fit_epochs(0, 3.0)
+    assert trainer.epochs == 7
+
+
 # -------------------------------------------------------------------------------------------- pass3d_train
 
 
@@ -688,3 +723,10 @@ def test_a_bad_consistency_spec_fails_before_stage_1(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "missing" in err and "not found" in err and "Traceback" not in err
     assert not list(out.glob("samples_*.npz"))  # no training sample was built first
+
+
+def test_fit_epochs_without_a_budget_is_an_argument_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        train.main(["--data", "synthetic:frames=1", "--out", str(tmp_path / "run"), "--fit-epochs"])
+    assert exc.value.code == 2 and "--fit-epochs fits the epochs to a time budget" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()

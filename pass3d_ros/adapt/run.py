@@ -50,7 +50,8 @@ class AdaptOptions:
     draws: int = 2  # point-sample draws of each check and guard
     guard_scenes: int = 10
     anchor_frames: int = 100
-    epochs: int = 12  # the fine-tune's most epochs (the budget usually ends it first)
+    epochs: int = 40  # the fine-tune's most epochs: as many as fit the budget left (Trainer fit_epochs), at most these
+    device: str = "cpu"  # torch device of the checks and the fine-tune
     lr: float = 3e-4
     seed: int = 0
     progress: bool = True
@@ -170,7 +171,8 @@ class Adaptation:
         start_path = self.work / "start.pt"
         torch.save(self.start_checkpoint, start_path)
         options = TrainOptions(data=[self._anchor_spec()], out=self.work / "train", init=start_path,
-                               epochs=o.epochs, lr=o.lr, seed=o.seed, quiet=not o.progress, minutes=left)
+                               epochs=o.epochs, lr=o.lr, seed=o.seed, quiet=not o.progress, minutes=left,
+                               fit_epochs=True, device=o.device)
         name = f"{len(adapt_scans)} scans of {', '.join(o.data)} (pass3d_adapt)"
         trainer = Trainer(options, command=["pass3d_adapt"], unlabelled=unlabelled, unlabelled_name=name)
         self.log(f"fine-tune: up to {left:.1f} min, {len(unlabelled)} unlabelled proposals, anchor "
@@ -216,7 +218,7 @@ class Adaptation:
 
     def _segmenter(self, checkpoint: dict) -> Segmenter:
         """A warmed-up classifier of `checkpoint` (a dict: nothing is written to disk)."""
-        segmenter = Segmenter(checkpoint)
+        segmenter = Segmenter(checkpoint, device=self.options.device)
         segmenter.warm_up()
         return segmenter
 

@@ -31,7 +31,7 @@ from pass3d_ros.data.outputs import marked_folder_out
 from pass3d_ros.data.partials import remove_stale_partials
 from pass3d_ros.data.spec import resolve_datasets
 from pass3d_ros.evaluation.offline import parse_params
-from pass3d_ros.tools.cli import check_writable, number, run_tool
+from pass3d_ros.tools.cli import check_writable, number, run_tool, torch_device
 
 PROG = "pass3d_adapt"
 EXIT_REFUSED = 1
@@ -56,7 +56,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--anchor-frames", type=number(int, 1), default=DEFAULTS.anchor_frames, metavar="N",
                    help="labelled synthetic scans the fine-tune keeps learning from "
                         f"(default {DEFAULTS.anchor_frames})")
-    p.add_argument("--epochs", type=number(int, 1), default=DEFAULTS.epochs, help="most fine-tune epochs")
+    p.add_argument("--epochs", type=number(int, 1), default=DEFAULTS.epochs,
+                   help=f"most fine-tune epochs (default {DEFAULTS.epochs}; the budget left sets how many fit)")
+    p.add_argument("--device", type=torch_device, default=DEFAULTS.device,
+                   help=f"torch device of the checks and the fine-tune (default {DEFAULTS.device})")
     p.add_argument("--lr", type=number(float, 0.0, low_open=True), default=DEFAULTS.lr)
     p.add_argument("--seed", type=number(int, 0), default=DEFAULTS.seed)
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
@@ -73,7 +76,8 @@ def _run(args: argparse.Namespace) -> int:
     check_writable(out, folder=True, what="--out folder")
     options = AdaptOptions(data=list(args.data), weights=args.weights, minutes=args.minutes, max_scans=args.max_scans,
                            draws=args.draws, guard_scenes=args.guard_scenes, anchor_frames=args.anchor_frames,
-                           epochs=args.epochs, lr=args.lr, seed=args.seed, progress=not args.no_progress,
+                           epochs=args.epochs, device=args.device, lr=args.lr, seed=args.seed,
+                           progress=not args.no_progress,
                            stage1=parse_params(args.param))
     limit_threads(args.threads)
     remove_stale_partials(out)

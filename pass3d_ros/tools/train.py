@@ -96,6 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--minutes", type=number(float, 0.0), default=0.0, metavar="M",
                    help="wall-time budget from the start, samples included (0: none): the epoch it ends in is "
                         "validated and saved, then the run stops")
+    p.add_argument("--fit-epochs", action="store_true",
+                   help="with --minutes: after the first epoch, as many epochs as fit the budget at its pace (at "
+                        "most --epochs), the learning-rate schedule stretched over them")
     p.add_argument("--threads", type=number(int, 0), default=0, help="torch CPU threads (0: torch default)")
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                    help="override a Stage1Config parameter for the stage-1 run that builds the samples, repeatable "
@@ -180,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.nproc > 1 and worker.world_size() > 1 and worker.LAUNCHER_ENV not in os.environ:
         parser.error("--nproc starts its own workers; under torchrun leave it out")
+    if args.fit_epochs and not args.minutes:
+        parser.error("--fit-epochs fits the epochs to a time budget: give --minutes too")
     if args.nproc > 1 and worker.world_size() == 1:
         return run_tool(PROG, lambda: _launch(args, argv))
     holder: list[Trainer] = []

@@ -109,6 +109,7 @@ class TrainOptions:
     background_keep: float = 0.3  # share of background proposals kept
     max_steps: int = 0  # cap on batches per epoch (0: all)
     minutes: float = 0.0  # wall-time budget from the start of the run, samples included (0: none): see Trainer
+    fit_epochs: bool = False  # with minutes: as many epochs as fit the budget, at most `epochs`: see Trainer
     threads: int = 0  # torch CPU threads (0: torch default)
     rebuild_cache: bool = False  # rerun stage 1 even if a sample cache exists
     quiet: bool = False  # no progress bars
@@ -147,7 +148,9 @@ class Trainer:
 
     With a time budget (`minutes`), the step that ends past it is the last: that epoch, however short, is validated
     and saved like a full one, its record says so ("stopped", "steps" of "planned"), and the run ends; validation
-    and writing come after the budget (a few seconds to a minute on CPU). Data-parallel, the ranks stop together."""
+    and writing come after the budget (a few seconds to a minute on CPU). Data-parallel, the ranks stop together.
+    With `fit_epochs` too, the first epoch's pace sets how many epochs the budget holds (at most `epochs`) and the
+    learning-rate schedule is stretched over them (pass3d_adapt: the budget, not an epoch count, ends its fine-tune)."""
 
     config: ModelConfig
     train_set: SampleSet
@@ -187,6 +190,7 @@ class Trainer:
         self.saved_epoch: int | None = None  # the last epoch this run wrote into last.pt (1-based)
         self.dist = distributed.Dist(device=options.device)
         self.deadline: float | None = None  # time.monotonic() at which the budget runs out (None: no budget)
+        self.epochs = options.epochs  # the run's epochs: `fit_epochs` may set them after the first one
 
     def run(self) -> TrainResult:
         """Train as the options say; raises TrainingError when there is nothing to train on or the
@@ -214,7 +218,9 @@ class Trainer:
         self._distribute()
         self._describe_model()
         stopped = None
-        for epoch in range(self.start_epoch, self.options.epochs):
+        epoch = self.start_epoch
+        while epoch < self.epochs:
+            began = time.monotonic()
             record = self._train_epoch(epoch)
             score = self._validate(record)
             improved = self._keep_record(record, score)
@@ -224,6 +230,9 @@ class Trainer:
                 self._log(f"time budget of {self.options.minutes:g} min reached in epoch {epoch + 1} after "
                           f"{record['steps']} of {record['planned']} steps: that epoch was validated and saved")
                 break
+            if epoch == self.start_epoch:
+                self._fit_epochs(epoch, time.monotonic() - began)
+            epoch += 1
         self._log(f"checkpoints: {self.last_path}, {self.best_path} (best score {self.best_score:.4f})")
         return TrainResult(self.history, self.best_score, self.last_path, self.best_path, stopped)
 
@@ -401,7 +410,7 @@ class Trainer:
         if o.max_steps:
             steps = min(steps, o.max_steps)
         losses, self._sure = [], []
-        bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{o.epochs}", unit="batch",
+        bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{self.epochs}", unit="batch",
                    disable=None if self.progress else True)
         started = time.perf_counter()
         stopped = None
@@ -426,11 +435,25 @@ class Trainer:
         self.scheduler.step()
         loss = distributed.mean(self.dist, float(np.mean(losses)))
         record = {"epoch": epoch, "train_loss": loss, "seconds": time.perf_counter() - started}
-        if stopped is not None or (self._out_of_time() and epoch + 1 < o.epochs):
+        if stopped is not None or (self._out_of_time() and epoch + 1 < self.epochs):
             record.update(stopped="time budget", steps=len(losses), planned=steps)
         if self._sure:
             record["consistency_sure"] = distributed.mean(self.dist, float(np.mean(self._sure)))
         return record
+
+    def _fit_epochs(self, epoch: int, seconds: float) -> None:
+        """With `fit_epochs` and a budget, after the run's first epoch: the epochs become as many as fit the time
+        left at that epoch's pace (at least this one, at most `epochs`), and the cosine schedule spans them, so a
+        budget ends the run at the schedule's end instead of cutting it or leaving time unused. Every rank agrees."""
+        if not self.options.fit_epochs or self.deadline is None:
+            return
+        left = max(self.deadline - time.monotonic(), 0.0)
+        fit = distributed.mean(self.dist, float(epoch + 1 + int(left // max(seconds, 1e-3))))
+        epochs = max(epoch + 1, min(self.options.epochs, int(fit)))
+        if epochs != self.epochs:
+            self.epochs = epochs
+            self.scheduler.T_max = epochs
+            self._log(f"time budget: {epochs} epochs fit ({seconds:.0f} s an epoch, {left / 60:.1f} min left)")
 
     def _out_of_time(self) -> bool:
         """Whether the time budget has run out, on any rank (a collective when data-parallel: every rank asks
