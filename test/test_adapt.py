@@ -142,6 +142,32 @@ TINY = ["--data", "synthetic:sensor=vlp16,frames=10,seed=5", "--minutes", "2", "
         "--anchor-frames", "4", "--no-progress", "--threads", "1"]
 
 
+@pytest.fixture(autouse=True)
+def _own_cache(tmp_path, monkeypatch):
+    """Every test here keeps pass3d_adapt's anchor samples in its own folder, never the user's ~/.cache."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg-cache"))
+
+
+def test_pass3d_adapt_keeps_the_anchor_samples_for_the_next_run(tmp_path, monkeypatch):
+    """The first run builds the anchor's samples and keeps them; a second run on the same sensor reads them instead
+    of running stage 1 on the anchor scans again; --no-cache neither reads nor keeps them."""
+    from pass3d_ros.tools import adapt
+    from pass3d_ros.training import samples
+
+    built: list[int] = []
+    real = samples.build_samples
+    monkeypatch.setattr(samples, "build_samples", lambda *a, **k: built.append(1) or real(*a, **k))
+    cache = tmp_path / "xdg-cache" / "pass3d_ros" / "adapt"
+    assert adapt.main([*TINY, "--out", str(tmp_path / "a"), "--epochs", "1"]) == 0
+    kept = sorted(p.name for p in cache.iterdir())
+    assert len(built) == 1 and len(kept) == 1 and kept[0].startswith("samples_"), (built, kept)
+    assert adapt.main([*TINY, "--out", str(tmp_path / "b"), "--epochs", "1"]) == 0
+    assert len(built) == 1, "the second run built the anchor samples again"
+    (cache / kept[0]).unlink()
+    assert adapt.main([*TINY, "--out", str(tmp_path / "c"), "--epochs", "1", "--no-cache"]) == 0
+    assert len(built) == 2 and not list(cache.iterdir())
+
+
 def test_pass3d_adapt_end_to_end_writes_weights_the_nodes_load(tmp_path, capsys):
     """The whole tool on a tiny synthetic recording: an accepted adaptation writes a folder whose weights load, whose
     parameter file names them, and whose report holds the check before and after and the guard."""

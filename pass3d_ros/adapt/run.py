@@ -18,6 +18,7 @@ from pathlib import Path
 
 import torch
 
+from pass3d_ros.adapt import sample_cache
 from pass3d_ros.adapt.check import check_scans
 from pass3d_ros.adapt.holdout import Split, split_scans
 from pass3d_ros.adapt.sensor import FAR_DISTANCE, SensorReading, read_sensor
@@ -52,6 +53,7 @@ class AdaptOptions:
     anchor_frames: int = 100
     epochs: int = 40  # the fine-tune's most epochs: as many as fit the budget left (Trainer fit_epochs), at most these
     device: str = "cpu"  # torch device of the checks and the fine-tune
+    cache: Path | None = None  # where the anchor's samples are kept between runs (None: nowhere)
     lr: float = 3e-4
     seed: int = 0
     progress: bool = True
@@ -177,7 +179,11 @@ class Adaptation:
         trainer = Trainer(options, command=["pass3d_adapt"], unlabelled=unlabelled, unlabelled_name=name)
         self.log(f"fine-tune: up to {left:.1f} min, {len(unlabelled)} unlabelled proposals, anchor "
                  f"{self._anchor_spec()}")
+        if o.cache is not None:
+            sample_cache.lend(o.cache, options.out)
         result = trainer.run()
+        if o.cache is not None:
+            sample_cache.keep(o.cache, options.out, self.log)
         self.training = {"epochs": len(result.history), "stopped": result.stopped, "minutes": left,
                          "history": result.history, "unlabelled_proposals": len(unlabelled)}
         self.adapted = self._averaged(torch.load(result.last_path, weights_only=True))

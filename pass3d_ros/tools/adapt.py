@@ -23,6 +23,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from pass3d_ros.adapt import sample_cache
 from pass3d_ros.adapt.holdout import fewest_scans
 from pass3d_ros.adapt.output import write_folder
 from pass3d_ros.adapt.run import Adaptation, AdaptOptions
@@ -66,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a stage-1 parameter, repeatable (as in pass3d_evaluate)")
     p.add_argument("--threads", type=number(int, 1), default=DEFAULT_THREADS, metavar="N", help="torch CPU threads")
     p.add_argument("--force", action="store_true", help="replace an existing --out this tool wrote")
+    p.add_argument("--no-cache", action="store_true",
+                   help=f"neither read nor keep the anchor's samples in {sample_cache.default_dir()} "
+                        "($XDG_CACHE_HOME or ~/.cache): a later run on the same sensor skips building them")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
@@ -77,7 +81,7 @@ def _run(args: argparse.Namespace) -> int:
     options = AdaptOptions(data=list(args.data), weights=args.weights, minutes=args.minutes, max_scans=args.max_scans,
                            draws=args.draws, guard_scenes=args.guard_scenes, anchor_frames=args.anchor_frames,
                            epochs=args.epochs, device=args.device, lr=args.lr, seed=args.seed,
-                           progress=not args.no_progress,
+                           progress=not args.no_progress, cache=None if args.no_cache else sample_cache.default_dir(),
                            stage1=parse_params(args.param))
     limit_threads(args.threads)
     remove_stale_partials(out)
