@@ -450,10 +450,11 @@ class Trainer:
         left = max(self.deadline - time.monotonic(), 0.0)
         fit = distributed.mean(self.dist, float(epoch + 1 + int(left // max(seconds, 1e-3))))
         epochs = max(epoch + 1, min(self.options.epochs, int(fit)))
+        capped = " (the most asked for)" if int(fit) > self.options.epochs else ""
+        self._log(f"time budget: {epochs} epochs{capped} ({seconds:.0f} s an epoch, {left / 60:.1f} min left)")
         if epochs != self.epochs:
             self.epochs = epochs
             self.scheduler.T_max = epochs
-            self._log(f"time budget: {epochs} epochs fit ({seconds:.0f} s an epoch, {left / 60:.1f} min left)")
 
     def _out_of_time(self) -> bool:
         """Whether the time budget has run out, on any rank (a collective when data-parallel: every rank asks
