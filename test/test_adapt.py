@@ -148,6 +148,27 @@ def _own_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg-cache"))
 
 
+def test_a_sample_cache_that_cannot_be_used_costs_a_rebuild_never_the_run(tmp_path):
+    """A cache path that is a file: nothing lent, nothing kept, one log line each; a usable one gets whole files."""
+    from pass3d_ros.adapt import sample_cache
+
+    folder = tmp_path / "train"
+    folder.mkdir()
+    (folder / "samples_abc.npz").write_bytes(b"npz")
+    blocked = tmp_path / "not-a-folder"
+    blocked.write_text("x")
+    lines: list[str] = []
+    sample_cache.lend(blocked, folder, lines.append)
+    sample_cache.keep(blocked, folder, lines.append)
+    assert len(lines) == 1 and lines[0].startswith("anchor samples not kept for the next run"), lines
+    cache = tmp_path / "cache"
+    sample_cache.keep(cache, folder, lines.append)
+    assert [p.name for p in cache.iterdir()] == ["samples_abc.npz"] and len(lines) == 1
+    other = tmp_path / "train2"
+    sample_cache.lend(cache, other, lines.append)
+    assert (other / "samples_abc.npz").is_symlink() and (other / "samples_abc.npz").read_bytes() == b"npz"
+
+
 def test_pass3d_adapt_keeps_the_anchor_samples_for_the_next_run(tmp_path, monkeypatch):
     """The first run builds the anchor's samples and keeps them; a second run on the same sensor reads them instead
     of running stage 1 on the anchor scans again; --no-cache neither reads nor keeps them."""

@@ -180,7 +180,7 @@ class Adaptation:
         self.log(f"fine-tune: up to {left:.1f} min, {len(unlabelled)} unlabelled proposals, anchor "
                  f"{self._anchor_spec()}")
         if o.cache is not None:
-            sample_cache.lend(o.cache, options.out)
+            sample_cache.lend(o.cache, options.out, self.log)
         result = trainer.run()
         if o.cache is not None:
             sample_cache.keep(o.cache, options.out, self.log)

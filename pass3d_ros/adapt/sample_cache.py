@@ -22,12 +22,15 @@ def default_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "pass3d_ros" / "adapt"
 
 
-def lend(cache: Path, folder: Path) -> None:
-    """Link every kept sample file into the Trainer's output `folder` (made if missing)."""
+def lend(cache: Path, folder: Path, log: Callable[[str], None]) -> None:
+    """Link every kept sample file into the Trainer's output `folder` (made if missing). A cache that cannot be read
+    costs this run the rebuild it would have had without one: one log line."""
     folder.mkdir(parents=True, exist_ok=True)
-    if cache.is_dir():
-        for kept in cache.glob(PATTERN):
+    try:
+        for kept in cache.glob(PATTERN) if cache.is_dir() else ():
             (folder / kept.name).symlink_to(kept.resolve())
+    except OSError as exc:
+        log(f"anchor samples of earlier runs not read ({cache}: {exc.strerror or exc})")
 
 
 def keep(cache: Path, folder: Path, log: Callable[[str], None]) -> None:
