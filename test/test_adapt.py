@@ -70,7 +70,23 @@ def test_label_free_check_reads_no_labels_and_agrees_with_the_view_agreement_eva
     for shares in report["class_shares"].values():
         if shares["proposals"]:
             assert sum(shares[c] for c in CLASS_NAMES) == pytest.approx(1.0)
+    draws = report["draw_agreement"]
+    assert draws["all"]["proposals"] == sum(proposals) and 0.0 <= draws["all"]["share"] <= 1.0
+    assert 0 < draws["objects"]["proposals"] <= draws["all"]["proposals"]
+    assert check_scans([("synthetic:vlp16", blind[0])], config, shipped)["draw_agreement"] is None  # one draw
     assert shipped.draw == 0, "the classifier is left on draw 0"
+
+
+def test_draw_agreement_counts_proposals_every_draw_gives_one_class():
+    """Three draws of four proposals: the first two agree in every draw (background, car), the third flips car ->
+    pedestrian, the fourth is background twice and cyclist once: 2 of 4 agree; of the 3 some draw calls an object, 1."""
+    from pass3d_ros.adapt.check import _count_same, _draw_agreement
+
+    same = np.zeros((2, 2), dtype=np.int64)
+    _count_same(same, np.array([[0, 1, 1, 0], [0, 1, 2, 0], [0, 1, 1, 3]]))
+    _count_same(same, np.zeros((3, 0), dtype=np.int64))  # a scan without proposals changes nothing
+    result = _draw_agreement(same)
+    assert result == {"all": {"proposals": 4, "share": 0.5}, "objects": {"proposals": 3, "share": pytest.approx(1 / 3)}}
 
 
 @pytest.mark.parametrize("name", SENSOR_NAMES)

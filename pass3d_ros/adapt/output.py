@@ -143,6 +143,11 @@ def report_markdown(report: dict, picture: bool) -> str:
     for name in before["agreement"]:
         lines.append(f"| {name} | {_agreement_cell(before['agreement'][name])} | "
                      f"{_agreement_cell(after['agreement'][name]) if after else '-'} |")
+    if before.get("draw_agreement"):
+        lines += ["", "Draw agreement: the share of proposals whose views' majority is the same class in every point "
+                  f"draw: all proposals {_draw_cell(before, 'all')} before, {_draw_cell(after, 'all')} after; those "
+                  f"some draw calls an object {_draw_cell(before, 'objects')} before, "
+                  f"{_draw_cell(after, 'objects')} after."]
     lines += ["", f"Proposals per scan: median {before['proposals_per_scan']['median']}.", "",
               "Share of proposals each class takes, by range (views' majority, draw 0):", "",
               "| range (m) | proposals | before: " + " / ".join(CLASS_NAMES) + " | after |", "|---|---|---|---|"]
@@ -170,6 +175,14 @@ def _agreement_cell(row: dict) -> str:
     bounds = f" [{_pct(low)}, {_pct(high)}]" if low is not None and high is not None else ""
     return (f"{_pct(row['mean'])} % ({_pct(row['min'])}..{_pct(row['max'])}){bounds}, "
             f"{sum(row['proposals'])} proposals")
+
+
+def _draw_cell(check: dict | None, key: str) -> str:
+    row = (check or {}).get("draw_agreement") or {}
+    row = row.get(key)
+    if not row or row["share"] is None:
+        return "-"
+    return f"{_pct(row['share'])} % of {row['proposals']}"
 
 
 def _guard_cell(guard: dict) -> str:
