@@ -274,7 +274,6 @@ def test_time_budget_stops_at_the_step_that_crosses_it_and_keeps_that_epoch(tmp_
     assert not any("stopped" in r for r in unspent.history)
 
 
-
 def test_fit_epochs_sets_the_epochs_the_budget_holds_and_the_schedule_ends_on_the_last(tmp_path):
     """fit_epochs: after an epoch of 3 s with about 10 s left, 1 + 3 epochs fit (at most `epochs`); the cosine
     schedule is stretched over them, so the learning rate reaches its floor at the fitted last epoch, not before."""

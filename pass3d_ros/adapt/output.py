@@ -178,8 +178,7 @@ def _agreement_cell(row: dict) -> str:
 
 
 def _draw_cell(check: dict | None, key: str) -> str:
-    row = (check or {}).get("draw_agreement") or {}
-    row = row.get(key)
+    row = ((check or {}).get("draw_agreement") or {}).get(key)
     if not row or row["share"] is None:
         return "-"
     return f"{_pct(row['share'])} % of {row['proposals']}"
