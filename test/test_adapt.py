@@ -110,6 +110,17 @@ def test_a_guessed_ring_count_is_left_out_of_the_comparison():
     assert nearest_simulated(64, 0.665, 0.166, -30.7)[0] != "hdl32e"
 
 
+def test_a_named_simulated_sensor_replaces_the_nearest_and_keeps_its_distance():
+    """`--sensor`: a recording that hides its sensor (here a VLP-16's scan, read as itself) takes the simulated
+    sensor the user names, with that sensor's signature distance, and says it was named."""
+    frame = generate_frame(seed=11, index=0, sensor="vlp16")
+    guessed = read_sensor([("synthetic", frame)], Stage1Config())
+    named = read_sensor([("synthetic", frame)], Stage1Config(), simulated="vlp32c")
+    assert (guessed.nearest_simulated, guessed.simulated_named) == ("vlp16", False)
+    assert (named.nearest_simulated, named.simulated_named) == ("vlp32c", True)
+    assert named.distance > guessed.distance and named.n_rings == guessed.n_rings
+
+
 def test_a_laser_table_is_named_only_when_exactly_one_fits():
     assert fitting_table(64, 2.9, -23.9) == "hdl64e"  # Pandar64's top laser (+15) would be far above the returns
     assert fitting_table(64, 11.0, -24.9) == "pandar64"  # its top lasers see sky: returns up to 11 degrees
@@ -251,11 +262,18 @@ def test_pass3d_adapt_refuses_weights_that_fail_the_guard(tmp_path, capsys, monk
 
     monkeypatch.setattr(run, "GUARD_DROP", -100.0)
     out = tmp_path / "refused"
-    assert adapt.main([*TINY, "--out", str(out), "--epochs", "1"]) == 1
+    assert adapt.main([*TINY, "--out", str(out), "--epochs", "1", "--sensor", "hdl32e"]) == 1
     assert sorted(p.name for p in out.iterdir()) == [".pass3d_output", "report.json", "report.md", "view.png"]
     report = json.loads((out / "report.json").read_text())
-    assert report["verdict"] == "refused" and report["refused"][0].startswith("guard: unseen synthetic vlp16")
+    assert report["verdict"] == "refused" and report["refused"][0].startswith("guard: unseen synthetic hdl32e")
+    assert report["sensor"]["simulated_named"] and report["guard"]["before"]["spec"].startswith(
+        "synthetic:sensor=hdl32e,")
+    assert "simulated sensor named by --sensor hdl32e" in (out / "report.md").read_text()
     assert "refused, no weights written: guard" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        adapt.main([*TINY, "--out", str(tmp_path / "x"), "--sensor", "vlp33"])
+    assert exit_.value.code == 2
+    assert "invalid choice: 'vlp33'" in capsys.readouterr().err
 
 
 def test_pass3d_adapt_ctrl_c_keeps_the_last_epoch_marked_partial(tmp_path, capsys, monkeypatch):

@@ -66,8 +66,9 @@ def params_yaml(result: AdaptResult, weights: Path, data: list[str]) -> str:
     doc = {"/**/cluster_proposal_node": {"ros__parameters": cluster},
            "/**/segmentation_node": {"ros__parameters": {"weights": str(weights.resolve())}}}
     head = (f"# Written by {PROG} on {time.strftime('%Y-%m-%d %H:%M')} from {', '.join(data)}.\n"
-            f"# Sensor read: {s.n_rings} rings ({s.ring_source}), lowest laser {s.bottom_deg:.1f} deg, nearest "
-            f"simulated {s.nearest_simulated}; laser table {s.laser_table}.\n"
+            f"# Sensor read: {s.n_rings} rings ({s.ring_source}), lowest laser {s.bottom_deg:.1f} deg, "
+            f"{'named' if s.simulated_named else 'nearest'} simulated {s.nearest_simulated}; "
+            f"laser table {s.laser_table}.\n"
             + ("# PARTIAL: interrupted during the fine-tune; these weights were never checked.\n"
                if result.partial else ""))
     return head + yaml.safe_dump(doc, sort_keys=False)
@@ -132,7 +133,8 @@ def report_markdown(report: dict, picture: bool) -> str:
               f"{len(report['scans']['adapt'])} adapted on, {len(report['scans']['check'])} held out "
               f"({report['scans']['left_out']} between them left out); {report['seconds'] / 60:.1f} min.",
               f"Sensor: {s['n_rings']} rings ({s['ring_source']}), resolution {s['vertical_deg']:.2f} x "
-              f"{s['horizontal_deg']:.3f} deg, lowest laser {s['bottom_deg']:.1f} deg; nearest simulated sensor "
+              f"{s['horizontal_deg']:.3f} deg, lowest laser {s['bottom_deg']:.1f} deg; "
+              f"{'simulated sensor named by --sensor' if s.get('simulated_named') else 'nearest simulated sensor'} "
               f"{s['nearest_simulated']} (distance {s['distance']:.2f}); laser table {s['laser_table']}; mounting "
               f"{s['mounting']}.", ""]
     before, after = report["before"], report["after"]

@@ -21,7 +21,7 @@ import torch
 from pass3d_ros.adapt import sample_cache
 from pass3d_ros.adapt.check import check_scans
 from pass3d_ros.adapt.holdout import Split, split_scans
-from pass3d_ros.adapt.sensor import FAR_DISTANCE, SensorReading, read_sensor
+from pass3d_ros.adapt.sensor import AUTO, FAR_DISTANCE, SensorReading, read_sensor
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members
 from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint, read_checkpoint
 from pass3d_ros.core.stream import ScanStream
@@ -53,6 +53,7 @@ class AdaptOptions:
     anchor_frames: int = 100
     epochs: int = 40  # the fine-tune's most epochs: as many as fit the budget left (Trainer fit_epochs), at most these
     device: str = "cpu"  # torch device of the checks and the fine-tune
+    sensor: str = AUTO  # the simulated sensor of the anchor and the guard (AUTO: the nearest to the recording)
     cache: Path | None = None  # where the anchor's samples are kept between runs (None: nowhere)
     lr: float = 3e-4
     seed: int = 0
@@ -141,12 +142,14 @@ class Adaptation:
 
     def _read_sensor_and_split(self) -> None:
         """The sensor as a stream reads it, and the held-out stretches."""
-        self.sensor = read_sensor(self.scans, self.options.stage1, printed=self.printed)
+        self.sensor = read_sensor(self.scans, self.options.stage1, printed=self.printed,
+                                  simulated=self.options.sensor)
         self.split = split_scans(len(self.scans))
-        far = (" (no simulated sensor is close: the guard is only indicative)"
-               if self.sensor.distance > FAR_DISTANCE else "")
-        self.log(f"sensor: {self.sensor.n_rings} rings ({self.sensor.ring_source}), nearest simulated "
-                 f"{self.sensor.nearest_simulated}{far}; {self.split.describe()}")
+        s = self.sensor
+        far = ("" if s.distance <= FAR_DISTANCE else " (unlike the recording: the guard is only indicative)"
+               if s.simulated_named else " (no simulated sensor is close: the guard is only indicative)")
+        self.log(f"sensor: {s.n_rings} rings ({s.ring_source}), {'named' if s.simulated_named else 'nearest'} "
+                 f"simulated {s.nearest_simulated}{far}; {self.split.describe()}")
 
     def _check_before(self) -> None:
         """The starting weights on the held-out scans and on the guard scenes."""

@@ -24,6 +24,7 @@ ELEVATION_PERCENTILES = (0.5, 99.5)  # the span of a scan's returns, robust to a
 SPAN_SCALE_DEG = 5.0  # one unit of distance between sensors: 5 degrees of the lowest laser's elevation
 TABLE_SPAN_TOLERANCE_DEG = 2.0  # a named laser table fits when its lowest laser lies this close to the measured one
 FAR_DISTANCE = 1.0  # a signature distance beyond which the nearest simulated sensor is only the least unlike one
+AUTO = "auto"  # no simulated sensor named: the nearest one is taken
 SKY_ALLOWANCE_DEG = 8.0  # the top lasers may see only sky (no returns): the measured top may lie this far below
 # Ring sources that count the sensor's lasers: all but elevation bins, which only guess the count.
 COUNTED_SOURCES = tuple(source for source in RING_SOURCES if source != "elevation_bins")
@@ -40,12 +41,13 @@ class SensorReading:
     horizontal_deg: float
     top_deg: float
     bottom_deg: float
-    nearest_simulated: str  # pass3d_ros.synthetic.sensor.SENSOR_NAMES
+    nearest_simulated: str  # pass3d_ros.synthetic.sensor.SENSOR_NAMES: the nearest, or the one the user named
     distance: float  # between the two signatures (0: the same; over FAR_DISTANCE: no simulated sensor is close)
     laser_table: str  # a LASER_TABLES name whose rings and span fit, else "auto"
     intensity_divisor: float  # the full scale the stream divides intensities by (1.0: already 0..1)
     mounting: dict | None
     intensity: dict
+    simulated_named: bool = False  # the simulated sensor was named by the user (pass3d_adapt --sensor), not guessed
 
     def to_dict(self) -> dict:
         """Plain values for reports."""
@@ -68,12 +70,17 @@ def simulated_signature(name: str) -> np.ndarray:
                       float(elevations[0]))
 
 
-def nearest_simulated(n_rings: float, vertical: float, horizontal: float, bottom: float) -> tuple[str, float]:
-    """The simulated sensor whose signature lies nearest (Euclidean, over the features known: NaN or a count of 0
-    leaves one out) to this one, and the distance."""
+def simulated_distances(n_rings: float, vertical: float, horizontal: float, bottom: float) -> dict[str, float]:
+    """Each simulated sensor's signature distance (Euclidean, over the features known: NaN or a count of 0 leaves
+    one out) to this one."""
     measured = _signature(n_rings if n_rings > 0 else np.nan, vertical, horizontal, bottom)
     finite = np.isfinite(measured)
-    distances = {name: float(np.linalg.norm((simulated_signature(name) - measured)[finite])) for name in SENSOR_NAMES}
+    return {name: float(np.linalg.norm((simulated_signature(name) - measured)[finite])) for name in SENSOR_NAMES}
+
+
+def nearest_simulated(n_rings: float, vertical: float, horizontal: float, bottom: float) -> tuple[str, float]:
+    """The simulated sensor whose signature lies nearest to this one, and the distance."""
+    distances = simulated_distances(n_rings, vertical, horizontal, bottom)
     name = min(distances, key=distances.get)
     return name, distances[name]
 
@@ -89,9 +96,11 @@ def fitting_table(n_rings: int, top: float, bottom: float) -> str:
 
 
 def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
-                intensity_match: bool = INTENSITY_MATCH, printed: set[str] | None = None) -> SensorReading:
+                intensity_match: bool = INTENSITY_MATCH, printed: set[str] | None = None,
+                simulated: str = AUTO) -> SensorReading:
     """Stage 1 over the (spec, frame) pairs of one sensor, one stream state held across them as a node holds it;
-    UserError when no scan has points. `printed`: input-check lines already printed (evaluation.offline.prepared)."""
+    UserError when no scan has points. `printed`: input-check lines already printed (evaluation.offline.prepared).
+    `simulated`: a SENSOR_NAMES entry to take as the simulated sensor instead of the nearest (AUTO)."""
     stream = ScanStream(intensity_match=intensity_match)
     rings, sources, vertical, horizontal, tops, bottoms = [], Counter(), [], [], [], []
     for spec, frame in frames:
@@ -118,11 +127,12 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
     top, bottom = float(np.median(tops)), float(np.median(bottoms))
     source = sources.most_common(1)[0][0]
     counted = source in COUNTED_SOURCES  # elevation bins guess the ring count, and so the vertical resolution
-    nearest, distance = nearest_simulated(n_rings if counted else 0, values[0] if counted else np.nan, values[1],
-                                          bottom)
+    distances = simulated_distances(n_rings if counted else 0, values[0] if counted else np.nan, values[1], bottom)
+    nearest = min(distances, key=distances.get) if simulated == AUTO else simulated
     return SensorReading(
         scans=len(tops), n_rings=n_rings, ring_source=source, vertical_deg=values[0],
-        horizontal_deg=values[1], top_deg=top, bottom_deg=bottom, nearest_simulated=nearest, distance=distance,
+        horizontal_deg=values[1], top_deg=top, bottom_deg=bottom, nearest_simulated=nearest,
+        distance=distances[nearest], simulated_named=simulated != AUTO,
         laser_table=fitting_table(n_rings, top, bottom) if source in COUNTED_SOURCES else "auto",
         intensity_divisor=float(stream.scale.divisor or 1.0),
         mounting=next(iter(stream.mountings.values()), None), intensity=dict(stream.maps),

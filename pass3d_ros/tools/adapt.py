@@ -27,11 +27,13 @@ from pass3d_ros.adapt import sample_cache
 from pass3d_ros.adapt.holdout import fewest_scans
 from pass3d_ros.adapt.output import write_folder
 from pass3d_ros.adapt.run import Adaptation, AdaptOptions
+from pass3d_ros.adapt.sensor import AUTO
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.outputs import marked_folder_out
 from pass3d_ros.data.partials import remove_stale_partials
 from pass3d_ros.data.spec import resolve_datasets
 from pass3d_ros.evaluation.offline import parse_params
+from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 from pass3d_ros.tools.cli import check_writable, number, run_tool, torch_device
 
 PROG = "pass3d_adapt"
@@ -59,6 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
                         f"(default {DEFAULTS.anchor_frames})")
     p.add_argument("--epochs", type=number(int, 1), default=DEFAULTS.epochs,
                    help=f"most fine-tune epochs (default {DEFAULTS.epochs}; the budget left sets how many fit)")
+    p.add_argument("--sensor", choices=(AUTO, *SENSOR_NAMES), default=DEFAULTS.sensor,
+                   help="the simulated sensor whose labelled scans anchor the fine-tune and whose unseen scenes "
+                        f"guard it (default {DEFAULTS.sensor}: the one nearest what the recording shows; name "
+                        "yours when the recording hides it, e.g. merged sensors or a frame away from the sensor)")
     p.add_argument("--device", type=torch_device, default=DEFAULTS.device,
                    help=f"torch device of the checks and the fine-tune (default {DEFAULTS.device})")
     p.add_argument("--lr", type=number(float, 0.0, low_open=True), default=DEFAULTS.lr)
@@ -80,7 +86,7 @@ def _run(args: argparse.Namespace) -> int:
     check_writable(out, folder=True, what="--out folder")
     options = AdaptOptions(data=list(args.data), weights=args.weights, minutes=args.minutes, max_scans=args.max_scans,
                            draws=args.draws, guard_scenes=args.guard_scenes, anchor_frames=args.anchor_frames,
-                           epochs=args.epochs, device=args.device, lr=args.lr, seed=args.seed,
+                           epochs=args.epochs, device=args.device, sensor=args.sensor, lr=args.lr, seed=args.seed,
                            progress=not args.no_progress, cache=None if args.no_cache else sample_cache.default_dir(),
                            stage1=parse_params(args.param))
     limit_threads(args.threads)
