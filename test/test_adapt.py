@@ -298,3 +298,62 @@ def test_pass3d_adapt_ctrl_c_keeps_the_last_epoch_marked_partial(tmp_path, capsy
     assert segmenter.checkpoint_info["adapted"]["epochs"] == 1
     assert "PARTIAL" in (out / "pass3d_params.yaml").read_text()
     assert "partial weights of the last finished epoch" in capsys.readouterr().err
+    kept = list((tmp_path / "xdg-cache" / "pass3d_ros" / "adapt").iterdir())
+    assert [p.name[:8] for p in kept] == ["samples_"], "the anchor samples were not kept after the Ctrl-C"
+
+
+def test_the_fine_tune_command_line_gives_pass3d_train_the_same_options(tmp_path):
+    """--nproc hands the fine-tune to pass3d_train's workers by command line: read back by pass3d_train's own
+    parser, it gives the options the one-process fine-tune runs with."""
+    from pass3d_ros.adapt.run import train_arguments
+    from pass3d_ros.tools import train
+    from pass3d_ros.training.trainer import TrainOptions
+
+    for quiet, fit in ((True, True), (False, False)):
+        options = TrainOptions(data=["synthetic:sensor=vlp32c,frames=100,seed=51,height=0.41"], out=tmp_path / "t",
+                               init=tmp_path / "start.pt", epochs=40, lr=3e-4, seed=3, quiet=quiet,
+                               minutes=7.123456789, fit_epochs=fit, device="cpu",
+                               consistency_samples=str(tmp_path / "u.npz"))
+        parsed = train.options(train.build_parser().parse_args(train_arguments(options)))
+        assert parsed.record() == options.record()
+
+
+def test_pass3d_adapt_fine_tunes_in_several_processes(tmp_path, capfd, monkeypatch):
+    """--nproc 2: the fine-tune runs in two pass3d_train workers that read the recording's proposals from the file
+    handed over; the result is checked, judged and written as in one process (the guard is opened wide: one epoch
+    on 4 anchor scans may lose a point, and what is tested here is the hand-over)."""
+    from pass3d_ros.adapt import run
+    from pass3d_ros.tools import adapt
+
+    monkeypatch.setattr(run, "GUARD_DROP", 100.0)
+    out = tmp_path / "two"
+    assert adapt.main([*TINY, "--out", str(out), "--epochs", "1", "--nproc", "2"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"] == "accepted" and report["training"]["processes"] == 2
+    assert report["training"]["epochs"] == 1 and report["after"] is not None
+    out_text = capfd.readouterr().out
+    proposals = report["training"]["unlabelled_proposals"]
+    assert "data-parallel: 2 processes" in out_text, out_text
+    assert f"view consistency: {proposals} unlabelled proposals" in out_text
+    assert "consistency_sure" in report["history"][0], "the workers' epoch ran no view-consistency step"
+    assert Segmenter(out / "weights.pt").checkpoint_info["adapted"]["epochs"] == 1
+
+
+def test_pass3d_adapt_ctrl_c_in_several_processes_keeps_the_last_epoch_marked_partial(tmp_path, monkeypatch):
+    """The launcher answers a Ctrl-C with status 130 once its workers stopped: pass3d_adapt then keeps the last
+    finished epoch as it does in one process (here the workers finish one epoch and the launcher reports 130)."""
+    from pass3d_ros.tools import adapt
+    from pass3d_ros.training import launcher
+
+    real = launcher.launch
+
+    def finished_then_interrupted(*args, **kwargs) -> int:
+        assert real(*args, **kwargs) == 0
+        return launcher.EXIT_SIGINT
+
+    monkeypatch.setattr(launcher, "launch", finished_then_interrupted)
+    out = tmp_path / "partial"
+    assert adapt.main([*TINY, "--out", str(out), "--epochs", "1", "--nproc", "2"]) == 130
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"] == "partial" and report["after"] is None
+    assert Segmenter(out / "weights.pt").checkpoint_info["adapted"]["partial"] == "interrupted"

@@ -681,7 +681,7 @@ def test_trainer_takes_unlabelled_proposals_built_by_its_caller(tmp_path):
         torch.set_num_threads(threads)
     assert result.history[0]["consistency_sure"] == 1.0
     assert torch.load(result.last_path, weights_only=True)["data"]["consistency"] == ["my drive, scans 0-9"]
-    with pytest.raises(TrainingError, match="either the --consistency specs or the given proposals"):
+    with pytest.raises(TrainingError, match="one of: the --consistency specs, --consistency-samples, the given proposals"):
         Trainer(dataclasses.replace(options, consistency=[UNLABELLED]), unlabelled=unlabelled)
 
 
@@ -729,3 +729,19 @@ def test_fit_epochs_without_a_budget_is_an_argument_error(tmp_path, capsys):
         train.main(["--data", "synthetic:frames=1", "--out", str(tmp_path / "run"), "--fit-epochs"])
     assert exc.value.code == 2 and "--fit-epochs fits the epochs to a time budget" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
+
+
+def test_consistency_samples_name_a_readable_sample_file_and_exclude_consistency_specs(tmp_path, capsys):
+    """--consistency-samples (pass3d_adapt --nproc's hand-over): a file that is no sample file is exit 2 naming it,
+    before any training sample is built; with --consistency too, an argument error."""
+    out = tmp_path / "run"
+    bad = tmp_path / "unlabelled.npz"
+    bad.write_bytes(b"not an npz")
+    assert train.main(["--data", "synthetic:frames=1", "--out", str(out), "--consistency-samples", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert f"--consistency-samples {bad}: not a readable sample file" in err and "Traceback" not in err
+    assert not list(out.glob("samples_*.npz"))
+    with pytest.raises(SystemExit) as exc:
+        train.main(["--data", "synthetic:frames=1", "--out", str(out), "--consistency", "synthetic:frames=1",
+                    "--consistency-samples", str(bad)])
+    assert exc.value.code == 2 and "give one" in capsys.readouterr().err

@@ -11,6 +11,7 @@ GUARD_DROP mean IoU on the guard scenes are refused. The folder is written by ad
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -30,13 +31,16 @@ from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_dataset, resolve_dataset
 from pass3d_ros.evaluation.offline import evaluate_draws, prepared
 from pass3d_ros.synthetic.dataset import HEIGHT_RANGE_M
+from pass3d_ros.training import launcher
 from pass3d_ros.training.consistency import unlabelled_samples_of
+from pass3d_ros.training.samples import SampleSet
 from pass3d_ros.training.trainer import Trainer, TrainOptions
 
 GUARD_DROP = 1.0  # mean IoU points the guard scenes may lose (mean over draws), as issue 39 sets it
 GUARD_SEED = 97  # unseen synthetic scenes: no shipped training run drew from this seed
 ANCHOR_SEED = 51  # labelled synthetic scenes the fine-tune keeps learning from, so the labels are not forgotten
 AVERAGE_ALPHA = 0.5  # the adapted weights: this share of the fine-tune, the rest the starting weights
+TRAIN_MODULE = "pass3d_ros.tools.train"  # the fine-tune's workers with --nproc: pass3d_train's, as its launcher runs
 RESERVE = 1.2  # the time after the fine-tune is budgeted as this many times the checks before it took
 
 
@@ -53,6 +57,7 @@ class AdaptOptions:
     anchor_frames: int = 100
     epochs: int = 40  # the fine-tune's most epochs: as many as fit the budget left (Trainer fit_epochs), at most these
     device: str = "cpu"  # torch device of the checks and the fine-tune
+    nproc: int = 1  # fine-tune processes (data-parallel, pass3d_train's launcher); the checks run in this one
     sensor: str = AUTO  # the simulated sensor of the anchor and the guard (AUTO: the nearest to the recording)
     cache: Path | None = None  # where the anchor's samples are kept between runs (None: nowhere)
     lr: float = 3e-4
@@ -178,18 +183,39 @@ class Adaptation:
         options = TrainOptions(data=[self._anchor_spec()], out=self.work / "train", init=start_path,
                                epochs=o.epochs, lr=o.lr, seed=o.seed, quiet=not o.progress, minutes=left,
                                fit_epochs=True, device=o.device)
-        name = f"{len(adapt_scans)} scans of {', '.join(o.data)} (pass3d_adapt)"
-        trainer = Trainer(options, command=["pass3d_adapt"], unlabelled=unlabelled, unlabelled_name=name)
         self.log(f"fine-tune: up to {left:.1f} min, {len(unlabelled)} unlabelled proposals, anchor "
-                 f"{self._anchor_spec()}")
+                 f"{self._anchor_spec()}" + (f", {o.nproc} processes" if o.nproc > 1 else ""))
         if o.cache is not None:
             sample_cache.lend(o.cache, options.out, self.log)
-        result = trainer.run()
-        if o.cache is not None:
-            sample_cache.keep(o.cache, options.out, self.log)
-        self.training = {"epochs": len(result.history), "stopped": result.stopped, "minutes": left,
-                         "history": result.history, "unlabelled_proposals": len(unlabelled)}
-        self.adapted = self._averaged(torch.load(result.last_path, weights_only=True))
+        try:
+            if o.nproc > 1:
+                history, stopped = self._train_in_workers(options, unlabelled)
+            else:
+                name = f"{len(adapt_scans)} scans of {', '.join(o.data)} (pass3d_adapt)"
+                result = Trainer(options, command=["pass3d_adapt"], unlabelled=unlabelled,
+                                 unlabelled_name=name).run()
+                history, stopped = result.history, result.stopped
+        finally:  # kept after a Ctrl-C too: the anchor's samples are whole once written
+            if o.cache is not None:
+                sample_cache.keep(o.cache, options.out, self.log)
+        self.training = {"epochs": len(history), "stopped": stopped, "minutes": left, "history": history,
+                         "unlabelled_proposals": len(unlabelled), "processes": o.nproc}
+        self.adapted = self._averaged(torch.load(options.out / "last.pt", weights_only=True))
+
+    def _train_in_workers(self, options: TrainOptions, unlabelled: SampleSet) -> tuple[list[dict], str | None]:
+        """The fine-tune in `nproc` data-parallel pass3d_train workers (its launcher), the unlabelled proposals handed
+        over as a sample file; its history and why it stopped early, read back from its last checkpoint."""
+        samples = self.work / "unlabelled.npz"
+        unlabelled.save(samples)
+        options = dataclasses.replace(options, consistency_samples=str(samples))
+        status = launcher.launch(TRAIN_MODULE, train_arguments(options), self.options.nproc, "pass3d_adapt")
+        if status in (launcher.EXIT_SIGINT, launcher.EXIT_SIGTERM):
+            raise KeyboardInterrupt
+        if status != 0:
+            raise UserError(f"the fine-tune's {self.options.nproc} processes failed (exit {status}; their report "
+                            "is above)")
+        history = torch.load(options.out / "last.pt", weights_only=True).get("history", [])
+        return history, (history[-1].get("stopped") if history else None)
 
     def _keep_partial(self) -> None:
         """After a Ctrl-C in the fine-tune: the last finished epoch's weights, averaged, kept as partial."""
@@ -288,6 +314,17 @@ class Adaptation:
         points = stream.on_training_scale(scan.points)
         labels = [self.segmenters[when].segment(points, members).labels for when in ("before", "after")]
         return {"name": f"{spec}#{frame.name}", "points": scan.points, "before": labels[0], "after": labels[1]}
+
+
+def train_arguments(options: TrainOptions) -> list[str]:
+    """pass3d_train's command line for the fine-tune's options (those pass3d_adapt sets; the rest are defaults)."""
+    args = ["--data", *options.data[:1], "--out", str(options.out), "--init", str(options.init),
+            "--epochs", str(options.epochs), "--lr", repr(options.lr), "--seed", str(options.seed),
+            "--minutes", repr(options.minutes), "--device", options.device,
+            "--consistency-samples", str(options.consistency_samples)]
+    for spec in options.data[1:]:
+        args += ["--data", spec]
+    return args + (["--fit-epochs"] if options.fit_epochs else []) + (["--no-progress"] if options.quiet else [])
 
 
 def _count(dataset: Dataset) -> int | None:

@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "yours when the recording hides it, e.g. merged sensors or a frame away from the sensor)")
     p.add_argument("--device", type=torch_device, default=DEFAULTS.device,
                    help=f"torch device of the checks and the fine-tune (default {DEFAULTS.device})")
+    p.add_argument("--nproc", type=number(int, 1), default=DEFAULTS.nproc, metavar="N",
+                   help="fine-tune in N data-parallel processes, one torch thread each (pass3d_train's launcher); "
+                        f"the checks run in this one (default {DEFAULTS.nproc})")
     p.add_argument("--lr", type=number(float, 0.0, low_open=True), default=DEFAULTS.lr)
     p.add_argument("--seed", type=number(int, 0), default=DEFAULTS.seed)
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
@@ -86,7 +89,8 @@ def _run(args: argparse.Namespace) -> int:
     check_writable(out, folder=True, what="--out folder")
     options = AdaptOptions(data=list(args.data), weights=args.weights, minutes=args.minutes, max_scans=args.max_scans,
                            draws=args.draws, guard_scenes=args.guard_scenes, anchor_frames=args.anchor_frames,
-                           epochs=args.epochs, device=args.device, sensor=args.sensor, lr=args.lr, seed=args.seed,
+                           epochs=args.epochs, device=args.device, sensor=args.sensor, nproc=args.nproc,
+                           lr=args.lr, seed=args.seed,
                            progress=not args.no_progress, cache=None if args.no_cache else sample_cache.default_dir(),
                            stage1=parse_params(args.param))
     limit_threads(args.threads)

@@ -107,6 +107,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="data-parallel: train in N processes started here (the alternative is torchrun)")
     p.add_argument("--consistency", action="append", default=[], metavar="SPEC",
                    help="unlabelled real scans FORMAT:PATH for view consistency (their labels are not read)")
+    p.add_argument("--consistency-samples", metavar="FILE",
+                   help="instead of --consistency: their proposals as a sample file, as pass3d_adapt --nproc hands "
+                        "its recording's to the workers")
     p.add_argument("--consistency-weight", type=number(float, 0.0), default=consistency.DEFAULT_WEIGHT,
                    help="weight of the view-consistency term")
     p.add_argument("--consistency-threshold", type=number(float, 0.0, 1.0), default=consistency.DEFAULT_THRESHOLD,
@@ -185,6 +188,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--nproc starts its own workers; under torchrun leave it out")
     if args.fit_epochs and not args.minutes:
         parser.error("--fit-epochs fits the epochs to a time budget: give --minutes too")
+    if args.consistency and args.consistency_samples:
+        parser.error("--consistency and --consistency-samples both name the unlabelled scans: give one")
     if args.nproc > 1 and worker.world_size() == 1:
         return run_tool(PROG, lambda: _launch(args, argv))
     holder: list[Trainer] = []

@@ -115,6 +115,7 @@ class TrainOptions:
     quiet: bool = False  # no progress bars
     param: list[str] = field(default_factory=list)  # stage-1 overrides KEY=VALUE as given (the Trainer's `stage1`)
     consistency: list[str] = field(default_factory=list)  # unlabelled real data specs for view consistency
+    consistency_samples: str | None = None  # or their proposals, a sample file (SampleSet.save; pass3d_adapt --nproc)
     consistency_weight: float = view_consistency.DEFAULT_WEIGHT
     consistency_threshold: float = view_consistency.DEFAULT_THRESHOLD
     consistency_batch: int = view_consistency.DEFAULT_BATCH  # unlabelled proposals per step, all processes
@@ -125,6 +126,14 @@ class TrainOptions:
         """The options as a checkpoint stores them: plain values, paths as strings."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
         return {k: (str(v) if isinstance(v, Path) else v) for k, v in values.items()}
+
+
+def _read_sample_file(path: Path) -> SampleSet:
+    """A sample file written by SampleSet.save; UserError naming it when it cannot be read."""
+    try:
+        return SampleSet.load(path)
+    except (OSError, ValueError, KeyError, EOFError) as exc:
+        raise UserError(f"--consistency-samples {path}: not a readable sample file ({exc})") from exc
 
 
 @dataclass
@@ -171,8 +180,9 @@ class Trainer:
         unlabelled: SampleSet | None = None,
         unlabelled_name: str = "",
     ) -> None:
-        if unlabelled is not None and options.consistency:
-            raise TrainingError("view consistency reads either the --consistency specs or the given proposals")
+        if sum((unlabelled is not None, bool(options.consistency), bool(options.consistency_samples))) > 1:
+            raise TrainingError("view consistency reads one of: the --consistency specs, --consistency-samples, "
+                                "the given proposals")
         self.options = options
         self.stage1 = stage1
         self.proposer = proposer
@@ -184,7 +194,9 @@ class Trainer:
         self.start_epoch, self.best_score, self.history = 0, -math.inf, []
         self.data_info: dict = {}
         self.unlabelled: SampleSet | None = unlabelled  # proposals of the `consistency` scans (or the caller's)
-        self.unlabelled_names = list(options.consistency) or ([unlabelled_name or "given"] if unlabelled else [])
+        self.unlabelled_names = list(options.consistency) or (
+            [unlabelled_name or "given"] if unlabelled is not None
+            else [str(options.consistency_samples)] if options.consistency_samples else [])
         self._sure: list[float] = []  # the epoch's shares of unlabelled points sure enough to be a target
         self.init_model: PointNet2Seg | None = None  # the network `init` names, loaded before any work
         self.saved_epoch: int | None = None  # the last epoch this run wrote into last.pt (1-based)
@@ -276,6 +288,8 @@ class Trainer:
         o = self.options
         if o.consistency:  # small: every rank builds it alike
             self.unlabelled = view_consistency.unlabelled_samples(o.consistency, self.stage1)
+        elif o.consistency_samples:
+            self.unlabelled = _read_sample_file(Path(o.consistency_samples))
         if self.unlabelled is not None:
             if len(self.unlabelled) == 0:
                 raise TrainingError(f"no proposals in {', '.join(self.unlabelled_names)} for view consistency")
