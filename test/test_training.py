@@ -681,7 +681,7 @@ def test_trainer_takes_unlabelled_proposals_built_by_its_caller(tmp_path):
         torch.set_num_threads(threads)
     assert result.history[0]["consistency_sure"] == 1.0
     assert torch.load(result.last_path, weights_only=True)["data"]["consistency"] == ["my drive, scans 0-9"]
-    with pytest.raises(TrainingError, match="one of: the --consistency specs, --consistency-samples, the given proposals"):
+    with pytest.raises(TrainingError, match="reads one of: the --consistency specs"):
         Trainer(dataclasses.replace(options, consistency=[UNLABELLED]), unlabelled=unlabelled)
 
 
