@@ -239,6 +239,7 @@ def test_pass3d_adapt_end_to_end_writes_weights_the_nodes_load(tmp_path, capsys)
     weights = params["/**/segmentation_node"]["ros__parameters"]["weights"]
     assert Path(weights) == (out / "weights.pt").resolve()
     assert params["/**/cluster_proposal_node"]["ros__parameters"]["stage1"]["sensor"] == "vlp16"
+    assert "input_topic" not in params["/**/cluster_proposal_node"]["ros__parameters"]
     for spec in params_yaml.NODES:  # every name written is one the node declares
         body = params[f"/**/{spec.node_name}"]["ros__parameters"]
         names = {k for k, v in body.items() if not isinstance(v, dict)}
@@ -309,8 +310,9 @@ def test_the_fine_tune_command_line_gives_pass3d_train_the_same_options(tmp_path
     from pass3d_ros.tools import train
     from pass3d_ros.training.trainer import TrainOptions
 
-    for quiet, fit in ((True, True), (False, False)):
+    for quiet, fit, draws in ((True, True, 0), (False, False, 2)):
         options = TrainOptions(data=["synthetic:sensor=vlp32c,frames=100,seed=51,height=0.41"], out=tmp_path / "t",
+                               consistency_draws=draws,
                                init=tmp_path / "start.pt", epochs=40, lr=3e-4, seed=3, quiet=quiet,
                                minutes=7.123456789, fit_epochs=fit, device="cpu",
                                consistency_samples=str(tmp_path / "u.npz"))
@@ -357,3 +359,21 @@ def test_pass3d_adapt_ctrl_c_in_several_processes_keeps_the_last_epoch_marked_pa
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "partial" and report["after"] is None
     assert Segmenter(out / "weights.pt").checkpoint_info["adapted"]["partial"] == "interrupted"
+
+
+def test_a_bag_recording_names_its_topic_in_the_parameter_file(tmp_path):
+    """From a bag the parameter file carries the topic the scans came from, so the node listens where the driver
+    publishes; other data leave the node's default (tested end to end above)."""
+    import yaml
+
+    from pass3d_ros.data import bag_convert
+    from pass3d_ros.tools import adapt
+
+    bag = tmp_path / "drive"
+    bag_convert.convert(["synthetic:sensor=vlp16,frames=10,seed=5"], bag, topic="/ouster/points", progress=False,
+                        log=lambda _: None)
+    args = [*TINY, "--out", str(tmp_path / "mine"), "--epochs", "1"]
+    args[1] = f"bag:{bag}"
+    assert adapt.main(args) == 0
+    params = yaml.safe_load((tmp_path / "mine" / "pass3d_params.yaml").read_text())
+    assert params["/**/cluster_proposal_node"]["ros__parameters"]["input_topic"] == "/ouster/points"

@@ -60,7 +60,8 @@ def params_yaml(result: AdaptResult, weights: Path, data: list[str]) -> str:
     stage1: dict = {"sensor": s.laser_table}
     if s.mounting:
         stage1["sensor_height"] = float(s.mounting["height_m"])
-    cluster: dict = {"stage1": stage1}
+    cluster: dict = {"input_topic": result.topic} if result.topic else {}
+    cluster["stage1"] = stage1
     if s.intensity_divisor != 1.0:
         cluster["intensity_scale"] = float(1.0 / s.intensity_divisor)
     doc = {"/**/cluster_proposal_node": {"ros__parameters": cluster},

@@ -26,6 +26,7 @@ from pass3d_ros.adapt.sensor import AUTO, FAR_DISTANCE, SensorReading, read_sens
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members
 from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint, read_checkpoint
 from pass3d_ros.core.stream import ScanStream
+from pass3d_ros.data.bag import parse_bag_spec, select_topic
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_dataset, resolve_dataset
@@ -61,6 +62,7 @@ class AdaptOptions:
     sensor: str = AUTO  # the simulated sensor of the anchor and the guard (AUTO: the nearest to the recording)
     cache: Path | None = None  # where the anchor's samples are kept between runs (None: nowhere)
     lr: float = 3e-4
+    consistency_draws: int = 0  # K > 0: sample consistency too (pass3d_train --consistency-draws K)
     seed: int = 0
     progress: bool = True
     stage1: Stage1Config = field(default_factory=Stage1Config)
@@ -83,6 +85,7 @@ class AdaptResult:
     partial: str | None = None  # why the run ended early ("interrupted"), None when it did not
     seconds: float = 0.0
     view: dict | None = None  # a held-out scan's points and labels before and after, for the picture
+    topic: str | None = None  # the recording's PointCloud2 topic when it is bags of one topic: the node's input_topic
 
     @property
     def accepted(self) -> bool:
@@ -99,6 +102,7 @@ class Adaptation:
         self.log = log
         self.started = time.monotonic()
         self.scans: list[tuple[str, Frame]] = []
+        self.topic: str | None = None
         self.start_checkpoint: dict = {}
         self.check_seconds = 0.0
         self.after: dict | None = None
@@ -132,8 +136,10 @@ class Adaptation:
         """At most max_scans scans of the recording, evenly spaced over each spec, in time order."""
         o = self.options
         each = max(1, o.max_scans // len(o.data))
+        topics = set()
         for spec in o.data:
             dataset = resolve_dataset(spec)
+            topics.add(_bag_topic(dataset))
             count = _count(dataset)
             stride = max(1, -(-count // each)) if count else 1
             kept = 0
@@ -143,6 +149,7 @@ class Adaptation:
                     kept += 1
         if not self.scans:
             raise UserError(f"no scans in {', '.join(o.data)}")
+        self.topic = topics.pop() if len(topics) == 1 else None
         self.log(f"read {len(self.scans)} scans of {', '.join(o.data)}")
 
     def _read_sensor_and_split(self) -> None:
@@ -182,7 +189,7 @@ class Adaptation:
         torch.save(self.start_checkpoint, start_path)
         options = TrainOptions(data=[self._anchor_spec()], out=self.work / "train", init=start_path,
                                epochs=o.epochs, lr=o.lr, seed=o.seed, quiet=not o.progress, minutes=left,
-                               fit_epochs=True, device=o.device)
+                               fit_epochs=True, device=o.device, consistency_draws=o.consistency_draws)
         self.log(f"fine-tune: up to {left:.1f} min, {len(unlabelled)} unlabelled proposals, anchor "
                  f"{self._anchor_spec()}" + (f", {o.nproc} processes" if o.nproc > 1 else ""))
         if o.cache is not None:
@@ -245,7 +252,8 @@ class Adaptation:
             sensor=self.sensor, split=self.split, scan_names=[f"{s}#{f.name}" for s, f in self.scans],
             before=self.before, guard_before=self.guard_before, after=self.after, guard_after=self.guard_after,
             weights=self.adapted, training=self.training, refused=list(self.refused), partial=partial,
-            seconds=time.monotonic() - self.started, view=self._view() if partial is None else None)
+            seconds=time.monotonic() - self.started, view=self._view() if partial is None else None,
+            topic=self.topic)
         self.result = result
         return result
 
@@ -324,7 +332,16 @@ def train_arguments(options: TrainOptions) -> list[str]:
             "--consistency-samples", str(options.consistency_samples)]
     for spec in options.data[1:]:
         args += ["--data", spec]
+    args += ["--consistency-draws", str(options.consistency_draws)] if options.consistency_draws else []
     return args + (["--fit-epochs"] if options.fit_epochs else []) + (["--no-progress"] if options.quiet else [])
+
+
+def _bag_topic(dataset: Dataset) -> str | None:
+    """The PointCloud2 topic a `bag:` spec reads (as its reader picks it), None for any other format."""
+    if dataset.format != "bag":
+        return None
+    path, topic = parse_bag_spec(dataset.path)
+    return select_topic(path, topic)
 
 
 def _count(dataset: Dataset) -> int | None:
