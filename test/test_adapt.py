@@ -121,6 +121,17 @@ def test_a_named_simulated_sensor_replaces_the_nearest_and_keeps_its_distance():
     assert named.distance > guessed.distance and named.n_rings == guessed.n_rings
 
 
+def test_a_recording_of_one_intensity_is_read_as_such():
+    """A driver or conversion that drops intensity (every point reads 1.0, as the VLP-32C pair's) is told apart from
+    a sensor with intensities, by the stream's own check on most scans."""
+    frames = [generate_frame(seed=11, index=i, sensor="vlp16") for i in range(3)]
+    assert read_sensor([("s", f) for f in frames], Stage1Config()).constant_intensity is None
+    for frame in frames[:2]:
+        frame.points[:, 3] = 1.0
+    assert read_sensor([("s", f) for f in frames], Stage1Config()).constant_intensity == 1.0
+    assert read_sensor([("s", f) for f in frames[1:]], Stage1Config()).constant_intensity is None  # 1 of 2 scans
+
+
 def test_a_laser_table_is_named_only_when_exactly_one_fits():
     assert fitting_table(64, 2.9, -23.9) == "hdl64e"  # Pandar64's top laser (+15) would be far above the returns
     assert fitting_table(64, 11.0, -24.9) == "pandar64"  # its top lasers see sky: returns up to 11 degrees

@@ -401,17 +401,18 @@ def test_init_starts_from_a_checkpoints_weights(tmp_path, capsys):
     common = ["--data", "constructed:train", "--config", "lite", "--epochs", "1", "--batch-size", "4",
               "--max-steps", "1", "--quiet", "--seed", "4"]
     run = functools.partial(train.run, proposer=instance_proposer, frame_source=lambda specs: iter(frames))
-    # The first run groups as the shipped weights do; grouping has no weights, so a "set" run may start there.
+    # The first run groups as the shipped weights do; grouping has no weights, so a "set" run may start there, and
+    # one that feeds intensity as 0 (--no-intensity: a sensor without it) may start from one that read it.
     assert run(train.build_parser().parse_args([*common, "--out", str(first), "--grouping", "slot"])) == 0
     start = torch.load(first / "best.pt", weights_only=True)["state_dict"]
     argv = [*common, "--out", str(second), "--init", str(first / "best.pt"), "--lr", "0", "--weight-decay", "0",
-            "--grouping", "set"]
+            "--grouping", "set", "--no-intensity"]
     assert run(train.build_parser().parse_args(argv)) == 0
     assert f"initial weights: {first / 'best.pt'}" in capsys.readouterr().out
     tuned = torch.load(second / "last.pt", weights_only=True)
     assert tuned["epoch"] == 0 and tuned["train_args"]["init"] == str(first / "best.pt")
     assert torch.load(first / "best.pt", weights_only=True)["config"]["grouping"] == "slot"
-    assert tuned["config"]["grouping"] == "set"
+    assert tuned["config"]["grouping"] == "set" and tuned["config"]["extra"]["intensity"] is False
     for name, value in start.items():
         if not name.endswith(("running_mean", "running_var", "num_batches_tracked")):
             assert torch.equal(value, tuned["state_dict"][name]), name

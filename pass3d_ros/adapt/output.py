@@ -137,7 +137,9 @@ def report_markdown(report: dict, picture: bool) -> str:
               f"{s['horizontal_deg']:.3f} deg, lowest laser {s['bottom_deg']:.1f} deg; "
               f"{'simulated sensor named by --sensor' if s.get('simulated_named') else 'nearest simulated sensor'} "
               f"{s['nearest_simulated']} (distance {s['distance']:.2f}); laser table {s['laser_table']}; mounting "
-              f"{s['mounting']}.", ""]
+              f"{s['mounting']}" + ("" if s.get("constant_intensity") is None else
+                                    f"; intensity {s['constant_intensity']:g} on every point (none to learn from)")
+              + ".", ""]
     before, after = report["before"], report["after"]
     lines += ["## Held-out scans, no labels", "",
               "View agreement: the share of proposals all 8 canonical views give the same class (mean over "

@@ -48,6 +48,8 @@ class SensorReading:
     mounting: dict | None
     intensity: dict
     simulated_named: bool = False  # the simulated sensor was named by the user (pass3d_adapt --sensor), not guessed
+    constant_intensity: float | None = None  # the one intensity (0..1) every point of most scans reads (a driver or
+    # conversion dropped it), None when the scans carry intensity
 
     def to_dict(self) -> dict:
         """Plain values for reports."""
@@ -103,10 +105,13 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
     `simulated`: a SENSOR_NAMES entry to take as the simulated sensor instead of the nearest (AUTO)."""
     stream = ScanStream(intensity_match=intensity_match)
     rings, sources, vertical, horizontal, tops, bottoms = [], Counter(), [], [], [], []
+    constant: list[float] = []
     for spec, frame in frames:
         scan = prepared(stream, spec, frame, config, printed=printed)
         if len(scan.points) == 0:
             continue
+        if any(note.topic == "intensity-constant" for note in scan.notes):
+            constant.append(float(scan.points[0, 3]))
         result = stream.propose(scan, config)
         stream.on_training_scale(scan.points)
         xyz = scan.points[:, :3].astype(np.float64)
@@ -133,6 +138,7 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
         scans=len(tops), n_rings=n_rings, ring_source=source, vertical_deg=values[0],
         horizontal_deg=values[1], top_deg=top, bottom_deg=bottom, nearest_simulated=nearest,
         distance=distances[nearest], simulated_named=simulated != AUTO,
+        constant_intensity=float(np.median(constant)) if 2 * len(constant) > len(tops) else None,
         laser_table=fitting_table(n_rings, top, bottom) if source in COUNTED_SOURCES else "auto",
         intensity_divisor=float(stream.scale.divisor or 1.0),
         mounting=next(iter(stream.mountings.values()), None), intensity=dict(stream.maps),

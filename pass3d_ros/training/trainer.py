@@ -366,11 +366,16 @@ class Trainer:
 
     def _initialise(self) -> None:
         """With `init`, load its weights into the fresh model (fine-tuning); the model configuration must
-        match (the checkpoint's, including the n feature and intensity settings)."""
+        match (the checkpoint's, including the n feature setting; intensity may be turned off)."""
         if self.init_model is None:
             return
-        # The grouping has no weights: a network trained with one can start training with the other.
-        if {**self.init_model.config.to_dict(), "grouping": self.config.grouping} != self.config.to_dict():
+        # The grouping has no weights: a network trained with one can start training with the other; and a network
+        # that read intensity can start training without it (--no-intensity, a sensor without it: that input is 0).
+        init = self.init_model.config.to_dict()
+        init["grouping"] = self.config.grouping
+        if self.options.no_intensity:
+            init["extra"] = {**init["extra"], "intensity": False}
+        if init != self.config.to_dict():
             raise TrainingError(f"{self.options.init} was trained with another config "
                                 f"({self.init_model.config.name}); cannot start from it")
         self.model.load_state_dict(self.init_model.state_dict())
