@@ -321,9 +321,8 @@ def test_the_fine_tune_command_line_gives_pass3d_train_the_same_options(tmp_path
     from pass3d_ros.tools import train
     from pass3d_ros.training.trainer import TrainOptions
 
-    for quiet, fit, draws in ((True, True, 0), (False, False, 2)):
+    for quiet, fit in ((True, True), (False, False)):
         options = TrainOptions(data=["synthetic:sensor=vlp32c,frames=100,seed=51,height=0.41"], out=tmp_path / "t",
-                               consistency_draws=draws,
                                init=tmp_path / "start.pt", epochs=40, lr=3e-4, seed=3, quiet=quiet,
                                minutes=7.123456789, fit_epochs=fit, device="cpu",
                                consistency_samples=str(tmp_path / "u.npz"))

@@ -62,7 +62,6 @@ class AdaptOptions:
     sensor: str = AUTO  # the simulated sensor of the anchor and the guard (AUTO: the nearest to the recording)
     cache: Path | None = None  # where the anchor's samples are kept between runs (None: nowhere)
     lr: float = 3e-4
-    consistency_draws: int = 0  # K > 0: sample consistency too (pass3d_train --consistency-draws K)
     seed: int = 0
     progress: bool = True
     stage1: Stage1Config = field(default_factory=Stage1Config)
@@ -189,7 +188,7 @@ class Adaptation:
         torch.save(self.start_checkpoint, start_path)
         options = TrainOptions(data=[self._anchor_spec()], out=self.work / "train", init=start_path,
                                epochs=o.epochs, lr=o.lr, seed=o.seed, quiet=not o.progress, minutes=left,
-                               fit_epochs=True, device=o.device, consistency_draws=o.consistency_draws)
+                               fit_epochs=True, device=o.device)
         self.log(f"fine-tune: up to {left:.1f} min, {len(unlabelled)} unlabelled proposals, anchor "
                  f"{self._anchor_spec()}" + (f", {o.nproc} processes" if o.nproc > 1 else ""))
         if o.cache is not None:
@@ -332,7 +331,6 @@ def train_arguments(options: TrainOptions) -> list[str]:
             "--consistency-samples", str(options.consistency_samples)]
     for spec in options.data[1:]:
         args += ["--data", spec]
-    args += ["--consistency-draws", str(options.consistency_draws)] if options.consistency_draws else []
     return args + (["--fit-epochs"] if options.fit_epochs else []) + (["--no-progress"] if options.quiet else [])
 
 
