@@ -69,7 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"torch device of the checks and the fine-tune (default {DEFAULTS.device})")
     p.add_argument("--nproc", type=number(int, 1), default=DEFAULTS.nproc, metavar="N",
                    help="fine-tune in N data-parallel processes of --threads torch threads each (pass3d_train's "
-                        f"launcher); the checks run in this one (default {DEFAULTS.nproc})")
+                        f"launcher; the checks run in this one); default {DEFAULTS.nproc}: 2 measured faster but "
+                        "slightly worse (docs/adapt.md)")
     p.add_argument("--lr", type=number(float, 0.0, low_open=True), default=DEFAULTS.lr)
     p.add_argument("--seed", type=number(int, 0), default=DEFAULTS.seed)
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
