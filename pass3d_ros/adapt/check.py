@@ -96,4 +96,3 @@ def _draw_agreement(same: np.ndarray) -> dict:
     """The shares of proposals (all; those some draw calls an object) every draw gives the same class."""
     return {key: {"proposals": int(same[k, 0]), "share": float(same[k, 1] / same[k, 0]) if same[k, 0] else None}
             for k, key in enumerate(("all", "objects"))}
-

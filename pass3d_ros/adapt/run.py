@@ -195,22 +195,23 @@ class Adaptation:
             sample_cache.lend(o.cache, options.out, self.log)
         try:
             if o.nproc > 1:
-                history, stopped = self._train_in_workers(options, unlabelled)
+                self._train_in_workers(options, unlabelled)
             else:
                 name = f"{len(adapt_scans)} scans of {', '.join(o.data)} (pass3d_adapt)"
-                result = Trainer(options, command=["pass3d_adapt"], unlabelled=unlabelled,
-                                 unlabelled_name=name).run()
-                history, stopped = result.history, result.stopped
+                Trainer(options, command=["pass3d_adapt"], unlabelled=unlabelled, unlabelled_name=name).run()
         finally:  # kept after a Ctrl-C too: the anchor's samples are whole once written
             if o.cache is not None:
                 sample_cache.keep(o.cache, options.out, self.log)
-        self.training = {"epochs": len(history), "stopped": stopped, "minutes": left, "history": history,
-                         "unlabelled_proposals": len(unlabelled), "processes": o.nproc}
-        self.adapted = self._averaged(torch.load(options.out / "last.pt", weights_only=True))
+        last = torch.load(options.out / "last.pt", weights_only=True)  # its history: one record an epoch
+        history = last.get("history", [])
+        self.training = {"epochs": len(history), "stopped": history[-1].get("stopped") if history else None,
+                         "minutes": left, "history": history, "unlabelled_proposals": len(unlabelled),
+                         "processes": o.nproc}
+        self.adapted = self._averaged(last)
 
-    def _train_in_workers(self, options: TrainOptions, unlabelled: SampleSet) -> tuple[list[dict], str | None]:
+    def _train_in_workers(self, options: TrainOptions, unlabelled: SampleSet) -> None:
         """The fine-tune in `nproc` data-parallel pass3d_train workers (its launcher), the unlabelled proposals handed
-        over as a sample file; its history and why it stopped early, read back from its last checkpoint."""
+        over as a sample file."""
         samples = self.work / "unlabelled.npz"
         unlabelled.save(samples)
         options = dataclasses.replace(options, consistency_samples=str(samples))
@@ -220,8 +221,6 @@ class Adaptation:
         if status != 0:
             raise UserError(f"the fine-tune's {self.options.nproc} processes failed (exit {status}; their report "
                             "is above)")
-        history = torch.load(options.out / "last.pt", weights_only=True).get("history", [])
-        return history, (history[-1].get("stopped") if history else None)
 
     def _keep_partial(self) -> None:
         """After a Ctrl-C in the fine-tune: the last finished epoch's weights, averaged, kept as partial."""
