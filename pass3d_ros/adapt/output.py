@@ -60,6 +60,8 @@ def params_yaml(result: AdaptResult, weights: Path, data: list[str]) -> str:
     stage1: dict = {"sensor": s.laser_table}
     if s.mounting:
         stage1["sensor_height"] = float(s.mounting["height_m"])
+    if result.min_range > 0.0:
+        stage1["min_range"] = float(result.min_range)
     cluster: dict = {"input_topic": result.topic} if result.topic else {}
     cluster["stage1"] = stage1
     if s.intensity_divisor != 1.0:
@@ -140,6 +142,11 @@ def report_markdown(report: dict, picture: bool) -> str:
               f"{s['mounting']}" + ("" if s.get("constant_intensity") is None else
                                     f"; intensity {s['constant_intensity']:g} on every point (none to learn from)")
               + ".", ""]
+    body = s.get("self_returns")
+    if body:
+        lines += [f"The vehicle's own returns: {body['note']}" + (f"; left out nearer than {body['radius_m']:g} m "
+                  "(`stage1.min_range` in pass3d_params.yaml; delete it if the robot works among objects that near)."
+                  if body["radius_m"] > 0 else "."), ""]
     before, after = report["before"], report["after"]
     lines += ["## Held-out scans, no labels", "",
               "View agreement: the share of proposals all 8 canonical views give the same class (mean over "

@@ -85,6 +85,7 @@ class AdaptResult:
     seconds: float = 0.0
     view: dict | None = None  # a held-out scan's points and labels before and after, for the picture
     topic: str | None = None  # the recording's PointCloud2 topic when it is bags of one topic: the node's input_topic
+    min_range: float = 0.0  # stage1.min_range the run used (--param, or the vehicle's own returns read): the nodes' too
 
     @property
     def accepted(self) -> bool:
@@ -152,9 +153,18 @@ class Adaptation:
         self.log(f"read {len(self.scans)} scans of {', '.join(o.data)}")
 
     def _read_sensor_and_split(self) -> None:
-        """The sensor as a stream reads it, and the held-out stretches."""
+        """The sensor as a stream reads it, and the held-out stretches. The vehicle's own returns, when the scans show
+        them, are left out of stage 1 from here on (stage1.min_range) and the sensor read again without them: they
+        skew its elevation span and hide its laser lines."""
         self.sensor = read_sensor(self.scans, self.options.stage1, printed=self.printed,
                                   simulated=self.options.sensor)
+        body = self.sensor.self_returns
+        if body is not None and body.radius_m > self.options.stage1.min_range:
+            stage1 = dataclasses.replace(self.options.stage1, min_range=body.radius_m)
+            self.options = dataclasses.replace(self.options, stage1=stage1)
+            self.log(f"self-returns: {body.note}; stage1.min_range {body.radius_m:g} m leaves them out")
+            again = read_sensor(self.scans, stage1, printed=self.printed, simulated=self.options.sensor)
+            self.sensor = dataclasses.replace(again, self_returns=body)
         self.split = split_scans(len(self.scans))
         s = self.sensor
         far = ("" if s.distance <= FAR_DISTANCE else " (unlike the recording: the guard is only indicative)"
@@ -251,7 +261,7 @@ class Adaptation:
             before=self.before, guard_before=self.guard_before, after=self.after, guard_after=self.guard_after,
             weights=self.adapted, training=self.training, refused=list(self.refused), partial=partial,
             seconds=time.monotonic() - self.started, view=self._view() if partial is None else None,
-            topic=self.topic)
+            topic=self.topic, min_range=self.options.stage1.min_range)
         self.result = result
         return result
 

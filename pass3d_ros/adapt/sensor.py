@@ -1,6 +1,7 @@
 """What adaptation reads from a recording about its sensor, as the nodes learn it from a stream: rings and their
-resolution, the elevation span, the mounting (height and tilt), the intensity scale and map, and which simulated
-sensor of the synthetic world is closest (its labelled scans anchor the fine-tune, and its unseen scenes guard it).
+resolution, the elevation span, the mounting (height and tilt), the intensity scale and map, the vehicle's own returns
+(adapt/self_returns.py), and which simulated sensor of the synthetic world is closest (its labelled scans anchor the
+fine-tune, and its unseen scenes guard it).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from pass3d_ros.adapt.self_returns import SelfReturnReader, SelfReturns
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage1.lasers import LASER_TABLES
 from pass3d_ros.core.stage1.ring import RING_SOURCES
@@ -50,6 +52,7 @@ class SensorReading:
     simulated_named: bool = False  # the simulated sensor was named by the user (pass3d_adapt --sensor), not guessed
     constant_intensity: float | None = None  # the one intensity (0..1) every point of most scans reads (a driver or
     # conversion dropped it), None when the scans carry intensity
+    self_returns: SelfReturns | None = None  # the vehicle's own returns the scans show (None: not looked for)
 
     def to_dict(self) -> dict:
         """Plain values for reports."""
@@ -106,6 +109,7 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
     stream = ScanStream(intensity_match=intensity_match)
     rings, sources, vertical, horizontal, tops, bottoms = [], Counter(), [], [], [], []
     constant: list[float] = []
+    body = SelfReturnReader()
     for spec, frame in frames:
         scan = prepared(stream, spec, frame, config, printed=printed)
         if len(scan.points) == 0:
@@ -113,6 +117,7 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
         if any(note.topic == "intensity-constant" for note in scan.notes):
             constant.append(float(scan.points[0, 3]))
         result = stream.propose(scan, config)
+        body.add(scan.points, result.ground)
         stream.on_training_scale(scan.points)
         xyz = scan.points[:, :3].astype(np.float64)
         elevation = np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
@@ -141,5 +146,5 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
         constant_intensity=float(np.median(constant)) if 2 * len(constant) > len(tops) else None,
         laser_table=fitting_table(n_rings, top, bottom) if source in COUNTED_SOURCES else "auto",
         intensity_divisor=float(stream.scale.divisor or 1.0),
-        mounting=next(iter(stream.mountings.values()), None), intensity=dict(stream.maps),
+        mounting=next(iter(stream.mountings.values()), None), intensity=dict(stream.maps), self_returns=body.read(),
     )
