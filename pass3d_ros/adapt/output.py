@@ -70,7 +70,7 @@ def params_yaml(result: AdaptResult, weights: Path, data: list[str]) -> str:
            "/**/segmentation_node": {"ros__parameters": {"weights": str(weights.resolve())}}}
     head = (f"# Written by {PROG} on {time.strftime('%Y-%m-%d %H:%M')} from {', '.join(data)}.\n"
             f"# Sensor read: {s.n_rings} rings ({s.ring_source}), lowest laser {s.bottom_deg:.1f} deg, "
-            f"{'named' if s.simulated_named else 'nearest'} simulated {s.nearest_simulated}; "
+            f"{s.simulated_how} simulated {s.nearest_simulated}; "
             f"laser table {s.laser_table}.\n"
             + ("# PARTIAL: interrupted during the fine-tune; these weights were never checked.\n"
                if result.partial else ""))
@@ -132,14 +132,14 @@ def report_markdown(report: dict, picture: bool) -> str:
     if report["notes"]:
         lines += ["Notes: " + "; ".join(report["notes"]) + ".", ""]
     s = report["sensor"]
+    chosen = "simulated sensor named by --sensor" if s["simulated_how"] == "named" else "nearest simulated sensor"
     lines += [f"Data: {', '.join(report['data'])}; {report['scans']['read']} scans read, "
               f"{len(report['scans']['adapt'])} adapted on, {len(report['scans']['check'])} held out "
               f"({report['scans']['left_out']} between them left out); {report['seconds'] / 60:.1f} min.",
               f"Sensor: {s['n_rings']} rings ({s['ring_source']}), resolution {s['vertical_deg']:.2f} x "
               f"{s['horizontal_deg']:.3f} deg, lowest laser {s['bottom_deg']:.1f} deg; "
-              f"{'simulated sensor named by --sensor' if s.get('simulated_named') else 'nearest simulated sensor'} "
-              f"{s['nearest_simulated']} (distance {s['distance']:.2f}); laser table {s['laser_table']}; mounting "
-              f"{s['mounting']}" + ("" if s.get("constant_intensity") is None else
+              f"{chosen} {s['nearest_simulated']} (distance {s['distance']:.2f}); laser table {s['laser_table']}; "
+              f"mounting {s['mounting']}" + ("" if s.get("constant_intensity") is None else
                                     f"; intensity {s['constant_intensity']:g} on every point (none to learn from)")
               + ".", ""]
     body = s.get("self_returns")
@@ -168,7 +168,7 @@ def report_markdown(report: dict, picture: bool) -> str:
         lines.append(f"| {bin_name} | {row['proposals']} | {' / '.join(_pct(row[c]) for c in CLASS_NAMES)} | "
                      f"{' / '.join(_pct(other[c]) for c in CLASS_NAMES) if other else '-'} |")
     guard = report["guard"]
-    lines += ["", "## Guard: unseen synthetic scenes of the nearest simulated sensor", "",
+    lines += ["", f"## Guard: unseen synthetic scenes of the {s['simulated_how']} simulated sensor", "",
               f"`{guard['before']['spec']}`: mean IoU over draws {_guard_cell(guard['before'])} before, "
               f"{_guard_cell(guard['after']) if guard['after'] else '-'} after; the adapted weights may lose at most "
               f"{guard['drop_allowed']:g} point.", ""]

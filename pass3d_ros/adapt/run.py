@@ -169,7 +169,7 @@ class Adaptation:
         s = self.sensor
         far = ("" if s.distance <= FAR_DISTANCE else " (unlike the recording: the guard is only indicative)"
                if s.simulated_named else " (no simulated sensor is close: the guard is only indicative)")
-        self.log(f"sensor: {s.n_rings} rings ({s.ring_source}), {'named' if s.simulated_named else 'nearest'} "
+        self.log(f"sensor: {s.n_rings} rings ({s.ring_source}), {s.simulated_how} "
                  f"simulated {s.nearest_simulated}{far}; {self.split.describe()}")
 
     def _check_before(self) -> None:

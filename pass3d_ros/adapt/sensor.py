@@ -54,9 +54,14 @@ class SensorReading:
     # conversion dropped it), None when the scans carry intensity
     self_returns: SelfReturns | None = None  # the vehicle's own returns the scans show (None: not looked for)
 
+    @property
+    def simulated_how(self) -> str:
+        """How the simulated sensor was chosen, for logs and reports: "named" (--sensor) or "nearest"."""
+        return "named" if self.simulated_named else "nearest"
+
     def to_dict(self) -> dict:
         """Plain values for reports."""
-        return asdict(self)
+        return {**asdict(self), "simulated_how": self.simulated_how}
 
 
 def _signature(n_rings: float, vertical: float, horizontal: float, bottom: float) -> np.ndarray:

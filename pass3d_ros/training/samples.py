@@ -304,13 +304,16 @@ def cache_path(
     return Path(cache_dir) / f"samples_{cache_key(texts, background_keep, seed, keep_frame_labels, name)}.npz"
 
 
+READ_ERRORS = (OSError, ValueError, KeyError, EOFError)  # what SampleSet.load raises on a file it cannot read
+
+
 def load_cached(path: Path) -> SampleSet | None:
     """The sample cache at `path`, or None when there is none or it cannot be read (then it is rebuilt)."""
     if not path.is_file():
         return None
     try:
         return SampleSet.load(path)
-    except (OSError, ValueError, KeyError):
+    except READ_ERRORS:
         return None
 
 

@@ -54,6 +54,7 @@ from pass3d_ros.training import consistency as view_consistency  # `consistency`
 from pass3d_ros.training import distributed
 from pass3d_ros.training.losses import make_loss
 from pass3d_ros.training.samples import (
+    READ_ERRORS,
     Proposer,
     SampleSet,
     build_samples,
@@ -132,7 +133,7 @@ def _read_sample_file(path: Path) -> SampleSet:
     """A sample file written by SampleSet.save; UserError naming it when it cannot be read."""
     try:
         return SampleSet.load(path)
-    except (OSError, ValueError, KeyError, EOFError) as exc:
+    except READ_ERRORS as exc:
         raise UserError(f"--consistency-samples {path}: not a readable sample file ({exc})") from exc
 
 
