@@ -353,6 +353,34 @@ def test_semantickitti_missing_labels_and_bad_sizes(tmp_path: Path) -> None:
         semantickitti.read_semantickitti(tmp_path)
 
 
+def test_semantickitti_reads_a_ring_side_file_of_either_kind(tmp_path: Path) -> None:
+    """velodyne_ring/<name>.bin (uint16) or .npy (integers), where a conversion kept the driver's ring, arrive as
+    Frame.ring; a scan without one has none; a side file of the wrong size or kind names itself (exit 2)."""
+    seq = tmp_path / "00"
+    rng = np.random.default_rng(4)
+    for name in ("000000", "000001", "000002"):
+        semantickitti.write_semantickitti_frame(seq, Frame(name, _scan(30, rng)))
+    (seq / "velodyne_ring").mkdir()
+    ring = (np.arange(30) % 16).astype(np.uint16)
+    ring.tofile(seq / "velodyne_ring" / "000000.bin")
+    np.save(seq / "velodyne_ring" / "000001.npy", ring.astype(np.int64)[::-1])
+    frames = list(open_dataset(f"semantickitti:{seq}"))
+    np.testing.assert_array_equal(frames[0].ring, ring)
+    np.testing.assert_array_equal(frames[1].ring, ring[::-1])
+    assert frames[0].ring.dtype == frames[1].ring.dtype == np.uint16 and frames[2].ring is None
+    ring[:29].tofile(seq / "velodyne_ring" / "000000.bin")
+    with pytest.raises(DatasetError, match=r"000000.bin: 58 bytes, expected 60"):
+        list(semantickitti.read_semantickitti(seq))
+    ring.tofile(seq / "velodyne_ring" / "000000.bin")
+    for bad in (np.full(30, -1), np.zeros(30, np.float32), np.zeros(29, np.int64)):
+        np.save(seq / "velodyne_ring" / "000001.npy", bad)
+        with pytest.raises(DatasetError, match=r"000001.npy: .*expected 30 integer rings"):
+            list(semantickitti.read_semantickitti(seq))
+    (seq / "velodyne_ring" / "000001.npy").write_bytes(b"not numpy")
+    with pytest.raises(DatasetError, match=r"000001.npy: not a readable"):
+        list(semantickitti.read_semantickitti(seq))
+
+
 # ---------------------------------------------------------------- SqueezeSeg
 
 

@@ -12,6 +12,8 @@ times.txt (seconds per frame). Conventions:
 - Instance: Frame.instance = (v >> 16) - 1, so SemanticKITTI's 0 (no instance) becomes -1; the writer
   stores instance + 1. Labels None when labels/ is missing (or that frame's .label file is).
 - Stamps: times.txt seconds converted exactly through decimal; without it, frame number x 100 ms.
+- Ring field: velodyne_ring/<NNNNNN>.bin (uint16 a point) or .npy (integers), where a conversion kept the
+  driver's ring (this project's other_sensors and unlabelled_sensors do); read as Frame.ring, any numbering.
 - Writer: car 10, pedestrian 30, cyclist 31, ground background 40 (road), other background 99
   (other-object); times.txt is not written, so read-back stamps are frame number x 100 ms.
 """
@@ -102,6 +104,34 @@ def read_label_file(path: Path, n_points: int) -> np.ndarray:
     return np.fromfile(path, dtype="<u4")
 
 
+def read_ring_file(path: Path, n_points: int) -> np.ndarray:
+    """The ring field of one scan from a side file (uint16 .bin, or a 1-D integer .npy); DatasetError unless it holds
+    one value in 0..65535 for each point."""
+    if path.suffix == ".bin":
+        size = path.stat().st_size
+        if size != 2 * n_points:
+            raise DatasetError(f"{path}: {size} bytes, expected {2 * n_points} (one uint16 ring for each of "
+                               f"{n_points} points)")
+        return np.fromfile(path, dtype="<u2").astype(np.uint16)
+    try:
+        ring = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: not a readable .npy ring file ({exc})") from None
+    if ring.shape != (n_points,) or ring.dtype.kind not in "iu" or (ring.size and not 0 <= ring.min() <= ring.max()
+                                                                      <= np.iinfo(np.uint16).max):
+        raise DatasetError(f"{path}: {ring.dtype} {ring.shape}, expected {n_points} integer rings in 0..65535")
+    return ring.astype(np.uint16)
+
+
+def _ring_path(seq: Path, name: str) -> Path | None:
+    """The side file holding scan `name`'s ring field, None when there is none."""
+    for suffix in (".bin", ".npy"):
+        path = seq / "velodyne_ring" / f"{name}{suffix}"
+        if path.is_file():
+            return path
+    return None
+
+
 def _frames(seq: Path, bins: list[Path], stamps: list[int] | None) -> Iterator[Frame]:
     labels_dir = seq / "labels"
     for position, bin_path in enumerate(bins):
@@ -111,14 +141,16 @@ def _frames(seq: Path, bins: list[Path], stamps: list[int] | None) -> Iterator[F
         points = read_frame_bin(bin_path)
         if points is None:
             continue
+        ring_path = _ring_path(seq, name)
+        ring = None if ring_path is None else read_ring_file(ring_path, len(points))
         label_path = labels_dir / f"{name}.label"
         if not label_path.is_file():
-            yield Frame(name=name, points=points, stamp_ns=stamp)
+            yield Frame(name=name, points=points, stamp_ns=stamp, ring=ring)
             continue
         raw = read_label_file(label_path, len(points))
         labels, ground, instance = decode_labels(raw)
-        yield Frame(name=name, points=points, stamp_ns=stamp, labels=labels, ground=ground, instance=instance,
-                    vehicle_other=decode_vehicle_other(raw))
+        yield Frame(name=name, points=points, stamp_ns=stamp, ring=ring, labels=labels, ground=ground,
+                    instance=instance, vehicle_other=decode_vehicle_other(raw))
 
 
 def read_semantickitti(path: str | Path) -> Iterator[Frame]:
