@@ -123,7 +123,9 @@ def report_markdown(report: dict, picture: bool) -> str:
     lines = [f"# pass3d_adapt: {report['verdict']}", ""]
     if report["verdict"] == "accepted":
         lines += ["The adapted weights passed the guard. Use them:",
-                  "`ros2 launch pass3d_ros pass3d.launch.py params_file:=" + "pass3d_params.yaml`", ""]
+                  "`ros2 launch pass3d_ros pass3d.launch.py params_file:=" + "pass3d_params.yaml`; score them on "
+                  "labelled scans of your own with `pass3d_evaluate --params-file pass3d_params.yaml --data SPEC`.",
+                  ""]
     elif report["verdict"] == "refused":
         lines += ["No weights written: " + "; ".join(report["refused"]) + ".", ""]
     elif report["verdict"] == "partial":

@@ -54,6 +54,8 @@ type: a number, true / false, a name without quotes (sensor=pandar64), three num
 [0.1,0.1,0.4]); Python literals ('pandar64', (0.1, 0.1, 0.4)) still work. Frames of one --data are a stream: a scan
 in no firing order and without a ring field searches its laser lines once and the following frames reuse them (as
 the cluster node does), so stage-1 times from the second frame on are a live stream's.
+--params-file YAML: score with the nodes' settings (a pass3d_adapt folder's pass3d_params.yaml): its stage1.* under
+any --param, its weights unless --weights is given.
 Exit status: 0 done; 1 a live run lost frames it should not have (lockstep drops, mismatched outputs);
 2 bad arguments, unusable data or weights.
 """
@@ -80,6 +82,7 @@ from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
 from pass3d_ros.evaluation.offline import evaluate_draws, evaluate_full, evaluate_stage1, iter_frames, parse_params
 from pass3d_ros.evaluation.paired import format_paired, paired, read_baseline
+from pass3d_ros.evaluation.params_file import NodeSettings, read_params_file
 from pass3d_ros.evaluation.report import PRINTERS
 from pass3d_ros.tools.cli import check_writable, number, run_tool
 
@@ -105,6 +108,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                         help="override a Stage1Config parameter, repeatable (e.g. th_dist=0.25, "
                              "stage1.sensor=pandar64, enlarge=0.1,0.1,0.4)")
+    parser.add_argument("--params-file", type=Path, metavar="YAML",
+                        help="the nodes' parameter file (pass3d_adapt's pass3d_params.yaml, or a copy of "
+                             "launch_configs/pass3d_params.yaml): its stage1.* and segmentation_node's weights, "
+                             "under --param and --weights")
     parser.add_argument("--max-proposals", type=int, default=DEFAULT_MAX_PROPOSALS, metavar="N",
                         help=f"stage 2's budget: at most N proposals per frame, the nearest first; the others are "
                              f"cut, counted and reported (default {DEFAULT_MAX_PROPOSALS}, the node's max_proposals; "
@@ -193,7 +200,14 @@ def run(args: argparse.Namespace) -> tuple[str, dict, int]:
     """Evaluate as `args` ask: (mode, summary ending with the stage-1 config it ran with, exit status)."""
     datasets = resolve_datasets(args.data)
     mode = _check_args(args)
-    config = parse_params(args.param)
+    node = read_params_file(args.params_file) if args.params_file else NodeSettings()
+    if node.weights and args.weights is None and mode != "stage1" and args.classifier in (None, "network"):
+        args.weights = node.weights
+    try:
+        parse_params(node.stage1)
+    except UserError as exc:
+        raise UserError(f"--params-file {args.params_file}: {exc}") from None
+    config = parse_params(node.stage1 + args.param)
     summary, status = _evaluate_mode(args, mode, datasets, config)
     return mode, {**summary, "config": config.to_dict()}, status
 
