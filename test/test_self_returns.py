@@ -110,5 +110,5 @@ def test_pass3d_adapt_leaves_the_body_out_and_writes_its_radius_for_the_nodes(tm
     assert radius > 1.5, report["sensor"]["self_returns"]
     params = yaml.safe_load((out / "pass3d_params.yaml").read_text())
     assert params["/**/cluster_proposal_node"]["ros__parameters"]["stage1"]["min_range"] == radius
-    assert f"left out nearer than {radius:g} m" in (out / "report.md").read_text()
+    assert f"left out nearer than {radius:.1f} m" in (out / "report.md").read_text()
     assert report["sensor"]["bottom_deg"] > -16.0, "the sensor was read with the body in it"

@@ -146,7 +146,7 @@ def report_markdown(report: dict, picture: bool) -> str:
               + ".", ""]
     body = s.get("self_returns")
     if body:
-        lines += [f"The vehicle's own returns: {body['note']}" + (f"; left out nearer than {body['radius_m']:g} m "
+        lines += [f"The vehicle's own returns: {body['note']}" + (f"; left out nearer than {body['radius_m']:.1f} m "
                   "(`stage1.min_range` in pass3d_params.yaml; delete it if the robot works among objects that near)."
                   if body["radius_m"] > 0 else "."), ""]
     before, after = report["before"], report["after"]

@@ -162,7 +162,7 @@ class Adaptation:
         if body is not None and body.radius_m > self.options.stage1.min_range:
             stage1 = dataclasses.replace(self.options.stage1, min_range=body.radius_m)
             self.options = dataclasses.replace(self.options, stage1=stage1)
-            self.log(f"self-returns: {body.note}; stage1.min_range {body.radius_m:g} m leaves them out")
+            self.log(f"self-returns: {body.note}; stage1.min_range {body.radius_m:.1f} m leaves them out")
             again = read_sensor(self.scans, stage1, printed=self.printed, simulated=self.options.sensor)
             self.sensor = dataclasses.replace(again, self_returns=body)
         self.split = split_scans(len(self.scans))

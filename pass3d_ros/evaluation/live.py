@@ -59,6 +59,7 @@ CHILD_START_S = 60.0  # two-process layout: the node process's start-up, on top 
 SETTLE_S = 0.3  # after matching: the subscriber side of discovery may finish a moment later
 QUIET_S = 1.0  # at the end, both nodes idle and no output for this long: nothing more will come
 FRAME_GAP_NS = 100_000_000  # replay spacing between passes of a one-message bag (10 Hz)
+SPIN_STEP_S = 0.05  # the evaluator's spin loop looks at its stop flag this often
 COUNTER_KEYS = ("received", "processed", "dropped", "failed")
 LAYOUTS: tuple[str, ...] = ("one-process", "in-memory", "two-process")
 
@@ -417,6 +418,7 @@ class LiveHarness:
         self.context: Any = None
         self.executor: Any = None
         self.spinner: threading.Thread | None = None
+        self.stopping = threading.Event()
         self.session: _Session | None = None
         self.started = 0.0
         self.child: subprocess.Popen | None = None
@@ -486,7 +488,7 @@ class LiveHarness:
                                                 qos_profile("reliable", depth=10))
         for node in self.nodes:
             self.executor.add_node(node)
-        self.spinner = threading.Thread(target=self.executor.spin, name="pass3d-live-eval", daemon=True)
+        self.spinner = threading.Thread(target=self._spin, name="pass3d-live-eval", daemon=True)
         self.spinner.start()
 
         def connected() -> bool:
@@ -638,15 +640,22 @@ class LiveHarness:
         path = Path(self.child_dir.name) / "nodes.log"
         return path.read_text(errors="replace")[-2000:] if path.exists() else ""
 
+    def _spin(self) -> None:
+        """The executor's callbacks until stop(): a loop of our own, because Executor.shutdown() from another thread
+        destroys its guard condition under a spin() that may be waiting on it (rclpy Jazzy)."""
+        while not self.stopping.is_set() and self.context.ok():
+            self.executor.spin_once(timeout_sec=SPIN_STEP_S)
+
     def stop(self, complete: bool) -> None:
         """Stop spinning, destroy the nodes (their workers join), shut the context down; then close the
         recording (`complete`) or abort it, so an unfinished run leaves no bag that looks complete."""
         import rclpy
 
-        if self.executor is not None:
-            self.executor.shutdown()
+        self.stopping.set()
         if self.spinner is not None:
             self.spinner.join(timeout=5)
+        if self.executor is not None:
+            self.executor.shutdown()
         for node in reversed(self.nodes):
             node.destroy_node()
         if self.context is not None:
