@@ -15,7 +15,7 @@ import numpy as np
 from pass3d_ros.adapt.self_returns import SelfReturnReader, SelfReturns
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage1.lasers import LASER_TABLES
-from pass3d_ros.core.stage1.ring import RING_SOURCES
+from pass3d_ros.core.stage1.ring import FIRING_ORDER_SOURCES, RING_SOURCES
 from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
@@ -30,6 +30,9 @@ AUTO = "auto"  # no simulated sensor named: the nearest one is taken
 SKY_ALLOWANCE_DEG = 8.0  # the top lasers may see only sky (no returns): the measured top may lie this far below
 # Ring sources that count the sensor's lasers: all but elevation bins, which only guess the count.
 COUNTED_SOURCES = tuple(source for source in RING_SOURCES if source != "elevation_bins")
+# Ring sources a named laser table may stand in for: not the firing order, which gives exact rings and which a named
+# table replaces in stage 1 (on KITTI's HDL-64E that cost a third of the cars: docs/adapt.md).
+TABLE_SOURCES = tuple(source for source in COUNTED_SOURCES if source not in FIRING_ORDER_SOURCES)
 
 
 @dataclass(frozen=True)
@@ -45,7 +48,7 @@ class SensorReading:
     bottom_deg: float
     nearest_simulated: str  # pass3d_ros.synthetic.sensor.SENSOR_NAMES: the nearest, or the one the user named
     distance: float  # between the two signatures (0: the same; over FAR_DISTANCE: no simulated sensor is close)
-    laser_table: str  # a LASER_TABLES name whose rings and span fit, else "auto"
+    laser_table: str  # a LASER_TABLES name whose rings and span fit (rings not from the firing order), else "auto"
     intensity_divisor: float  # the full scale the stream divides intensities by (1.0: already 0..1)
     mounting: dict | None
     intensity: dict
@@ -149,7 +152,7 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
         horizontal_deg=values[1], top_deg=top, bottom_deg=bottom, nearest_simulated=nearest,
         distance=distances[nearest], simulated_named=simulated != AUTO,
         constant_intensity=float(np.median(constant)) if 2 * len(constant) > len(tops) else None,
-        laser_table=fitting_table(n_rings, top, bottom) if source in COUNTED_SOURCES else "auto",
+        laser_table=fitting_table(n_rings, top, bottom) if source in TABLE_SOURCES else "auto",
         intensity_divisor=float(stream.scale.divisor or 1.0),
         mounting=next(iter(stream.mountings.values()), None), intensity=dict(stream.maps), self_returns=body.read(),
     )
