@@ -59,9 +59,17 @@ def test_fallback_is_reported_when_rings_cannot_be_recovered():
     assert propose(pts).ring_source == "elevation_bins"
 
 
-def test_laser_table_gives_the_table_ring_count():
-    pts = synthetic_scan(points_per_ring=900)[np.repeat(np.arange(64), 900) % 2 == 0]
-    result = ring.recover_rings(pts, Stage1Config(sensor="hdl32e"))
+def test_laser_table_gives_the_table_ring_count_where_the_order_does_not():
+    """A named table's lasers when the point order cannot give the rings (shuffled points); a scan in firing order
+    keeps its exact rings from the order, held to the table's laser count."""
+    keep = np.repeat(np.arange(64), 900) % 2 == 0
+    pts = synthetic_scan(points_per_ring=900)[keep]
+    truth = np.repeat(np.arange(64), 900)[keep] // 2
+    in_order = ring.recover_rings(pts, Stage1Config(sensor="hdl32e"))
+    assert in_order.source == "azimuth_wrap" and in_order.n_rings == 32
+    np.testing.assert_array_equal(in_order.ring, truth)
+    shuffled = pts[np.random.default_rng(3).permutation(len(pts))]
+    result = ring.recover_rings(shuffled, Stage1Config(sensor="hdl32e"))
     assert result.source == "laser_table" and result.n_rings == 32
     assert result.ring.max() <= 31
 

@@ -38,7 +38,7 @@ sharpens the lines most (linear in azimuth, zero facing forward: KITTI's convent
 seen from the moving origin.
 
 With Stage1Config's ``sensor`` set to a known model (``laser_table``, ``laser_table_moving``) the table's lasers
-seed the lines instead of the peaks.
+seed the lines instead of the peaks, for scans whose point order does not give the table's laser count.
 
 If nothing is valid, rings come from binning the elevation angle (``elevation_bins``), approximate even for
 evenly spaced lasers: the result's ``source`` says so, for the caller to report.
@@ -53,7 +53,7 @@ import numba as nb
 import numpy as np
 
 from pass3d_ros.core.stage1.config import Stage1Config
-from pass3d_ros.core.stage1.lasers import STANDARD_RING_COUNTS, laser_elevations
+from pass3d_ros.core.stage1.lasers import STANDARD_RING_COUNTS, laser_elevations, ring_limit
 
 RING_SOURCES: tuple[str, ...] = (
     "field", "azimuth_wrap", "azimuth_jump", "laser_table", "laser_table_moving", "elevation_lines",
@@ -808,12 +808,14 @@ def recover_rings(
     lines: LaserLines | None = None,
     helper: Executor | None = None,
 ) -> Rings:
-    """Ring index per point of a scan without a ring field (see the module docstring for the rules): a named
-    `config.sensor`'s table, else the firing order (expecting `config.n_rings` rings), else the laser lines found
-    in the scan, else elevation bins. `lines`, the laser lines of an earlier scan of the same sensor (`Rings.lines`),
-    are tried first: only a scan in no firing order yields lines, so a stream that held them is read from them
-    without the firing-order count or a line search (a live stream pays for the search once). `NO_LINES` (what a
-    failed search returns) skips the search: such a stream pays for it once too.
+    """Ring index per point of a scan without a ring field (see the module docstring for the rules): the firing
+    order (expecting `config.n_rings` rings, or a named `config.sensor`'s laser count), else a named sensor's table,
+    else the laser lines found in the scan, else elevation bins. `lines`, the laser lines of an earlier scan of the
+    same sensor (`Rings.lines`), are tried first: only a scan in no firing order yields lines, so a stream that held
+    them is read from them without the firing-order count or a line search (a live stream pays for the search once).
+    `NO_LINES` (what a failed search returns) skips the search: such a stream pays for it once too. A named table
+    comes after the firing order because the order gives exact rings (on KITTI's HDL-64E the table's lines lost a
+    third of the cars' points at stage 1: docs/adapt.md).
 
     `helper`: a one-thread executor that assigns half of the points under held `lines`.
 
@@ -826,16 +828,33 @@ def recover_rings(
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if len(pts) == 0:
         return Rings(np.zeros(0, dtype=np.uint16), "azimuth_wrap", 0)
-    if config.sensor != "auto":
+    if config.sensor != "auto":  # the firing order first: it gives exact rings, the table's lines only near ones
         known = _from_known(pts, lines, "laser_table", helper)
-        if known is not None:
-            return known
+        ordered = known or _from_firing_order(pts, ring_limit(config.sensor, n_rings), min_jump_deg, min_ring_points,
+                                              missing_tolerance, min_range)
+        if ordered is not None:
+            return ordered
         found = rings_from_lines(pts, config.sensor)
         assert found is not None
         return found
     known = _from_known(pts, lines, "elevation_lines", helper)
     if known is not None:
         return known
+    ordered = _from_firing_order(pts, n_rings, min_jump_deg, min_ring_points, missing_tolerance, min_range)
+    if ordered is not None:
+        return ordered
+    searched = lines is not None and lines.empty  # a search of this stream found none: not again
+    found = rings_from_lines(pts) if len(pts) >= 64 and not searched else None
+    if found is not None:
+        return found
+    elev = np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1]))
+    return Rings(elevation_bins(elev, n_rings), "elevation_bins", n_rings, NO_LINES if len(pts) >= 64 else None)
+
+
+def _from_firing_order(pts: np.ndarray, n_rings: int, min_jump_deg: float, min_ring_points: int,
+                       missing_tolerance: int, min_range: float) -> Rings | None:
+    """Rings from the point order (azimuth wrap or jump, `recover_rings`' arguments), the best-validated rule that
+    finds between `n_rings` - `missing_tolerance` and `n_rings` rings; None when none does."""
     min_cos_jump = float(np.cos(np.deg2rad(min_jump_deg)))
     counts = _count_rings(pts, min_cos_jump, min_ring_points, n_rings)
     best: tuple[float, np.ndarray, str, int] | None = None
@@ -847,14 +866,7 @@ def recover_rings(
         spread = _validate(pts, ring, n_found, missing_tolerance, min_range)
         if spread is not None and (best is None or spread < best[0]):
             best = (spread, ring, source, n_found)
-    if best is not None:
-        return Rings(best[1], best[2], best[3])
-    searched = lines is not None and lines.empty  # a search of this stream found none: not again
-    found = rings_from_lines(pts) if len(pts) >= 64 and not searched else None
-    if found is not None:
-        return found
-    elev = np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1]))
-    return Rings(elevation_bins(elev, n_rings), "elevation_bins", n_rings, NO_LINES if len(pts) >= 64 else None)
+    return None if best is None else Rings(best[1], best[2], best[3])
 
 
 def _from_known(pts: np.ndarray, lines: LaserLines | None, source: str, helper: Executor | None) -> Rings | None:
