@@ -104,8 +104,9 @@ def test_each_simulated_sensor_is_read_as_itself(name):
 
 
 def test_no_laser_table_is_named_for_rings_read_from_the_firing_order():
-    """A named table replaces the firing order in stage 1 (on KITTI's HDL-64E: stage-1 car recall 0.976 -> 0.627), so
-    a recording whose rings come from the order names none; with the ring field, or read from laser lines, it does."""
+    """The firing order gives exact rings, where a table adds nothing (and used to replace it in stage 1: on KITTI's
+    HDL-64E stage-1 car recall 0.976 -> 0.627), so a recording whose rings come from the order names none; with the
+    ring field, or read from laser lines, it does."""
     frame = generate_frame(seed=11, index=0, sensor="hdl64e")
     in_order = read_sensor([("s", Frame(name=frame.name, points=frame.points))], Stage1Config())
     assert in_order.ring_source == "azimuth_wrap" and in_order.laser_table == "auto", in_order

@@ -30,8 +30,8 @@ AUTO = "auto"  # no simulated sensor named: the nearest one is taken
 SKY_ALLOWANCE_DEG = 8.0  # the top lasers may see only sky (no returns): the measured top may lie this far below
 # Ring sources that count the sensor's lasers: all but elevation bins, which only guess the count.
 COUNTED_SOURCES = tuple(source for source in RING_SOURCES if source != "elevation_bins")
-# Ring sources a named laser table may stand in for: not the firing order, which gives exact rings and which a named
-# table replaces in stage 1 (on KITTI's HDL-64E that cost a third of the cars: docs/adapt.md).
+# Ring sources a named laser table may help: not the firing order, which gives exact rings (a named table used to
+# replace it in stage 1, which on KITTI's HDL-64E cost a third of the cars: docs/adapt.md).
 TABLE_SOURCES = tuple(source for source in COUNTED_SOURCES if source not in FIRING_ORDER_SOURCES)
 
 
