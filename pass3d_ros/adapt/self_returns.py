@@ -6,7 +6,7 @@ them, and stage 1 proposes them as one object that stage 2 calls a car: docs/ada
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,10 +33,6 @@ class SelfReturns:
     scans: int
     scene_persistent: float | None  # the share of scene cells that persisted (None: no scene cell seen often)
     note: str
-
-    def to_dict(self) -> dict:
-        """Plain values for reports."""
-        return asdict(self)
 
 
 class SelfReturnReader:
@@ -78,8 +74,8 @@ class SelfReturnReader:
         cells, ranges = _persistent_cells(self._near, scans)
         if len(cells) < MIN_CELLS:
             return SelfReturns(0.0, len(cells), scans, scene_share, "no returns of the vehicle's own body")
-        radius = float(np.ceil((float(ranges.max()) + MARGIN_M) * 10.0) / 10.0)
         farthest = float(ranges.max())
+        radius = float(np.ceil((farthest + MARGIN_M) * 10.0) / 10.0)
         return SelfReturns(radius, len(cells), scans, scene_share,
                            f"{len(cells)} cells near the sensor return from the same place in {100 * PERSISTENT:.0f} "
                            f"% of the scans or more, the farthest at {farthest:.2f} m (median over the scans)")
@@ -114,7 +110,7 @@ def _persistent_cells(per_scan: list[tuple[np.ndarray, np.ndarray]], scans: int)
     """The cells seen in PERSISTENT of the scans at a steady range, and their median ranges (a scan whose body return
     was missed there reads a farther one)."""
     cells, count, median, spread = _cell_statistics(per_scan)
-    keep = (count >= PERSISTENT * scans) & (spread <= SPREAD_M)
+    keep = _persistent(count, spread, scans)
     return cells[keep], median[keep]
 
 
@@ -124,4 +120,9 @@ def _persistent_share(per_scan: list[tuple[np.ndarray, np.ndarray]], scans: int)
     often = count >= 0.5 * scans
     if not often.any():
         return None
-    return float(np.mean((count[often] >= PERSISTENT * scans) & (spread[often] <= SPREAD_M)))
+    return float(np.mean(_persistent(count[often], spread[often], scans)))
+
+
+def _persistent(count: np.ndarray, spread: np.ndarray, scans: int) -> np.ndarray:
+    """Cells seen in PERSISTENT of the `scans` at a steady range (a median absolute deviation of SPREAD_M or less)."""
+    return (count >= PERSISTENT * scans) & (spread <= SPREAD_M)

@@ -96,23 +96,26 @@ def read_times(path: Path) -> list[int]:
     return read_stamp_lines(path, _seconds_to_ns)
 
 
+def _read_per_point(path: Path, n_points: int, dtype: str) -> np.ndarray:
+    """One little-endian `dtype` value per point from a raw file; DatasetError unless its size says exactly that."""
+    size, width = path.stat().st_size, np.dtype(dtype).itemsize
+    if size != width * n_points:
+        name = np.dtype(dtype).name
+        raise DatasetError(f"{path}: {size} bytes, expected {width * n_points} (one {name} for each of {n_points} "
+                           "points)")
+    return np.fromfile(path, dtype=dtype)
+
+
 def read_label_file(path: Path, n_points: int) -> np.ndarray:
     """Raw uint32 labels of one .label file; DatasetError unless it holds exactly one value per point."""
-    size = path.stat().st_size
-    if size != 4 * n_points:
-        raise DatasetError(f"{path}: {size} bytes, expected {4 * n_points} (one uint32 for each of {n_points} points)")
-    return np.fromfile(path, dtype="<u4")
+    return _read_per_point(path, n_points, "<u4")
 
 
 def read_ring_file(path: Path, n_points: int) -> np.ndarray:
     """The ring field of one scan from a side file (uint16 .bin, or a 1-D integer .npy); DatasetError unless it holds
     one value in 0..65535 for each point."""
     if path.suffix == ".bin":
-        size = path.stat().st_size
-        if size != 2 * n_points:
-            raise DatasetError(f"{path}: {size} bytes, expected {2 * n_points} (one uint16 ring for each of "
-                               f"{n_points} points)")
-        return np.fromfile(path, dtype="<u2").astype(np.uint16)
+        return _read_per_point(path, n_points, "<u2").astype(np.uint16)
     try:
         ring = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:

@@ -830,8 +830,10 @@ def recover_rings(
         return Rings(np.zeros(0, dtype=np.uint16), "azimuth_wrap", 0)
     if config.sensor != "auto":  # the firing order first: it gives exact rings, the table's lines only near ones
         known = _from_known(pts, lines, "laser_table", helper)
-        ordered = known or _from_firing_order(pts, ring_limit(config.sensor, n_rings), min_jump_deg, min_ring_points,
-                                              missing_tolerance, min_range)
+        if known is not None:
+            return known
+        ordered = _from_firing_order(pts, ring_limit(config.sensor, n_rings), min_jump_deg, min_ring_points,
+                                     missing_tolerance, min_range)
         if ordered is not None:
             return ordered
         found = rings_from_lines(pts, config.sensor)
