@@ -11,7 +11,9 @@ from sensor_msgs.msg import PointCloud2
 
 from pass3d_ros.core.scan_checks import MAX_COORDINATE_M, intensity_divisor, scan_summary, unit_intensity
 from pass3d_ros.core.stage1 import Stage1Config, propose
-from pass3d_ros.core.stage1.sensor_params import REFERENCE_DV_DEG, effective_config, resolutions
+from pass3d_ros.core.stage1 import ring as ring_module
+from pass3d_ros.core.stage1.ring import elevation_bins
+from pass3d_ros.core.stage1.sensor_params import REFERENCE_DV_DEG, effective_config, laser_spacing, resolutions
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.msgs.pointcloud2 import decode
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
@@ -87,6 +89,51 @@ def test_resolutions_of_an_empty_or_tiny_scan_are_unknown() -> None:
     assert np.isnan(vertical) and np.isnan(horizontal)
     effective, scale = effective_config(Stage1Config(), np.zeros((1, 4), np.float32), np.zeros(1, np.uint16), 1)
     assert scale.density == 1.0 and effective.th_num_near == 30.0
+
+
+@pytest.mark.parametrize(("sensor", "lo", "hi"), [("hdl32e", 1.2, 1.45), ("vlp16", 1.8, 2.2), ("vlp32c", 0.3, 0.4)])
+def test_laser_spacing_reads_the_lasers_in_any_point_order(sensor: str, lo: float, hi: float) -> None:
+    points = generate_frame(3, 0, sensor).points
+    spacing = laser_spacing(points)
+    assert lo <= spacing <= hi, spacing  # the datasheets: 1.33, 2.0, 0.33 degrees (median gap)
+    shuffled = points[np.random.default_rng(1).permutation(len(points))]
+    assert laser_spacing(shuffled) == laser_spacing(points[::-1]) == spacing, "the points' order does not matter"
+
+
+def test_laser_spacing_is_unknown_without_laser_lines() -> None:
+    uniform = np.random.default_rng(0).uniform(-1, 1, (30000, 4)).astype(np.float32) * np.float32([40, 40, 5, 1])
+    assert np.isnan(laser_spacing(uniform)), "uniform elevations hold no lasers"
+    assert np.isnan(laser_spacing(uniform[:50])) and np.isnan(laser_spacing(np.zeros((0, 4), np.float32)))
+
+
+def in_elevation_bins(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points and their 64 elevation-bin rings in canonical order, as stage 1 holds a scan with no other rings."""
+    ring = elevation_bins(np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1])), 64)
+    order = np.lexsort((np.arctan2(points[:, 1], points[:, 0]), ring))
+    return points[order], ring[order]
+
+
+def test_elevation_bins_take_the_laser_spacing_not_the_bins() -> None:
+    points, ring = in_elevation_bins(generate_frame(3, 0, "hdl32e").points)
+    _, as_rings = effective_config(Stage1Config(), points, ring, 64)
+    effective, binned = effective_config(Stage1Config(), points, ring, 64, binned=True)
+    assert as_rings.vertical_deg < 0.8, "64 bins over an HDL-32E's 41 degrees: half its spacing"
+    assert 1.2 <= binned.vertical_deg <= 1.45 and binned.horizontal_deg == as_rings.horizontal_deg
+    assert effective.th_num_near == binned.th_num_near < as_rings.th_num_near
+    uniform = np.random.default_rng(0).uniform(-1, 1, (30000, 4)).astype(np.float32) * np.float32([40, 40, 5, 1])
+    points, ring = in_elevation_bins(uniform)
+    assert effective_config(Stage1Config(), points, ring, 64, binned=True)[1] == \
+        effective_config(Stage1Config(), points, ring, 64)[1], "no lasers read: the bins' estimate stays"
+
+
+def test_a_scan_whose_lines_are_not_found_runs_with_its_laser_spacing(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The HDL-32E frame of nuScenes: no ring field, no firing order, a line search that finds nothing."""
+    points = generate_frame(3, 0, "hdl32e").points
+    points = points[np.random.default_rng(2).permutation(len(points))]
+    monkeypatch.setattr(ring_module, "rings_from_lines", lambda *args, **kwargs: None)
+    result = propose(points)
+    assert result.ring_source == "elevation_bins" and result.sensor is not None
+    assert 1.2 <= result.sensor.vertical_deg <= 1.45, result.sensor.describe()
 
 
 def reference_resolutions(points: np.ndarray, ring: np.ndarray, stride: int = 16) -> tuple[float, float]:

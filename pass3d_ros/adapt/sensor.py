@@ -144,7 +144,7 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
         if rings else [float("nan"), float("nan")]
     top, bottom = float(np.median(tops)), float(np.median(bottoms))
     source = sources.most_common(1)[0][0]
-    counted = source in COUNTED_SOURCES  # elevation bins guess the ring count, and so the vertical resolution
+    counted = source in COUNTED_SOURCES  # elevation bins guess the ring count (their spacing may be read: unused)
     distances = simulated_distances(n_rings if counted else 0, values[0] if counted else np.nan, values[1], bottom)
     nearest = min(distances, key=distances.get) if simulated == AUTO else simulated
     return SensorReading(

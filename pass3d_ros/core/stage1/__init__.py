@@ -122,7 +122,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     order, work, work_ring = None, pts, rings.ring
     if not _in_scan_order(rings):
         order, work, work_ring = _scanline.in_canonical_order(pts, rings.ring)
-    cfg, sensor = _sensor.effective_config(cfg, work, work_ring, rings.n_rings)
+    cfg, sensor = _sensor.effective_config(cfg, work, work_ring, rings.n_rings, rings.source == "elevation_bins")
     t1 = time.perf_counter()
     fit = beside.result() if beside is not None else _ground.fit_ground(pts, cfg)
     work_ground = fit.ground if order is None else np.take(fit.ground, order)

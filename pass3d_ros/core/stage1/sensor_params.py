@@ -8,6 +8,8 @@ ring recovery found:
 
 * dv: the median elevation gap between neighbouring rings (elevation of a ring: the median over its points of a
   sample), dh: the median azimuth step between neighbouring points of a ring, both read from the scan itself.
+  Rings binned by elevation are not lasers (64 bins span any sensor), so there dv is the median gap between the
+  peaks of a fine elevation histogram (`laser_spacing`), when the peaks hold the scan; else the bins' guess.
 * density = (REFERENCE_DV / dv) * (REFERENCE_DH / dh), each factor snapped to exactly 1 when within SNAP of it, so
   the HDL-64E keeps the paper's values bit for bit, and at most 1: a denser scan keeps them too (two merged
   VLP-32C binned by elevation read as 3x denser than they are, and a higher th_num would only lose objects).
@@ -38,6 +40,13 @@ SNAP = 0.25  # a resolution ratio within this of 1 counts as 1 (the paper's valu
 MIN_FLOOR = 2  # th_num_floor never falls below this
 _SAMPLE_STRIDE = 16  # the estimates read every 16th point (and its successor)
 _MIN_RANGE = 2.0  # nearer points are left out of the estimates (m)
+PEAK_BIN_DEG = 0.05  # `laser_spacing`: the elevation histogram's bin
+PEAK_MIN_RANGE = 5.0  # `laser_spacing` reads points this far or farther: nearer elevations are bent by the lasers'
+# offsets from the sensor's origin (m)
+MIN_PEAKS = 8  # fewer peaks than this say nothing about the lasers
+MIN_PEAK_SHARE = 0.8  # share of the points within a quarter gap of a peak for the peaks to be lasers: 0.94-0.99 on
+# HDL-32E, Pandar64 and Ouster scans, 0.14-0.16 on two merged VLP-32C (no common origin), 0.42-0.62 on KITTI's HDL-64E
+# (its two laser blocks); 0.5 on uniform elevations
 
 
 @dataclass(frozen=True)
@@ -70,6 +79,43 @@ def resolutions(points: np.ndarray, ring: np.ndarray) -> tuple[float, float]:
     rings = np.ascontiguousarray(ring, dtype=np.uint16)
     vertical, horizontal = _resolutions_kernel(pts, rings, int(rings.max()) + 1, _SAMPLE_STRIDE, _MIN_RANGE)
     return float(vertical), float(horizontal)
+
+
+def laser_spacing(points: np.ndarray) -> float:
+    """The median elevation gap (degrees) between the lasers of a scan in any point order: the peaks of an elevation
+    histogram (PEAK_BIN_DEG bins, lightly smoothed; a peak counts once the histogram falls to half of the lower of it
+    and the previous one between them). nan unless MIN_PEAKS or more peaks hold MIN_PEAK_SHARE of the points within
+    a quarter of that gap: lines seen from the sensor's own origin, not merged sensors or a shifted frame. It reads
+    every point: a stride would alias with a driver's interleaved lasers (every 4th point of a 32-laser firing order
+    holds 8 of its lasers), and the answer must not depend on the points' order."""
+    pts = np.asarray(points)
+    horizontal = np.hypot(pts[:, 0].astype(np.float64), pts[:, 1].astype(np.float64))
+    far = horizontal >= PEAK_MIN_RANGE
+    if np.count_nonzero(far) < 10 * MIN_PEAKS:
+        return float("nan")
+    elevation = np.degrees(np.arctan2(pts[far, 2].astype(np.float64), horizontal[far]))
+    lo, hi = np.percentile(elevation, [0.2, 99.8])
+    counts, edges = np.histogram(elevation, bins=np.arange(lo, hi + PEAK_BIN_DEG, PEAK_BIN_DEG))
+    if len(counts) < 3:
+        return float("nan")
+    smooth = np.convolve(counts, [0.25, 0.5, 0.25], mode="same")
+    tops = np.flatnonzero((smooth[1:-1] > smooth[:-2]) & (smooth[1:-1] >= smooth[2:])) + 1
+    peaks: list[int] = []
+    for top in tops:
+        if peaks and smooth[peaks[-1]:top + 1].min() > 0.5 * min(smooth[peaks[-1]], smooth[top]):
+            if smooth[top] > smooth[peaks[-1]]:  # no valley between them: one laser, at the higher top
+                peaks[-1] = int(top)
+            continue
+        peaks.append(int(top))
+    if len(peaks) < MIN_PEAKS:
+        return float("nan")
+    centres = edges[np.asarray(peaks)] + 0.5 * PEAK_BIN_DEG
+    gap = float(np.median(np.diff(centres)))
+    right = np.clip(np.searchsorted(centres, elevation), 1, len(centres) - 1)
+    nearest = np.minimum(np.abs(elevation - centres[right - 1]), np.abs(elevation - centres[right]))
+    if np.mean(nearest <= 0.25 * gap) < MIN_PEAK_SHARE:
+        return float("nan")
+    return gap
 
 
 @nb.njit(cache=True, nogil=True)
@@ -162,10 +208,14 @@ def _ratio(reference: float, measured: float) -> float:
 
 
 def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
-                     n_rings: int) -> tuple[Stage1Config, SensorScale]:
+                     n_rings: int, binned: bool = False) -> tuple[Stage1Config, SensorScale]:
     """The config a frame runs with (module docstring) and what it was derived from. `points` and `ring` in scan
-    order; the config itself is returned (not a copy) when nothing changes."""
+    order; `binned`: the rings are elevation bins, not lasers (the vertical resolution is then `laser_spacing`'s
+    where it reads one). The config itself is returned (not a copy) when nothing changes."""
     vertical, horizontal = resolutions(points, ring)
+    if binned:
+        spacing = laser_spacing(points)
+        vertical = spacing if np.isfinite(spacing) else vertical
     density = 1.0
     if config.sensor_scaling:
         density = min(1.0, _ratio(REFERENCE_DV_DEG, vertical) * _ratio(REFERENCE_DH_DEG, horizontal))
