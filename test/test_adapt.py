@@ -384,6 +384,27 @@ def test_pass3d_adapt_ctrl_c_in_several_processes_keeps_the_last_epoch_marked_pa
     assert Segmenter(out / "weights.pt").checkpoint_info["adapted"]["partial"] == "interrupted"
 
 
+def test_the_parameter_file_carries_the_stage1_settings_the_adaptation_ran_with(tmp_path):
+    """Every stage-1 value given with --param reaches the nodes' file and wins over what the recording says (a named
+    table, a given height): the nodes then run as the adaptation was checked; the file reads back as that config."""
+    import yaml
+
+    from pass3d_ros.evaluation.offline import parse_params
+    from pass3d_ros.evaluation.params_file import read_params_file
+    from pass3d_ros.tools import adapt
+
+    given = ["stage1.th_ring=0.4", "sensor_height=1.9", "stage1.sensor=vlp32c", "enlarge=[0.2,0.2,0.4]"]
+    out = tmp_path / "mine"
+    args = [*TINY, "--out", str(out), "--epochs", "1"]
+    for item in given:
+        args += ["--param", item]
+    assert adapt.main(args) == 0
+    stage1 = yaml.safe_load((out / "pass3d_params.yaml").read_text())["/**/cluster_proposal_node"]["ros__parameters"][
+        "stage1"]
+    assert stage1 == {"sensor": "vlp32c", "th_ring": 0.4, "sensor_height": 1.9, "enlarge": [0.2, 0.2, 0.4]}
+    assert parse_params(read_params_file(out / "pass3d_params.yaml").stage1) == parse_params(given)
+
+
 def test_a_bag_recording_names_its_topic_in_the_parameter_file(tmp_path):
     """From a bag the parameter file carries the topic the scans came from, so the node listens where the driver
     publishes; other data leave the node's default (tested end to end above)."""

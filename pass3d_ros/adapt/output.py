@@ -17,6 +17,7 @@ import yaml
 
 from pass3d_ros.adapt.run import GUARD_DROP, AdaptResult
 from pass3d_ros.classes import CLASS_NAMES
+from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.data.outputs import swap_into_place, write_marker, writing
 from pass3d_ros.data.partials import partial_path
 from pass3d_ros.drawing.bev import Panel, render_figure, write_png
@@ -57,11 +58,15 @@ def write_folder(result: AdaptResult, out: Path, data: list[str]) -> Path:
 def params_yaml(result: AdaptResult, weights: Path, data: list[str]) -> str:
     """The nodes' parameters for this sensor, as `--ros-args --params-file` and the launch files read them."""
     s = result.sensor
-    stage1: dict = {"sensor": s.laser_table}
-    if s.mounting:
+    default = Stage1Config().to_dict()
+    # The stage-1 values the run used that differ from the defaults (--param, the body's min_range) win over what
+    # the recording said (a fitting table, the measured height): the nodes must run as the adaptation was checked.
+    given = {key: list(value) if isinstance(value, tuple) else value
+             for key, value in result.stage1.to_dict().items() if value != default[key]}
+    stage1: dict = {"sensor": given.pop("sensor", s.laser_table)}
+    if s.mounting and "sensor_height" not in given:
         stage1["sensor_height"] = float(s.mounting["height_m"])
-    if result.min_range > 0.0:
-        stage1["min_range"] = float(result.min_range)
+    stage1.update(given)
     cluster: dict = {"input_topic": result.topic} if result.topic else {}
     cluster["stage1"] = stage1
     if s.intensity_divisor != 1.0:

@@ -85,7 +85,7 @@ class AdaptResult:
     seconds: float = 0.0
     view: dict | None = None  # a held-out scan's points and labels before and after, for the picture
     topic: str | None = None  # the recording's PointCloud2 topic when it is bags of one topic: the node's input_topic
-    min_range: float = 0.0  # stage1.min_range the run used (--param, or the vehicle's own returns read): the nodes' too
+    stage1: Stage1Config = field(default_factory=Stage1Config)  # the run's (--param, the body's min_range): the nodes'
 
     @property
     def accepted(self) -> bool:
@@ -261,7 +261,7 @@ class Adaptation:
             before=self.before, guard_before=self.guard_before, after=self.after, guard_after=self.guard_after,
             weights=self.adapted, training=self.training, refused=list(self.refused), partial=partial,
             seconds=time.monotonic() - self.started, view=self._view() if partial is None else None,
-            topic=self.topic, min_range=self.options.stage1.min_range)
+            topic=self.topic, stage1=self.options.stage1)
         self.result = result
         return result
 
