@@ -405,6 +405,38 @@ def test_the_parameter_file_carries_the_stage1_settings_the_adaptation_ran_with(
     assert parse_params(read_params_file(out / "pass3d_params.yaml").stage1) == parse_params(given)
 
 
+@pytest.mark.parametrize(("frames", "given"), [(1, False), (5, True)])
+def test_a_recording_too_short_to_hold_out_gets_settings_only(tmp_path, capsys, frames, given):
+    """Fewer scans than a split needs: the sensor read, the starting weights checked on every scan, a parameter
+    file naming them (empty: the shipped ones) and no weights.pt; exit 0 and a line saying so. No fine-tune ran."""
+    import shutil
+
+    import yaml
+
+    from pass3d_ros.core.stage2 import DEFAULT_WEIGHTS
+    from pass3d_ros.tools import adapt
+
+    out = tmp_path / "short"
+    args = [*TINY, "--out", str(out)]
+    args[1] = f"synthetic:sensor=vlp16,frames={frames},seed=5"
+    if given:
+        start = shutil.copy(DEFAULT_WEIGHTS, tmp_path / "mine.pt")
+        args += ["--weights", str(start)]
+    assert adapt.main(args) == 0
+    assert sorted(p.name for p in out.iterdir()) == [".pass3d_output", "pass3d_params.yaml", "report.json",
+                                                      "report.md"]
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"] == "settings only" and report["settings_only"].startswith(f"{frames} scan")
+    assert report["scans"]["adapt"] == [] and len(report["scans"]["check"]) == frames
+    assert report["before"]["scans"] == frames and report["after"] is None and report["training"] == {}
+    assert report["guard"]["before"] is None and "## Guard" not in (out / "report.md").read_text()
+    params = yaml.safe_load((out / "pass3d_params.yaml").read_text())
+    expected = str((tmp_path / "mine.pt").resolve()) if given else ""
+    assert params["/**/segmentation_node"]["ros__parameters"]["weights"] == expected
+    assert params["/**/cluster_proposal_node"]["ros__parameters"]["stage1"]["sensor"] == "vlp16"
+    assert "settings only" in capsys.readouterr().out
+
+
 def test_a_bag_recording_names_its_topic_in_the_parameter_file(tmp_path):
     """From a bag the parameter file carries the topic the scans came from, so the node listens where the driver
     publishes; other data leave the node's default (tested end to end above)."""

@@ -41,6 +41,8 @@ def write_folder(result: AdaptResult, out: Path, data: list[str]) -> Path:
                     checkpoint["adapted"] = {**checkpoint.get("adapted", {}), "partial": result.partial}
                 torch.save(checkpoint, build / "weights.pt")
                 (build / "pass3d_params.yaml").write_text(params_yaml(result, weights, data))
+            elif result.settings_only is not None:  # the sensor's settings with the starting weights
+                (build / "pass3d_params.yaml").write_text(params_yaml(result, None, data))
             report = report_dict(result, data)
             (build / "report.json").write_text(json.dumps(report, indent=1) + "\n")
             if result.view is not None:
@@ -55,8 +57,9 @@ def write_folder(result: AdaptResult, out: Path, data: list[str]) -> Path:
     return out
 
 
-def params_yaml(result: AdaptResult, weights: Path, data: list[str]) -> str:
-    """The nodes' parameters for this sensor, as `--ros-args --params-file` and the launch files read them."""
+def params_yaml(result: AdaptResult, weights: Path | None, data: list[str]) -> str:
+    """The nodes' parameters for this sensor, as `--ros-args --params-file` and the launch files read them. `weights`:
+    the adapted ones; None names the starting weights (settings only), empty for the shipped ones."""
     s = result.sensor
     default = Stage1Config().to_dict()
     # The stage-1 values the run used that differ from the defaults (--param, the body's min_range) win over what
@@ -72,22 +75,32 @@ def params_yaml(result: AdaptResult, weights: Path, data: list[str]) -> str:
     if s.intensity_divisor != 1.0:
         cluster["intensity_scale"] = float(1.0 / s.intensity_divisor)
     doc = {"/**/cluster_proposal_node": {"ros__parameters": cluster},
-           "/**/segmentation_node": {"ros__parameters": {"weights": str(weights.resolve())}}}
+           "/**/segmentation_node": {"ros__parameters": {"weights": _weights_value(result, weights)}}}
     head = (f"# Written by {PROG} on {time.strftime('%Y-%m-%d %H:%M')} from {', '.join(data)}.\n"
             f"# Sensor read: {s.n_rings} rings ({s.ring_source}), lowest laser {s.bottom_deg:.1f} deg, "
             f"{s.simulated_how} simulated {s.nearest_simulated}; "
             f"laser table {s.laser_table}.\n"
             + ("# PARTIAL: interrupted during the fine-tune; these weights were never checked.\n"
-               if result.partial else ""))
+               if result.partial else "")
+            + (f"# SETTINGS ONLY ({result.settings_only}): the starting weights, not adapted.\n"
+               if result.settings_only else ""))
     return head + yaml.safe_dump(doc, sort_keys=False)
+
+
+def _weights_value(result: AdaptResult, weights: Path | None) -> str:
+    """segmentation_node's `weights`: the adapted file, else the starting one ("" for the shipped weights)."""
+    if weights is not None:
+        return str(weights.resolve())
+    return str(Path(result.start_weights).resolve()) if result.start_weights else ""
 
 
 def report_dict(result: AdaptResult, data: list[str]) -> dict:
     """Everything measured, as plain values (report.json)."""
-    verdict = ("partial" if result.partial else "accepted" if result.accepted
-               else "refused" if result.weights is not None else "no weights")
+    verdict = ("settings only" if result.settings_only is not None else "partial" if result.partial
+               else "accepted" if result.accepted else "refused" if result.weights is not None else "no weights")
     return {
         "data": list(data), "verdict": verdict, "refused": list(result.refused), "partial": result.partial,
+        "settings_only": result.settings_only,
         "seconds": round(result.seconds, 1), "sensor": result.sensor.to_dict(),
         "scans": {"read": len(result.scan_names), "adapt": _names(result, result.split.adapt),
                   "check": _names(result, result.split.check), "left_out": len(result.split.left_out)},
@@ -133,6 +146,10 @@ def report_markdown(report: dict, picture: bool) -> str:
                   ""]
     elif report["verdict"] == "refused":
         lines += ["No weights written: " + "; ".join(report["refused"]) + ".", ""]
+    elif report["verdict"] == "settings only":
+        lines += [f"Settings only: {report['settings_only']}. `pass3d_params.yaml` holds what was read of your "
+                  "sensor with the starting weights, unchanged; record more scans to adapt the network. The check "
+                  "below read every scan (none could be held out).", ""]
     elif report["verdict"] == "partial":
         lines += ["Interrupted during the fine-tune: `weights.pt` holds the last finished epoch, never checked; "
                   "do not deploy it without running again.", ""]
@@ -155,7 +172,8 @@ def report_markdown(report: dict, picture: bool) -> str:
                   "(`stage1.min_range` in pass3d_params.yaml; delete it if the robot works among objects that near)."
                   if body["radius_m"] > 0 else "."), ""]
     before, after = report["before"], report["after"]
-    lines += ["## Held-out scans, no labels", "",
+    lines += ["## All scans, no labels (none held out)" if report["settings_only"] else "## Held-out scans, no labels",
+              "",
               "View agreement: the share of proposals all 8 canonical views give the same class (mean over "
               f"{before['draws']} point draws, range, and draw 0's 90 % scan-bootstrap interval).", "",
               "| class | before | after |", "|---|---|---|"]
@@ -175,10 +193,13 @@ def report_markdown(report: dict, picture: bool) -> str:
         lines.append(f"| {bin_name} | {row['proposals']} | {' / '.join(_pct(row[c]) for c in CLASS_NAMES)} | "
                      f"{' / '.join(_pct(other[c]) for c in CLASS_NAMES) if other else '-'} |")
     guard = report["guard"]
-    lines += ["", f"## Guard: unseen synthetic scenes of the {s['simulated_how']} simulated sensor", "",
-              f"`{guard['before']['spec']}`: mean IoU over draws {_guard_cell(guard['before'])} before, "
-              f"{_guard_cell(guard['after']) if guard['after'] else '-'} after; the adapted weights may lose at most "
-              f"{guard['drop_allowed']:g} point.", ""]
+    if guard["before"] is not None:
+        lines += ["", f"## Guard: unseen synthetic scenes of the {s['simulated_how']} simulated sensor", "",
+                  f"`{guard['before']['spec']}`: mean IoU over draws {_guard_cell(guard['before'])} before, "
+                  f"{_guard_cell(guard['after']) if guard['after'] else '-'} after; the adapted weights may lose at "
+                  f"most {guard['drop_allowed']:g} point.", ""]
+    else:
+        lines.append("")
     if picture:
         lines += ["## A held-out scan", "", "![before and after](view.png)", ""]
     lines += ["When not to ship the result: a refused or partial verdict; agreement that fell; shares that moved "

@@ -17,11 +17,12 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from pass3d_ros.adapt import sample_cache
 from pass3d_ros.adapt.check import check_scans
-from pass3d_ros.adapt.holdout import Split, split_scans
+from pass3d_ros.adapt.holdout import Split, fewest_scans, split_scans
 from pass3d_ros.adapt.sensor import AUTO, FAR_DISTANCE, SensorReading, read_sensor
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members
 from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint, read_checkpoint
@@ -75,7 +76,7 @@ class AdaptResult:
     split: Split
     scan_names: list[str]
     before: dict
-    guard_before: dict
+    guard_before: dict | None  # None: no guard ran (settings only)
     after: dict | None = None
     guard_after: dict | None = None
     weights: dict | None = None  # the adapted checkpoint (None: none made)
@@ -86,6 +87,8 @@ class AdaptResult:
     view: dict | None = None  # a held-out scan's points and labels before and after, for the picture
     topic: str | None = None  # the recording's PointCloud2 topic when it is bags of one topic: the node's input_topic
     stage1: Stage1Config = field(default_factory=Stage1Config)  # the run's (--param, the body's min_range): the nodes'
+    start_weights: str | None = None  # the weights the run started from (None: the shipped ones)
+    settings_only: str | None = None  # why no fine-tune was tried (a recording too short to hold out); None: one was
 
     @property
     def accepted(self) -> bool:
@@ -111,16 +114,20 @@ class Adaptation:
         self.training: dict = {}
         self.refused: list[str] = []
         self.result: AdaptResult | None = None  # set by run(), or by a Ctrl-C in the fine-tune (partial)
+        self.settings_only: str | None = None  # set when the recording is too short to hold out stretches
         self._guard_frames: list[Frame] | None = None
         self.segmenters: dict[str, Segmenter] = {}  # "before" / "after": built once, read by the checks and the view
         self.printed: set[str] = set()  # input-check topics printed per spec: each once over the run's passes
 
     def run(self) -> AdaptResult:
         """Read, check, fine-tune, check again and judge; a Ctrl-C during the fine-tune ends the run with the
-        weights of the last finished epoch (partial, unchecked) and is raised again once the result is kept."""
+        weights of the last finished epoch (partial, unchecked) and is raised again once the result is kept. A
+        recording too short to hold out stretches gets the sensor's settings and the starting weights' check only."""
         self._read_recording()
         self._read_sensor_and_split()
         self._check_before()
+        if self.settings_only is not None:
+            return self._finish()
         try:
             self._fine_tune()
         except KeyboardInterrupt:
@@ -165,22 +172,33 @@ class Adaptation:
             self.log(f"self-returns: {body.note}; stage1.min_range {body.radius_m:.1f} m leaves them out")
             again = read_sensor(self.scans, stage1, printed=self.printed, simulated=self.options.sensor)
             self.sensor = dataclasses.replace(again, self_returns=body)
-        self.split = split_scans(len(self.scans))
         s = self.sensor
+        needed = fewest_scans()
+        if len(self.scans) < needed:  # settings only: every scan is checked, none adapted on
+            count = len(self.scans)
+            self.settings_only = (f"{count} scan{'s' if count != 1 else ''}; a fine-tune needs {needed} or more, to "
+                                  "check it on stretches of time it did not learn from")
+            self.split = Split(np.zeros(0, np.int64), np.arange(count), np.zeros(0, np.int64))
+            self.log(f"sensor: {s.n_rings} rings ({s.ring_source}); settings only ({self.settings_only}): the "
+                     "starting weights are checked on every scan")
+            return
+        self.split = split_scans(len(self.scans))
         far = ("" if s.distance <= FAR_DISTANCE else " (unlike the recording: the guard is only indicative)"
                if s.simulated_named else " (no simulated sensor is close: the guard is only indicative)")
         self.log(f"sensor: {s.n_rings} rings ({s.ring_source}), {s.simulated_how} "
                  f"simulated {s.nearest_simulated}{far}; {self.split.describe()}")
 
     def _check_before(self) -> None:
-        """The starting weights on the held-out scans and on the guard scenes."""
+        """The starting weights on the held-out scans and on the guard scenes (no guard for settings only: no
+        new weights to guard)."""
         t0 = time.monotonic()
         self.start_checkpoint, _ = read_checkpoint(self.options.weights or _shipped())
         start = self.segmenters["before"] = self._segmenter(self.start_checkpoint)
         self.before = self._check(start)
-        self.guard_before = self._guard(start)
+        self.guard_before = None if self.settings_only is not None else self._guard(start)
         self.check_seconds = time.monotonic() - t0
-        self.log(f"before: {_agreement_line(self.before)}; guard mean IoU {_guard_mean(self.guard_before):.1f}")
+        guard = "" if self.guard_before is None else f"; guard mean IoU {_guard_mean(self.guard_before):.1f}"
+        self.log(f"before: {_agreement_line(self.before)}{guard}")
 
     def _fine_tune(self) -> None:
         """From the starting weights: the anchor's labelled synthetic scans and view consistency on the scans adapted
@@ -261,7 +279,8 @@ class Adaptation:
             before=self.before, guard_before=self.guard_before, after=self.after, guard_after=self.guard_after,
             weights=self.adapted, training=self.training, refused=list(self.refused), partial=partial,
             seconds=time.monotonic() - self.started, view=self._view() if partial is None else None,
-            topic=self.topic, stage1=self.options.stage1)
+            topic=self.topic, stage1=self.options.stage1, start_weights=self.options.weights,
+            settings_only=self.settings_only)
         self.result = result
         return result
 

@@ -10,9 +10,11 @@ nearest simulated sensor (the guard). Then it fine-tunes from those weights with
 and labelled synthetic scans of that sensor until the --minutes budget (all of it, checks included) runs out,
 averages the result with the starting weights, checks again and judges: weights that lose more than 1 mean IoU point
 on the guard scenes are refused. Writes OUT/report.md, report.json, view.png and, when accepted, weights.pt and
-pass3d_params.yaml (pass3d_ros.adapt.output), all at once.
-Exit status: 0 accepted, 1 refused (the report says which guard and by how much), 2 user error, 130 / 143
-interrupted (a Ctrl-C during the fine-tune writes the last finished epoch's weights marked partial, unchecked).
+pass3d_params.yaml (pass3d_ros.adapt.output), all at once. A recording of fewer than 8 scans cannot be held out
+from: settings only (the sensor read, the starting weights checked on every scan, pass3d_params.yaml naming them).
+Exit status: 0 accepted or settings only, 1 refused (the report says which guard and by how much), 2 user error,
+130 / 143 interrupted (a Ctrl-C during the fine-tune writes the last finished epoch's weights marked partial,
+unchecked).
 """
 
 from __future__ import annotations
@@ -112,6 +114,10 @@ def _run(args: argparse.Namespace) -> int:
         shutil.rmtree(work, ignore_errors=True)
     if result.accepted:
         print(f"{PROG}: accepted: {out}/weights.pt; run the nodes with params_file:={out}/pass3d_params.yaml")
+        return 0
+    if result.settings_only is not None:
+        print(f"{PROG}: settings only ({result.settings_only}): run the nodes with "
+              f"params_file:={out}/pass3d_params.yaml (the starting weights, not adapted)")
         return 0
     print(f"{PROG}: refused, no weights written: {'; '.join(result.refused)} (see {out}/report.md)", file=sys.stderr)
     return EXIT_REFUSED
