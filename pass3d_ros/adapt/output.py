@@ -157,9 +157,12 @@ def report_markdown(report: dict, picture: bool) -> str:
         lines += ["Notes: " + "; ".join(report["notes"]) + ".", ""]
     s = report["sensor"]
     chosen = "simulated sensor named by --sensor" if s["simulated_how"] == "named" else "nearest simulated sensor"
-    lines += [f"Data: {', '.join(report['data'])}; {report['scans']['read']} scans read, "
-              f"{len(report['scans']['adapt'])} adapted on, {len(report['scans']['check'])} held out "
-              f"({report['scans']['left_out']} between them left out); {report['seconds'] / 60:.1f} min.",
+    scans = report["scans"]
+    split = ("every one checked, none adapted on" if report["settings_only"] else
+             f"{len(scans['adapt'])} adapted on, {len(scans['check'])} held out ({scans['left_out']} between them "
+             "left out)")
+    lines += [f"Data: {', '.join(report['data'])}; {_count(scans['read'], 'scan')} read, {split}; "
+              f"{report['seconds'] / 60:.1f} min.",
               f"Sensor: {s['n_rings']} rings ({s['ring_source']}), resolution {s['vertical_deg']:.2f} x "
               f"{s['horizontal_deg']:.3f} deg, lowest laser {s['bottom_deg']:.1f} deg; "
               f"{chosen} {s['nearest_simulated']} (distance {s['distance']:.2f}); laser table {s['laser_table']}; "
@@ -202,9 +205,14 @@ def report_markdown(report: dict, picture: bool) -> str:
         lines.append("")
     if picture:
         lines += ["## A held-out scan", "", "![before and after](view.png)", ""]
-    lines += ["When not to ship the result: a refused or partial verdict; agreement that fell; shares that moved "
-              "toward one class at all ranges (the network calling everything a car is self-consistent too).", ""]
+    if not report["settings_only"]:
+        lines += ["When not to ship the result: a refused or partial verdict; agreement that fell; shares that moved "
+                  "toward one class at all ranges (the network calling everything a car is self-consistent too).", ""]
     return "\n".join(lines)
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 def _agreement_cell(row: dict) -> str:
