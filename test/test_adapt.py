@@ -416,7 +416,7 @@ def test_a_recording_too_short_to_hold_out_gets_settings_only(tmp_path, capsys, 
     from pass3d_ros.core.stage2 import DEFAULT_WEIGHTS
     from pass3d_ros.tools import adapt
 
-    out = tmp_path / "short"
+    out = tmp_path / "not" / "yet" / "short"  # its parents are made
     args = [*TINY, "--out", str(out)]
     args[1] = f"synthetic:sensor=vlp16,frames={frames},seed=5"
     if given:

@@ -98,6 +98,7 @@ def _run(args: argparse.Namespace) -> int:
                            stage1=parse_params(args.param))
     limit_threads(args.threads)
     remove_stale_partials(out)
+    out.parent.mkdir(parents=True, exist_ok=True)  # the work folder sits beside the output (checked writable)
     work = Path(tempfile.mkdtemp(prefix=f".{out.name}.work-", dir=out.parent))
     adaptation = Adaptation(options, work, log=lambda line: print(f"{PROG}: {line}", file=sys.stderr))
     try:
