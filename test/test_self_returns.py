@@ -1,6 +1,6 @@
-"""pass3d_adapt's reading of the vehicle's own returns (pass3d_ros.adapt.self_returns): returns that stay put near the
-sensor while the scene changes are the body, and their radius becomes stage1.min_range; a still vehicle, too few
-scans or returns that come and go read nothing."""
+"""The vehicle's own returns (pass3d_ros.core.self_returns): returns that stay put near the sensor while the scene
+changes are the body, and their radius becomes stage1.min_range; a still vehicle, too few scans or returns that come
+and go read nothing. Read by pass3d_adapt over a recording, and by a stream with stage1.min_range auto."""
 
 from __future__ import annotations
 
@@ -9,10 +9,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pass3d_ros.adapt import self_returns
 from pass3d_ros.adapt.sensor import read_sensor
+from pass3d_ros.core import self_returns
 from pass3d_ros.core.stage1 import Stage1Config
+from pass3d_ros.core.stage1.config import AUTO, ConfigError
+from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.ros.diagnostics import status_values
 from pass3d_ros.synthetic.dataset import generate_frame
 
 BODY_HEIGHT_M = -0.4  # a roof 0.4 m below the sensor, 3.2 m x 1.6 m around it
@@ -112,3 +115,116 @@ def test_pass3d_adapt_leaves_the_body_out_and_writes_its_radius_for_the_nodes(tm
     assert params["/**/cluster_proposal_node"]["ros__parameters"]["stage1"]["min_range"] == radius
     assert f"left out nearer than {radius:.1f} m" in (out / "report.md").read_text()
     assert report["sensor"]["bottom_deg"] > -16.0, "the sensor was read with the body in it"
+
+
+def _simple_scan(k: int, still: bool) -> tuple[np.ndarray, np.ndarray]:
+    """A cheap scan: a ground ring at 6 m (marked ground), a wall that moves 3 m a scan unless `still`, a roof grid
+    0.5 m above the ground within 2 m of the sensor."""
+    turn = np.linspace(0.0, 2.0 * np.pi, 360, endpoint=False)
+    road = np.column_stack([6 * np.cos(turn), 6 * np.sin(turn), np.full(360, -1.7), np.zeros(360)])
+    wall = np.column_stack([np.full(50, 20.0 + (0 if still else 3 * k)), np.linspace(-5, 5, 50), np.zeros(50),
+                            np.zeros(50)])
+    roof = np.column_stack([np.full(20, 1.5), np.linspace(-0.5, 0.5, 20), np.full(20, -1.2), np.zeros(20)])
+    points = np.vstack([road, wall, roof]).astype(np.float32)
+    return points, np.arange(len(points)) < 360
+
+
+def test_min_range_takes_a_number_or_auto_and_stays_0_by_default():
+    assert Stage1Config().min_range == 0.0 and Stage1Config(min_range=" Auto ").min_range == AUTO
+    with pytest.raises(ConfigError, match="min_range='near' must be auto or a number in"):
+        Stage1Config(min_range="near")
+
+
+def test_a_body_holder_waits_while_the_vehicle_stands_and_reads_once_it_moves():
+    now = [0.0]
+    holder = self_returns.BodyHolder(clock=lambda: now[0])
+    for k in range(2 * self_returns.WINDOW):  # standing: every window reads a still scene, nothing is held
+        assert holder.observe(*_simple_scan(k, still=True)) is None
+        now[0] += self_returns.SAMPLE_EVERY_S
+    assert holder.held is None and holder.radius_m == 0.0
+    decided = None
+    for k in range(self_returns.WINDOW):  # driving: once the still scans are dropped, the roof is read
+        decided = decided or holder.observe(*_simple_scan(k, still=False))
+        now[0] += self_returns.SAMPLE_EVERY_S
+    assert decided is not None and holder.held is decided
+    corner = float(np.linalg.norm([1.5, 0.5, -1.2]))
+    assert corner < holder.radius_m <= corner + 2 * self_returns.MARGIN_M, decided
+    assert holder.observe(*_simple_scan(0, still=False)) is None, "held: no more reading"
+
+
+def test_a_body_holder_offers_a_scan_every_half_second_of_the_stream():
+    """Offline (no clock) each scan is one revolution at 10 Hz: one scan in five is read, so a window takes five
+    times as many scans; a live clock that runs faster than that offers fewer."""
+    holder = self_returns.BodyHolder()
+    every = round(self_returns.SAMPLE_EVERY_S / self_returns.OFFLINE_SCAN_S)
+    for k in range(every * (self_returns.WINDOW - 1) + 1):
+        holder.observe(*_simple_scan(k, still=False))
+        assert (holder.held is not None) == (k == every * (self_returns.WINDOW - 1)), k
+    holder.reset()
+    assert holder.held is None and holder.radius_m == 0.0
+
+
+def test_a_stream_with_min_range_auto_leaves_the_body_out_once_read():
+    """stage1.min_range auto on a stream of the synthetic drive with a roof: the first scans keep the roof, and once
+    the reading is held every scan is prepared without it; min_range 0 keeps it for good."""
+    recording = _recording(self_returns.WINDOW + 1)
+    now = [0.0]
+    auto = ScanStream(clock=lambda: now[0])
+    fixed = ScanStream(clock=lambda: now[0])
+    config = Stage1Config(min_range=AUTO)
+    for _, frame in recording[:-1]:
+        assert np.linalg.norm(auto.prepare(frame.points, None, config).points[:, :3], axis=1).min() < 1.5
+        auto.propose(auto.prepare(frame.points, None, config), config)
+        fixed.propose(fixed.prepare(frame.points), Stage1Config())
+        now[0] += self_returns.SAMPLE_EVERY_S
+    assert auto.body.held is not None and fixed.body.held is None
+    radius = auto.min_range(config)
+    assert radius == auto.body.radius_m > np.linalg.norm([1.6, 0.8, BODY_HEIGHT_M])
+    last = recording[-1][1].points
+    kept = auto.prepare(last, None, config)
+    assert np.linalg.norm(kept.points[:, :3], axis=1).min() >= radius
+    assert len(kept.points) == np.count_nonzero(np.linalg.norm(last[:, :3], axis=1) >= radius)
+    assert len(fixed.prepare(last).points) == len(last)
+    auto.follow("another")
+    assert auto.body.held is None and auto.min_range(config) == 0.0, "a new stream reads its own"
+
+
+@pytest.mark.ros
+def test_the_node_with_min_range_auto_reads_the_body_says_so_and_leaves_it_out(ros, monkeypatch):
+    """cluster_proposal_node with stage1.min_range auto (every scan offered here): once the window is read it logs
+    the reading, reports the radius on /diagnostics and publishes the next scans without the body."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from helpers.ros import STAMP0, Collector, columns, connect, scan_message, wait_until
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import PointCloud2
+
+    from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+    from pass3d_ros.ros.qos import qos_profile
+
+    monkeypatch.setattr(self_returns, "SAMPLE_EVERY_S", 0.0)
+    node = ros.add(ClusterProposalNode(context=ros.context,
+                                       parameter_overrides=[Parameter("stage1.min_range", value="auto")]))
+    assert node.config.min_range == AUTO
+    clouds = Collector(ros, PointCloud2, "/pass3d/proposals")
+    diagnostics = Collector(ros, DiagnosticArray, "/diagnostics")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, clouds)
+    recording = _recording(self_returns.WINDOW + 1)
+    for i, (_, frame) in enumerate(recording):
+        pub.publish(scan_message(frame, STAMP0 + i * 100_000_000))
+        assert wait_until(lambda i=i: node.worker.counters.processed == i + 1 and node.worker.idle(), timeout=20.0)
+    held = node._stream.body.held
+    assert held is not None and held.radius_m > np.linalg.norm([1.6, 0.8, BODY_HEIGHT_M])
+    assert wait_until(lambda: len(clouds.messages) == len(recording), timeout=10.0)
+    first, last = (columns(clouds.messages[k]) for k in (0, -1))
+    ranges = [np.sqrt(c["x"].astype(float) ** 2 + c["y"].astype(float) ** 2 + c["z"].astype(float) ** 2)
+              for c in (first, last)]
+    assert ranges[0].min() < 1.5 and ranges[1].min() >= held.radius_m
+
+    def reported() -> bool:
+        with diagnostics.cond:
+            found = [status_values(st) for msg in diagnostics.messages for st in msg.status
+                     if st.name == node.get_name()]
+        return any(v.get("min_range_m") == held.radius_m for v in found)
+
+    assert wait_until(reported, timeout=5.0)

@@ -25,6 +25,7 @@ from pass3d_ros.adapt.check import check_scans
 from pass3d_ros.adapt.holdout import Split, fewest_scans, split_scans
 from pass3d_ros.adapt.sensor import AUTO, FAR_DISTANCE, SensorReading, read_sensor
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members
+from pass3d_ros.core.stage1.config import AUTO as AUTO_RANGE
 from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint, read_checkpoint
 from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.bag import parse_bag_spec, select_topic
@@ -163,10 +164,13 @@ class Adaptation:
         """The sensor as a stream reads it, and the held-out stretches. The vehicle's own returns, when the scans show
         them, are left out of stage 1 from here on (stage1.min_range) and the sensor read again without them: they
         skew its elevation span and hide its laser lines."""
-        self.sensor = read_sensor(self.scans, self.options.stage1, printed=self.printed,
-                                  simulated=self.options.sensor)
+        asked = self.options.stage1.min_range  # auto: this tool reads the body over the whole recording instead
+        reading = self.options.stage1
+        if asked == AUTO_RANGE:
+            reading = dataclasses.replace(reading, min_range=0.0)
+        self.sensor = read_sensor(self.scans, reading, printed=self.printed, simulated=self.options.sensor)
         body = self.sensor.self_returns
-        if body is not None and body.radius_m > self.options.stage1.min_range:
+        if body is not None and body.radius_m > (0.0 if asked == AUTO_RANGE else float(asked)):
             stage1 = dataclasses.replace(self.options.stage1, min_range=body.radius_m)
             self.options = dataclasses.replace(self.options, stage1=stage1)
             self.log(f"self-returns: {body.note}; stage1.min_range {body.radius_m:.1f} m leaves them out")

@@ -1,6 +1,6 @@
 """What adaptation reads from a recording about its sensor, as the nodes learn it from a stream: rings and their
 resolution, the elevation span, the mounting (height and tilt), the intensity scale and map, the vehicle's own returns
-(adapt/self_returns.py), and which simulated sensor of the synthetic world is closest (its labelled scans anchor the
+(core/self_returns.py), and which simulated sensor of the synthetic world is closest (its labelled scans anchor the
 fine-tune, and its unseen scenes guard it).
 """
 
@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from pass3d_ros.adapt.self_returns import SelfReturnReader, SelfReturns
+from pass3d_ros.core.self_returns import SelfReturnReader, SelfReturns
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage1.lasers import LASER_TABLES
 from pass3d_ros.core.stage1.ring import FIRING_ORDER_SOURCES, RING_SOURCES

@@ -3,8 +3,9 @@
 What a stream's input needs is a property of its sensor, learned from its first scans and then held: the laser lines
 and the order of its ring field (pass3d_ros.core.stage1.held_lines), the sensor's height and tilt above the ground
 (pass3d_ros.core.stage1.mounting: stage1.sensor_height auto runs on the held height), the full scale of its intensities
-(pass3d_ros.core.intensity_scale) and the map of its intensities onto stage 2's training scale
-(pass3d_ros.core.stage2.intensity_match). `ScanStream.prepare` applies the input checks every path applies
+(pass3d_ros.core.intensity_scale), the map of its intensities onto stage 2's training scale
+(pass3d_ros.core.stage2.intensity_match) and, with stage1.min_range auto, the reach of the vehicle's own returns
+(pass3d_ros.core.self_returns). `ScanStream.prepare` applies the input checks every path applies
 (coordinates a LiDAR could return, intensities read as 0..1, a ring field within the sensor's lasers), so a scan is
 treated the same live and offline; what it repaired comes back as notes for the caller to log.
 """
@@ -18,7 +19,9 @@ import numpy as np
 
 from pass3d_ros.core import scan_checks
 from pass3d_ros.core.intensity_scale import FRAMES_TO_RAISE, StreamIntensityScale
+from pass3d_ros.core.self_returns import BodyHolder
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result
+from pass3d_ros.core.stage1.config import AUTO
 from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage1.lasers import ring_limit
 from pass3d_ros.core.stage1.mounting import MountingHolder
@@ -58,6 +61,7 @@ class ScanStream:
     def __init__(self, clock: Callable[[], float] | None = None, intensity_match: bool = INTENSITY_MATCH) -> None:
         self.lines = LineHolder(clock)
         self.mounting = MountingHolder()
+        self.body = BodyHolder(clock)
         self.scale = StreamIntensityScale()
         self.match = StreamIntensityMatch()
         self.intensity_match = intensity_match
@@ -70,6 +74,7 @@ class ScanStream:
         """Forget everything learned: the next scan is the stream's first."""
         self.lines.reset()
         self.mounting.reset()
+        self.body.reset()
         self.scale = StreamIntensityScale()
         self.match.reset()
         self._noted.clear()
@@ -83,18 +88,20 @@ class ScanStream:
     def prepare(self, points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Config | None = None, *,
                 intensity_scale: float = 1.0, use_ring: bool = True) -> PreparedScan:
         """The input checks on one N x 4 float32 scan (never changed: a repaired scan is a copy): points with non-finite
-        or absurd coordinates left out, and no-returns (at (0, 0, 0) or nearer than `config.min_range`), intensities
+        or absurd coordinates left out, and no-returns (at (0, 0, 0) or nearer than `config.min_range`, with auto the
+        body radius the stream holds), intensities
         times `intensity_scale` and then divided by the stream's full scale, and a ring field with values past
         `config`'s lasers (or with `use_ring` False) not read."""
         notes: list[Note] = []
         kept = None
         config = config or Stage1Config()
-        summary = scan_checks.scan_summary(points, config.min_range)
+        min_range = self.min_range(config)
+        summary = scan_checks.scan_summary(points, min_range)
         if not summary.plausible or summary.no_returns:
             keep = scan_checks.plausible_points(points)
             if not summary.plausible:
                 notes.append(Note("x/y/z", scan_checks.dropped_points_warning(int(np.count_nonzero(~keep)))))
-            keep &= scan_checks.returns(points, config.min_range)  # no-returns: a driver's convention, not noted
+            keep &= scan_checks.returns(points, min_range)  # no-returns: a driver's convention, not noted
             kept = np.flatnonzero(keep)
             points = np.ascontiguousarray(points[kept])
             ring = None if ring is None else ring[kept]
@@ -115,6 +122,11 @@ class ScanStream:
                                       "frame"))
             scan.ring = None
         return scan
+
+    def min_range(self, config: Stage1Config) -> float:
+        """The range nearer than which returns are left out: `config.min_range`, or with auto the body radius the
+        stream holds (0 until it is read)."""
+        return self.body.radius_m if config.min_range == AUTO else float(config.min_range)
 
     def _unit_intensity(self, points: np.ndarray, summary: scan_checks.ScanSummary, scale: float,
                         notes: list[Note]) -> tuple[np.ndarray, scan_checks.ScanSummary]:
@@ -148,7 +160,8 @@ class ScanStream:
 
     def propose(self, scan: PreparedScan, config: Stage1Config | None = None) -> Stage1Result:
         """Stage 1 on a prepared scan, with the stream's held laser lines and ring-field order, and with sensor_height
-        auto, its held mounting; the scan's ground then reads the mounting until it is held."""
+        auto, its held mounting; the scan's ground then reads the mounting until it is held, and with min_range auto
+        the vehicle's own returns until their reach is held (`body`)."""
         config = config or Stage1Config()
         result = self.lines.propose(scan.points, scan.ring, self.mounting.config_for(config))
         if self.mounting.held is None:
@@ -156,6 +169,8 @@ class ScanStream:
             report = self.mounting.report()
             if report is not None:
                 self.mountings[str(self._key)] = report
+        if config.min_range == AUTO and self.body.held is None:
+            self.body.observe(scan.points, result.ground)
         return result
 
     def on_training_scale(self, points: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.core import scan_checks
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, warm_up
-from pass3d_ros.core.stage1.config import STAGE1_PREFIX
+from pass3d_ros.core.stage1.config import AUTO, STAGE1_PREFIX
 from pass3d_ros.core.stage1.mounting import problems as mounting_problems
 from pass3d_ros.core.stage1.ring_field import RingFieldOrder
 from pass3d_ros.core.stream import Note, ScanStream
@@ -159,12 +159,26 @@ class ClusterProposalNode(PointCloudNode):
         for problem in mounting_problems(self.config, held):
             self.get_logger().warning(f"mounting: {problem}")
 
+    _body_said: Any = None  # the held body reading last logged (a class default: each node assigns its own)
+
+    def _report_body(self) -> None:
+        """With stage1.min_range auto: log the vehicle's own returns once their reading is held (INFO), what it
+        leaves out or why nothing (pass3d_ros.core.self_returns)."""
+        held = self._stream.body.held
+        if held is None or held is self._body_said:
+            return
+        self._body_said = held
+        reach = (f"returns nearer than {held.radius_m:.1f} m are left out from now on" if held.radius_m > 0.0 else
+                 "nothing left out")
+        self.get_logger().info(f"vehicle's own returns (stage1.min_range auto): {held.note}; {reach}")
+
     def diagnostic_extras(self) -> tuple[dict[str, float | int | str], list[str]]:
         """`ring_field`: the numbering measured in the input's ring field (none, top_down, bottom_up, driver_order,
         unfit); an unfit field turns the status WARN. `mounting`: none, estimating (scans read so far) or held;
         `sensor_height_m`, `sensor_tilt_deg`, `sensor_roll_deg`, `sensor_pitch_deg`: the estimate
         (pass3d_ros.core.stage1.mounting); a held one that disagrees with a hand-set sensor_height by more than 0.3 m,
-        or is tilted over 5 deg, turns the status WARN."""
+        or is tilted over 5 deg, turns the status WARN. `min_range_m`: with stage1.min_range auto, the body radius held
+        (0 until read, and when the vehicle showed none)."""
         order = self._ring_order
         warnings = ["ring field does not fit the points: ignored, rings recovered"] if order and not order.fits else []
         values: dict[str, float | int | str] = {"ring_field": "none" if order is None else order.convention}
@@ -178,6 +192,8 @@ class ClusterProposalNode(PointCloudNode):
                            "sensor_roll_deg": round(estimate.roll_deg, 2),
                            "sensor_pitch_deg": round(estimate.pitch_deg, 2)})
         warnings += [f"mounting: {problem}" for problem in mounting_problems(self.config, holder.held)]
+        if self.config.min_range == AUTO:
+            values["min_range_m"] = self._stream.body.radius_m
         return values, warnings
 
     def _process(self, msg: PointCloud2) -> Outcome | None:
@@ -202,6 +218,7 @@ class ClusterProposalNode(PointCloudNode):
         result = self._stream.propose(prepared, self.config)
         clock.mark("compute")
         self._report_mounting()
+        self._report_body()
         self._report_sensor(result)
         self._report_ring_field(result)
         field_used = prepared.ring is not None and result.ring_order is not None and result.ring_order.fits

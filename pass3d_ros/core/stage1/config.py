@@ -53,9 +53,11 @@ def _param(default: Any, description: str, lo: float, hi: float) -> Any:
     return field(default=default, metadata={"description": description, "range": (lo, hi)})
 
 
-def _auto_param(description: str, lo: float, hi: float) -> Any:
-    """A config field that is either AUTO (learned from the stream's scans) or a number in the closed range."""
-    return field(default=AUTO, metadata={"description": description, "range": (lo, hi), "auto": True})
+def _auto_param(description: str, lo: float, hi: float, default: Any = None) -> Any:
+    """A config field that is either AUTO (learned from the stream's scans) or a number in the closed range; its
+    default is AUTO unless given."""
+    return field(default=AUTO if default is None else default,
+                 metadata={"description": description, "range": (lo, hi), "auto": True})
 
 
 def _choice(default: str, description: str, choices: tuple[str, ...]) -> Any:
@@ -63,7 +65,7 @@ def _choice(default: str, description: str, choices: tuple[str, ...]) -> Any:
     return field(default=default, metadata={"description": description, "range": None, "choices": choices})
 
 
-AUTO = "auto"  # the value of a number-or-auto field (sensor_height) that the stream learns from its scans
+AUTO = "auto"  # the value of a number-or-auto field (sensor_height, min_range) that the stream learns from its scans
 AUTO_START_HEIGHT_M = 1.73  # sensor_height auto: the seed bound's height until the stream holds its mounting (KITTI's
 # 1.73 m, the old default: with below_ground_margin 1 m it lets every mount up to 2.73 m seed; see
 # pass3d_ros.core.stage1.mounting)
@@ -84,9 +86,11 @@ class Stage1Config:
     rest is what the paper leaves open, chosen on KITTI (see each field's description)."""
 
     # Ground plane fitting (Zermas et al.; PASS3D's values).
-    min_range: float = _param(
-        0.0, "input: returns nearer than this (m; e.g. 0.5 for the vehicle and mount) are left out before stage 1, "
-        "as are points at (0, 0, 0), where drivers put a no-return", 0.0, 10.0,
+    min_range: float | str = _auto_param(
+        "input: returns nearer than this (m; e.g. 0.5 for the vehicle and mount) are left out before stage 1, "
+        "as are points at (0, 0, 0), where drivers put a no-return. auto: the vehicle's own returns, read from the "
+        "stream's scans while it moves (about 5 s; pass3d_ros.core.self_returns), then held; 0 until read",
+        0.0, 10.0, default=0.0,
     )
     n_seg: int = _param(3, "ground: segments along x", 1, 64)
     n_iter: int = _param(3, "ground: plane fits per segment", 1, 20)
