@@ -161,7 +161,7 @@ def report_markdown(report: dict, picture: bool) -> str:
     split = ("every one checked, none adapted on" if report["settings_only"] else
              f"{len(scans['adapt'])} adapted on, {len(scans['check'])} held out ({scans['left_out']} between them "
              "left out)")
-    lines += [f"Data: {', '.join(report['data'])}; {_count(scans['read'], 'scan')} read, {split}; "
+    lines += [f"Data: {', '.join(report['data'])}; {scans['read']} scan(s) read, {split}; "
               f"{report['seconds'] / 60:.1f} min.",
               f"Sensor: {s['n_rings']} rings ({s['ring_source']}), resolution {s['vertical_deg']:.2f} x "
               f"{s['horizontal_deg']:.3f} deg, lowest laser {s['bottom_deg']:.1f} deg; "
@@ -209,10 +209,6 @@ def report_markdown(report: dict, picture: bool) -> str:
         lines += ["When not to ship the result: a refused or partial verdict; agreement that fell; shares that moved "
                   "toward one class at all ranges (the network calling everything a car is self-consistent too).", ""]
     return "\n".join(lines)
-
-
-def _count(n: int, noun: str) -> str:
-    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 def _agreement_cell(row: dict) -> str:

@@ -180,8 +180,8 @@ class Adaptation:
         needed = fewest_scans()
         if len(self.scans) < needed:  # settings only: every scan is checked, none adapted on
             count = len(self.scans)
-            self.settings_only = (f"{count} scan{'s' if count != 1 else ''}; a fine-tune needs {needed} or more, to "
-                                  "check it on stretches of time it did not learn from")
+            self.settings_only = (f"{count} scan(s); a fine-tune needs {needed} or more, to check it on stretches "
+                                  "of time it did not learn from")
             self.split = Split(np.zeros(0, np.int64), np.arange(count), np.zeros(0, np.int64))
             self.log(f"sensor: {s.n_rings} rings ({s.ring_source}); settings only ({self.settings_only}): the "
                      "starting weights are checked on every scan")

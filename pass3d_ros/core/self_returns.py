@@ -81,8 +81,8 @@ class SelfReturnReader:
         """The body's radius, or 0.0 with the reason: too few scans, a still vehicle, nothing persistent."""
         scans = self.scans
         if scans < MIN_SCANS:
-            return SelfReturns(0.0, 0, scans, None, f"{scans} scan{'' if scans == 1 else 's'}: {MIN_SCANS} or more "
-                                                    "are needed to tell the vehicle's own returns from the scene")
+            return SelfReturns(0.0, 0, scans, None, f"{scans} scan(s): {MIN_SCANS} or more are "
+                                                    "needed to tell the vehicle's own returns from the scene")
         scene_share = _persistent_share(self._scene, scans)
         if scene_share is not None and scene_share >= STILL_SHARE:
             return SelfReturns(0.0, 0, scans, scene_share, f"{100 * scene_share:.0f} % of the scene stayed put: "
