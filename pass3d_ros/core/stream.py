@@ -169,7 +169,7 @@ class ScanStream:
             report = self.mounting.report()
             if report is not None:
                 self.mountings[str(self._key)] = report
-        if config.min_range == AUTO and self.body.held is None:
+        if config.min_range == AUTO:  # a no-op once the reading is held
             self.body.observe(scan.points, result.ground)
         return result
 
