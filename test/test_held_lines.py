@@ -1,4 +1,4 @@
-"""Laser lines held across a stream (pass3d_ros.core.stage1.held_lines.LineHolder), as the cluster node and every
+"""Laser lines held across a stream (pass3d_ros.core.stream.lines.LineHolder), as the cluster node and every
 offline tool hold them: one search per stream, a new one for a new stream or when the held lines stop fitting, and a
 failed search repeated after 1, 2, 4, 8 ... scan periods, at most LINE_SEARCH_RETRY_S apart (offline: counted in
 scans, not wall time), the count starting over when a search finds lines."""
@@ -10,8 +10,9 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from pass3d_ros.core.stage1 import Stage1Config, held_lines, propose, ring, synthetic_scan
-from pass3d_ros.core.stage1.held_lines import LineHolder
+from pass3d_ros.core.stage1 import Stage1Config, propose, ring, synthetic_scan
+from pass3d_ros.core.stream import lines as held_lines
+from pass3d_ros.core.stream.lines import LineHolder
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.evaluation.offline import evaluate_stage1
 

@@ -1,13 +1,13 @@
-"""The per-stream intensity map onto the training scale (pass3d_ros.core.stage2.intensity_match)."""
+"""The per-stream intensity map onto the training scale (pass3d_ros.core.stream.intensity_match)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pass3d_ros.core.stage2 import intensity_match as im
-from pass3d_ros.core.stage2.intensity_match import REFERENCE_QUANTILES, StreamIntensityMatch, fit_map
 from pass3d_ros.core.stream import ScanStream
+from pass3d_ros.core.stream import intensity_match as im
+from pass3d_ros.core.stream.intensity_match import REFERENCE_QUANTILES, StreamIntensityMatch, fit_map
 from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 

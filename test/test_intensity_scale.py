@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pass3d_ros.core.intensity_scale import FRAMES_TO_LOWER, FRAMES_TO_RAISE, StreamIntensityScale
+from pass3d_ros.core.stream.intensity_scale import FRAMES_TO_LOWER, FRAMES_TO_RAISE, StreamIntensityScale
 
 
 def scan(high: float, n: int = 20000, seed: int = 0) -> np.ndarray:

@@ -23,10 +23,9 @@ from pass3d_ros.core.stage1.mounting import (
     HEIGHT_DISAGREE_M,
     MOUNTING_SCANS,
     Mounting,
-    MountingHolder,
     problems,
 )
-from pass3d_ros.core.stream import ScanStream
+from pass3d_ros.core.stream import MountingHolder, ScanStream
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.evaluation.offline import parse_params
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode

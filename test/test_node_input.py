@@ -349,7 +349,8 @@ def test_stream_without_laser_lines_searches_again_only_after_the_retry_time(
         ros: Ros, monkeypatch: pytest.MonkeyPatch) -> None:
     """Scans in which no line search can find laser lines: the node searches on the first, bins the next ones by
     elevation without searching, and searches again once LINE_SEARCH_RETRY_S has passed."""
-    from pass3d_ros.core.stage1 import held_lines, ring
+    from pass3d_ros.core.stage1 import ring
+    from pass3d_ros.core.stream import lines as held_lines
 
     pub, clouds, searches, counted = stream_with_counted_searches(ros)
     points = no_laser_lines_scan()

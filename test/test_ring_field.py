@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from pass3d_ros.core.stage1 import proposal_members, propose, synthetic_scan
-from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage1.ring_field import RING_CONVENTIONS, field_rings, measure_ring_order
 from pass3d_ros.core.stage2 import open_classifier
+from pass3d_ros.core.stream.lines import LineHolder
 
 N_RINGS = 64
 

@@ -13,7 +13,7 @@ from pass3d_ros.adapt.sensor import read_sensor
 from pass3d_ros.core import self_returns
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage1.config import AUTO, ConfigError
-from pass3d_ros.core.stream import ScanStream
+from pass3d_ros.core.stream import BodyHolder, ScanStream, body
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.ros.diagnostics import status_values
 from pass3d_ros.synthetic.dataset import generate_frame
@@ -138,15 +138,15 @@ def test_min_range_takes_a_number_or_auto_and_stays_0_by_default():
 
 def test_a_body_holder_waits_while_the_vehicle_stands_and_reads_once_it_moves():
     now = [0.0]
-    holder = self_returns.BodyHolder(clock=lambda: now[0])
-    for k in range(2 * self_returns.WINDOW):  # standing: every window reads a still scene, nothing is held
+    holder = BodyHolder(clock=lambda: now[0])
+    for k in range(2 * body.WINDOW):  # standing: every window reads a still scene, nothing is held
         assert holder.observe(*_simple_scan(k, still=True)) is None
-        now[0] += self_returns.SAMPLE_EVERY_S
+        now[0] += body.SAMPLE_EVERY_S
     assert holder.held is None and holder.radius_m == 0.0
     decided = None
-    for k in range(self_returns.WINDOW):  # driving: once the still scans are dropped, the roof is read
+    for k in range(body.WINDOW):  # driving: once the still scans are dropped, the roof is read
         decided = decided or holder.observe(*_simple_scan(k, still=False))
-        now[0] += self_returns.SAMPLE_EVERY_S
+        now[0] += body.SAMPLE_EVERY_S
     assert decided is not None and holder.held is decided
     corner = float(np.linalg.norm([1.5, 0.5, -1.2]))
     assert corner < holder.radius_m <= corner + 2 * self_returns.MARGIN_M, decided
@@ -156,11 +156,11 @@ def test_a_body_holder_waits_while_the_vehicle_stands_and_reads_once_it_moves():
 def test_a_body_holder_offers_a_scan_every_half_second_of_the_stream():
     """Offline (no clock) each scan is one revolution at 10 Hz: one scan in five is read, so a window takes five
     times as many scans; a live clock that runs faster than that offers fewer."""
-    holder = self_returns.BodyHolder()
-    every = round(self_returns.SAMPLE_EVERY_S / self_returns.OFFLINE_SCAN_S)
-    for k in range(every * (self_returns.WINDOW - 1) + 1):
+    holder = BodyHolder()
+    every = round(body.SAMPLE_EVERY_S / body.OFFLINE_SCAN_S)
+    for k in range(every * (body.WINDOW - 1) + 1):
         holder.observe(*_simple_scan(k, still=False))
-        assert (holder.held is not None) == (k == every * (self_returns.WINDOW - 1)), k
+        assert (holder.held is not None) == (k == every * (body.WINDOW - 1)), k
     holder.reset()
     assert holder.held is None and holder.radius_m == 0.0
 
@@ -168,7 +168,7 @@ def test_a_body_holder_offers_a_scan_every_half_second_of_the_stream():
 def test_a_stream_with_min_range_auto_leaves_the_body_out_once_read():
     """stage1.min_range auto on a stream of the synthetic drive with a roof: the first scans keep the roof, and once
     the reading is held every scan is prepared without it; min_range 0 keeps it for good."""
-    recording = _recording(self_returns.WINDOW + 1)
+    recording = _recording(body.WINDOW + 1)
     now = [0.0]
     auto = ScanStream(clock=lambda: now[0])
     fixed = ScanStream(clock=lambda: now[0])
@@ -177,7 +177,7 @@ def test_a_stream_with_min_range_auto_leaves_the_body_out_once_read():
         assert np.linalg.norm(auto.prepare(frame.points, None, config).points[:, :3], axis=1).min() < 1.5
         auto.propose(auto.prepare(frame.points, None, config), config)
         fixed.propose(fixed.prepare(frame.points), Stage1Config())
-        now[0] += self_returns.SAMPLE_EVERY_S
+        now[0] += body.SAMPLE_EVERY_S
     assert auto.body.held is not None and fixed.body.held is None
     radius = auto.min_range(config)
     assert radius == auto.body.radius_m > np.linalg.norm([1.6, 0.8, BODY_HEIGHT_M])
@@ -202,7 +202,7 @@ def test_the_node_with_min_range_auto_reads_the_body_says_so_and_leaves_it_out(r
     from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
     from pass3d_ros.ros.qos import qos_profile
 
-    monkeypatch.setattr(self_returns, "SAMPLE_EVERY_S", 0.0)
+    monkeypatch.setattr(body, "SAMPLE_EVERY_S", 0.0)
     node = ros.add(ClusterProposalNode(context=ros.context,
                                        parameter_overrides=[Parameter("stage1.min_range", value="auto")]))
     assert node.config.min_range == AUTO
@@ -210,7 +210,7 @@ def test_the_node_with_min_range_auto_reads_the_body_says_so_and_leaves_it_out(r
     diagnostics = Collector(ros, DiagnosticArray, "/diagnostics")
     pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
     connect(pub, clouds)
-    recording = _recording(self_returns.WINDOW + 1)
+    recording = _recording(body.WINDOW + 1)
     for i, (_, frame) in enumerate(recording):
         pub.publish(scan_message(frame, STAMP0 + i * 100_000_000))
         assert wait_until(lambda i=i: node.worker.counters.processed == i + 1 and node.worker.idle(), timeout=20.0)

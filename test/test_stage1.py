@@ -139,7 +139,7 @@ def test_ground_thread_gives_the_same_result(order: str, monkeypatch: pytest.Mon
         threads.append(threading.current_thread().name)
         return fit(*args, **kwargs)
 
-    monkeypatch.setattr(stage1._ground, "fit_ground", recording_fit)
+    monkeypatch.setattr(ground, "fit_ground", recording_fit)
     in_line = propose(points, ring_field, Stage1Config(ground_thread=False))
     assert threads == [threading.current_thread().name]
     threads.clear()

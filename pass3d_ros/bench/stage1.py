@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, propose, synthetic_scan, warm_up
-from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage1.ring import LaserLines
+from pass3d_ros.core.stream.lines import LineHolder
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import write_text_atomic
@@ -89,7 +89,7 @@ def time_stage1(frames: list[Frame], repeat: int, config: Stage1Config,
     CPU milliseconds per run ("cpu"): on a shared machine wall time also counts waiting for a core.
 
     The frames of one stream (`streams`: one number per frame, default all one) are timed as a live node sees them
-    (pass3d_ros.core.stage1.held_lines): every run of a frame is given the laser lines held after the frames before it
+    (pass3d_ros.core.stream.lines): every run of a frame is given the laser lines held after the frames before it
     (none for a stream's first frame, which searches on every run), never those read off the frame itself."""
     warm_up()
     times: dict[str, list[float]] = {step: [] for step in (*STEPS, "cpu")}

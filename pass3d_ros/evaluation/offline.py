@@ -19,9 +19,9 @@ from pass3d_ros.core.metrics import ObjectRecall, SegmentationMetrics, Stage1Met
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
 from pass3d_ros.core.stage1.config import ConfigError, config_from_text
 from pass3d_ros.core.stage2 import Classifier
-from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, proposals_cut
 from pass3d_ros.core.stream import PreparedScan, ScanStream
+from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets

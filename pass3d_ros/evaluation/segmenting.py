@@ -34,8 +34,8 @@ from pass3d_ros.core.metrics import ConfusionAccumulator
 from pass3d_ros.core.objects import LabelledObject, labelled_objects, objects_json
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, proposal_members
 from pass3d_ros.core.stage2 import Classifier
-from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stream import PreparedScan, ScanStream
+from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import (
     OutputError,

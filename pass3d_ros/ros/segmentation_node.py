@@ -27,9 +27,9 @@ from pass3d_ros.core.stage2.classifier_process import (
     ClassifierProcessHungError,
     ProcessClassifier,
 )
-from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult, proposals_cut
 from pass3d_ros.core.stream import ScanStream
+from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, header_stamp_ns
 from pass3d_ros.ros import params

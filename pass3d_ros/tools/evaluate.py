@@ -71,8 +71,8 @@ from pathlib import Path
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
 from pass3d_ros.core.stage2.canonical import SAMPLINGS
-from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter
+from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import write_text_atomic

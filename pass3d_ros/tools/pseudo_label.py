@@ -26,8 +26,8 @@ from collections.abc import Iterator
 from dataclasses import replace
 
 from pass3d_ros.core.stage2 import open_classifier
-from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stage2.segmentation import Segmenter
+from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame

@@ -17,7 +17,7 @@ the data has ground-truth labels, per-class precision, recall and IoU, how many 
 intensities on its training scale, as the segmentation node does; --no-intensity-match feeds them as read). `--param
 KEY=VALUE` (repeatable) overrides a stage-1 parameter, as in pass3d_evaluate (stage1.sensor=pandar64 or
 sensor=pandar64). The frames of one --data are a stream: laser lines found on one scan are reused by the next
-(pass3d_ros.core.stage1.held_lines).
+(pass3d_ros.core.stream.lines).
 
 The output is built in a hidden sibling folder (`.DIR.partial-PID`) and moved into DIR only when every frame and
 the summary are written, so a failed or interrupted run leaves DIR as it was (one left by a killed run is removed by
@@ -78,8 +78,8 @@ worker.die_with_parent()
 try:
     from pass3d_ros.core.metrics import format_metrics
     from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
-    from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
     from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
+    from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
     from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
     from pass3d_ros.data.errors import UserError
     from pass3d_ros.data.outputs import dataset_paths, out_path

@@ -20,10 +20,10 @@ from tqdm import tqdm
 
 from pass3d_ros.classes import BACKGROUND, IGNORE, NUM_CLASSES
 from pass3d_ros.core.stage1.config import Stage1Config
-from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage2 import canonical
 from pass3d_ros.core.stage2.pointnet2 import ModelConfig
 from pass3d_ros.core.stage2.segmentation import prepare_proposals, uses_intensity
+from pass3d_ros.core.stream.lines import LineHolder
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, DatasetError
 
@@ -34,7 +34,7 @@ Proposer = Callable[[Frame], list[np.ndarray]]
 def stage1_proposer(frame: Frame, config: Stage1Config | None = None, lines: LineHolder | None = None
                     ) -> list[np.ndarray]:
     """Member indices of the stage-1 proposals of a frame (the real pipeline, with `config` or the defaults).
-    `lines`: the laser lines held across the frames (pass3d_ros.core.stage1.held_lines), so a stream in no firing order
+    `lines`: the laser lines held across the frames (pass3d_ros.core.stream.lines), so a stream in no firing order
     and without a ring field searches them once, not on every frame."""
     from pass3d_ros.core.stage1 import proposal_members
 

@@ -1,10 +1,10 @@
 """One sensor stream's state, held across its scans: the one object both nodes and every offline tool hold.
 
 What a stream's input needs is a property of its sensor, learned from its first scans and then held: the laser lines
-and the order of its ring field (pass3d_ros.core.stage1.held_lines), the sensor's height and tilt above the ground
+and the order of its ring field (pass3d_ros.core.stream.lines), the sensor's height and tilt above the ground
 (pass3d_ros.core.stage1.mounting: stage1.sensor_height auto runs on the held height), the full scale of its intensities
-(pass3d_ros.core.intensity_scale), the map of its intensities onto stage 2's training scale
-(pass3d_ros.core.stage2.intensity_match) and, with stage1.min_range auto, the reach of the vehicle's own returns
+(pass3d_ros.core.stream.intensity_scale), the map of its intensities onto stage 2's training scale
+(pass3d_ros.core.stream.intensity_match) and, with stage1.min_range auto, the reach of the vehicle's own returns
 (pass3d_ros.core.self_returns). `ScanStream.prepare` applies the input checks every path applies
 (coordinates a LiDAR could return, intensities read as 0..1, a ring field within the sensor's lasers), so a scan is
 treated the same live and offline; what it repaired comes back as notes for the caller to log.
@@ -18,15 +18,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pass3d_ros.core import scan_checks
-from pass3d_ros.core.intensity_scale import FRAMES_TO_RAISE, StreamIntensityScale
-from pass3d_ros.core.self_returns import BodyHolder
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result
 from pass3d_ros.core.stage1.config import AUTO
-from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage1.lasers import ring_limit
-from pass3d_ros.core.stage1.mounting import MountingHolder
-from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.stage2.intensity_match import StreamIntensityMatch
+from pass3d_ros.core.stream.body import BodyHolder
+from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
+from pass3d_ros.core.stream.intensity_match import StreamIntensityMatch
+from pass3d_ros.core.stream.intensity_scale import FRAMES_TO_RAISE, StreamIntensityScale
+from pass3d_ros.core.stream.lines import LineHolder
+from pass3d_ros.core.stream.mounting import MountingHolder
 
 _NO_STREAM = object()  # the key before the first scan: every real key differs from it
 

@@ -1,0 +1,249 @@
+"""Stage 1 on one scan, `propose`: rings, ground plane fitting, scan-line-run clustering and proposal refinement
+in order, and the proposals' member points (`proposal_members`).
+
+Points are N x 4 float32 (x, y, z, intensity) in the sensor frame, in any order: rings come from the firing
+order, a ring field, or the scan's laser lines (see `_propose_finite`). Every parameter lives in `Stage1Config`
+(pass3d_ros.core.stage1.config, re-exported here), with the paper's values where the paper gives one.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numba as nb
+import numpy as np
+
+from pass3d_ros.core.stage1 import ground as _ground
+from pass3d_ros.core.stage1 import refinement as _refinement
+from pass3d_ros.core.stage1 import ring as _ring
+from pass3d_ros.core.stage1 import ring_field as _ring_field
+from pass3d_ros.core.stage1 import scanline as _scanline
+from pass3d_ros.core.stage1 import sensor_params as _sensor
+from pass3d_ros.core.stage1 import split as _split
+from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage1.sensor_params import SensorScale
+from pass3d_ros.data.frame import Box3D
+
+STEPS: tuple[str, ...] = ("ring", "ground", "clustering", "refinement", "total")
+
+
+@dataclass
+class Stage1Result:
+    """Per-point stage 1 output and the proposals' boxes (index = proposal id)."""
+
+    ring: np.ndarray  # (N,) uint16
+    ground: np.ndarray  # (N,) bool
+    cluster_id: np.ndarray  # (N,) int32, proposal 0..K-1, or -1 = in no proposal (primary proposal)
+    cluster_id2: np.ndarray  # (N,) int32, a second proposal for points inside two enlarged boxes, else -1
+    boxes: list[Box3D]  # K kept proposals, un-enlarged; Box3D.label = 0
+    timings_ms: dict[str, float]  # ring, ground, clustering, refinement, total
+    ring_source: str = "field"  # how rings were obtained: see pass3d_ros.core.stage1.ring.RING_SOURCES
+    ground_planes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (n_seg, 4): a x+b y+c z+d=0
+    n_clusters: int = 0  # clusters before the gates (and before the split)
+    n_split: int = 0  # clusters cut into parts (Stage1Config.split_merged, split_rerun, split_protruding), gated again
+    sensor: SensorScale | None = None  # the scan's resolution and the effective th_num / th_prop it ran with
+    lines: _ring.LaserLines | None = None  # laser lines the rings were read from (NO_LINES: a search found none):
+    # pass to the next scan's propose()
+    ring_order: _ring_field.RingFieldOrder | None = None  # how a ring field was read (None: no field): pass it on too
+
+    @property
+    def n_proposals(self) -> int:
+        """K, the number of kept proposals."""
+        return len(self.boxes)
+
+
+def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Config | None = None,
+            lines: _ring.LaserLines | None = None,
+            ring_order: _ring_field.RingFieldOrder | None = None) -> Stage1Result:
+    """Run stage 1 on one scan: cluster proposals with per-point primary/secondary proposal ids.
+
+    Points with a non-finite coordinate (a driver's no-return) take no part: ring 0, not ground, no proposal.
+    `config`: the stage-1 parameters; None gives `Stage1Config()` (defaulted here only: the steps below require one).
+    `lines`: the previous scan's `Stage1Result.lines` on a stream of one sensor; a scan in no firing order then skips
+    the laser-line search when they still fit it, or (`NO_LINES`, from a search that found none) altogether
+    (pass3d_ros.core.stage1.ring.recover_rings).
+    `ring`: a driver's ring field in any numbering (bottom-up, top-down, the driver's own): it is read in the order of
+    its rings' measured elevations, `ring_order` (the previous scan's `Stage1Result.ring_order`) while that covers
+    its values; a field that does not fit the points is ignored (pass3d_ros.core.stage1.ring_field). `Stage1Result.ring`
+    is then stage 1's ring, 0 = the highest laser.
+    """
+    cfg = config or Stage1Config()
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    if pts.ndim != 2 or pts.shape[1] < 3:
+        raise ValueError(f"points must be N x 4 (x, y, z, intensity), got shape {pts.shape}")
+    if ring is not None and len(ring) != len(pts):
+        raise ValueError(f"ring field has {len(ring)} entries for {len(pts)} points")
+    if np.isfinite(pts.sum()) or np.isfinite(pts[:, :3]).all():
+        return _propose_finite(pts, ring, cfg, lines, ring_order)
+    valid = np.isfinite(pts[:, :3]).all(axis=1)
+    part = _propose_finite(np.ascontiguousarray(pts[valid]), None if ring is None else ring[valid], cfg, lines,
+                           ring_order)
+    n = len(pts)
+    full = {"ring": np.zeros(n, np.uint16), "ground": np.zeros(n, bool), "cluster_id": np.full(n, -1, np.int32),
+            "cluster_id2": np.full(n, -1, np.int32)}
+    for key, values in full.items():
+        values[valid] = getattr(part, key)
+        setattr(part, key, values)
+    return part
+
+
+def _in_scan_order(rings: _ring.Rings) -> bool:
+    """Whether the points are already in a scan order that clustering can read as they are: rings read from the
+    firing order, or a ring field that never steps back (ring after ring)."""
+    if rings.source in _ring.FIRING_ORDER_SOURCES:
+        return True
+    return rings.source == "field" and bool(np.all(rings.ring[1:] >= rings.ring[:-1]))
+
+
+def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
+                    lines: _ring.LaserLines | None, ring_order: _ring_field.RingFieldOrder | None) -> Stage1Result:
+    """Stage 1 on float32 points whose coordinates are all finite.
+
+    Ground plane fitting reads the points as they come (its sample does not depend on their order), on the ground
+    thread beside ring recovery (after assigning half of the points to held laser lines, when there are some).
+    Points in any other order than a scan order are put in the canonical order (ring, then azimuth:
+    pass3d_ros.core.stage1.scanline.canonical_order) for clustering and refinement, so the proposals do not depend
+    on the order the points came in; the results are mapped back to the input order. The frame runs with the
+    effective config for its sensor (pass3d_ros.core.stage1.sensor_params.effective_config), reported in the result.
+    """
+    t0 = time.perf_counter()
+    if ring is not None:
+        ring, ring_order = _ring_field.field_rings(pts, np.asarray(ring), ring_order)
+    # Under held laser lines the ground thread first assigns half of the points to them, then fits the ground.
+    pool = _ground_pool() if cfg.ground_thread else None
+    split = pool is not None and ring is None and lines is not None and not lines.empty
+    beside = pool.submit(_ground.fit_ground, pts, cfg) if pool is not None and not split else None
+    rings = _ring.rings_for(pts, ring, cfg, lines, pool if split else None)
+    if split:  # held lines: a stream whose points come in no firing order
+        beside = pool.submit(_ground.fit_ground, pts, cfg, in_scan_order=False)
+    order, work, work_ring = None, pts, rings.ring
+    if not _in_scan_order(rings):
+        order, work, work_ring = _scanline.in_canonical_order(pts, rings.ring)
+    cfg, sensor = _sensor.effective_config(cfg, work, work_ring, rings.n_rings, rings.source == "elevation_bins")
+    t1 = time.perf_counter()
+    fit = beside.result() if beside is not None else _ground.fit_ground(pts, cfg)
+    work_ground = fit.ground if order is None else np.take(fit.ground, order)
+    t2 = time.perf_counter()
+    label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~work_ground, cfg)
+    t3 = time.perf_counter()
+    n_split = 0
+    # With a local ground the gates read heights above it (it passes through the split as the planes argument).
+    surface = fit.local if fit.local is not None else fit.planes
+    if cfg.split_merged or cfg.split_rerun or cfg.split_protruding:
+        boxes, kept, label, n_split = _split.select_with_split(work, label, n_clusters, surface, fit.segment_edges,
+                                                               cfg, work_ring)
+    else:
+        boxes, kept = _refinement.select_proposals(work, label, n_clusters, surface, fit.segment_edges, cfg)
+    floors = None if fit.local is None else _refinement.ground_floors(boxes, fit.local, cfg.th_dist)
+    cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge, floors=floors)
+    if order is not None:
+        cluster_id, cluster_id2 = _in_input_order(order, cluster_id, cluster_id2)
+    t4 = time.perf_counter()
+    timings = {"ring": t1 - t0, "ground": t2 - t1, "clustering": t3 - t2, "refinement": t4 - t3, "total": t4 - t0}
+    return Stage1Result(
+        ring=rings.ring, ground=fit.ground, cluster_id=cluster_id, cluster_id2=cluster_id2, boxes=boxes,
+        timings_ms={k: 1e3 * v for k, v in timings.items()}, ring_source=rings.source, ground_planes=fit.planes,
+        n_clusters=n_clusters, n_split=n_split, sensor=sensor, lines=rings.lines, ring_order=ring_order,
+    )
+
+
+_GROUND_POOL: ThreadPoolExecutor | None = None
+_GROUND_POOL_LOCK = threading.Lock()
+
+
+def _ground_pool() -> ThreadPoolExecutor:
+    """The ground thread (`Stage1Config.ground_thread`): ground plane fitting reads the points in any order and
+    releases the GIL, so it runs beside ring recovery and the canonical ordering. It reads no field that
+    `effective_config` changes, so it starts before that config is known."""
+    global _GROUND_POOL
+    with _GROUND_POOL_LOCK:
+        if _GROUND_POOL is None:
+            _GROUND_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pass3d-ground")
+    return _GROUND_POOL
+
+
+@nb.njit(cache=True, nogil=True)
+def _in_input_order(order: np.ndarray, first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two per-point fields listed in `order` put back in input order (one scatter pass for both: a quarter of the
+    time of inverting the permutation and taking each field)."""
+    out_first = np.empty_like(first)
+    out_second = np.empty_like(second)
+    for j in range(order.shape[0]):
+        out_first[order[j]] = first[j]
+        out_second[order[j]] = second[j]
+    return out_first, out_second
+
+
+def proposal_members(
+    cluster_id: np.ndarray, cluster_id2: np.ndarray, n_proposals: int | None = None
+) -> list[np.ndarray]:
+    """Point indices of every proposal (ascending; a point may be in two), from the two per-point id fields.
+
+    `n_proposals` fixes the list length (proposals without points get an empty array); by default it is one
+    more than the largest id.
+    """
+    cluster_id = np.asarray(cluster_id, dtype=np.int64)
+    cluster_id2 = np.asarray(cluster_id2, dtype=np.int64)
+    if cluster_id.shape != cluster_id2.shape:
+        raise ValueError(f"cluster_id {cluster_id.shape} and cluster_id2 {cluster_id2.shape} differ in shape")
+    top = max(int(cluster_id.max(initial=-1)), int(cluster_id2.max(initial=-1)))
+    k = top + 1
+    if n_proposals is not None:
+        if n_proposals < k:
+            raise ValueError(f"n_proposals={n_proposals} but ids go up to {k - 1}")
+        k = n_proposals
+    index, bounds = _members_kernel(cluster_id.reshape(-1), cluster_id2.reshape(-1), k)
+    return [index[bounds[j]:bounds[j + 1]] for j in range(k)]
+
+
+@nb.njit(cache=True, nogil=True)
+def _members_kernel(first: np.ndarray, second: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Point indices grouped by proposal (a counting sort: ascending within each proposal, as the points come),
+    and the k + 1 bounds of the groups; ids below 0 are no proposal."""
+    bounds = np.zeros(k + 1, dtype=np.int64)
+    for i in range(first.shape[0]):
+        if first[i] >= 0:
+            bounds[first[i] + 1] += 1
+        if second[i] >= 0:
+            bounds[second[i] + 1] += 1
+    for j in range(k):
+        bounds[j + 1] += bounds[j]
+    fill = bounds[:k].copy()
+    index = np.empty(bounds[k], dtype=np.int64)
+    for i in range(first.shape[0]):
+        for proposal in (first[i], second[i]):
+            if proposal >= 0:
+                index[fill[proposal]] = i
+                fill[proposal] += 1
+    return index, bounds
+
+
+def synthetic_scan(n_rings: int = 64, points_per_ring: int = 720) -> np.ndarray:
+    """A firing-order scan (HDL-64E elevations) of flat ground 1.73 m below the sensor, a 1.5 m tall flat-faced
+    object 8 m ahead, and a backdrop at 60 m: for warm-up, benchmarks without data, and smoke tests."""
+    elev = np.deg2rad(np.linspace(2.0, -24.8, n_rings))
+    az = np.linspace(0.0, 2.0 * np.pi, points_per_ring, endpoint=False) + 1e-4
+    e, a = np.meshgrid(elev, az, indexing="ij")
+    tan_e = np.tan(e)
+    dist = np.full(e.shape, 60.0)
+    below = tan_e < -1.73 / 60.0
+    dist[below] = -1.73 / tan_e[below]
+    face = 8.0 / np.cos(a - 0.3)
+    on_face = (np.abs(a - 0.3) < 0.15) & (tan_e * face >= -1.73) & (tan_e * face <= -0.23)
+    dist[on_face] = face[on_face]
+    pts = np.stack([dist * np.cos(a), dist * np.sin(a), dist * tan_e, np.full_like(dist, 0.5)], axis=-1)
+    return pts.reshape(-1, 4).astype(np.float32)
+
+
+def warm_up() -> None:
+    """Compile every numba kernel of stage 1 (on disk cache after the first time) with a tiny scan."""
+    _ring.warm_up()
+    _ground.warm_up()
+    _scanline.warm_up()
+    _refinement.warm_up()
+    _split.warm_up()
+    result = propose(synthetic_scan(n_rings=16, points_per_ring=90), config=Stage1Config(n_rings=16))
+    proposal_members(result.cluster_id, result.cluster_id2)
