@@ -238,7 +238,7 @@ def test_the_node_reports_the_mounting_and_warns_on_a_hand_set_height_half_a_met
     for i, frame in enumerate(kitti_high):
         pub.publish(scan_message(frame, STAMP0 + i * 100_000_000))
         assert wait_until(lambda i=i: node.worker.counters.processed == i + 1 and node.worker.idle(), timeout=20.0)
-    held = node._stream.mounting.held
+    held = node.stream.mounting.held
     assert held is not None and abs(held.height_m - 1.73) < HEIGHT_TOLERANCE_M
 
     def warned() -> list[DiagnosticStatus]:

@@ -214,7 +214,7 @@ def test_the_node_with_min_range_auto_reads_the_body_says_so_and_leaves_it_out(r
     for i, (_, frame) in enumerate(recording):
         pub.publish(scan_message(frame, STAMP0 + i * 100_000_000))
         assert wait_until(lambda i=i: node.worker.counters.processed == i + 1 and node.worker.idle(), timeout=20.0)
-    held = node._stream.body.held
+    held = node.stream.body.held
     assert held is not None and held.radius_m > np.linalg.norm([1.6, 0.8, BODY_HEIGHT_M])
     assert wait_until(lambda: len(clouds.messages) == len(recording), timeout=10.0)
     first, last = (columns(clouds.messages[k]) for k in (0, -1))

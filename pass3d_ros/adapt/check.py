@@ -17,23 +17,23 @@ import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CLASS_NAMES
 from pass3d_ros.core.metrics import OBJECT_RANGE_EDGES_M, range_bin_names
-from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
+from pass3d_ros.core.pipeline import ScanPipeline
+from pass3d_ros.core.stage1 import Stage1Config, warm_up
 from pass3d_ros.core.stage2.segmentation import Segmenter, nearest_first
-from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.evaluation.agreement import ViewAgreement, majority
-from pass3d_ros.evaluation.offline import INTENSITY_MATCH, prepared, spread
+from pass3d_ros.evaluation.offline import INTENSITY_MATCH, proposed_frame, spread
 
 
 def check_scans(frames: Iterable[tuple[str, Frame]], config: Stage1Config, classifier: Segmenter, draws: int = 1,
                 intensity_match: bool = INTENSITY_MATCH, printed: set[str] | None = None) -> dict:
     """The label-free check (module docstring) over (spec, frame) pairs; labels, if any, are not read. `printed`:
-    input-check lines already printed (evaluation.offline.prepared)."""
+    input-check lines already printed (evaluation.offline.proposed_frame)."""
     if draws < 1:
         raise ValueError(f"draws must be >= 1, got {draws}")
     warm_up()
     classifier.warm_up()
-    stream = ScanStream(intensity_match=intensity_match)
+    pipeline = ScanPipeline(config, intensity_match=intensity_match)
     agreements = [ViewAgreement() for _ in range(draws)]
     bins = len(OBJECT_RANGE_EDGES_M) + 1
     shares = np.zeros((bins, len(CLASS_NAMES)), dtype=np.int64)
@@ -41,12 +41,11 @@ def check_scans(frames: Iterable[tuple[str, Frame]], config: Stage1Config, class
     same = np.zeros((2, 2), dtype=np.int64)  # (all proposals, those some draw calls an object) x (count, same class)
     try:
         for spec, frame in frames:
-            scan = prepared(stream, spec, frame, config, printed)
-            result = stream.propose(scan, config)
-            members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
-            members = [members[i] for i in nearest_first(scan.points, members, classifier.max_proposals)]
+            proposed = proposed_frame(pipeline, spec, frame, printed)
+            members = [proposed.members[i] for i in nearest_first(proposed.scan.points, proposed.members,
+                                                                   classifier.max_proposals)]
             members = [m for m in members if len(m)]
-            points = stream.on_training_scale(scan.points)
+            points = proposed.points
             proposals.append(len(members))
             chosen = []
             for draw, agreement in enumerate(agreements):
@@ -77,8 +76,8 @@ def check_scans(frames: Iterable[tuple[str, Frame]], config: Stage1Config, class
                                     **{CLASS_NAMES[c]: float(shares[b, c] / totals[b, 0]) if totals[b, 0] else None
                                        for c in range(len(CLASS_NAMES))}}
                          for b, bin_name in enumerate(range_bin_names())},
-        "intensity": stream.maps,
-        "mounting": stream.mountings,
+        "intensity": pipeline.stream.maps,
+        "mounting": pipeline.stream.mountings,
     }
 
 

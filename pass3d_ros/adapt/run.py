@@ -24,15 +24,15 @@ from pass3d_ros.adapt import sample_cache
 from pass3d_ros.adapt.check import check_scans
 from pass3d_ros.adapt.holdout import Split, fewest_scans, split_scans
 from pass3d_ros.adapt.sensor import AUTO, FAR_DISTANCE, SensorReading, read_sensor
-from pass3d_ros.core.stage1 import Stage1Config, proposal_members
+from pass3d_ros.core.pipeline import ScanPipeline
+from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage1.config import AUTO as AUTO_RANGE
 from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint, read_checkpoint
-from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.bag import parse_bag_spec, select_topic
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_dataset, resolve_dataset
-from pass3d_ros.evaluation.offline import evaluate_draws, prepared
+from pass3d_ros.evaluation.offline import evaluate_draws, proposed_frame
 from pass3d_ros.synthetic.dataset import HEIGHT_RANGE_M
 from pass3d_ros.training import launcher
 from pass3d_ros.training.consistency import unlabelled_samples_of
@@ -346,13 +346,13 @@ class Adaptation:
         if "after" not in self.segmenters or len(self.split.check) == 0:
             return None
         spec, frame = self.scans[self.split.check[len(self.split.check) // 2]]
-        stream = ScanStream()
-        scan = prepared(stream, spec, frame, self.options.stage1, self.printed)
-        result = stream.propose(scan, self.options.stage1)
-        members = [m for m in proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals) if len(m)]
-        points = stream.on_training_scale(scan.points)
-        labels = [self.segmenters[when].segment(points, members).labels for when in ("before", "after")]
-        return {"name": f"{spec}#{frame.name}", "points": scan.points, "before": labels[0], "after": labels[1]}
+        labels = []
+        for when in ("before", "after"):
+            pipeline = ScanPipeline(self.options.stage1, self.segmenters[when])
+            proposed = proposed_frame(pipeline, spec, frame, self.printed)
+            labels.append(pipeline.segment(proposed, proposed.nonempty_members()).segmented.labels)
+        return {"name": f"{spec}#{frame.name}", "points": proposed.scan.points, "before": labels[0],
+                "after": labels[1]}
 
 
 def train_arguments(options: TrainOptions) -> list[str]:

@@ -12,14 +12,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.self_returns import SelfReturnReader, SelfReturns
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage1.lasers import LASER_TABLES
 from pass3d_ros.core.stage1.ring import FIRING_ORDER_SOURCES, RING_SOURCES
-from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.evaluation.offline import INTENSITY_MATCH, prepared
+from pass3d_ros.evaluation.offline import INTENSITY_MATCH, proposed_frame
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES, sensor_model
 
 ELEVATION_PERCENTILES = (0.5, 99.5)  # the span of a scan's returns, robust to a few stray points
@@ -112,21 +112,21 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
                 intensity_match: bool = INTENSITY_MATCH, printed: set[str] | None = None,
                 simulated: str = AUTO) -> SensorReading:
     """Stage 1 over the (spec, frame) pairs of one sensor, one stream state held across them as a node holds it;
-    UserError when no scan has points. `printed`: input-check lines already printed (evaluation.offline.prepared).
+    UserError when no scan has points. `printed`: input-check lines already printed (evaluation.offline.proposed_frame).
     `simulated`: a SENSOR_NAMES entry to take as the simulated sensor instead of the nearest (AUTO)."""
-    stream = ScanStream(intensity_match=intensity_match)
+    pipeline = ScanPipeline(config, intensity_match=intensity_match)
+    stream = pipeline.stream
     rings, sources, vertical, horizontal, tops, bottoms = [], Counter(), [], [], [], []
     constant: list[float] = []
     body = SelfReturnReader()
     for spec, frame in frames:
-        scan = prepared(stream, spec, frame, config, printed=printed)
-        if len(scan.points) == 0:
+        proposed = proposed_frame(pipeline, spec, frame, printed=printed)
+        scan, result = proposed.scan, proposed.result
+        if proposed.empty:
             continue
         if any(note.topic == "intensity-constant" for note in scan.notes):
             constant.append(float(scan.points[0, 3]))
-        result = stream.propose(scan, config)
         body.add(scan.points, result.ground)
-        stream.on_training_scale(scan.points)
         xyz = scan.points[:, :3].astype(np.float64)
         elevation = np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
         low, high = np.percentile(elevation, ELEVATION_PERCENTILES)

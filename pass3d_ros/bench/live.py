@@ -210,22 +210,23 @@ class CpuLoad:
 
 
 def offline_compute_ms(bag: Path, classifier: Classifier, limit: int) -> dict | None:
-    """Median / p95 ms of stage 1 + stage 2 (the nodes' compute, no codec, no ROS) over the bag's frames,
-    each run twice (the first pass warms caches), at most `limit` frames."""
-    from pass3d_ros.core.stage1 import proposal_members, propose, warm_up
+    """Median / p95 ms of stage 1 + stage 2 (the nodes' compute through the one door, no codec, no ROS) over the
+    bag's frames, each run twice (the first pass warms caches), at most `limit` frames."""
+    from pass3d_ros.core.pipeline import ScanPipeline
+    from pass3d_ros.core.stage1 import warm_up
     from pass3d_ros.data.bag import read_bag
 
     warm_up()
     classifier.warm_up()
     frames = [f for _, f in zip(range(limit), read_bag(bag), strict=False)]
+    pipeline = ScanPipeline(classifier=classifier)
     times, stage1 = [], []
     for _ in range(2):
         for frame in frames:
             started = time.perf_counter()
-            result = propose(frame.points, frame.ring)
+            proposed = pipeline.propose(frame.points, frame.ring)
             middle = time.perf_counter()
-            classifier.segment(frame.points, proposal_members(result.cluster_id, result.cluster_id2,
-                                                              n_proposals=len(result.boxes)))
+            pipeline.segment(proposed)
             times.append(1e3 * (time.perf_counter() - started))
             stage1.append(1e3 * (middle - started))
     if not times:

@@ -70,13 +70,14 @@ def _frames(args: argparse.Namespace) -> list[tuple[np.ndarray, list[np.ndarray]
         return [constructed_frame(args.proposals, args.seed, max_points=args.max_points)]
     from itertools import islice
 
-    from pass3d_ros.core.stage1 import proposal_members, propose
+    from pass3d_ros.core.pipeline import ScanPipeline
     from pass3d_ros.data.spec import open_dataset
 
+    pipeline = ScanPipeline()
     out = []
     for frame in islice(open_dataset(args.data), args.frames):
-        result = propose(frame.points, ring=frame.ring)
-        out.append((frame.points, proposal_members(result.cluster_id, result.cluster_id2)))
+        proposed = pipeline.propose(frame.points, frame.ring)
+        out.append((proposed.points, proposed.nonempty_members()))
     return out
 
 

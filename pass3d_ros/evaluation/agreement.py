@@ -14,11 +14,11 @@ import numpy as np
 
 from pass3d_ros.classes import CAR, CLASS_NAMES, CYCLIST, PEDESTRIAN
 from pass3d_ros.core.metrics import bootstrap_ratio
-from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
+from pass3d_ros.core.pipeline import ScanPipeline
+from pass3d_ros.core.stage1 import Stage1Config, warm_up
 from pass3d_ros.core.stage2.segmentation import Segmenter, nearest_first
-from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.evaluation.offline import INTENSITY_MATCH, each_draw, prepared, spread
+from pass3d_ros.evaluation.offline import INTENSITY_MATCH, each_draw, proposed_frame, spread
 
 AGREEMENT_CLASSES = (CAR, PEDESTRIAN, CYCLIST)
 
@@ -76,18 +76,16 @@ def evaluate_agreement(frames: Iterator[tuple[str, Frame]], config: Stage1Config
     warm_up()
     classifier.warm_up()
     agreement = ViewAgreement()
-    stream = ScanStream(intensity_match=intensity_match)
+    pipeline = ScanPipeline(config, intensity_match=intensity_match)
     per_frame = []
     for spec, frame in frames:
-        scan = prepared(stream, spec, frame, config)
-        result = stream.propose(scan, config)
-        points = scan.points
-        members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
-        members = [members[i] for i in nearest_first(points, members, classifier.max_proposals)]
-        row = agreement.update(classifier.view_classes(stream.on_training_scale(points), members))
+        proposed = proposed_frame(pipeline, spec, frame)
+        members = [proposed.members[i] for i in nearest_first(proposed.scan.points, proposed.members,
+                                                               classifier.max_proposals)]
+        row = agreement.update(classifier.view_classes(proposed.points, members))
         per_frame.append({"frame": f"{spec}#{frame.name}", "proposals": len(members),
                           **{CLASS_NAMES[c]: row[i].tolist() for i, c in enumerate(AGREEMENT_CLASSES)}})
-    return {"frames": len(per_frame), "agreement": agreement.summary(), "intensity": stream.maps,
+    return {"frames": len(per_frame), "agreement": agreement.summary(), "intensity": pipeline.stream.maps,
             "per_frame": per_frame}
 
 

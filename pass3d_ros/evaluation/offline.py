@@ -7,7 +7,6 @@ Points with a non-finite coordinate never reach the core: they are predicted bac
 from __future__ import annotations
 
 import sys
-import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
@@ -16,11 +15,11 @@ from tqdm import tqdm
 
 from pass3d_ros.classes import BACKGROUND, IGNORE
 from pass3d_ros.core.metrics import ObjectRecall, SegmentationMetrics, Stage1Metrics
-from pass3d_ros.core.stage1 import Stage1Config, proposal_members, warm_up
+from pass3d_ros.core.pipeline import ProposedScan, ScanPipeline
+from pass3d_ros.core.stage1 import Stage1Config, warm_up
 from pass3d_ros.core.stage1.config import ConfigError, config_from_text
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, proposals_cut
-from pass3d_ros.core.stream import PreparedScan, ScanStream
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
@@ -79,25 +78,20 @@ class BudgetCuts:
         return {"max_proposals": self.max_proposals, "proposals_cut": self.proposals, "frames_cut": self.frames}
 
 
-def prepared(stream: ScanStream, spec: str, frame: Frame, config: Stage1Config,
-             printed: set[str] | None = None) -> PreparedScan:
-    """`frame` through the input checks of its spec's stream (as the cluster node checks a live scan), printing
-    on stderr what they repaired, once a topic per stream; with `printed` ("SPEC|TOPIC" keys already printed,
-    updated) a tool that reads the same scans in several streams prints each topic of a spec once."""
-    stream.follow(spec)
-    scan = stream.prepare(frame.points, frame.ring, config)
-    for note in stream.first_notes(scan):
+def proposed_frame(pipeline: ScanPipeline, spec: str, frame: Frame, printed: set[str] | None = None) -> ProposedScan:
+    """`frame` through its spec's stream (`pipeline.follow(spec)`): the input checks, as the cluster node checks a live
+    scan, and stage 1; prints on stderr what the checks repaired, once a topic per stream; with `printed` ("SPEC|TOPIC"
+    keys already printed, updated) a tool that reads the same scans in several streams prints each topic of a spec
+    once."""
+    pipeline.follow(spec)
+    scan = pipeline.prepare(frame.points, frame.ring)
+    for note in pipeline.stream.first_notes(scan):
         key = f"{spec}|{note.topic}"
         if printed is None or key not in printed:
             print(f"{spec}: {note.text}", file=sys.stderr)
         if printed is not None:
             printed.add(key)
-    return scan
-
-
-def kept(values: np.ndarray | None, scan: PreparedScan) -> np.ndarray | None:
-    """Per-point `values` of a frame at the points its prepared scan kept."""
-    return values if values is None or scan.kept is None else values[scan.kept]
+    return pipeline.stage1(scan)
 
 
 def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
@@ -107,17 +101,18 @@ def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
     "budget": the proposals a stage-2 budget of `max_proposals` would cut."""
     warm_up()
     metrics = Stage1Metrics()
-    stream = ScanStream(intensity_match=False)
+    pipeline = ScanPipeline(config, intensity_match=False)
     budget = BudgetCuts(max_proposals)
     for spec, frame in frames:
-        scan = prepared(stream, spec, frame, config)
-        result = stream.propose(scan, config)
-        row = metrics.update_result(f"{spec}#{frame.name}", result, kept(frame.labels, scan), kept(frame.ground, scan))
+        proposed = proposed_frame(pipeline, spec, frame)
+        result = proposed.result
+        row = metrics.update_result(f"{spec}#{frame.name}", result, proposed.kept_values(frame.labels),
+                                    proposed.kept_values(frame.ground))
         row["ring_source"] = result.ring_source
         row["proposals_cut"] = budget.add(result.n_proposals)  # a kept proposal has points
     summary = metrics.summary()
     summary["budget"] = budget.summary()
-    summary["mounting"] = stream.mountings
+    summary["mounting"] = pipeline.stream.mountings
     summary["per_frame"] = metrics.per_frame
     return summary
 
@@ -157,27 +152,19 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     stage1 = Stage1Metrics()
     background = np.zeros(2, dtype=np.int64)
     budget = BudgetCuts(classifier.max_proposals)
-    stream = ScanStream(intensity_match=intensity_match and classifier.kind != "size_rules")
+    pipeline = ScanPipeline(config, classifier, intensity_match=intensity_match)
     for spec, frame in frames:
         if frame.labels is None:
             raise DatasetError(f"{spec}: frame {frame.name} has no point labels; full evaluation needs labelled data")
-        scan = prepared(stream, spec, frame, config)
-        points, truth, ground = scan.points, kept(frame.labels, scan), kept(frame.ground, scan)
-        started = time.perf_counter()
-        result = stream.propose(scan, config)
-        split = time.perf_counter()
-        members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
-        cut = budget.add(sum(1 for m in members if len(m) > 0))
-        segmented = classifier.segment(stream.on_training_scale(points), members)
-        done = time.perf_counter()
-        labels = segmented.labels
-        background += background_proposals(points, truth, members, segmented.proposal_class)
-        predicted = labels
-        if scan.kept is not None:
-            predicted = np.full(len(frame.points), BACKGROUND, dtype=np.uint8)
-            predicted[scan.kept] = labels
+        proposed = proposed_frame(pipeline, spec, frame)
+        result, members = proposed.result, proposed.members
+        truth, ground = proposed.kept_values(frame.labels), proposed.kept_values(frame.ground)
+        cut = budget.add(len(proposed.nonempty_members()))
+        labelled = pipeline.segment(proposed)
+        background += background_proposals(proposed.scan.points, truth, members, labelled.segmented.proposal_class)
+        predicted = labelled.labels_in_input(len(frame.points))
         name = f"{spec}#{frame.name}"
-        row = segmentation.update(name, frame.labels, predicted, 1e3 * (split - started), 1e3 * (done - split),
+        row = segmentation.update(name, frame.labels, predicted, proposed.stage1_ms, labelled.stage2_ms,
                                   vehicle_other=frame.vehicle_other)
         objects.update(frame.labels, predicted, frame.instance, frame.points)
         row["proposals"] = result.n_proposals
@@ -188,8 +175,8 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     summary["objects"] = objects.summary()
     summary["background_proposals"] = {"front_view": int(background[0]), "called_object": int(background[1])}
     summary["budget"] = budget.summary()
-    summary["intensity"] = stream.maps
-    summary["mounting"] = stream.mountings
+    summary["intensity"] = pipeline.stream.maps
+    summary["mounting"] = pipeline.stream.mountings
     summary["per_frame"] = segmentation.per_frame
     return summary
 

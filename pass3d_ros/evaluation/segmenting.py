@@ -5,8 +5,8 @@ complete. `pass3d_segment` is its command line.
 
 Several processes (`Ranks`: pass3d_segment --nproc N, or torchrun) share one run. The frames of all --data, in order,
 are cut into one contiguous block per rank (`blocks`), not dealt out frame by frame: a block is a run of consecutive
-scans, so each rank's frames stay a stream (pass3d_ros.core.stream.ScanStream learns the laser lines, the intensity
-scale and the intensity map from a stream's first scans and keeps adjusting them), and a cut falls mid-stream at most
+scans, so each rank's frames stay a stream (a ScanPipeline's stream learns the laser lines, the intensity scale and
+the intensity map from a stream's first scans and keeps adjusting them), and a cut falls mid-stream at most
 once per rank. A rank whose block starts inside a --data first warms its stream on that --data's earlier frames
 (`warm`, on by default): input checks and stage 1 only, no stage 2 and nothing written, so its stream state, and hence
 its labels and objects, are those of a single process, byte for byte. Without the warm-up (`warm=False`) the laser
@@ -32,9 +32,9 @@ from tqdm import tqdm
 from pass3d_ros.classes import NUM_CLASSES
 from pass3d_ros.core.metrics import ConfusionAccumulator
 from pass3d_ros.core.objects import LabelledObject, labelled_objects, objects_json
-from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, proposal_members
+from pass3d_ros.core.pipeline import ScanPipeline
+from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage2 import Classifier
-from pass3d_ros.core.stream import PreparedScan, ScanStream
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import (
@@ -51,7 +51,7 @@ from pass3d_ros.data.outputs import (
 from pass3d_ros.data.partials import partial_path, remove_stale_partials
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
 from pass3d_ros.drawing.bev import frame_picture, write_png
-from pass3d_ros.evaluation.offline import BudgetCuts, prepared
+from pass3d_ros.evaluation.offline import BudgetCuts, proposed_frame
 
 SEMANTIC_KITTI_IDS: np.ndarray = np.array([0, 10, 30, 31], dtype=np.uint32)  # by class id: bg, car, ped, cyc
 SUMMARY = "summary.json"
@@ -69,7 +69,7 @@ class SegmentStats:
     confusion: ConfusionAccumulator = field(default_factory=ConfusionAccumulator)
     labeled_frames: int = 0
     budget: BudgetCuts = field(default_factory=BudgetCuts)  # proposals stage 2's max_proposals cut
-    stream: ScanStream = field(default_factory=ScanStream)  # each --data's stream state (pass3d_ros.core.stream)
+    pipeline: ScanPipeline | None = None  # the scans' one door, holding each --data's stream state
     intensity: dict[str, str] = field(default_factory=dict)  # the intensity map each --data got (str of the map)
     ranks: list[dict] = field(default_factory=list)  # per rank: frames, first frame, seconds, warm-up frames, seconds
     seconds: float = 0.0  # from the start of the work to the summary
@@ -235,7 +235,7 @@ def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Cl
     first, stop = blocks(sum(counts), ranks.world)[ranks.rank] if None not in counts else (0, None)
     total = None if stop is None else stop - first
     stats = SegmentStats(budget=BudgetCuts(classifier.max_proposals),
-                         stream=ScanStream(intensity_match=intensity_match and classifier.kind != "size_rules"))
+                         pipeline=ScanPipeline(config, classifier, intensity_match=intensity_match))
     warmed, warm_seconds, offset = 0, 0.0, 0
     with tqdm(total=total, unit="frame", desc="segment", disable=None if progress else True) as bar:
         for position, (dataset, count) in enumerate(zip(datasets, counts, strict=True)):
@@ -253,12 +253,12 @@ def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Cl
                     raise DatasetError(f"{dataset}: frame name {frame.name!r} repeats; outputs would overwrite")
                 seen.add(name)
                 if not mine:
-                    _stream_step(str(dataset), frame, stats.stream, config)
+                    proposed_frame(stats.pipeline, str(dataset), frame)
                     warm_seconds += time.perf_counter() - tick
                     warmed += 1
                     tick = time.perf_counter()
                     continue
-                labels, cluster_id, objects = _segment_frame(str(dataset), frame, classifier, stats, config)
+                labels, cluster_id, objects = _segment_frame(str(dataset), frame, stats)
                 to_semantic_kitti(labels).astype("<u4").tofile(folder / "labels" / f"{name}.label")
                 write_text_atomic(folder / "objects" / f"{name}.json", objects_json(frame.name, objects))
                 if png:
@@ -273,7 +273,7 @@ def _segment_all(datasets: list[Dataset], out: Path, build: Path, classifier: Cl
                 tick = time.perf_counter()
     if stats.frames == 0 and ranks.world == 1:
         raise DatasetError(f"{', '.join(map(str, datasets))}: no frames")
-    stats.intensity = dict(stats.stream.maps)
+    stats.intensity = dict(stats.pipeline.stream.maps)
     stats.seconds = time.perf_counter() - started
     stats.ranks = [{"rank": ranks.rank, "first_frame": first, "frames": stats.frames,
                     "seconds": round(stats.seconds, 3), "warm_frames": warmed, "warm_seconds": round(warm_seconds, 3)}]
@@ -293,7 +293,7 @@ def _merged(shares: list[dict], mine: SegmentStats) -> SegmentStats:
     matrices summed, per-frame times pooled, the first intensity map of each --data kept."""
     if len(shares) == 1:
         return mine
-    stats = SegmentStats(folders=mine.folders, budget=BudgetCuts(mine.budget.max_proposals), stream=mine.stream)
+    stats = SegmentStats(folders=mine.folders, budget=BudgetCuts(mine.budget.max_proposals), pipeline=mine.pipeline)
     for share in shares:
         stats.frames += share["frames"]
         stats.points += share["points"]
@@ -331,41 +331,24 @@ def _move_into_place(build: Path, out: Path) -> None:
     build.rmdir()
 
 
-def _stream_step(spec: str, frame: Frame, stream: ScanStream,
-                 config: Stage1Config | None) -> tuple[PreparedScan, Stage1Result | None, np.ndarray | None]:
-    """What a frame teaches its stream, and all a warm-up does: the input checks, stage 1 with the held lines, and
-    the points on stage 2's training scale (None for a scan with no point left)."""
-    scan = prepared(stream, spec, frame, config or Stage1Config())
-    if len(scan.points) == 0:
-        return scan, None, None
-    result = stream.propose(scan, config)
-    return scan, result, stream.on_training_scale(scan.points)
-
-
-def _segment_frame(spec: str, frame: Frame, classifier: Classifier, stats: SegmentStats,
-                   config: Stage1Config | None) -> tuple[np.ndarray, np.ndarray, list[LabelledObject]]:
+def _segment_frame(spec: str, frame: Frame, stats: SegmentStats) -> tuple[np.ndarray, np.ndarray,
+                                                                          list[LabelledObject]]:
     """Labels, proposal ids (-1 none) and objects of one scan, through its stream's input checks: points they leave
     out (non-finite, as KITTI raw may hold, or absurd) are background in no proposal and never reach the core."""
-    scan, result, training = _stream_step(spec, frame, stats.stream, config)
-    labels = np.zeros(len(frame.points), dtype=np.uint8)
-    cluster_id = np.full(len(frame.points), -1, dtype=np.int32)
-    if result is None or training is None:
+    proposed = proposed_frame(stats.pipeline, spec, frame)
+    if proposed.empty:
         stats.stage1_ms.append(0.0)
         stats.stage2_ms.append(0.0)
-        return labels, cluster_id, []
-    started = time.perf_counter()
-    members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
-    stats.budget.add(sum(1 for m in members if len(m) > 0))
-    segmented = classifier.segment(training, members)
-    predicted = segmented.labels
-    stats.stage2_ms.append(1e3 * (time.perf_counter() - started))
-    stats.stage1_ms.append(result.timings_ms["total"])
-    objects = labelled_objects(scan.points, members, segmented.proposal_class, predicted, segmented.confidence)
-    if scan.kept is None:
-        return predicted.astype(np.uint8), result.cluster_id, objects
-    labels[scan.kept] = predicted
-    cluster_id[scan.kept] = result.cluster_id
-    return labels, cluster_id, objects
+        return np.zeros(len(frame.points), dtype=np.uint8), np.full(len(frame.points), -1, dtype=np.int32), []
+    stats.budget.add(len(proposed.nonempty_members()))
+    labelled = stats.pipeline.segment(proposed)
+    segmented = labelled.segmented
+    stats.stage2_ms.append(labelled.stage2_ms)
+    stats.stage1_ms.append(proposed.result.timings_ms["total"])
+    objects = labelled_objects(proposed.scan.points, proposed.members, segmented.proposal_class, segmented.labels,
+                               segmented.confidence)
+    return (labelled.labels_in_input(len(frame.points)),
+            proposed.in_input(proposed.result.cluster_id, len(frame.points), -1), objects)
 
 
 def _median(values: list[float]) -> float | None:

@@ -4,18 +4,19 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.core import scan_checks
+from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, warm_up
 from pass3d_ros.core.stage1.config import AUTO, STAGE1_PREFIX
 from pass3d_ros.core.stage1.mounting import problems as mounting_problems
 from pass3d_ros.core.stage1.ring_field import RingFieldOrder
-from pass3d_ros.core.stream import Note, ScanStream
+from pass3d_ros.core.stream import Note
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode, to_xyzi
 from pass3d_ros.msgs.pointcloud2 import warm_up as warm_up_codec
 from pass3d_ros.ros import params
@@ -32,6 +33,9 @@ from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
 from pass3d_ros.ros.proposals import ProposalFrame, ProposalSink, proposals_cloud
 from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES
 from pass3d_ros.ros.run import run_nodes
+
+if TYPE_CHECKING:
+    from pass3d_ros.core.stream import ScanStream
 
 NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "input_topic": ("/velodyne_points", "PointCloud2 topic of the LiDAR driver", None),
@@ -66,11 +70,12 @@ class ClusterProposalNode(PointCloudNode):
     def __init__(self, sink: ProposalSink | None = None, **kwargs: Any) -> None:
         super().__init__(PARAMETERS, **kwargs)
         self.sink = sink
-        self.config = params.read_config(self, Stage1Config, STAGE1_PREFIX)
         self._ring_order: RingFieldOrder | None = None  # the order last reported (pass3d_ros.core.stage1.ring_field)
         self._sensor_source: tuple[str, int] | None = None
-        self._stream = ScanStream(clock=time.monotonic)  # what the stream's scans taught: laser lines, ring order,
-        # intensity scale (pass3d_ros.core.stream)
+        # the one door per scan; its stream holds what the scans taught: laser lines, ring order, mounting, intensity
+        # scale (pass3d_ros.core.stream)
+        self._pipeline = ScanPipeline(params.read_config(self, Stage1Config, STAGE1_PREFIX), clock=time.monotonic,
+                                      intensity_match=False)
         self._noted: dict[str, float] = {}  # when each topic of the input checks was last logged
         # proposals in the input's layout (pass3d_ros.ros.input_layout), for segmentation_node's as_input / background
         self._full = (check_layout(self.get_parameter("output_layout").value) == AS_INPUT
@@ -89,6 +94,16 @@ class ClusterProposalNode(PointCloudNode):
         self.boxes_pub = self.output_publisher(MarkerArray, "boxes_topic")
         self.start_worker(self._process, "stage1")
 
+    @property
+    def config(self) -> Stage1Config:
+        """The stage-1 parameters the next scan runs with."""
+        return self._pipeline.config
+
+    @property
+    def stream(self) -> ScanStream:
+        """What this node's stream learned and holds (laser lines, mounting, body, intensity scale)."""
+        return self._pipeline.stream
+
     def _on_set_parameters(self, changed: list[Parameter]) -> Any:
         """Refuse invalid stage-1 values; apply valid ones to the next frame."""
         start_up_only = ("input_topic", "proposals_topic", "boxes_topic", "input_qos", "output_qos", "output_layout",
@@ -99,8 +114,8 @@ class ClusterProposalNode(PointCloudNode):
         config, reason = params.validate_changes(self, Stage1Config, changed, STAGE1_PREFIX)
         if config is None:
             return params.result(False, reason)
-        self.config = config
-        self._stream.lines.reset()
+        self._pipeline.config = config
+        self.stream.lines.reset()
         return params.result(True)
 
     def _report_sensor(self, result: Stage1Result) -> None:
@@ -150,7 +165,7 @@ class ClusterProposalNode(PointCloudNode):
         """Log the stream's mounting once it is held (INFO), and what it says is wrong (WARN: a hand-set
         sensor_height more than 0.3 m off it, a tilt over 5 deg), again only when the held mounting or the
         sensor_height changes (pass3d_ros.core.stage1.mounting)."""
-        held = self._stream.mounting.held
+        held = self.stream.mounting.held
         if held is None or (held, self.config.sensor_height) == self._mounting_said:
             return
         if held is not self._mounting_said[0]:
@@ -164,7 +179,7 @@ class ClusterProposalNode(PointCloudNode):
     def _report_body(self) -> None:
         """With stage1.min_range auto: log the vehicle's own returns once their reading is held (INFO), what it
         leaves out or why nothing (pass3d_ros.core.self_returns)."""
-        held = self._stream.body.held
+        held = self.stream.body.held
         if held is None or held is self._body_said:
             return
         self._body_said = held
@@ -182,7 +197,7 @@ class ClusterProposalNode(PointCloudNode):
         order = self._ring_order
         warnings = ["ring field does not fit the points: ignored, rings recovered"] if order and not order.fits else []
         values: dict[str, float | int | str] = {"ring_field": "none" if order is None else order.convention}
-        holder = self._stream.mounting
+        holder = self.stream.mounting
         estimate = holder.estimate
         values["mounting"] = ("held" if holder.held is not None else
                               f"estimating ({holder.readings} of {holder.scans} scans)" if estimate else "none")
@@ -193,7 +208,7 @@ class ClusterProposalNode(PointCloudNode):
                            "sensor_pitch_deg": round(estimate.pitch_deg, 2)})
         warnings += [f"mounting: {problem}" for problem in mounting_problems(self.config, holder.held)]
         if self.config.min_range == AUTO:
-            values["min_range_m"] = self._stream.body.radius_m
+            values["min_range_m"] = self.stream.body.radius_m
         return values, warnings
 
     def _process(self, msg: PointCloud2) -> Outcome | None:
@@ -206,16 +221,16 @@ class ClusterProposalNode(PointCloudNode):
         except PointCloud2Error as exc:
             self.get_logger().warning(f"skipping malformed PointCloud2: {exc}", throttle_duration_sec=LOG_PERIOD_S)
             return self.skipped("malformed")
-        prepared = self._stream.prepare(scan.points, scan.ring, self.config,
-                                        intensity_scale=self.get_parameter("intensity_scale").value,
-                                        use_ring=self.get_parameter("use_ring_field").value)
+        prepared = self._pipeline.prepare(scan.points, scan.ring,
+                                          intensity_scale=self.get_parameter("intensity_scale").value,
+                                          use_ring=self.get_parameter("use_ring_field").value)
         self._log_notes(prepared.notes)
         if len(prepared.points) == 0:
             self.get_logger().warning("skipping empty PointCloud2", throttle_duration_sec=LOG_PERIOD_S)
             return self.skipped("empty")
         points, field = prepared.points, prepared.field  # field: the driver's ring numbering, published as it came
         clock.mark("decode")
-        result = self._stream.propose(prepared, self.config)
+        result = self._pipeline.stage1(prepared).result
         clock.mark("compute")
         self._report_mounting()
         self._report_body()

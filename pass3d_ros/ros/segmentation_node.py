@@ -20,6 +20,7 @@ from visualization_msgs.msg import MarkerArray
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN, packed_rgb
 from pass3d_ros.core import scan_checks
 from pass3d_ros.core.objects import labelled_objects
+from pass3d_ros.core.pipeline import ProposalSegmenter
 from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, open_classifier
 from pass3d_ros.core.stage2.classifier_process import (
@@ -28,7 +29,6 @@ from pass3d_ros.core.stage2.classifier_process import (
     ProcessClassifier,
 )
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult, proposals_cut
-from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, header_stamp_ns
@@ -148,9 +148,10 @@ class SegmentationNode(PointCloudNode):
         self.frames_hung = 0  # frames whose stage-2 process answered nothing for stage2_timeout (killed)
         self.frames_late = 0  # frames whose result came after stage2_timeout, dropped instead of published late
         self._hung: tuple[float, str] | None = None  # when stage 2 was last killed for hanging, and why
-        self.stream = ScanStream(clock=time.monotonic)  # the stream's intensity map onto the training scale
         scan_checks.warm_up()
         self.classifier = self._load_classifier()
+        # stage 2's share of the one door: the stream's intensity map onto the training scale, then the classifier
+        self.stage2 = ProposalSegmenter(self.classifier, self.get_parameter("intensity_match").value)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.labeled_pub = self.output_publisher(PointCloud2, "labeled_topic")
@@ -235,9 +236,10 @@ class SegmentationNode(PointCloudNode):
         down."""
         values: dict[str, float | int] = {"points_dropped": self.points_dropped, "proposals_cut": self.proposals_cut,
                                           "frames_late": self.frames_late}
-        if self.stream.match.map is not None:
-            values["intensity_median"] = self.stream.match.map.median
-            values["intensity_matched"] = int(self.stream.match.map.kind == "matched")
+        held = self.stage2.match.map
+        if held is not None:
+            values["intensity_median"] = held.median
+            values["intensity_matched"] = int(held.kind == "matched")
         warnings = []
         if isinstance(self.classifier, ProcessClassifier):
             values["stage2_restarts"] = self.classifier.restarts
@@ -305,7 +307,7 @@ class SegmentationNode(PointCloudNode):
         stage2_points = self._on_training_scale(points)
         clock.mark("decode")
         try:
-            result = self.classifier.segment(stage2_points, members)
+            result = self.stage2.segment(stage2_points, members)
         except ClassifierProcessHungError as exc:  # killed by the supervisor, which logged it; restarted
             self.frames_down += 1
             self.frames_hung += 1
@@ -331,12 +333,10 @@ class SegmentationNode(PointCloudNode):
     def _on_training_scale(self, points: np.ndarray) -> np.ndarray:
         """The points with their intensities mapped onto the network's training scale (`intensity_match`); the
         published cloud keeps the sensor's own. The map is reported once, when it is held."""
-        if not self.get_parameter("intensity_match").value or self.classifier.kind == "size_rules":
-            return points
-        held = self.stream.match.update(points[:, 3])
+        points, held = self.stage2.on_training_scale(points)
         if held is not None:
             self.get_logger().info(f"intensity: {held}")
-        return self.stream.match.on_training_scale(points)
+        return points
 
     def _plausible(self, frame: ProposalFrame) -> ProposalFrame:
         """The frame without points whose coordinates no LiDAR returns (as the cluster node drops them), warned

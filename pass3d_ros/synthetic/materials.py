@@ -133,7 +133,7 @@ def print_real_table(root: str = "../shared/data") -> None:
     """Print the real zero-reading shares of the module docstring (dev frames and unlabelled scans under `root`)."""
     from pathlib import Path
 
-    from pass3d_ros.core.stage1 import propose
+    from pass3d_ros.core.pipeline import ScanPipeline
     from pass3d_ros.data.semantickitti import read_label_file
     from pass3d_ros.data.spec import open_dataset
 
@@ -148,8 +148,10 @@ def print_real_table(root: str = "../shared/data") -> None:
         print(f"  semantic {semantic}: {100.0 * np.mean(part == 0):.1f} % of {len(part)}")
     print("kitti_object:", zero_shares(open_dataset(f"kitti_object:{Path(root) / 'kitti_dev/object/training'}")))
     zeros, ground = [], []
+    pipeline = ScanPipeline(intensity_match=False)
     for frame in open_dataset(f"semantickitti:{Path(root) / 'kitti_unlabeled'}"):
+        proposed = pipeline.propose(frame.points)
         zeros.append(frame.points[:, 3] == 0)
-        ground.append(propose(frame.points).ground)
+        ground.append(proposed.in_input(proposed.result.ground, len(frame.points), False))
     z, g = np.concatenate(zeros), np.concatenate(ground)
     print(f"unlabelled: all {100 * z.mean():.1f}, ground {100 * z[g].mean():.1f}, non-ground {100 * z[~g].mean():.1f}")

@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, CLASS_NAMES, CYCLIST, FOREGROUND, IGNORE, PEDESTRIAN
-from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
+from pass3d_ros.core.pipeline import ProposedScan, ScanPipeline
+from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage1.ring import rings_for
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.semantickitti import read_label_file
@@ -265,12 +266,12 @@ ZERO_GROUPS = ("car", "pedestrian", "cyclist", "background (non-ground)", "groun
 SHAPE_FIELDS = ("length", "width", "height", "per_ring", "bottom", "range")
 
 
-def proposal_shapes(points: np.ndarray, result) -> np.ndarray:
-    """(K, 6) per-proposal shape of a stage-1 result: footprint length and width (longer side first), height and
+def proposal_shapes(proposed: ProposedScan) -> np.ndarray:
+    """(K, 6) per-proposal shape of a scan's stage-1 result: footprint length and width (longer side first), height and
     points per ring of its non-ground members, its lowest non-ground member's height above the local ground (NaN
     where fewer than MIN_LOCAL_GROUND ground points lie within LOCAL_GROUND_MARGIN_M of the footprint; the local
     ground is their median height) and the horizontal range of its centre (SHAPE_FIELDS). Label-free."""
-    members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
+    points, result, members = proposed.scan.points, proposed.result, proposed.members
     ground_xyz = points[result.ground, :3].astype(np.float64)
     ring = result.ring.astype(np.int64)
     out = np.full((len(members), len(SHAPE_FIELDS)), np.nan)
@@ -289,6 +290,12 @@ def proposal_shapes(points: np.ndarray, result) -> np.ndarray:
                   else np.nan)
         out[k] = (length, width, float(z.max() - z.min()), per_ring, bottom, float(np.hypot(*box.center[:2])))
     return out
+
+
+def scan_alone(frame: Frame) -> ProposedScan:
+    """A frame through the input checks and stage 1 as a stream's first scan: the scorecard pools scans of many
+    recordings, so none may inherit what another taught a stream."""
+    return ScanPipeline(intensity_match=False).propose(frame.points, frame.ring)
 
 
 def shape_shares(shapes: np.ndarray) -> dict[str, float]:
@@ -350,15 +357,15 @@ class Sample:
         for box in frame.boxes:
             if box.label in self.boxes and box.kind in ("", CLASS_NAMES[box.label].capitalize()):
                 self.boxes[box.label].append(np.asarray(box.size, dtype=np.float64))
-        result = None
+        proposed = None
         if shapes and len(frame.points):
-            result = propose(frame.points, frame.ring)
-            self.shapes.append(proposal_shapes(frame.points, result))
+            proposed = scan_alone(frame)
+            self.shapes.append(proposal_shapes(proposed))
             self.shape_frames += 1
         if frame.labels is not None:
             self._add_labelled(frame, track)
             if proposals:
-                self._add_proposals(frame, result)
+                self._add_proposals(frame, proposed)
         if material is not None:
             self.material_frames += 1
             zero = frame.points[:, 3] == 0
@@ -393,10 +400,10 @@ class Sample:
             scope = track if track is not None else f"frame {self.frames}"
             self.car_ids[b].update((scope, int(i)) for i in ids[in_bin])
 
-    def _add_proposals(self, frame: Frame, result=None) -> None:
-        result = propose(frame.points, frame.ring) if result is None else result
-        members = proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals)
-        labels = frame.labels
+    def _add_proposals(self, frame: Frame, proposed: ProposedScan | None = None) -> None:
+        proposed = scan_alone(frame) if proposed is None else proposed
+        result, members = proposed.result, proposed.members
+        labels = proposed.kept_values(frame.labels)
         for box, idx in zip(result.boxes, members, strict=True):
             if abs(np.degrees(np.arctan2(box.center[1], box.center[0]))) > FRONT_HALF_ANGLE_DEG:
                 continue

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from pass3d_ros.core.metrics import Stage1Metrics
-from pass3d_ros.core.stage1 import propose
+from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.data.bag import read_bag
 from pass3d_ros.data.bag_convert import convert
@@ -85,9 +85,10 @@ def prepare_out(out: Path, force: bool) -> None:
 def stage1_offline(bag: Path) -> dict:
     """Stage 1 on the input bag without ROS: foreground recall, proposals and ms per step (core timings)."""
     metrics = Stage1Metrics()
+    pipeline = ScanPipeline(intensity_match=False)  # the bag is one stream, as the cluster node sees it
     for frame in read_bag(bag):
-        result = propose(frame.points, frame.ring)
-        metrics.update_result(frame.name, result, frame.labels)
+        proposed = pipeline.propose(frame.points, frame.ring)
+        metrics.update_result(frame.name, proposed.result, proposed.kept_values(frame.labels))
     return metrics.summary()["stage1"]
 
 

@@ -9,9 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pass3d_ros.core.stage1 import proposal_members
+from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage1.config import Stage1Config
-from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.frame import Frame
 
 
@@ -30,12 +29,10 @@ class ProposedScan:
 def proposed_scans(frames: Iterable[tuple[str, Frame]], config: Stage1Config | None = None,
                    intensity_match: bool = True) -> Iterator[ProposedScan]:
     """Stage 1 on each (spec, frame); a new spec starts a new stream (laser lines and intensity map)."""
-    stream = ScanStream(intensity_match=intensity_match)
+    pipeline = ScanPipeline(config, intensity_match=intensity_match)
     for spec, frame in frames:
-        stream.follow(spec)
-        scan = stream.prepare(frame.points, frame.ring, config)
+        pipeline.follow(spec)
+        proposed = pipeline.propose(frame.points, frame.ring)
+        scan = proposed.scan
         kept = np.arange(len(frame.points)) if scan.kept is None else scan.kept
-        result = stream.propose(scan, config)
-        members = [m for m in proposal_members(result.cluster_id, result.cluster_id2, result.n_proposals) if len(m)]
-        points = stream.on_training_scale(scan.points)  # as stage 2 sees it
-        yield ProposedScan(frame, kept, points, scan.ring, members)
+        yield ProposedScan(frame, kept, proposed.points, scan.ring, proposed.nonempty_members())

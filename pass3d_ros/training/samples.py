@@ -19,11 +19,11 @@ import numpy as np
 from tqdm import tqdm
 
 from pass3d_ros.classes import BACKGROUND, IGNORE, NUM_CLASSES
+from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage2 import canonical
 from pass3d_ros.core.stage2.pointnet2 import ModelConfig
 from pass3d_ros.core.stage2.segmentation import prepare_proposals, uses_intensity
-from pass3d_ros.core.stream.lines import LineHolder
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, DatasetError
 
@@ -31,15 +31,11 @@ CACHE_VERSION = 1
 Proposer = Callable[[Frame], list[np.ndarray]]
 
 
-def stage1_proposer(frame: Frame, config: Stage1Config | None = None, lines: LineHolder | None = None
-                    ) -> list[np.ndarray]:
-    """Member indices of the stage-1 proposals of a frame (the real pipeline, with `config` or the defaults).
-    `lines`: the laser lines held across the frames (pass3d_ros.core.stream.lines), so a stream in no firing order
-    and without a ring field searches them once, not on every frame."""
-    from pass3d_ros.core.stage1 import proposal_members
-
-    result = (lines or LineHolder()).propose(frame.points, frame.ring, config)
-    return proposal_members(result.cluster_id, result.cluster_id2)
+def stage1_proposer(frame: Frame, pipeline: ScanPipeline) -> list[np.ndarray]:
+    """Member indices (into `frame.points`) of the stage-1 proposals of a frame, through `pipeline`: the input checks
+    and stage 1 with what its stream holds across the frames (laser lines, ring order, mounting), as a node runs
+    them."""
+    return pipeline.propose(frame.points, frame.ring).input_members()
 
 
 @dataclass
@@ -167,7 +163,7 @@ def build_samples(
     """Run the proposer (default: stage 1 with the `stage1` parameters) on every frame and collect its proposals; a
     proposal without any foreground point is kept with probability `background_keep` (seeded). shard=(i, n): only
     frames i, i + n, i + 2n, ... (still read in turn), with the background draws seeded by (seed, i)."""
-    proposer = proposer or functools.partial(stage1_proposer, config=stage1, lines=LineHolder())
+    proposer = proposer or functools.partial(stage1_proposer, pipeline=ScanPipeline(stage1, intensity_match=False))
     index_in_shard, shards = shard
     rng = np.random.default_rng(seed if shards == 1 else [seed, index_in_shard])
     if shards > 1:
