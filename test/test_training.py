@@ -419,7 +419,7 @@ def test_init_starts_from_a_checkpoints_weights(tmp_path, capsys):
 
 
 def test_init_with_a_missing_file_or_with_resume_is_an_error(tmp_path, capsys):
-    """A missing --init file is named (exit 2, before any work); --init with --resume is refused (exit 1)."""
+    """A missing --init file is named (exit 2, before any work); --init with --resume is refused (exit 2, one line)."""
     out = tmp_path / "run"
     missing = tmp_path / "nosuch.pt"
     assert train.main(["--data", "constructed:train", "--out", str(out), "--init", str(missing), "--quiet"]) == 2
@@ -428,8 +428,9 @@ def test_init_with_a_missing_file_or_with_resume_is_an_error(tmp_path, capsys):
     out.mkdir()
     torch.save({"epoch": 0}, out / "last.pt")
     assert train.main(["--data", "constructed:train", "--out", str(out), "--init", str(missing), "--resume",
-                       "--quiet"]) == 1
-    assert "--init and --resume" in capsys.readouterr().err
+                       "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("pass3d_train: error: --init and --resume"), err
 
 
 @pytest.mark.parametrize(("stop_at", "expected"), [(0, "before any checkpoint was written"), (1, "(epoch 1)")])

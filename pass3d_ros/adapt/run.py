@@ -29,9 +29,9 @@ from pass3d_ros.core.stage1.config import AUTO as AUTO_RANGE
 from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint, read_checkpoint
 from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.bag import parse_bag_spec, select_topic
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_dataset, resolve_dataset
+from pass3d_ros.errors import UserError
 from pass3d_ros.evaluation.offline import evaluate_draws, prepared
 from pass3d_ros.synthetic.dataset import HEIGHT_RANGE_M
 from pass3d_ros.training import launcher

@@ -48,8 +48,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import write_text_atomic
+from pass3d_ros.errors import UserError
 from pass3d_ros.tools.cli import number
 
 if TYPE_CHECKING:

@@ -21,10 +21,10 @@ import numpy as np
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, propose, synthetic_scan, warm_up
 from pass3d_ros.core.stage1.held_lines import LineHolder
 from pass3d_ros.core.stage1.ring import LaserLines
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
+from pass3d_ros.errors import UserError
 
 PATCHWORK_HINT = "pip install pypatchworkpp"
 REORDERINGS: tuple[str, ...] = ("column", "shuffled")

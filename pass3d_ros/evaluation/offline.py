@@ -22,9 +22,9 @@ from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, proposals_cut
 from pass3d_ros.core.stream import PreparedScan, ScanStream
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
+from pass3d_ros.errors import UserError
 
 
 def parse_params(items: list[str]) -> Stage1Config:

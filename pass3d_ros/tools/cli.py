@@ -20,8 +20,8 @@ from typing import NoReturn
 import torch
 from rosbags.rosbag2 import ReaderError, WriterError
 
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import OutputError, error_text, is_disk_full
+from pass3d_ros.errors import Pass3dError
 from pass3d_ros.training import worker
 
 EXIT_USAGE = 2
@@ -29,11 +29,11 @@ EXIT_SIGINT = 130
 EXIT_SIGTERM = 143
 
 
-# The project's user errors (bad input, argument, file or output) and rosbags' for unreadable or unwritable bags,
-# plus what the system says about a path the user named: each is the user's to fix. Anything else is a bug and keeps
-# its traceback.
+# The project's errors (`Pass3dError`: a user error, or a library that cannot go on, e.g. training with no proposals)
+# and rosbags' for unreadable or unwritable bags, plus what the system says about a path the user named: each is one
+# line and exit 2. Anything else is a bug and keeps its traceback.
 USER_ERRORS: tuple[type[BaseException], ...] = (
-    UserError, ReaderError, WriterError,
+    Pass3dError, ReaderError, WriterError,
     FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError, FileExistsError,
 )
 
@@ -150,9 +150,9 @@ def run_tool(
 ) -> int:
     """Run `work` with the shared signal handling and exit-status mapping; returns the exit status.
 
-    A user error (`USER_ERRORS`) prints `prog: error: MESSAGE` and gives 2; Ctrl-C gives 130 and SIGTERM 143 with
-    `prog: INTERRUPTED` (a callable is asked for the text then); a full disk is a user error too. `cleanup` runs
-    after an error or an interruption (never after success), so an unfinished output never looks complete. Any
+    A user or library error (`USER_ERRORS`) prints `prog: error: MESSAGE` and gives 2; Ctrl-C gives 130 and SIGTERM
+    143 with `prog: INTERRUPTED` (a callable is asked for the text then); a full disk is a user error too. `cleanup`
+    runs after an error or an interruption (never after success), so an unfinished output never looks complete. Any
     exception raised once a signal came counts as that interruption; other exceptions are bugs and keep their
     traceback.
     """

@@ -74,9 +74,9 @@ from pass3d_ros.core.stage2.canonical import SAMPLINGS
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
+from pass3d_ros.errors import UserError
 from pass3d_ros.evaluation.agreement import evaluate_agreement, evaluate_agreement_draws
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live

@@ -81,10 +81,10 @@ try:
     from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
     from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
     from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-    from pass3d_ros.data.errors import UserError
     from pass3d_ros.data.outputs import dataset_paths, out_path
     from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
     from pass3d_ros.data.spec import resolve_datasets
+    from pass3d_ros.errors import UserError
     from pass3d_ros.evaluation.offline import parse_params
     from pass3d_ros.evaluation.segmenting import SUMMARY, Ranks, build_folder, check_out_dir, segment, summary
     from pass3d_ros.tools.cli import EXIT_SIGINT, EXIT_SIGTERM, RankParser, check_writable, number, run_tool

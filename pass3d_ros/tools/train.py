@@ -34,7 +34,6 @@ try:
     from pass3d_ros.tools.cli import (
         EXIT_SIGINT,
         EXIT_SIGTERM,
-        EXIT_USAGE,
         RankParser,
         check_writable,
         number,
@@ -44,11 +43,9 @@ try:
     from pass3d_ros.training import consistency, distributed, launcher
     from pass3d_ros.training.samples import Proposer
     from pass3d_ros.training.trainer import (
-        DivergedError,
         FrameSource,
         PeerLostError,
         Trainer,
-        TrainingError,
         TrainOptions,
     )
 except KeyboardInterrupt:
@@ -137,8 +134,8 @@ def run(args: argparse.Namespace, proposer: Proposer | None = None, frame_source
 
 
 def _train(trainer: Trainer) -> int:
-    """Run `trainer` once its output folder is known to be writable; exit 1 when it cannot go on (silently when
-    another worker under pass3d_train's launcher stopped first: the launcher shows that worker's report)."""
+    """Run `trainer` once its output folder is known to be writable; exit 1 when another worker stopped first
+    (silently under pass3d_train's launcher: it shows that worker's report)."""
     check_writable(trainer.out, folder=True, what="--out folder")
     try:
         trainer.run()
@@ -147,13 +144,7 @@ def _train(trainer: Trainer) -> int:
             return launcher.EXIT_PEER_LOST
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 1
-    except DivergedError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except TrainingError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 1
-    return 0
+    return 0  # any other TrainingError (nothing to train on, diverged, ...) is run_tool's one line, exit 2
 
 
 def _interrupted(trainer: Trainer) -> str:
@@ -177,9 +168,9 @@ def _work(args: argparse.Namespace, holder: list[Trainer]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the pass3d_train console script: 0 done, 1 nothing to train on, 2 unusable data, output,
-    checkpoint or argument, or a run that diverged, 130 / 143 interrupted. Data-parallel, only rank 0 reports (see
-    --nproc)."""
+    """Entry point of the pass3d_train console script: 0 done, 1 another data-parallel worker stopped, 2 unusable
+    data, output, checkpoint or argument, nothing to train on, or a run that diverged, 130 / 143 interrupted.
+    Data-parallel, only rank 0 reports (see --nproc)."""
     worker.die_with_parent()
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()

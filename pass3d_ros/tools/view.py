@@ -20,11 +20,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from pass3d_ros.data.bag import TYPESTORE, BagFile, LabelSource, is_output_cloud, read_bag
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import OutputError, check_force, dataset_paths, out_path, refuse_protected, writing
 from pass3d_ros.data.partials import partial_path, remove_stale_partials
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
+from pass3d_ros.errors import UserError
 from pass3d_ros.msgs.pointcloud2 import decode
 from pass3d_ros.tools.cli import check_writable, run_tool
 

@@ -14,7 +14,7 @@ import torch
 
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, SegmentResult
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
-from pass3d_ros.data.errors import UserError
+from pass3d_ros.errors import UserError
 from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 CLASSIFIERS: tuple[str, ...] = ("network", "size_rules")
