@@ -389,8 +389,8 @@ def test_the_parameter_file_carries_the_stage1_settings_the_adaptation_ran_with(
     table, a given height): the nodes then run as the adaptation was checked; the file reads back as that config."""
     import yaml
 
-    from pass3d_ros.evaluation.offline import parse_params
-    from pass3d_ros.evaluation.params_file import read_params_file
+    from pass3d_ros.core.stage1.config import parse_params
+    from pass3d_ros.data.params_file import read_params_file
     from pass3d_ros.tools import adapt
 
     given = ["stage1.th_ring=0.4", "sensor_height=1.9", "stage1.sensor=vlp32c", "enlarge=[0.2,0.2,0.4]"]

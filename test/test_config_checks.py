@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pass3d_ros.core.stage1.config import ConfigError, Stage1Config, closest
-from pass3d_ros.evaluation.offline import parse_params
+from pass3d_ros.core.stage1.config import ConfigError, Stage1Config, closest, parse_params
 
 
 @pytest.mark.parametrize(("item", "says"), [

@@ -30,11 +30,11 @@ from pass3d_ros.adapt.holdout import fewest_scans
 from pass3d_ros.adapt.output import write_folder
 from pass3d_ros.adapt.run import Adaptation, AdaptOptions
 from pass3d_ros.adapt.sensor import AUTO
+from pass3d_ros.core.stage1.config import parse_params
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.outputs import marked_folder_out
 from pass3d_ros.data.partials import remove_stale_partials
 from pass3d_ros.data.spec import resolve_datasets
-from pass3d_ros.evaluation.offline import parse_params
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 from pass3d_ros.tools.cli import check_writable, number, run_tool, torch_device
 

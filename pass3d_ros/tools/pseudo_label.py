@@ -25,6 +25,7 @@ import sys
 from collections.abc import Iterator
 from dataclasses import replace
 
+from pass3d_ros.core.stage1.config import parse_params
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stage2.segmentation import Segmenter
@@ -35,7 +36,7 @@ from pass3d_ros.data.partials import partial_path, remove_stale_partials
 from pass3d_ros.data.semantickitti import write_semantickitti_frame
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
 from pass3d_ros.errors import UserError
-from pass3d_ros.evaluation.offline import iter_frames, parse_params
+from pass3d_ros.evaluation.offline import iter_frames
 from pass3d_ros.tools.cli import check_writable, number, run_tool
 from pass3d_ros.training.pseudo_labels import DEFAULT_MIN_CONFIDENCE, PseudoLabelStats, pseudo_label_frames
 

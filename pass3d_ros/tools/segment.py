@@ -77,6 +77,7 @@ PROG = "pass3d_segment"
 worker.die_with_parent()
 try:
     from pass3d_ros.core.metrics import format_metrics
+    from pass3d_ros.core.stage1.config import parse_params
     from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
     from pass3d_ros.core.stage2.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
     from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
@@ -85,7 +86,6 @@ try:
     from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
     from pass3d_ros.data.spec import resolve_datasets
     from pass3d_ros.errors import UserError
-    from pass3d_ros.evaluation.offline import parse_params
     from pass3d_ros.evaluation.segmenting import SUMMARY, Ranks, build_folder, check_out_dir, segment, summary
     from pass3d_ros.tools.cli import EXIT_SIGINT, EXIT_SIGTERM, RankParser, check_writable, number, run_tool
     from pass3d_ros.training import distributed, launcher

@@ -29,8 +29,8 @@ PROG = "pass3d_train"
 # takes it along), and Ctrl-C meanwhile is the one line and status 130 it is later, not a traceback.
 worker.die_with_parent()
 try:
+    from pass3d_ros.core.stage1.config import parse_params
     from pass3d_ros.core.stage2.pointnet2 import GROUPINGS, TRAIN_GROUPING
-    from pass3d_ros.evaluation.offline import parse_params
     from pass3d_ros.tools.cli import (
         EXIT_SIGINT,
         EXIT_SIGTERM,
