@@ -35,6 +35,9 @@ try:
         EXIT_SIGINT,
         EXIT_SIGTERM,
         RankParser,
+        add_data,
+        add_param,
+        add_threads,
         check_writable,
         number,
         run_tool,
@@ -57,7 +60,7 @@ except KeyboardInterrupt:
 def build_parser() -> argparse.ArgumentParser:
     """The command line of pass3d_train."""
     p = RankParser(prog=PROG, description=__doc__.splitlines()[0])
-    p.add_argument("--data", action="append", required=True, metavar="SPEC", help="training data FORMAT:PATH")
+    add_data(p, "training data FORMAT:PATH")
     p.add_argument("--val-data", action="append", default=[], metavar="SPEC", help="validation data FORMAT:PATH")
     p.add_argument("--config", choices=["paper", "lite"], default="lite", help="model configuration")
     p.add_argument("--epochs", type=number(int, 1), default=40)
@@ -96,10 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fit-epochs", action="store_true",
                    help="with --minutes: after the first epoch, as many epochs as fit the budget at its pace (at "
                         "most --epochs), the learning-rate schedule stretched over them")
-    p.add_argument("--threads", type=number(int, 0), default=0, help="torch CPU threads (0: torch default)")
-    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a Stage1Config parameter for the stage-1 run that builds the samples, repeatable "
-                        "(e.g. th_dist=0.25; part of the sample cache name)")
+    add_threads(p, "torch CPU threads (0: torch default)", default=0, low=0, metavar=None)
+    add_param(p, "override a Stage1Config parameter for the stage-1 run that builds the samples, repeatable "
+                 "(e.g. th_dist=0.25; part of the sample cache name)")
     p.add_argument("--nproc", type=number(int, 1), default=1, metavar="N",
                    help="data-parallel: train in N processes started here (the alternative is torchrun)")
     p.add_argument("--consistency", action="append", default=[], metavar="SPEC",
