@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import torch
@@ -26,6 +27,7 @@ from pass3d_ros.adapt.holdout import Split, fewest_scans, split_scans
 from pass3d_ros.adapt.sensor import AUTO, FAR_DISTANCE, SensorReading, read_sensor
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members
 from pass3d_ros.core.stage1.config import AUTO as AUTO_RANGE
+from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint, read_checkpoint
 from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.bag import parse_bag_spec, select_topic
@@ -292,7 +294,7 @@ class Adaptation:
 
     def _segmenter(self, checkpoint: dict) -> Segmenter:
         """A warmed-up classifier of `checkpoint` (a dict: nothing is written to disk)."""
-        segmenter = Segmenter(checkpoint, device=self.options.device)
+        segmenter = cast(Segmenter, open_classifier(checkpoint, device=self.options.device))  # a network
         segmenter.warm_up()
         return segmenter
 

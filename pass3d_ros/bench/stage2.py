@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import cast
 
 import numpy as np
 import torch
 
+from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.pointnet2 import PointNet2Seg, count_parameters, make_config
 from pass3d_ros.core.stage2.segmentation import (
     Segmenter,
@@ -85,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     torch.manual_seed(args.seed)
     cap = max(args.proposals, 1)
     weights = args.weights or make_checkpoint(PointNet2Seg(make_config(args.config)))
-    segmenter = Segmenter(weights, device=args.device, max_proposals=cap)
+    segmenter = cast(Segmenter, open_classifier(weights, device=args.device, max_proposals=cap))  # a network
     config = segmenter.config
     params = count_parameters(PointNet2Seg(config))
     frames = _frames(args)
