@@ -17,8 +17,8 @@ from pass3d_ros.adapt.sensor import fitting_table, nearest_simulated, read_senso
 from pass3d_ros.classes import CLASS_NAMES
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage2.segmentation import Segmenter
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.errors import UserError
 from pass3d_ros.evaluation.agreement import evaluate_agreement, majority
 from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
@@ -389,8 +389,8 @@ def test_the_parameter_file_carries_the_stage1_settings_the_adaptation_ran_with(
     table, a given height): the nodes then run as the adaptation was checked; the file reads back as that config."""
     import yaml
 
-    from pass3d_ros.evaluation.offline import parse_params
-    from pass3d_ros.evaluation.params_file import read_params_file
+    from pass3d_ros.core.stage1.config import parse_params
+    from pass3d_ros.data.params_file import read_params_file
     from pass3d_ros.tools import adapt
 
     given = ["stage1.th_ring=0.4", "sensor_height=1.9", "stage1.sensor=vlp32c", "enlarge=[0.2,0.2,0.4]"]
@@ -453,3 +453,23 @@ def test_a_bag_recording_names_its_topic_in_the_parameter_file(tmp_path):
     assert adapt.main(args) == 0
     params = yaml.safe_load((tmp_path / "mine" / "pass3d_params.yaml").read_text())
     assert params["/**/cluster_proposal_node"]["ros__parameters"]["input_topic"] == "/ouster/points"
+
+
+def test_a_recording_without_proposals_is_one_line_and_exit_2(tmp_path, capsys):
+    """Eight scans of sparse noise (or a sensor stage 1 cannot read) give stage 1 no proposal to adapt on: the
+    trainer's TrainingError is one line on stderr and exit 2, not a traceback."""
+    from pass3d_ros.data.semantickitti import write_semantickitti_frame
+    from pass3d_ros.tools import adapt
+
+    seq = tmp_path / "noise"
+    rng = np.random.default_rng(0)
+    for i in range(8):
+        points = rng.uniform([-60, -60, -2, 0], [60, 60, 2, 1], (400, 4)).astype(np.float32)
+        write_semantickitti_frame(seq, Frame(name=f"{i:06d}", points=points))
+    args = [*TINY, "--out", str(tmp_path / "out"), "--epochs", "1"]
+    args[1] = f"semantickitti:{seq}"
+    assert adapt.main(args) == 2
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("pass3d_adapt: error: no proposals in ") and "Traceback" not in err, err
+    assert not (tmp_path / "out").exists()

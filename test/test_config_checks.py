@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pass3d_ros.core.stage1.config import ConfigError, Stage1Config, closest
-from pass3d_ros.evaluation.offline import parse_params
+from pass3d_ros.core.stage1.config import ConfigError, Stage1Config, closest, parse_params
 
 
 @pytest.mark.parametrize(("item", "says"), [
@@ -87,3 +86,23 @@ def test_param_names_and_values_as_the_node_or_bare(items: list[str], expected: 
     config = parse_params(items)
     for name, value in expected.items():
         assert getattr(config, name) == value and type(getattr(config, name)) is type(value), name
+
+
+def test_stage2_config_is_the_segmentation_nodes_stage2_parameters():
+    """Stage2Config holds one default, description and range per stage-2 setting; the node's parameter table takes
+    them from it, so the node, the shipped YAML and docs/parameters.md cannot drift apart."""
+    from pass3d_ros.core.stage2.config import Stage2Config, parameter_table
+    from pass3d_ros.ros import segmentation_node
+
+    table = parameter_table()
+    assert {"weights", "threads", "max_proposals", "intensity_match", "classifier", "device"} <= set(table)
+    for name, entry in table.items():
+        assert segmentation_node.NODE_PARAMETERS[name] == entry, name
+    assert Stage2Config().to_dict() == {name: entry[0] for name, entry in table.items()}
+    assert Stage2Config(min_confidence=1).min_confidence == 1.0  # an int is a number
+    with pytest.raises(ConfigError, match=r"max_proposals=0 outside \[1, 1024\]"):
+        Stage2Config(max_proposals=0)
+    with pytest.raises(ConfigError, match="threads=True must be an integer"):
+        Stage2Config(threads=True)
+    with pytest.raises(ConfigError, match=r"unknown parameter\(s\) max_proposal \(did you mean max_proposals\?\)"):
+        Stage2Config.from_mapping({"max_proposal": 3})

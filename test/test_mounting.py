@@ -18,7 +18,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 
 from pass3d_ros.core.stage1 import Stage1Config, propose
-from pass3d_ros.core.stage1.config import AUTO, ConfigError, config_from_text
+from pass3d_ros.core.stage1.config import AUTO, ConfigError, config_from_text, parse_params
 from pass3d_ros.core.stage1.mounting import (
     HEIGHT_DISAGREE_M,
     MOUNTING_SCANS,
@@ -27,7 +27,6 @@ from pass3d_ros.core.stage1.mounting import (
 )
 from pass3d_ros.core.stream import MountingHolder, ScanStream
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.evaluation.offline import parse_params
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
 from pass3d_ros.ros.diagnostics import status_values
 from pass3d_ros.ros.qos import qos_profile

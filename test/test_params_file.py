@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from pass3d_ros.core.stage2 import DEFAULT_WEIGHTS
-from pass3d_ros.evaluation.params_file import read_params_file
+from pass3d_ros.data.params_file import read_params_file
 from pass3d_ros.tools import evaluate
 
 SPEC = "synthetic:frames=1,seed=3"

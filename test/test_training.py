@@ -419,7 +419,7 @@ def test_init_starts_from_a_checkpoints_weights(tmp_path, capsys):
 
 
 def test_init_with_a_missing_file_or_with_resume_is_an_error(tmp_path, capsys):
-    """A missing --init file is named (exit 2, before any work); --init with --resume is refused (exit 1)."""
+    """A missing --init file is named (exit 2, before any work); --init with --resume is refused (exit 2, one line)."""
     out = tmp_path / "run"
     missing = tmp_path / "nosuch.pt"
     assert train.main(["--data", "constructed:train", "--out", str(out), "--init", str(missing), "--quiet"]) == 2
@@ -428,8 +428,9 @@ def test_init_with_a_missing_file_or_with_resume_is_an_error(tmp_path, capsys):
     out.mkdir()
     torch.save({"epoch": 0}, out / "last.pt")
     assert train.main(["--data", "constructed:train", "--out", str(out), "--init", str(missing), "--resume",
-                       "--quiet"]) == 1
-    assert "--init and --resume" in capsys.readouterr().err
+                       "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("pass3d_train: error: --init and --resume"), err
 
 
 @pytest.mark.parametrize(("stop_at", "expected"), [(0, "before any checkpoint was written"), (1, "(epoch 1)")])
@@ -533,11 +534,11 @@ def test_stage1_parameters_name_their_own_cache(tmp_path):
 
 def test_param_reaches_the_stage1_run_that_builds_the_samples(tmp_path, capsys):
     """pass3d_train --param: the stage-1 run that builds the samples uses it (max_range=1 leaves no proposal at
-    all); a bad one is one line, exit 2."""
+    all: the trainer's error, one line, exit 2); a bad one is one line, exit 2."""
     common = ["--data", "synthetic:frames=1,seed=7", "--epochs", "1", "--batch-size", "4", "--max-steps", "1",
               "--quiet"]
-    assert train.main([*common, "--out", str(tmp_path / "a"), "--param", "max_range=1.0"]) == 1
-    assert "no proposals in synthetic:frames=1,seed=7" in capsys.readouterr().err
+    assert train.main([*common, "--out", str(tmp_path / "a"), "--param", "max_range=1.0"]) == 2
+    assert capsys.readouterr().err == "pass3d_train: error: no proposals in synthetic:frames=1,seed=7\n"
     assert train.main([*common, "--out", str(tmp_path / "b"), "--param", "no_such=1"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no_such" in err, err

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import yaml
 
 from pass3d_ros.adapt.run import GUARD_DROP, AdaptResult
 from pass3d_ros.classes import CLASS_NAMES
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.data.outputs import swap_into_place, write_marker, writing
+from pass3d_ros.data.params_file import node_params_yaml
 from pass3d_ros.data.partials import partial_path
 from pass3d_ros.drawing.bev import Panel, render_figure, write_png
 
@@ -74,8 +74,6 @@ def params_yaml(result: AdaptResult, weights: Path | None, data: list[str]) -> s
     cluster["stage1"] = stage1
     if s.intensity_divisor != 1.0:
         cluster["intensity_scale"] = float(1.0 / s.intensity_divisor)
-    doc = {"/**/cluster_proposal_node": {"ros__parameters": cluster},
-           "/**/segmentation_node": {"ros__parameters": {"weights": _weights_value(result, weights)}}}
     head = (f"# Written by {PROG} on {time.strftime('%Y-%m-%d %H:%M')} from {', '.join(data)}.\n"
             f"# Sensor read: {s.n_rings} rings ({s.ring_source}), lowest laser {s.bottom_deg:.1f} deg, "
             f"{s.simulated_how} simulated {s.nearest_simulated}; "
@@ -84,7 +82,7 @@ def params_yaml(result: AdaptResult, weights: Path | None, data: list[str]) -> s
                if result.partial else "")
             + (f"# SETTINGS ONLY ({result.settings_only}): the starting weights, not adapted.\n"
                if result.settings_only else ""))
-    return head + yaml.safe_dump(doc, sort_keys=False)
+    return node_params_yaml(cluster, {"weights": _weights_value(result, weights)}, head)
 
 
 def _weights_value(result: AdaptResult, weights: Path | None) -> str:

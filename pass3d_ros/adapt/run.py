@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import torch
@@ -27,11 +28,12 @@ from pass3d_ros.adapt.sensor import AUTO, FAR_DISTANCE, SensorReading, read_sens
 from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage1.config import AUTO as AUTO_RANGE
+from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint, read_checkpoint
 from pass3d_ros.data.bag import parse_bag_spec, select_topic
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_dataset, resolve_dataset
+from pass3d_ros.errors import UserError
 from pass3d_ros.evaluation.offline import evaluate_draws, proposed_frame
 from pass3d_ros.synthetic.dataset import HEIGHT_RANGE_M
 from pass3d_ros.training import launcher
@@ -292,7 +294,7 @@ class Adaptation:
 
     def _segmenter(self, checkpoint: dict) -> Segmenter:
         """A warmed-up classifier of `checkpoint` (a dict: nothing is written to disk)."""
-        segmenter = Segmenter(checkpoint, device=self.options.device)
+        segmenter = cast(Segmenter, open_classifier(checkpoint, device=self.options.device))  # a network
         segmenter.warm_up()
         return segmenter
 

@@ -47,10 +47,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-from pass3d_ros.data.errors import UserError
+from pass3d_ros.core.threads import limit_threads
 from pass3d_ros.data.outputs import write_text_atomic
-from pass3d_ros.tools.cli import number
+from pass3d_ros.errors import UserError
+from pass3d_ros.tools.cli import add_threads, add_weights, number
 
 if TYPE_CHECKING:
     from pass3d_ros.core.stage2 import Classifier
@@ -275,9 +275,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=number(float, 0.0), default=30.0, metavar="S",
                         help="memory reference taken this long after start (default 30; a quarter of a shorter run)")
     parser.add_argument("--classifier", choices=("network", "size_rules"), help="stage-2 classifier (default network)")
-    parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
-    parser.add_argument("--threads", type=int, default=DEFAULT_THREADS, metavar="N",
-                        help=f"CPU threads: torch, OpenMP, OpenBLAS (default {DEFAULT_THREADS})")
+    add_weights(parser)
+    add_threads(parser)
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the numbers as JSON here")
 
 

@@ -21,10 +21,11 @@ import numpy as np
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, propose, synthetic_scan, warm_up
 from pass3d_ros.core.stage1.ring import LaserLines
 from pass3d_ros.core.stream.lines import LineHolder
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
+from pass3d_ros.errors import UserError
+from pass3d_ros.tools.cli import add_data
 
 PATCHWORK_HINT = "pip install pypatchworkpp"
 REORDERINGS: tuple[str, ...] = ("column", "shuffled")
@@ -57,8 +58,8 @@ def same_partition(a: np.ndarray, b: np.ndarray) -> bool:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of the stage1 suite."""
-    parser.add_argument("--data", action="append", default=[], metavar="FORMAT:PATH",
-                        help="dataset spec, repeatable; default: a built-in synthetic 64-ring scan")
+    add_data(parser, "dataset spec, repeatable; default: a built-in synthetic 64-ring scan", metavar="FORMAT:PATH",
+             required=False)
     parser.add_argument("--repeat", type=int, default=20, metavar="R", help="runs per frame (default 20)")
     parser.add_argument("--limit", type=int, default=10, metavar="N", help="at most N frames per spec (default 10)")
     parser.add_argument("--no-patchwork", action="store_true", help="skip the pypatchworkpp comparison")

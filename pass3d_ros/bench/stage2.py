@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import cast
 
 import numpy as np
 import torch
 
+from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.pointnet2 import PointNet2Seg, count_parameters, make_config
 from pass3d_ros.core.stage2.segmentation import (
     Segmenter,
@@ -16,8 +18,8 @@ from pass3d_ros.core.stage2.segmentation import (
     predict_probabilities,
     prepare_proposals,
 )
-from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-from pass3d_ros.tools.cli import torch_device
+from pass3d_ros.core.threads import limit_threads
+from pass3d_ros.tools.cli import add_data, add_threads, add_weights, torch_device
 
 # (length, width, height) of the constructed proposals: car, pedestrian, cyclist, background clutter.
 _SHAPES = np.array([[4.2, 1.7, 1.6], [0.7, 0.6, 1.8], [1.8, 0.7, 1.7], [2.5, 1.5, 2.5]])
@@ -48,14 +50,13 @@ def constructed_frame(
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pass3d_benchmark stage2`."""
     parser.add_argument("--config", choices=["lite", "paper"], default="lite", help="model configuration")
-    parser.add_argument("--weights", default=None, help="checkpoint to time instead of random weights")
-    parser.add_argument("--data", default=None, metavar="SPEC", help="use stage-1 proposals of this data")
+    add_weights(parser, "checkpoint to time instead of random weights", metavar=None)
+    add_data(parser, "use stage-1 proposals of this data", required=False, repeatable=False)
     parser.add_argument("--frames", type=int, default=3, help="frames of --data to time")
     parser.add_argument("--proposals", type=int, default=30, help="proposals per constructed frame (cap with --data)")
     parser.add_argument("--max-points", type=int, default=2000, help="largest proposal (points)")
     parser.add_argument("--repeats", type=int, default=15, help="timed frames (after 2 warm-up frames)")
-    parser.add_argument("--threads", type=int, default=DEFAULT_THREADS,
-                        help=f"CPU threads: torch, OpenMP, OpenBLAS (default {DEFAULT_THREADS})")
+    add_threads(parser, metavar=None)
     parser.add_argument("--device", type=torch_device, default="cpu", help="cpu or cuda")
     parser.add_argument("--seed", type=int, default=0)
 
@@ -87,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     torch.manual_seed(args.seed)
     cap = max(args.proposals, 1)
     weights = args.weights or make_checkpoint(PointNet2Seg(make_config(args.config)))
-    segmenter = Segmenter(weights, device=args.device, max_proposals=cap)
+    segmenter = cast(Segmenter, open_classifier(weights, device=args.device, max_proposals=cap))  # a network
     config = segmenter.config
     params = count_parameters(PointNet2Seg(config))
     frames = _frames(args)

@@ -23,7 +23,6 @@ from pathlib import Path
 import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
-from pass3d_ros.data.errors import DatasetError
 from pass3d_ros.data.frame import Box3D, Frame
 from pass3d_ros.data.kitti_io import (
     FRAME_PERIOD_NS,
@@ -37,6 +36,7 @@ from pass3d_ros.data.kitti_io import (
     sorted_files,
     write_bin,
 )
+from pass3d_ros.errors import DatasetError
 
 KITTI_TYPE_TO_LABEL: dict[str, int] = {"Car": CAR, "Pedestrian": PEDESTRIAN, "Cyclist": CYCLIST}
 LABEL_TO_KITTI_TYPE: dict[int, str] = {CAR: "Car", PEDESTRIAN: "Pedestrian", CYCLIST: "Cyclist", BACKGROUND: "Misc"}

@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
-from pass3d_ros.data.errors import DatasetError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.kitti_io import (
     count_point_files,
@@ -39,6 +38,7 @@ from pass3d_ros.data.kitti_io import (
     sorted_files,
     write_bin,
 )
+from pass3d_ros.errors import DatasetError
 
 SEMANTIC_TO_LABEL: dict[int, int] = {10: CAR, 252: CAR, 30: PEDESTRIAN, 254: PEDESTRIAN, 31: CYCLIST, 253: CYCLIST}
 GROUND_CLASSES: tuple[int, ...] = (40, 44, 48, 49, 60, 72)

@@ -17,26 +17,12 @@ from pass3d_ros.classes import BACKGROUND, IGNORE
 from pass3d_ros.core.metrics import ObjectRecall, SegmentationMetrics, Stage1Metrics
 from pass3d_ros.core.pipeline import ProposedScan, ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config, warm_up
-from pass3d_ros.core.stage1.config import ConfigError, config_from_text
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, proposals_cut
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
-
-
-def parse_params(items: list[str]) -> Stage1Config:
-    """Stage1Config from `KEY=VALUE` overrides: KEY as the node names it (`stage1.th_dist`) or bare (`th_dist`); VALUE
-    read by the field's type (pass3d_ros.core.stage1.config.parse_value): 0.25, 3, true, pandar64, 0.1,0.1,0.4, or a
-    Python literal as before ('pandar64', (0.1, 0.1, 0.4)). ConfigError names the first problem."""
-    pairs = []
-    for item in items:
-        key, sep, text = item.partition("=")
-        if not sep or not key.strip():
-            raise ConfigError(f"--param {item!r}: expected KEY=VALUE")
-        pairs.append((key, text))
-    return config_from_text(pairs)
+from pass3d_ros.errors import UserError
 
 
 def iter_frames(specs: Sequence[str | Dataset], limit: int | None, progress: bool) -> Iterator[tuple[str, Frame]]:

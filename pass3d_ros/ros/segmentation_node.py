@@ -22,15 +22,15 @@ from pass3d_ros.core import scan_checks
 from pass3d_ros.core.objects import labelled_objects
 from pass3d_ros.core.pipeline import ProposalSegmenter
 from pass3d_ros.core.stage1 import proposal_members
-from pass3d_ros.core.stage2 import CLASSIFIERS, DEFAULT_CLASSIFIER, Classifier, open_classifier
+from pass3d_ros.core.stage2 import Classifier, open_classifier
 from pass3d_ros.core.stage2.classifier_process import (
     ClassifierProcessDownError,
     ClassifierProcessHungError,
     ProcessClassifier,
 )
-from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, SegmentResult, proposals_cut
-from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
+from pass3d_ros.core.stage2.config import Stage2Config, parameter_table
+from pass3d_ros.core.stage2.segmentation import SegmentResult, proposals_cut
+from pass3d_ros.core.threads import limit_threads
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, header_stamp_ns
 from pass3d_ros.ros import params
 from pass3d_ros.ros.detections import DetectionOutputs
@@ -69,23 +69,9 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
                          "where vision_msgs is installed)", None),
     "input_qos": ("auto", INPUT_QOS_HELP, None),
     "output_qos": ("reliable", f"QoS of the outputs: {' or '.join(QOS_NAMES)}", None),
-    "classifier": (DEFAULT_CLASSIFIER, f"{' or '.join(CLASSIFIERS)}: the PointNet++ or the geometric baseline", None),
-    "weights": ("", "stage-2 checkpoint; empty = the weights shipped with the package", None),
-    "device": ("cpu", "torch device: cpu or cuda", None),
-    "threads": (DEFAULT_THREADS, "CPU threads of the process (torch, OpenMP, numpy's OpenBLAS); 0 = the libraries' "
-                "defaults (1 is fastest on a busy 2-core CPU)", (0, 64)),
-    "max_proposals": (DEFAULT_MAX_PROPOSALS, "at most this many proposals per frame, nearest first", (1, 1024)),
-    "min_confidence": (0.0, "points predicted below this confidence are labeled background", (0.0, 1.0)),
-    "intensity_match": (INTENSITY_MATCH, "map the stream's intensities onto the training scale before the network "
-                        "(a quantile map fitted on the first scans, then held; a sensor already on that scale is left "
-                        "alone)", None),
+    **parameter_table(),  # stage 2's settings: Stage2Config (pass3d_ros.core.stage2.config)
     "overlap": (False, "pass3d_pipeline only: segment on this node's own thread, so stage 1 of the next scan "
                 "overlaps stage 2 (more frames per second with a spare core; far fewer when the CPU is shared)", None),
-    "process": (False, "run the classifier in a child process (with overlap: stage 2 beside stage 1 without sharing "
-                "the GIL, and a third thread encodes and publishes; each frame's arrays cross a pipe, a few ms)", None),
-    "stage2_timeout": (5.0, "seconds a frame may take in stage 2: a child process (process) that answers nothing "
-                       "this long is killed and restarted, ERROR on /diagnostics; a later result is dropped, never "
-                       "published late (raise it for a paper-size network on a CPU)", (0.1, 600.0)),
 }
 PARAMETERS = params.NodeParameters("segmentation_node", NODE_PARAMETERS)
 
@@ -141,6 +127,7 @@ class SegmentationNode(PointCloudNode):
 
     def __init__(self, in_memory: bool = False, **kwargs: Any) -> None:
         super().__init__(PARAMETERS, **kwargs)
+        self.stage2 = params.read_config(self, Stage2Config)  # stage 2's settings, read at start-up
         self.output_layout = check_layout(self.get_parameter("output_layout").value)
         self.points_dropped = 0  # input points with implausible coordinates, left out
         self.proposals_cut = 0  # input proposals beyond max_proposals, labeled background
@@ -187,16 +174,17 @@ class SegmentationNode(PointCloudNode):
 
     def _load_classifier(self) -> Classifier:
         """Load and warm up the classifier; missing or incompatible weights end start-up with the reason."""
-        threads = self.get_parameter("threads").value
+        config = self.stage2
+        threads = config.threads
         if threads > 0:
             self.get_logger().info(limit_threads(threads).describe())
         started = time.perf_counter()
-        weights, kind = self.get_parameter("weights").value, self.get_parameter("classifier").value
-        device, max_proposals = self.get_parameter("device").value, self.get_parameter("max_proposals").value
-        if self.get_parameter("process").value:
+        weights, kind = config.weights, config.classifier
+        device, max_proposals = config.device, config.max_proposals
+        if config.process:
             classifier: Classifier = ProcessClassifier(weights, kind, device=device, max_proposals=max_proposals,
                                                        threads=threads, report=self._on_stage2_report,
-                                                       timeout_s=self.get_parameter("stage2_timeout").value)
+                                                       timeout_s=config.stage2_timeout)
             where = f" in process {classifier.pid}"
         else:
             classifier = open_classifier(weights, kind, device=device, max_proposals=max_proposals)

@@ -30,13 +30,22 @@ from pass3d_ros.adapt.holdout import fewest_scans
 from pass3d_ros.adapt.output import write_folder
 from pass3d_ros.adapt.run import Adaptation, AdaptOptions
 from pass3d_ros.adapt.sensor import AUTO
-from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
+from pass3d_ros.core.stage1.config import parse_params
+from pass3d_ros.core.threads import limit_threads
 from pass3d_ros.data.outputs import marked_folder_out
 from pass3d_ros.data.partials import remove_stale_partials
 from pass3d_ros.data.spec import resolve_datasets
-from pass3d_ros.evaluation.offline import parse_params
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
-from pass3d_ros.tools.cli import check_writable, number, run_tool, torch_device
+from pass3d_ros.tools.cli import (
+    add_data,
+    add_param,
+    add_threads,
+    add_weights,
+    check_writable,
+    number,
+    run_tool,
+    torch_device,
+)
 
 PROG = "pass3d_adapt"
 EXIT_REFUSED = 1
@@ -46,10 +55,9 @@ DEFAULTS = AdaptOptions(data=[])
 def build_parser() -> argparse.ArgumentParser:
     """The command line of pass3d_adapt."""
     p = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", action="append", required=True, metavar="SPEC",
-                   help="the unlabelled recording: bag:BAG[#TOPIC], semantickitti:DIR, ... (repeatable)")
+    add_data(p, "the unlabelled recording: bag:BAG[#TOPIC], semantickitti:DIR, ... (repeatable)")
     p.add_argument("--out", required=True, metavar="DIR", help="the folder to write")
-    p.add_argument("--weights", metavar="W", help="starting weights (default: the shipped ones)")
+    add_weights(p, "starting weights (default: the shipped ones)")
     p.add_argument("--minutes", type=number(float, 0.0, low_open=True), default=DEFAULTS.minutes, metavar="M",
                    help=f"wall-time budget of the whole run (default {DEFAULTS.minutes:g})")
     p.add_argument("--max-scans", type=number(int, fewest_scans()), default=DEFAULTS.max_scans, metavar="N",
@@ -75,9 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "slightly worse (docs/adapt.md)")
     p.add_argument("--lr", type=number(float, 0.0, low_open=True), default=DEFAULTS.lr)
     p.add_argument("--seed", type=number(int, 0), default=DEFAULTS.seed)
-    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a stage-1 parameter, repeatable (as in pass3d_evaluate)")
-    p.add_argument("--threads", type=number(int, 1), default=DEFAULT_THREADS, metavar="N", help="torch CPU threads")
+    add_param(p, "override a stage-1 parameter, repeatable (as in pass3d_evaluate)")
+    add_threads(p, "torch CPU threads", low=1)
     p.add_argument("--force", action="store_true", help="replace an existing --out this tool wrote")
     p.add_argument("--no-cache", action="store_true",
                    help=f"neither read nor keep the anchor's samples in {sample_cache.default_dir()} "

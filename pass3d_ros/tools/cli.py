@@ -1,7 +1,10 @@
 """What every command-line tool shares: one line on stderr and exit 2 for the project's errors, 130 for
-Ctrl-C, 143 for SIGTERM, and a cleanup step that removes what an unfinished run would leave behind.
+Ctrl-C, 143 for SIGTERM, and a cleanup step that removes what an unfinished run would leave behind; the argparse
+types (`number`, `torch_device`) and the options many tools take, each declared once here (`add_data`,
+`add_weights`, `add_threads`, `add_param`).
 
-A tool's `main` parses its arguments and hands the work to `run_tool`; nothing here knows any tool.
+A library module, not a command line: a tool's `main` parses its arguments and hands the work to `run_tool`; nothing
+here knows any tool.
 """
 
 from __future__ import annotations
@@ -20,8 +23,9 @@ from typing import NoReturn
 import torch
 from rosbags.rosbag2 import ReaderError, WriterError
 
-from pass3d_ros.data.errors import UserError
+from pass3d_ros.core.threads import DEFAULT_THREADS
 from pass3d_ros.data.outputs import OutputError, error_text, is_disk_full
+from pass3d_ros.errors import Pass3dError
 from pass3d_ros.training import worker
 
 EXIT_USAGE = 2
@@ -29,11 +33,11 @@ EXIT_SIGINT = 130
 EXIT_SIGTERM = 143
 
 
-# The project's user errors (bad input, argument, file or output) and rosbags' for unreadable or unwritable bags,
-# plus what the system says about a path the user named: each is the user's to fix. Anything else is a bug and keeps
-# its traceback.
+# The project's errors (`Pass3dError`: a user error, or a library that cannot go on, e.g. training with no proposals)
+# and rosbags' for unreadable or unwritable bags, plus what the system says about a path the user named: each is one
+# line and exit 2. Anything else is a bug and keeps its traceback.
 USER_ERRORS: tuple[type[BaseException], ...] = (
-    UserError, ReaderError, WriterError,
+    Pass3dError, ReaderError, WriterError,
     FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError, FileExistsError,
 )
 
@@ -113,6 +117,46 @@ def torch_device(text: str) -> str:
     return text
 
 
+# --------------------------------------------------------------------------- options many tools take
+
+Options = argparse.ArgumentParser | argparse._ArgumentGroup  # a parser, or a group of one
+
+
+def add_data(parser: Options, help: str, *, metavar: str = "SPEC", required: bool = True,
+             repeatable: bool = True) -> None:
+    """`--data SPEC`: a dataset spec (pass3d_ros.data.spec), repeatable unless `repeatable` is False (then one spec,
+    default None); not `required`, a repeatable one defaults to no spec."""
+    if repeatable:
+        parser.add_argument("--data", action="append", required=required, default=None if required else [],
+                            metavar=metavar, help=help)
+    else:
+        parser.add_argument("--data", required=required, default=None, metavar=metavar, help=help)
+
+
+WEIGHTS_HELP = "stage-2 checkpoint (default: the shipped weights)"
+
+
+def add_weights(parser: Options, help: str = WEIGHTS_HELP, *, metavar: str | None = "W") -> None:
+    """`--weights W`: a stage-2 checkpoint file (None: the tool's default, mostly the shipped weights)."""
+    parser.add_argument("--weights", metavar=metavar, help=help)
+
+
+def add_threads(parser: Options, help: str | None = None, *, default: int = DEFAULT_THREADS, low: int | None = None,
+                metavar: str | None = "N") -> None:
+    """`--threads N`: CPU threads of the process (an integer at least `low`; any integer when None). The help says
+    the default unless `help` is given."""
+    parser.add_argument("--threads", type=int if low is None else number(int, low), default=default, metavar=metavar,
+                        help=help if help is not None else f"CPU threads: torch, OpenMP, OpenBLAS (default {default})")
+
+
+PARAM_HELP = "override a Stage1Config parameter, repeatable (e.g. th_dist=0.25, stage1.sensor=pandar64)"
+
+
+def add_param(parser: Options, help: str = PARAM_HELP) -> None:
+    """`--param KEY=VALUE`, repeatable: stage-1 overrides, read by pass3d_ros.core.stage1.config.parse_params."""
+    parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help=help)
+
+
 def check_writable(path: str | Path, *, folder: bool, what: str = "output") -> None:
     """OutputError unless `path` (a folder when `folder`, else a file) can be created or written; call it before
     the work starts, so a long run never ends unable to save its result. It tries: an existing file is opened for
@@ -150,9 +194,9 @@ def run_tool(
 ) -> int:
     """Run `work` with the shared signal handling and exit-status mapping; returns the exit status.
 
-    A user error (`USER_ERRORS`) prints `prog: error: MESSAGE` and gives 2; Ctrl-C gives 130 and SIGTERM 143 with
-    `prog: INTERRUPTED` (a callable is asked for the text then); a full disk is a user error too. `cleanup` runs
-    after an error or an interruption (never after success), so an unfinished output never looks complete. Any
+    A user or library error (`USER_ERRORS`) prints `prog: error: MESSAGE` and gives 2; Ctrl-C gives 130 and SIGTERM
+    143 with `prog: INTERRUPTED` (a callable is asked for the text then); a full disk is a user error too. `cleanup`
+    runs after an error or an interruption (never after success), so an unfinished output never looks complete. Any
     exception raised once a signal came counts as that interruption; other exceptions are bugs and keep their
     traceback.
     """

@@ -32,11 +32,11 @@ from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.data.bag import read_bag
 from pass3d_ros.data.bag_convert import convert
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import out_path, refuse_protected, write_text_atomic
 from pass3d_ros.drawing.bev import frame_picture, output_cluster_ids, write_png
+from pass3d_ros.errors import UserError
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
-from pass3d_ros.tools.cli import run_tool
+from pass3d_ros.tools.cli import add_weights, run_tool
 from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 MARKER = ".pass3d_demo"
@@ -192,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", default="demo_out", help="output folder (default ./demo_out)")
     parser.add_argument("--classifier", choices=("auto", "network", "size_rules"), default="auto",
                         help="auto (default): the network with the shipped weights, else size_rules")
-    parser.add_argument("--weights", help="stage-2 checkpoint for the network (default: the shipped weights)")
+    add_weights(parser, "stage-2 checkpoint for the network (default: the shipped weights)", metavar=None)
     parser.add_argument("--force", action="store_true", help="use a non-empty --out the demo did not make")
     return parser
 

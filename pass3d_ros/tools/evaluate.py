@@ -69,45 +69,44 @@ import sys
 from pathlib import Path
 
 from pass3d_ros.core.stage1 import Stage1Config
+from pass3d_ros.core.stage1.config import parse_params
 from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
 from pass3d_ros.core.stage2.canonical import SAMPLINGS
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.outputs import write_text_atomic
+from pass3d_ros.data.params_file import NodeSettings, read_params_file
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
+from pass3d_ros.errors import UserError
 from pass3d_ros.evaluation.agreement import evaluate_agreement, evaluate_agreement_draws
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
-from pass3d_ros.evaluation.offline import evaluate_draws, evaluate_full, evaluate_stage1, iter_frames, parse_params
+from pass3d_ros.evaluation.offline import evaluate_draws, evaluate_full, evaluate_stage1, iter_frames
 from pass3d_ros.evaluation.paired import format_paired, paired, read_baseline
-from pass3d_ros.evaluation.params_file import NodeSettings, read_params_file
 from pass3d_ros.evaluation.report import PRINTERS
-from pass3d_ros.tools.cli import check_writable, number, run_tool
+from pass3d_ros.tools.cli import add_data, add_param, add_threads, add_weights, check_writable, number, run_tool
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pass3d_evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--data", action="append", required=True, metavar="FORMAT:PATH",
-                        help="dataset spec, repeatable (kitti_object:DIR, semantickitti:DIR/sequences/00, bag:B, ...)")
+    add_data(parser, "dataset spec, repeatable (kitti_object:DIR, semantickitti:DIR/sequences/00, bag:B, ...)",
+             metavar="FORMAT:PATH")
     modes = parser.add_mutually_exclusive_group()
     modes.add_argument("--stage1-only", action="store_true", help="evaluate stage 1 cluster proposals only")
     modes.add_argument("--view-agreement", action="store_true",
                        help="label-free: how often the network's class of a proposal agrees across the 8 views")
     modes.add_argument("--live", action="store_true", help="evaluate the live ROS path (both nodes, in process)")
     parser.add_argument("--classifier", choices=CLASSIFIERS, help="stage-2 classifier (default network)")
-    parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
+    add_weights(parser)
     parser.add_argument("--device", default="cpu", help="torch device for the network: cpu (default) or cuda")
-    parser.add_argument("--threads", type=int, default=DEFAULT_THREADS, metavar="N",
-                        help=f"torch CPU threads (default {DEFAULT_THREADS})")
+    add_threads(parser, f"torch CPU threads (default {DEFAULT_THREADS})")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the summary as JSON here")
     parser.add_argument("--limit", type=int, metavar="N", help="at most N frames from each spec (not with --live)")
-    parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a Stage1Config parameter, repeatable (e.g. th_dist=0.25, "
-                             "stage1.sensor=pandar64, enlarge=0.1,0.1,0.4)")
+    add_param(parser, "override a Stage1Config parameter, repeatable (e.g. th_dist=0.25, stage1.sensor=pandar64, "
+                      "enlarge=0.1,0.1,0.4)")
     parser.add_argument("--params-file", type=Path, metavar="YAML",
                         help="the nodes' parameter file (pass3d_adapt's pass3d_params.yaml, or a copy of "
                              "launch_configs/pass3d_params.yaml): its stage1.* and segmentation_node's weights, "

@@ -12,14 +12,13 @@ from pathlib import Path
 from pass3d_ros.data.bag import STORAGES, VERSIONS, topic_name_problem
 from pass3d_ros.data.bag_convert import convert
 from pass3d_ros.data.outputs import OutputError, out_path
-from pass3d_ros.tools.cli import check_writable, run_tool
+from pass3d_ros.tools.cli import add_data, check_writable, run_tool
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `pass3d_kitti2bag`."""
     parser = argparse.ArgumentParser(prog="pass3d_kitti2bag", description=__doc__.splitlines()[0])
-    parser.add_argument("--data", action="append", required=True, metavar="SPEC",
-                        help="dataset FORMAT:PATH (repeatable), e.g. semantickitti:.../sequences/00")
+    add_data(parser, "dataset FORMAT:PATH (repeatable), e.g. semantickitti:.../sequences/00")
     parser.add_argument("--out", required=True, metavar="BAG", help="rosbag2 folder to create")
     parser.add_argument("--storage", choices=sorted(STORAGES), default="mcap", help="storage plugin (default mcap)")
     parser.add_argument("--rosbag-version", type=int, choices=VERSIONS, default=9,

@@ -25,18 +25,19 @@ import sys
 from collections.abc import Iterator
 from dataclasses import replace
 
+from pass3d_ros.core.stage1.config import parse_params
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.segmentation import Segmenter
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-from pass3d_ros.data.errors import UserError
+from pass3d_ros.core.threads import limit_threads
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import marked_folder_out, swap_into_place, write_marker, writing
 from pass3d_ros.data.partials import partial_path, remove_stale_partials
 from pass3d_ros.data.semantickitti import write_semantickitti_frame
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
-from pass3d_ros.evaluation.offline import iter_frames, parse_params
-from pass3d_ros.tools.cli import check_writable, number, run_tool
+from pass3d_ros.errors import UserError
+from pass3d_ros.evaluation.offline import iter_frames
+from pass3d_ros.tools.cli import add_data, add_param, add_threads, add_weights, check_writable, number, run_tool
 from pass3d_ros.training.pseudo_labels import DEFAULT_MIN_CONFIDENCE, PseudoLabelStats, pseudo_label_frames
 
 PROG = "pass3d_pseudo_label"
@@ -45,17 +46,16 @@ PROG = "pass3d_pseudo_label"
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", action="append", required=True, metavar="SPEC", help="unlabelled scans, repeatable")
+    add_data(parser, "unlabelled scans, repeatable")
     parser.add_argument("--out", required=True, metavar="DIR", help="the pseudo-labelled sequence folder")
-    parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
+    add_weights(parser)
     parser.add_argument("--min-confidence", type=number(float, 0.0, 1.0), default=DEFAULT_MIN_CONFIDENCE, metavar="C",
                         help="median view-averaged confidence a kept proposal needs "
                         f"(default {DEFAULT_MIN_CONFIDENCE})")
-    parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a stage-1 parameter, repeatable (as in pass3d_evaluate)")
+    add_param(parser, "override a stage-1 parameter, repeatable (as in pass3d_evaluate)")
     parser.add_argument("--intensity-match", action=argparse.BooleanOptionalAction, default=INTENSITY_MATCH,
                         help="intensities onto the training scale, as the segmentation node does (default on)")
-    parser.add_argument("--threads", type=int, default=DEFAULT_THREADS, metavar="N", help="torch CPU threads")
+    add_threads(parser, "torch CPU threads")
     parser.add_argument("--force", action="store_true", help="replace an existing --out this tool wrote")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser

@@ -77,17 +77,28 @@ PROG = "pass3d_segment"
 worker.die_with_parent()
 try:
     from pass3d_ros.core.metrics import format_metrics
+    from pass3d_ros.core.stage1.config import parse_params
     from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
     from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
     from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-    from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
-    from pass3d_ros.data.errors import UserError
+    from pass3d_ros.core.threads import limit_threads
     from pass3d_ros.data.outputs import dataset_paths, out_path
     from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
     from pass3d_ros.data.spec import resolve_datasets
-    from pass3d_ros.evaluation.offline import parse_params
+    from pass3d_ros.errors import UserError
     from pass3d_ros.evaluation.segmenting import SUMMARY, Ranks, build_folder, check_out_dir, segment, summary
-    from pass3d_ros.tools.cli import EXIT_SIGINT, EXIT_SIGTERM, RankParser, check_writable, number, run_tool
+    from pass3d_ros.tools.cli import (
+        EXIT_SIGINT,
+        EXIT_SIGTERM,
+        RankParser,
+        add_data,
+        add_param,
+        add_threads,
+        add_weights,
+        check_writable,
+        number,
+        run_tool,
+    )
     from pass3d_ros.training import distributed, launcher
 except KeyboardInterrupt:
     if worker.reports():
@@ -98,21 +109,17 @@ except KeyboardInterrupt:
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `pass3d_segment`."""
     parser = RankParser(prog=PROG, description=__doc__.splitlines()[0])
-    parser.add_argument("--data", action="append", required=True, metavar="SPEC",
-                        help="dataset FORMAT:PATH (repeatable), e.g. semantickitti:.../sequences/08, bag:run.mcap")
+    add_data(parser, "dataset FORMAT:PATH (repeatable), e.g. semantickitti:.../sequences/08, bag:run.mcap")
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="output folder (labels/, objects/, bev/, summary.json)")
     parser.add_argument("--classifier", choices=CLASSIFIERS, help="stage-2 classifier (default network)")
-    parser.add_argument("--weights", metavar="W", help="stage-2 checkpoint (default: the shipped weights)")
+    add_weights(parser)
     parser.add_argument("--device", default="cpu", help="torch device for the network (default cpu)")
-    parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a Stage1Config parameter, repeatable (e.g. th_dist=0.25, "
-                             "stage1.sensor=pandar64)")
+    add_param(parser)
     parser.add_argument("--max-proposals", type=int, default=DEFAULT_MAX_PROPOSALS, metavar="N",
                         help=f"stage 2's budget: at most N proposals per frame, the nearest first; the others are cut "
                              f"(their points background), counted and reported (default {DEFAULT_MAX_PROPOSALS})")
-    parser.add_argument("--threads", type=int, default=DEFAULT_THREADS, metavar="N",
-                        help=f"CPU threads: torch, OpenMP, OpenBLAS (default {DEFAULT_THREADS})")
+    add_threads(parser)
     parser.add_argument("--nproc", type=number(int, 1), default=1, metavar="N",
                         help="label with N processes on this machine, each its contiguous block of the frames "
                              "(default 1; under torchrun leave it out)")

@@ -29,13 +29,15 @@ PROG = "pass3d_train"
 # takes it along), and Ctrl-C meanwhile is the one line and status 130 it is later, not a traceback.
 worker.die_with_parent()
 try:
+    from pass3d_ros.core.stage1.config import parse_params
     from pass3d_ros.core.stage2.pointnet2 import GROUPINGS, TRAIN_GROUPING
-    from pass3d_ros.evaluation.offline import parse_params
     from pass3d_ros.tools.cli import (
         EXIT_SIGINT,
         EXIT_SIGTERM,
-        EXIT_USAGE,
         RankParser,
+        add_data,
+        add_param,
+        add_threads,
         check_writable,
         number,
         run_tool,
@@ -44,11 +46,9 @@ try:
     from pass3d_ros.training import consistency, distributed, launcher
     from pass3d_ros.training.samples import Proposer
     from pass3d_ros.training.trainer import (
-        DivergedError,
         FrameSource,
         PeerLostError,
         Trainer,
-        TrainingError,
         TrainOptions,
     )
 except KeyboardInterrupt:
@@ -60,7 +60,7 @@ except KeyboardInterrupt:
 def build_parser() -> argparse.ArgumentParser:
     """The command line of pass3d_train."""
     p = RankParser(prog=PROG, description=__doc__.splitlines()[0])
-    p.add_argument("--data", action="append", required=True, metavar="SPEC", help="training data FORMAT:PATH")
+    add_data(p, "training data FORMAT:PATH")
     p.add_argument("--val-data", action="append", default=[], metavar="SPEC", help="validation data FORMAT:PATH")
     p.add_argument("--config", choices=["paper", "lite"], default="lite", help="model configuration")
     p.add_argument("--epochs", type=number(int, 1), default=40)
@@ -99,10 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fit-epochs", action="store_true",
                    help="with --minutes: after the first epoch, as many epochs as fit the budget at its pace (at "
                         "most --epochs), the learning-rate schedule stretched over them")
-    p.add_argument("--threads", type=number(int, 0), default=0, help="torch CPU threads (0: torch default)")
-    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a Stage1Config parameter for the stage-1 run that builds the samples, repeatable "
-                        "(e.g. th_dist=0.25; part of the sample cache name)")
+    add_threads(p, "torch CPU threads (0: torch default)", default=0, low=0, metavar=None)
+    add_param(p, "override a Stage1Config parameter for the stage-1 run that builds the samples, repeatable "
+                 "(e.g. th_dist=0.25; part of the sample cache name)")
     p.add_argument("--nproc", type=number(int, 1), default=1, metavar="N",
                    help="data-parallel: train in N processes started here (the alternative is torchrun)")
     p.add_argument("--consistency", action="append", default=[], metavar="SPEC",
@@ -137,8 +136,8 @@ def run(args: argparse.Namespace, proposer: Proposer | None = None, frame_source
 
 
 def _train(trainer: Trainer) -> int:
-    """Run `trainer` once its output folder is known to be writable; exit 1 when it cannot go on (silently when
-    another worker under pass3d_train's launcher stopped first: the launcher shows that worker's report)."""
+    """Run `trainer` once its output folder is known to be writable; exit 1 when another worker stopped first
+    (silently under pass3d_train's launcher: it shows that worker's report)."""
     check_writable(trainer.out, folder=True, what="--out folder")
     try:
         trainer.run()
@@ -147,13 +146,7 @@ def _train(trainer: Trainer) -> int:
             return launcher.EXIT_PEER_LOST
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 1
-    except DivergedError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except TrainingError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 1
-    return 0
+    return 0  # any other TrainingError (nothing to train on, diverged, ...) is run_tool's one line, exit 2
 
 
 def _interrupted(trainer: Trainer) -> str:
@@ -177,9 +170,9 @@ def _work(args: argparse.Namespace, holder: list[Trainer]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the pass3d_train console script: 0 done, 1 nothing to train on, 2 unusable data, output,
-    checkpoint or argument, or a run that diverged, 130 / 143 interrupted. Data-parallel, only rank 0 reports (see
-    --nproc)."""
+    """Entry point of the pass3d_train console script: 0 done, 1 another data-parallel worker stopped, 2 unusable
+    data, output, checkpoint or argument, nothing to train on, or a run that diverged, 130 / 143 interrupted.
+    Data-parallel, only rank 0 reports (see --nproc)."""
     worker.die_with_parent()
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()

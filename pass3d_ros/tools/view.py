@@ -20,13 +20,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from pass3d_ros.data.bag import TYPESTORE, BagFile, LabelSource, is_output_cloud, read_bag
-from pass3d_ros.data.errors import UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import OutputError, check_force, dataset_paths, out_path, refuse_protected, writing
 from pass3d_ros.data.partials import partial_path, remove_stale_partials
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
+from pass3d_ros.errors import UserError
 from pass3d_ros.msgs.pointcloud2 import decode
-from pass3d_ros.tools.cli import check_writable, run_tool
+from pass3d_ros.tools.cli import add_data, check_writable, run_tool
 
 RRD_MAGIC = b"RRF"  # the first bytes of every rerun recording file
 
@@ -35,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The command line of `pass3d_view`."""
     parser = argparse.ArgumentParser(prog="pass3d_view", description=__doc__.splitlines()[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
-    parser.add_argument("--data", action="append", required=True, metavar="SPEC", help="bag:PATH or FORMAT:PATH")
+    add_data(parser, "bag:PATH or FORMAT:PATH")
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--out", metavar="RRD", help="write a .rrd recording (open it with `rerun RRD`)")
     where.add_argument("--spawn", action="store_true", help="start the rerun viewer and stream to it")

@@ -47,9 +47,9 @@ from pass3d_ros.core.stage2.segmentation import (
     make_checkpoint,
     read_checkpoint,
 )
-from pass3d_ros.data.errors import Pass3dError, UserError
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_datasets, open_datasets_shard, resolve_datasets
+from pass3d_ros.errors import Pass3dError, UserError
 from pass3d_ros.training import consistency as view_consistency  # `consistency` is a TrainOptions field
 from pass3d_ros.training import distributed
 from pass3d_ros.training.losses import make_loss

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from pass3d_ros.core.stage1.lasers import SENSORS
-from pass3d_ros.data.errors import UserError
+from pass3d_ros.errors import UserError
 
 
 class ConfigError(UserError):
@@ -333,3 +333,16 @@ def config_from_text(items: Iterable[tuple[str, str]]) -> Stage1Config:
         name = field_name(key)
         values[name] = parse_value(name, text)
     return Stage1Config.from_mapping(values)
+
+
+def parse_params(items: Iterable[str]) -> Stage1Config:
+    """Stage1Config from `--param KEY=VALUE` overrides: KEY as the node names it (`stage1.th_dist`) or bare
+    (`th_dist`); VALUE read by the field's type (`parse_value`): 0.25, 3, true, pandar64, 0.1,0.1,0.4, or a Python
+    literal as before ('pandar64', (0.1, 0.1, 0.4)). ConfigError names the first problem."""
+    pairs = []
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--param {item!r}: expected KEY=VALUE")
+        pairs.append((key, text))
+    return config_from_text(pairs)

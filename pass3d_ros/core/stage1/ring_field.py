@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pass3d_ros.data.errors import Pass3dError
+from pass3d_ros.errors import Pass3dError
 
 RING_CONVENTIONS: tuple[str, ...] = ("top_down", "bottom_up", "driver_order", "unfit")
 MIN_RANGE_M = 2.0  # nearer returns (the vehicle, the mount) are left out of a ring's elevation

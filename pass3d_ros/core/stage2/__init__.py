@@ -12,13 +12,14 @@ from typing import Protocol
 import numpy as np
 import torch
 
+from pass3d_ros.core.stage2.config import CLASSIFIERS, DEFAULT_CLASSIFIER
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, SegmentResult
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
-from pass3d_ros.data.errors import UserError
+from pass3d_ros.errors import UserError
 from pass3d_ros.weights import DEFAULT_WEIGHTS
 
-CLASSIFIERS: tuple[str, ...] = ("network", "size_rules")
-DEFAULT_CLASSIFIER = "network"
+__all__ = ["CLASSIFIERS", "DEFAULT_CLASSIFIER", "Classifier", "ClassifierError", "open_classifier"]  # names defined
+# in config.py are re-exported here, where the node and the tools have always found them
 
 
 class ClassifierError(UserError):

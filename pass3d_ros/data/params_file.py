@@ -1,7 +1,10 @@
-"""The nodes' `--params-file` YAML read by the offline tools (`pass3d_evaluate --params-file`), so a folder written by
-`pass3d_adapt` (or a copy of launch_configs/pass3d_params.yaml) is scored with the settings the nodes would run with:
-`cluster_proposal_node`'s `stage1.*` and `segmentation_node`'s `weights`. Other parameters are the nodes' own (topics,
-QoS) or learned from the scans offline as live (intensity scale), and are not read.
+"""The nodes' `--params-file` YAML, written and read here.
+
+`node_params_yaml` writes one for both nodes (`pass3d_adapt`'s pass3d_params.yaml). `read_params_file` reads one for
+the offline tools (`pass3d_evaluate --params-file`), so a folder written by `pass3d_adapt` (or a copy of
+launch_configs/pass3d_params.yaml) is scored with the settings the nodes would run with: `cluster_proposal_node`'s
+`stage1.*` and `segmentation_node`'s `weights`. Other parameters are the nodes' own (topics, QoS) or learned from the
+scans offline as live (intensity scale), and are not read.
 """
 
 from __future__ import annotations
@@ -11,7 +14,7 @@ from pathlib import Path
 
 import yaml
 
-from pass3d_ros.data.errors import UserError
+from pass3d_ros.errors import UserError
 
 STAGE1_NODE = "cluster_proposal_node"
 STAGE2_NODE = "segmentation_node"
@@ -23,6 +26,14 @@ class NodeSettings:
 
     stage1: list[str] = field(default_factory=list)  # `stage1.KEY=VALUE` items, as --param takes them
     weights: str | None = None  # segmentation_node's weights (None: not set, or empty = the shipped ones)
+
+
+def node_params_yaml(cluster_proposal: dict, segmentation: dict, head: str = "") -> str:
+    """A parameter file for both nodes, under any namespace (`/**/NODE`), as `--ros-args --params-file` and the launch
+    files read it: `head` (comment lines) then each node's `ros__parameters`, in the order given."""
+    doc = {f"/**/{STAGE1_NODE}": {"ros__parameters": cluster_proposal},
+           f"/**/{STAGE2_NODE}": {"ros__parameters": segmentation}}
+    return head + yaml.safe_dump(doc, sort_keys=False)
 
 
 def read_params_file(path: Path) -> NodeSettings:

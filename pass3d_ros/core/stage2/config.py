@@ -1,0 +1,109 @@
+"""Stage 2 settings in one dataclass, shaped like Stage1Config: the single place where each default, description and
+allowed range is written. The segmentation node declares one parameter per field (top level: `weights`,
+`max_proposals`, ...) and reads them back through it; the offline tools take their defaults from the same constants.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+from pass3d_ros.core.stage1.config import ConfigError, closest
+from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
+from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
+from pass3d_ros.core.threads import DEFAULT_THREADS
+
+CLASSIFIERS: tuple[str, ...] = ("network", "size_rules")
+DEFAULT_CLASSIFIER = "network"
+
+ParameterEntry = tuple[Any, str, "tuple[float, float] | None"]  # (default, description, closed range or None)
+
+
+def _setting(default: Any, description: str, value_range: tuple[float, float] | None = None,
+             choices: tuple[str, ...] | None = None) -> Any:
+    """A config field whose metadata carries its description, its allowed closed range (numbers) and its choices."""
+    metadata: dict[str, Any] = {"description": description, "range": value_range}
+    if choices is not None:
+        metadata["choices"] = choices
+    return field(default=default, metadata=metadata)
+
+
+@dataclass(frozen=True)
+class Stage2Config:
+    """Stage 2 settings: which classifier from which weights on which device, how many proposals a frame, what a
+    confidence must reach, and how the classifier runs (threads, a child process and its timeout)."""
+
+    classifier: str = _setting(
+        DEFAULT_CLASSIFIER, f"{' or '.join(CLASSIFIERS)}: the PointNet++ or the geometric baseline",
+        choices=CLASSIFIERS,
+    )
+    weights: str = _setting("", "stage-2 checkpoint; empty = the weights shipped with the package")
+    device: str = _setting("cpu", "torch device: cpu or cuda")
+    threads: int = _setting(
+        DEFAULT_THREADS, "CPU threads of the process (torch, OpenMP, numpy's OpenBLAS); 0 = the libraries' defaults (1 "
+        "is fastest on a busy 2-core CPU)", (0, 64),
+    )
+    max_proposals: int = _setting(
+        DEFAULT_MAX_PROPOSALS, "at most this many proposals per frame, nearest first", (1, 1024),
+    )
+    min_confidence: float = _setting(
+        0.0, "points predicted below this confidence are labeled background", (0.0, 1.0),
+    )
+    intensity_match: bool = _setting(
+        INTENSITY_MATCH, "map the stream's intensities onto the training scale before the network (a quantile map "
+        "fitted on the first scans, then held; a sensor already on that scale is left alone)",
+    )
+    process: bool = _setting(
+        False, "run the classifier in a child process (with overlap: stage 2 beside stage 1 without sharing the GIL, "
+        "and a third thread encodes and publishes; each frame's arrays cross a pipe, a few ms)",
+    )
+    stage2_timeout: float = _setting(
+        5.0, "seconds a frame may take in stage 2: a child process (process) that answers nothing this long is killed "
+        "and restarted, ERROR on /diagnostics; a later result is dropped, never published late (raise it for a "
+        "paper-size network on a CPU)", (0.1, 600.0),
+    )
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ConfigError naming every setting of the wrong type or outside its allowed range (the classifier's
+        name is open_classifier's to check, as it always was)."""
+        problems = []
+        for f in fields(self):
+            value, default = getattr(self, f.name), f.default
+            kind = type(default)
+            if kind is float and isinstance(value, int) and not isinstance(value, bool):
+                object.__setattr__(self, f.name, float(value))
+                value = float(value)
+            if type(value) is not kind:
+                problems.append(f"{f.name}={value!r} must be {_WANTED[kind]}")
+                continue
+            value_range = f.metadata["range"]
+            if value_range is not None and not value_range[0] <= value <= value_range[1]:
+                problems.append(f"{f.name}={value:g} outside [{value_range[0]:g}, {value_range[1]:g}]")
+        if problems:
+            raise ConfigError("Stage2Config: " + "; ".join(problems))
+
+    @classmethod
+    def from_mapping(cls, values: dict[str, Any]) -> Stage2Config:
+        """Config from a dict (YAML, ROS parameters); unknown keys are an error, not silently ignored."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            named = [name + (f" (did you mean {near}?)" if (near := closest(name, known)) else "") for name in unknown]
+            raise ConfigError(f"Stage2Config: unknown parameter(s) {', '.join(named)}")
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict of all settings (for logs and JSON)."""
+        return asdict(self)
+
+
+_WANTED = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+
+
+def parameter_table() -> dict[str, ParameterEntry]:
+    """name -> (default, description, range) of every Stage2Config field, in field order: the node's parameter
+    table entries (top-level ROS parameters)."""
+    return {f.name: (f.default, f.metadata["description"], f.metadata["range"]) for f in fields(Stage2Config)}
