@@ -384,8 +384,8 @@ def test_segment_param_reaches_stage1(tmp_path: Path, monkeypatch: pytest.Monkey
 
     seen = []
     propose = stage1.propose
-    monkeypatch.setattr(stage1, "propose", lambda pts, ring, config, lines=None, ring_order=None: seen.append(config)
-                        or propose(pts, ring, config, lines, ring_order))
+    monkeypatch.setattr(stage1, "propose", lambda pts, ring, config, **held: seen.append(config)
+                        or propose(pts, ring, config, **held))
     base = ["--data", "synthetic:frames=1,seed=1", "--classifier", "size_rules", "--no-progress", "--no-png"]
     assert segment.main([*base, "--out", str(tmp_path / "a"), "--param", "th_dist=0.25", "--param", "n_seg=4"],
                         log=lambda _: None) == 0

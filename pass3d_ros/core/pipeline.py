@@ -16,6 +16,7 @@ from functools import cached_property
 import numpy as np
 
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, proposal_members
+from pass3d_ros.core.stage1.proposals import level_points
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.core.stage2.segmentation import SegmentResult
 from pass3d_ros.core.stream import PreparedScan, ScanStream
@@ -32,8 +33,10 @@ def matches_intensity(wanted: bool, classifier: Classifier | None) -> bool:
 @dataclass
 class ProposedScan:
     """A scan after the input checks and stage 1. `members[k]`: proposal k's point indices into `scan.points` (an
-    empty array for a proposal without points); `points`: `scan.points` with intensities on stage 2's training scale
-    (the same array when no map applies). A scan the checks left empty has an empty result: stage 1 did not run."""
+    empty array for a proposal without points); `points`: `scan.points` as stage 2 reads them: in the level frame
+    stage 1 ran in (`result.level`: a proposal's canonical frame stands on the ground) and with intensities on its
+    training scale (the same array when neither changes anything). A scan the checks left empty has an empty result:
+    stage 1 did not run."""
 
     scan: PreparedScan
     result: Stage1Result
@@ -151,7 +154,8 @@ class ScanPipeline:
         started = time.perf_counter()
         result = self.stream.propose(scan, self.config)
         stage1_ms = 1e3 * (time.perf_counter() - started)
-        return ProposedScan(scan, result, self.stream.on_training_scale(scan.points), stage1_ms)
+        return ProposedScan(scan, result, level_points(self.stream.on_training_scale(scan.points), result.level),
+                            stage1_ms)
 
     def propose(self, points: np.ndarray, ring: np.ndarray | None = None, **checks: float | bool) -> ProposedScan:
         """`prepare` then `stage1`; `checks`: intensity_scale, use_ring."""

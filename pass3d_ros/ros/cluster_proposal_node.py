@@ -258,7 +258,7 @@ class ClusterProposalNode(PointCloudNode):
             self.proposals_pub.publish(cloud)
             clock.mark("publish")
         if self.get_parameter("publish_boxes").value and self.boxes_pub.get_subscription_count() > 0:
-            markers = boxes_to_markers(result.boxes, msg.header, "proposals")
+            markers = boxes_to_markers(result.boxes, msg.header, "proposals", level=result.level)
             clock.mark("encode")
             self.boxes_pub.publish(markers)
             clock.mark("publish")

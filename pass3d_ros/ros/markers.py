@@ -35,8 +35,12 @@ def boxes_to_markers(
     namespace: str,
     labels: Sequence[int] | None = None,
     with_text: bool = False,
+    level: np.ndarray | None = None,
 ) -> MarkerArray:
-    """MarkerArray for rviz2: DELETEALL, then a LINE_LIST per box coloured by class (or amber without labels)."""
+    """MarkerArray for rviz2: DELETEALL, then a LINE_LIST per box coloured by class (or amber without labels).
+    `level`: the rotation from the sensor's frame to the level frame the boxes are in (`Stage1Result.level`); the
+    markers are drawn in the sensor's frame, the header's."""
+    back = None if level is None else np.asarray(level, dtype=float)  # rows @ level = level^T applied: level -> sensor
     markers = [Marker(header=header, ns=namespace, action=Marker.DELETEALL)]
     for index, box in enumerate(boxes):
         label = None if labels is None else int(labels[index])
@@ -46,14 +50,15 @@ def boxes_to_markers(
         wire.scale.x = 0.05
         wire.color.r, wire.color.g, wire.color.b, wire.color.a = (rgb[0] / 255, rgb[1] / 255, rgb[2] / 255, 1.0)
         wire.lifetime = Duration(sec=0, nanosec=0)
-        corners = box_corners(box)
+        corners = box_corners(box) if back is None else box_corners(box) @ back
         wire.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in corners[_EDGES.reshape(-1)]]
         markers.append(wire)
         if with_text and label is not None:
             text = Marker(header=header, ns=namespace, id=2 * index + 1, type=Marker.TEXT_VIEW_FACING)
             text.action = Marker.ADD
-            text.pose.position.x, text.pose.position.y = float(box.center[0]), float(box.center[1])
-            text.pose.position.z = float(box.center[2] + box.size[2] / 2 + 0.4)
+            top = np.asarray(box.center, dtype=float) + [0.0, 0.0, box.size[2] / 2 + 0.4]
+            top = top if back is None else top @ back
+            text.pose.position.x, text.pose.position.y, text.pose.position.z = (float(v) for v in top)
             text.pose.orientation.w = 1.0
             text.scale.z = 0.6
             text.color.r = text.color.g = text.color.b = text.color.a = 1.0

@@ -60,6 +60,22 @@ def _auto_param(description: str, lo: float, hi: float, default: Any = None) -> 
                  metadata={"description": description, "range": (lo, hi), "auto": True})
 
 
+def _text(default: str, description: str, check: Callable[[str], str]) -> Any:
+    """A free-form string config field; `check(value)` says what is wrong with a value ("" when nothing is)."""
+    return field(default=default, metadata={"description": description, "range": None, "check": check})
+
+
+def _mount_problem(text: str) -> str:
+    """What is wrong with a `mount` value ("" when nothing is): pass3d_ros.core.stage1.mounting.parse_mount reads it."""
+    from pass3d_ros.core.stage1.mounting import parse_mount  # mounting imports this module
+
+    try:
+        parse_mount(text)
+    except ValueError as exc:
+        return str(exc)
+    return ""
+
+
 def _choice(default: str, description: str, choices: tuple[str, ...]) -> Any:
     """A string config field whose metadata carries its description and allowed values (no range)."""
     return field(default=default, metadata={"description": description, "range": None, "choices": choices})
@@ -176,6 +192,12 @@ class Stage1Config:
         "(pass3d_ros.core.stage1.mounting; 1.73 until held, and while the estimate is within 0.3 m of it). With a "
         "number the estimate is still made: the cluster node warns when it differs by more than 0.3 m", 0.0, 10.0,
     )
+    mount: str = _text(
+        AUTO, "the sensor's mounting: auto (read from the stream's ground: height, roll, pitch; upright or upside "
+        "down; a scan tilted 2 deg or more is levelled before stage 1), or x y z roll pitch yaw as a URDF's origin "
+        "states the sensor above the ground frame (base_footprint; m and rad): z is the height, the scan is levelled "
+        "by the rotation. Labels always come back in the input's frame", _mount_problem,
+    )
     below_ground_margin: float = _param(1.0, "ground: points lower than sensor_height + this never seed (m)", 0.0, 10.0)
     ground_x_extent: float = _param(80.0, "ground: segments split x in [-extent, extent] evenly (m)", 1.0, 500.0)
     ground_seed_band: float = _param(20.0, "ground: only points with |y| below this seed and fit planes (m)", 0.5, 1e3)
@@ -233,6 +255,11 @@ class Stage1Config:
         if len(self.enlarge) != 3:
             problems.append(f"enlarge needs 3 values (x, y, z), got {len(self.enlarge)}")
         for f in fields(self):
+            if "check" in f.metadata:
+                problem = f.metadata["check"](getattr(self, f.name))
+                if problem:
+                    problems.append(problem)
+                continue
             if "choices" in f.metadata:
                 if getattr(self, f.name) not in f.metadata["choices"]:
                     problems.append(f"{f.name}={getattr(self, f.name)!r} not one of {', '.join(f.metadata['choices'])}")

@@ -48,6 +48,8 @@ class Stage1Result:
     lines: _ring.LaserLines | None = None  # laser lines the rings were read from (NO_LINES: a search found none):
     # pass to the next scan's propose()
     ring_order: _ring_field.RingFieldOrder | None = None  # how a ring field was read (None: no field): pass it on too
+    level: np.ndarray | None = None  # (3, 3) the rotation from the sensor's frame to the level frame stage 1 ran in
+    # (None: the sensor's own); boxes and ground_planes are in that frame, per-point fields in the input's order
 
     @property
     def n_proposals(self) -> int:
@@ -57,7 +59,7 @@ class Stage1Result:
 
 def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Config | None = None,
             lines: _ring.LaserLines | None = None,
-            ring_order: _ring_field.RingFieldOrder | None = None) -> Stage1Result:
+            ring_order: _ring_field.RingFieldOrder | None = None, level: np.ndarray | None = None) -> Stage1Result:
     """Run stage 1 on one scan: cluster proposals with per-point primary/secondary proposal ids.
 
     Points with a non-finite coordinate (a driver's no-return) take no part: ring 0, not ground, no proposal.
@@ -69,6 +71,8 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
     its rings' measured elevations, `ring_order` (the previous scan's `Stage1Result.ring_order`) while that covers
     its values; a field that does not fit the points is ignored (pass3d_ros.core.stage1.ring_field). `Stage1Result.ring`
     is then stage 1's ring, 0 = the highest laser.
+    `level`: the rotation (3 x 3) from the sensor's frame to a level one (z up: pass3d_ros.core.stage1.mounting); rings
+    are read in the sensor's frame, ground, clustering and refinement in the level one.
     """
     cfg = config or Stage1Config()
     pts = np.ascontiguousarray(points, dtype=np.float32)
@@ -77,10 +81,10 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
     if ring is not None and len(ring) != len(pts):
         raise ValueError(f"ring field has {len(ring)} entries for {len(pts)} points")
     if np.isfinite(pts.sum()) or np.isfinite(pts[:, :3]).all():
-        return _propose_finite(pts, ring, cfg, lines, ring_order)
+        return _propose_finite(pts, ring, cfg, lines, ring_order, level)
     valid = np.isfinite(pts[:, :3]).all(axis=1)
     part = _propose_finite(np.ascontiguousarray(pts[valid]), None if ring is None else ring[valid], cfg, lines,
-                           ring_order)
+                           ring_order, level)
     n = len(pts)
     full = {"ring": np.zeros(n, np.uint16), "ground": np.zeros(n, bool), "cluster_id": np.full(n, -1, np.int32),
             "cluster_id2": np.full(n, -1, np.int32)}
@@ -98,8 +102,18 @@ def _in_scan_order(rings: _ring.Rings) -> bool:
     return rings.source == "field" and bool(np.all(rings.ring[1:] >= rings.ring[:-1]))
 
 
+def level_points(points: np.ndarray, level: np.ndarray | None) -> np.ndarray:
+    """The points' coordinates rotated into the level frame (float32, intensity kept); the same array without one."""
+    if level is None:
+        return points
+    out = points.copy()
+    out[:, :3] = points[:, :3] @ np.asarray(level, dtype=np.float32).T
+    return out
+
+
 def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
-                    lines: _ring.LaserLines | None, ring_order: _ring_field.RingFieldOrder | None) -> Stage1Result:
+                    lines: _ring.LaserLines | None, ring_order: _ring_field.RingFieldOrder | None,
+                    level: np.ndarray | None = None) -> Stage1Result:
     """Stage 1 on float32 points whose coordinates are all finite.
 
     Ground plane fitting reads the points as they come (its sample does not depend on their order), on the ground
@@ -112,19 +126,22 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     t0 = time.perf_counter()
     if ring is not None:
         ring, ring_order = _ring_field.field_rings(pts, np.asarray(ring), ring_order)
+    flat = level_points(pts, level)
     # Under held laser lines the ground thread first assigns half of the points to them, then fits the ground.
     pool = _ground_pool() if cfg.ground_thread else None
     split = pool is not None and ring is None and lines is not None and not lines.empty
-    beside = pool.submit(_ground.fit_ground, pts, cfg) if pool is not None and not split else None
+    beside = pool.submit(_ground.fit_ground, flat, cfg) if pool is not None and not split else None
     rings = _ring.rings_for(pts, ring, cfg, lines, pool if split else None)
     if split:  # held lines: a stream whose points come in no firing order
-        beside = pool.submit(_ground.fit_ground, pts, cfg, in_scan_order=False)
+        beside = pool.submit(_ground.fit_ground, flat, cfg, in_scan_order=False)
     order, work, work_ring = None, pts, rings.ring
     if not _in_scan_order(rings):
         order, work, work_ring = _scanline.in_canonical_order(pts, rings.ring)
     cfg, sensor = _sensor.effective_config(cfg, work, work_ring, rings.n_rings, rings.source == "elevation_bins")
+    if level is not None:  # the sensor's resolution is read in its own frame, the rest runs level
+        work = flat if order is None else np.take(flat, order, axis=0)
     t1 = time.perf_counter()
-    fit = beside.result() if beside is not None else _ground.fit_ground(pts, cfg)
+    fit = beside.result() if beside is not None else _ground.fit_ground(flat, cfg)
     work_ground = fit.ground if order is None else np.take(fit.ground, order)
     t2 = time.perf_counter()
     label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~work_ground, cfg)
@@ -147,6 +164,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
         ring=rings.ring, ground=fit.ground, cluster_id=cluster_id, cluster_id2=cluster_id2, boxes=boxes,
         timings_ms={k: 1e3 * v for k, v in timings.items()}, ring_source=rings.source, ground_planes=fit.planes,
         n_clusters=n_clusters, n_split=n_split, sensor=sensor, lines=rings.lines, ring_order=ring_order,
+        level=None if level is None else np.asarray(level, dtype=np.float64),
     )
 
 

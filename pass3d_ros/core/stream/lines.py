@@ -108,11 +108,12 @@ class LineHolder:
         self._lines = found or self._lines
         self._scans += 1
 
-    def propose(self, points: np.ndarray, ring: np.ndarray | None = None,
-                config: Stage1Config | None = None) -> _stage1.Stage1Result:
-        """`pass3d_ros.core.stage1.propose` on the stream's next scan, given the held lines, holding what it found."""
+    def propose(self, points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Config | None = None,
+                level: np.ndarray | None = None) -> _stage1.Stage1Result:
+        """`pass3d_ros.core.stage1.propose` on the stream's next scan, given the held lines, holding what it found;
+        `level`: the rotation that levels the scan (None: it runs as it comes)."""
         given = self.lines()
-        result = _stage1.propose(points, ring, config, lines=given, ring_order=self._ring_order)
+        result = _stage1.propose(points, ring, config, lines=given, ring_order=self._ring_order, level=level)
         self.hold(given, result.lines)
         self._ring_order = result.ring_order or self._ring_order
         return result

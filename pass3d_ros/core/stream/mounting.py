@@ -1,5 +1,7 @@
-"""The mounting a stream holds: readings of its first scans (pass3d_ros.core.stage1.mounting.scan_mounting), then the
-median of MOUNTING_SCANS of them, held; with sensor_height auto the held height bounds the ground seeds."""
+"""The mounting a stream runs with: `stage1.mount` when given, else readings of its first scans
+(pass3d_ros.core.stage1.mounting.read_mounting, made before stage 1 runs), their median held after MOUNTING_SCANS of
+them. Until it is held each scan runs with the median so far, so a clearly tilted, upside-down or high sensor is
+levelled from its first scan. With sensor_height auto the mounting's height bounds the ground seeds (`config_for`)."""
 
 from __future__ import annotations
 
@@ -14,20 +16,23 @@ from pass3d_ros.core.stage1.mounting import (
     MOUNTING_SCANS,
     SEED_DEADBAND_M,
     Mounting,
+    level_rotation,
     median_mounting,
-    scan_mounting,
+    parse_mount,
+    read_mounting,
 )
 
 
 class MountingHolder:
-    """The mounting of one stream: readings of its first scans, then the median of MOUNTING_SCANS of them, held.
-    `reset()` starts over (a new stream); a changed stage-1 config keeps it (the mount did not move)."""
+    """The mounting of one stream. `reset()` starts over (a new stream); a changed stage-1 config keeps what was read
+    (the mount did not move)."""
 
     def __init__(self, scans: int = MOUNTING_SCANS) -> None:
         self.scans = scans
         self._lock = threading.Lock()  # the node's diagnostics read while its worker updates
         self._readings: list[Mounting] = []
         self.held: Mounting | None = None
+        self._given: tuple[str, Mounting | None] = (AUTO, None)  # stage1.mount as last parsed
         self._cached: tuple[Stage1Config, Mounting, Stage1Config] | None = None
 
     def reset(self) -> None:
@@ -49,34 +54,42 @@ class MountingHolder:
             readings = list(self._readings)
         return self.held or (median_mounting(readings) if readings else None)
 
+    def given(self, config: Stage1Config) -> Mounting | None:
+        """`config.mount` read (None: auto)."""
+        if self._given[0] != config.mount:
+            self._given = (config.mount, parse_mount(config.mount))
+        return self._given[1]
+
+    def observe(self, points: np.ndarray, config: Stage1Config) -> tuple[Mounting | None, np.ndarray | None]:
+        """The mounting the scan `points` runs with and the rotation that levels it (None: run as it comes): the given
+        mount, else the held one, else this scan's reading folded into the estimate."""
+        given = self.given(config)
+        if given is not None:
+            return given, level_rotation(given, given=True)
+        if self.held is None:
+            reading = read_mounting(points)
+            if reading is not None:
+                with self._lock:
+                    self._readings.append(reading)
+                    if len(self._readings) >= self.scans:
+                        self.held = median_mounting(self._readings)
+        mounting = self.estimate
+        return mounting, level_rotation(mounting, held=self.held is not None)
+
     def config_for(self, config: Stage1Config) -> Stage1Config:
-        """`config` as the next scan runs it: with sensor_height auto and a mounting held more than SEED_DEADBAND_M from
-        AUTO_START_HEIGHT_M, sensor_height is the held height (the same object while neither changes); otherwise
-        `config` itself."""
-        held = self.held
-        if config.sensor_height != AUTO or held is None or abs(held.height_m - AUTO_START_HEIGHT_M) <= SEED_DEADBAND_M:
+        """`config` as the next scan runs it: with sensor_height auto and a mounting (given, held, or estimated so far)
+        more than SEED_DEADBAND_M from AUTO_START_HEIGHT_M, sensor_height is its height (the same object while
+        neither changes); otherwise `config` itself."""
+        mounting = self.given(config) or self.estimate
+        if config.sensor_height != AUTO or mounting is None \
+                or abs(mounting.height_m - AUTO_START_HEIGHT_M) <= SEED_DEADBAND_M:
             return config
         cached = self._cached
-        if cached is not None and cached[0] is config and cached[1] is held:
+        if cached is not None and cached[0] is config and cached[1] == mounting:
             return cached[2]
-        effective = replace(config, sensor_height=float(np.clip(held.height_m, *_HEIGHT_RANGE)))
-        self._cached = (config, held, effective)
+        effective = replace(config, sensor_height=float(np.clip(mounting.height_m, *_HEIGHT_RANGE)))
+        self._cached = (config, mounting, effective)
         return effective
-
-    def update(self, points: np.ndarray, ground: np.ndarray, planes: np.ndarray, config: Stage1Config) -> bool:
-        """Take one scan's reading (its points, `Stage1Result.ground` and `.ground_planes`) while none is held; True
-        when this scan's reading made the mounting held."""
-        if self.held is not None:
-            return False
-        reading = scan_mounting(points, ground, planes, config)
-        if reading is None:
-            return False
-        with self._lock:
-            self._readings.append(reading)
-            if len(self._readings) < self.scans:
-                return False
-            self.held = median_mounting(self._readings)
-        return True
 
     def report(self) -> dict[str, float | bool | int] | None:
         """The estimate as plain values for reports (`held`, `scans`), None without one."""

@@ -159,16 +159,17 @@ class ScanStream:
         return points, scan_checks.scan_summary(points)
 
     def propose(self, scan: PreparedScan, config: Stage1Config | None = None) -> Stage1Result:
-        """Stage 1 on a prepared scan, with the stream's held laser lines and ring-field order, and with sensor_height
-        auto, its held mounting; the scan's ground then reads the mounting until it is held, and with min_range auto
-        the vehicle's own returns until their reach is held (`body`)."""
+        """Stage 1 on a prepared scan, with the stream's held laser lines and ring-field order, levelled by the
+        stream's mounting (given, or read from its first scans: `mounting`), its height bounding the seeds with
+        sensor_height auto; with min_range auto the vehicle's own returns are read until their reach is held
+        (`body`). Per-point results are in the scan's order; boxes and planes in the level frame
+        (`Stage1Result.level`)."""
         config = config or Stage1Config()
-        result = self.lines.propose(scan.points, scan.ring, self.mounting.config_for(config))
-        if self.mounting.held is None:
-            self.mounting.update(scan.points, result.ground, result.ground_planes, config)
-            report = self.mounting.report()
-            if report is not None:
-                self.mountings[str(self._key)] = report
+        _, level = self.mounting.observe(scan.points, config)
+        result = self.lines.propose(scan.points, scan.ring, self.mounting.config_for(config), level=level)
+        report = self.mounting.report()
+        if report is not None:
+            self.mountings[str(self._key)] = report
         if config.min_range == AUTO:  # a no-op once the reading is held
             self.body.observe(scan.points, result.ground)
         return result
