@@ -56,7 +56,7 @@ def boxes_to_markers(
         if with_text and label is not None:
             text = Marker(header=header, ns=namespace, id=2 * index + 1, type=Marker.TEXT_VIEW_FACING)
             text.action = Marker.ADD
-            top = np.asarray(box.center, dtype=float) + [0.0, 0.0, box.size[2] / 2 + 0.4]
+            top = np.asarray(box.center, dtype=float) + np.array([0.0, 0.0, box.size[2] / 2 + 0.4])
             top = top if back is None else top @ back
             text.pose.position.x, text.pose.position.y, text.pose.position.z = (float(v) for v in top)
             text.pose.orientation.w = 1.0
