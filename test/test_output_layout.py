@@ -7,11 +7,12 @@ its object points."""
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
-from helpers.ros import STAMP0, Collector, Ros, columns, connect, ros_session
+from helpers.ros import STAMP0, Collector, Ros, columns, connect, ros_session, wait_until
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import Marker, MarkerArray
@@ -20,10 +21,18 @@ from pass3d_ros.bench import benchmark
 from pass3d_ros.classes import BACKGROUND, FOREGROUND
 from pass3d_ros.core import scan_checks
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.msgs.pointcloud2 import encode, extend_cloud
+from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, extend_cloud
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
 from pass3d_ros.ros.inprocess import in_memory_factories
-from pass3d_ros.ros.input_layout import InputSource, input_source, labeled_as_input
+from pass3d_ros.ros.input_layout import (
+    STAGE1_COLUMNS,
+    WIRE_PREFIX,
+    InputSource,
+    full_proposals_cloud,
+    input_source,
+    labeled_as_input,
+)
+from pass3d_ros.ros.proposals import proposal_frame
 from pass3d_ros.ros.qos import qos_profile
 from pass3d_ros.ros.segmentation_node import SegmentationNode
 from pass3d_ros.synthetic.dataset import generate_frame
@@ -174,6 +183,68 @@ def test_as_input_keeps_the_input_layout_and_the_background_is_the_rest(
         assert same_bytes(background[name], cloud[name][kept]), name
 
 
+def colliding_cloud(frame: Frame) -> np.ndarray:
+    """The Ouster-like scan with driver fields named like stage 1's columns on the compact proposals message
+    (`ground`, `cluster_id2`, `cluster_id`) and like the full one's of old (`stage1_intensity`), each holding values
+    of its own at every row (no-returns and NaN points too)."""
+    cloud = ouster_cloud(frame)
+    rng = np.random.default_rng(7)
+    n = len(cloud)
+    own = rng.uniform(0, 300, n).astype(np.float32)
+    own[::97] = np.nan  # a driver's NaN is carried as it came
+    return extend_cloud(cloud, {"ground": rng.integers(0, 255, n).astype(np.uint8),
+                                "cluster_id2": rng.integers(-5000, 5000, n).astype(np.int32),
+                                "stage1_intensity": own,
+                                "cluster_id": rng.integers(0, 65535, n).astype(np.uint16)})
+
+
+def test_input_fields_named_like_stage1_columns_cross_proposals_untouched(
+        beams32: Frame, capfd: pytest.CaptureFixture[str]) -> None:
+    """Two nodes over /pass3d/proposals publish byte for byte what pass3d_pipeline publishes in memory, with the
+    input's ground, cluster_id2, stage1_intensity and cluster_id fields as they came (the labeled cloud replaces
+    cluster_id only, as documented, in both)."""
+    cloud = colliding_cloud(beams32)
+    names = cloud.dtype.names
+    overrides = [Parameter("output_layout", value="as_input"), Parameter("publish_background", value=True)]
+    apart = label_once(two_nodes, cloud, overrides, background=True)
+    joined = label_once(pipeline, cloud, overrides, background=True)
+    for msg, background_msg in (apart[:2], joined[:2]):
+        out = columns(msg)
+        assert out.dtype.names == (*(name for name in names if name != "cluster_id"), *ADDED)
+        for name in ("ground", "cluster_id2", "stage1_intensity", "t", "ring", "intensity"):
+            assert same_bytes(out[name], cloud[name]), name
+        assert np.isin(out["label"], FOREGROUND).sum() > 100
+        kept = np.flatnonzero(out["label"] == BACKGROUND)
+        background = columns(background_msg)
+        assert background.dtype.names == names
+        for name in names:
+            assert same_bytes(background[name], cloud[name][kept]), name
+    for a, b in zip(apart[:2], joined[:2], strict=True):
+        assert same_message(a, b)
+    assert "replaced by stage 1's" not in capfd.readouterr().err
+
+
+def same_message(a: PointCloud2, b: PointCloud2) -> bool:
+    """The same cloud, field for field (name, offset, type, count, order) and byte for byte."""
+    return ([(f.name, f.offset, f.datatype, f.count) for f in a.fields] ==
+            [(f.name, f.offset, f.datatype, f.count) for f in b.fields]
+            and (a.height, a.width, a.point_step, a.row_step, a.is_dense) ==
+            (b.height, b.width, b.point_step, b.row_step, b.is_dense)
+            and bytes(a.data) == bytes(b.data))
+
+
+def test_compact_labels_from_full_proposals_carry_stage1_rings(beams32: Frame) -> None:
+    """publish_background alone (compact /pass3d/labeled, full proposals): without a ring field in the input, the
+    compact cloud's ring is stage 1's over /pass3d/proposals too, as in memory."""
+    cloud = extend_cloud(ouster_cloud(beams32), drop=("ring",))
+    overrides = [Parameter("publish_background", value=True)]
+    apart = label_once(two_nodes, cloud, overrides, background=True)
+    joined = label_once(pipeline, cloud, overrides, background=True)
+    assert "ring" in columns(apart[0]).dtype.names
+    for a, b in zip(apart[:2], joined[:2], strict=True):
+        assert same_message(a, b)
+
+
 @pytest.mark.parametrize("intensity", [np.uint8, np.float64], ids=["uint8", "float64"])
 def test_uint8_and_float64_intensity_are_labelled(beams32: Frame, intensity: type) -> None:
     cloud = ouster_cloud(beams32, intensity)
@@ -242,6 +313,56 @@ def test_labeled_as_input_maps_each_point_to_its_row() -> None:
     back = columns(encode(labeled_as_input(dataclasses.replace(source, cloud=swapped), compact), height=2))
     np.testing.assert_array_equal(back["x"], cloud["x"])
     np.testing.assert_array_equal(back["label"], out["label"])
+
+
+def test_full_proposals_carry_the_input_untouched_and_stage1_under_its_prefix() -> None:
+    names = ("x", "y", "z", "intensity", "ring", "ground", "cluster_id", "cluster_id2", "stage1_intensity")
+    cloud = np.zeros(5, np.dtype({"names": names, "formats": ["<f4"] * 4 + ["<u2", "u1", "<i4", "<i4", "<f4"],
+                                  "offsets": [0, 4, 8, 12, 16, 18, 20, 24, 28], "itemsize": 36}))
+    cloud["x"] = [1, np.nan, 2, 3, 4]
+    for name, values in {"intensity": [9, 9, 9, 9, 9], "ring": [7, 6, 5, 4, 3], "ground": [1, 2, 3, 4, 5],
+                         "cluster_id": [50, 51, 52, 53, 54], "cluster_id2": [-9, -8, -7, -6, -5],
+                         "stage1_intensity": [np.nan, 0.5, 0.25, 2, 3]}.items():
+        cloud[name] = values
+    source = input_source(cloud, 1, 5, read=4, kept=np.array([0, 1, 3]))  # rows 0, 2, 4 read
+    points = np.array([[1, 0, 0, 0.1], [2, 0, 0, 0.2], [4, 0, 0, 0.4]], np.float32)
+    ring = np.array([30, 31, 32], np.uint16)  # stage 1's, not the driver's
+    msg = encode(full_proposals_cloud(source, points, np.array([0, -1, 1]), np.array([-1, 0, -1]),
+                                      np.array([True, False, True]), ring))
+    wire = [f.name for f in msg.fields]
+    assert wire == [*names, *STAGE1_COLUMNS] and all(name.startswith(WIRE_PREFIX) for name in STAGE1_COLUMNS)
+    frame = proposal_frame(msg)
+    np.testing.assert_array_equal(frame.points, points)
+    np.testing.assert_array_equal(frame.ring, ring)
+    np.testing.assert_array_equal(frame.cluster_id, [0, -1, 1])
+    np.testing.assert_array_equal(frame.cluster_id2, [-1, 0, -1])
+    np.testing.assert_array_equal(frame.source.positions, [0, 2, 4])
+    assert frame.source.cloud.dtype.names == names
+    for name in names:
+        assert same_bytes(frame.source.cloud[name], cloud[name]), name
+
+    old = encode(extend_cloud(cloud, {"stage1_intensity": np.zeros(5, np.float32)}))  # an older cluster node's
+    with pytest.raises(PointCloud2Error, match="older cluster_proposal_node"):
+        proposal_frame(old)
+
+
+def test_old_full_proposals_are_refused_with_one_warning(capfd: pytest.CaptureFixture[str]) -> None:
+    cloud = np.zeros(100, np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("cluster_id", "<i4"),
+                                    ("cluster_id2", "<i4"), ("ground", "u1"), ("stage1_intensity", "<f4")]))
+    cloud["x"] = np.linspace(5, 10, 100)
+    with ros_session() as ros:
+        node = ros.add(SegmentationNode(context=ros.context, parameter_overrides=[
+            Parameter("classifier", value="size_rules")]))
+        pub = ros.probe.create_publisher(PointCloud2, "/pass3d/proposals", qos_profile("reliable"))
+        assert wait_until(lambda: pub.get_subscription_count() >= 1)
+        time.sleep(0.2)
+        for k in range(3):
+            pub.publish(encode(cloud, stamp_ns=STAMP0 + k))
+        assert wait_until(lambda: node.worker.counters.skipped + node.worker.counters.dropped >= 3
+                          and node.worker.idle())
+        assert node.worker.counters.failed == 0 and node.worker.counters.processed == 0
+    err = capfd.readouterr().err
+    assert err.count("from an older cluster_proposal_node") == 1, err
 
 
 def test_layout_benchmark_runs(capsys: pytest.CaptureFixture[str]) -> None:

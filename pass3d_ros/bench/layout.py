@@ -66,8 +66,8 @@ def timings(msg: Any, repeat: int) -> list[tuple[str, tuple[float, float]]]:
                       is_dense=source.is_dense)
 
     def full() -> Any:
-        return encode(full_proposals_cloud(source, points, ids, ids, ground), header=msg.header, height=source.height,
-                      is_dense=source.is_dense)
+        return encode(full_proposals_cloud(source, points, ids, ids, ground, ring), header=msg.header,
+                      height=source.height, is_dense=source.is_dense)
 
     full_msg, compact_msg = full(), encode(compact_proposals, header=msg.header)
     return [

@@ -23,6 +23,7 @@ from pass3d_ros.ros import params
 from pass3d_ros.ros.input_layout import (
     AS_INPUT,
     STAGE1_COLUMNS,
+    WIRE_PREFIX,
     check_layout,
     full_proposals_cloud,
     input_source,
@@ -246,11 +247,15 @@ class ClusterProposalNode(PointCloudNode):
             clock.mark("sink")
         if self.sink is None or self.proposals_pub.get_subscription_count() > 0:
             if self._full:
+                # stage 1's columns carry the reserved __pass3d_ prefix: only an input already holding them (one of
+                # these messages fed back in) collides (pass3d_ros.ros.input_layout)
                 replaced = source.replaced(STAGE1_COLUMNS)
                 if replaced:
                     self.warn_once("replaced", f"the input's field(s) {', '.join(replaced)} are replaced by stage 1's "
-                                   "on /pass3d/proposals (output_layout as_input / publish_background)")
-                full = full_proposals_cloud(source, points, result.cluster_id, result.cluster_id2, result.ground)
+                                   "on /pass3d/proposals (output_layout as_input / publish_background): the "
+                                   f"{WIRE_PREFIX} prefix is reserved for this package's own columns")
+                full = full_proposals_cloud(source, points, result.cluster_id, result.cluster_id2, result.ground,
+                                            out_ring)
                 cloud = encode(full, header=msg.header, height=source.height, is_dense=source.is_dense)
             else:
                 cloud = encode(proposals_cloud(points, result, out_ring), header=msg.header)

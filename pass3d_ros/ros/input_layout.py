@@ -17,13 +17,22 @@ Design:
   decides by its own `output_layout` and `publish_background`.
 - Between two processes the source must cross /pass3d/proposals: when the cluster node's `output_layout` is
   `as_input` or its `publish_background` is true, that message carries every input point and field in the input's
-  layout plus stage 1's columns (`full_proposals_cloud`): cluster_id, cluster_id2 (-1 = none), ground (uint8) and
-  `stage1_intensity` (float32: the 0..1 intensity stage 1 read, NaN for points it did not read). The segmentation node
-  recognises that cloud by the `stage1_intensity` field, rebuilds the frame from the rows where it is a number and
-  keeps the whole cloud (less the stage-1 columns) as the source. One NaN-able column marks both "read" and the value
-  stage 1 read (it was scaled into 0..1 by intensity_scale and the stream's scale, which the input's own intensity
-  field is not), so no separate flag is needed. An input field named like a stage-1 column is replaced (WARN once in
-  the cluster node). The compact message is unchanged byte for byte.
+  layout, untouched, plus stage 1's columns under the reserved prefix `__pass3d_` (`full_proposals_cloud`, WIRE_PREFIX):
+  `__pass3d_cluster_id`, `__pass3d_cluster_id2` (int32, -1 = none), `__pass3d_ground` (uint8), `__pass3d_ring` (uint16:
+  the ring the in-memory frame carries, the driver's field as it came when it fits, else stage 1's) and
+  `__pass3d_intensity` (float32: the 0..1 intensity stage 1 read, NaN for points it did not read). The segmentation
+  node recognises that cloud by `__pass3d_intensity`, rebuilds the frame from the rows where it is a number and keeps
+  the whole cloud less the `__pass3d_` columns as the source: the same fields, bytes and offsets the in-memory source
+  has, so both paths publish the same messages. One NaN-able column marks both "read" and the value stage 1 read (it
+  was scaled into 0..1 by intensity_scale and the stream's scale, which the input's own intensity field is not), so
+  no separate flag is needed. The prefix, not bare names: this message used to carry `cluster_id`, `cluster_id2`,
+  `ground` and `stage1_intensity`, and an input field of one of those names (a driver's own `ground` or `cluster_id`,
+  a cloud already labelled upstream) was dropped from the separate-nodes outputs while pass3d_pipeline kept it. Only
+  an input that already carries `__pass3d_` columns (one of these messages fed back in) loses them (WARN once in the
+  cluster node). A message in that old form (`stage1_intensity` and `cluster_id`, no `__pass3d_intensity`: an older
+  cluster node) is refused as malformed, with a throttled warning naming it, rather than read: both nodes come from
+  one install, so a mix is a stale process to restart, and reading it would publish outputs silently short of the
+  fields the old form lost. The compact message is unchanged byte for byte.
 - Outputs are `Extended` clouds (pass3d_ros.msgs.pointcloud2) that `encode` builds straight into the message's buffer:
   each point's input bytes copied as one void item, the new columns appended (4-byte aligned), the input's height kept.
   A field-by-field copy would cost in proportion to the input's fields, and building an array first then copying it
@@ -49,8 +58,19 @@ OUTPUT_LAYOUTS: tuple[str, ...] = (COMPACT, AS_INPUT)
 OUTPUT_LAYOUT_HELP = ("compact: the points stage 1 read, x y z intensity(0..1) ring + labels; as_input: every input "
                       "point in the input's order and layout (organized too), every input field as it came, + "
                       "cluster_id confidence rgb label (label 0 where not a return)")
-STAGE1_INTENSITY = "stage1_intensity"  # float32 0..1, NaN where stage 1 did not read the point
-STAGE1_COLUMNS: tuple[str, ...] = ("cluster_id", "cluster_id2", "ground", STAGE1_INTENSITY)
+# Stage 1's own columns on the full /pass3d/proposals are named with this prefix so that no input field can collide
+# with them and every input field crosses untouched. No LiDAR driver (Velodyne, Ouster, Hesai, Livox, RoboSense,
+# Autoware's), PCL point type or labelling tool names a field after this package, and the leading double underscore
+# marks the columns internal (as Python and C reserve such names), keeping them apart from the input's in
+# `ros2 topic echo` and rviz. Letters, digits and underscores only, so numpy dtypes, PCL and rosbag tools take them.
+WIRE_PREFIX = "__pass3d_"
+STAGE1_INTENSITY = WIRE_PREFIX + "intensity"  # float32 0..1, NaN where stage 1 did not read the point
+STAGE1_CLUSTER_ID = WIRE_PREFIX + "cluster_id"
+STAGE1_CLUSTER_ID2 = WIRE_PREFIX + "cluster_id2"
+STAGE1_GROUND = WIRE_PREFIX + "ground"
+STAGE1_RING = WIRE_PREFIX + "ring"
+STAGE1_COLUMNS: tuple[str, ...] = (STAGE1_CLUSTER_ID, STAGE1_CLUSTER_ID2, STAGE1_GROUND, STAGE1_RING, STAGE1_INTENSITY)
+LEGACY_INTENSITY = "stage1_intensity"  # the old full message's marker (unprefixed columns): refused, see above
 LABEL_COLUMNS: tuple[str, ...] = ("cluster_id", "confidence", "rgb", "label")
 COMPACT_BACKGROUND: tuple[str, ...] = ("x", "y", "z", "intensity", "ring")  # without a source
 
@@ -94,19 +114,20 @@ def input_source(cloud: np.ndarray, height: int, width: int, read: int, kept: np
 
 
 def full_proposals_cloud(source: InputSource, points: np.ndarray, cluster_id: np.ndarray, cluster_id2: np.ndarray,
-                         ground: np.ndarray) -> Extended:
-    """/pass3d/proposals in the input's layout: every input row and field plus stage 1's columns (module docstring),
-    to `encode` with the input's height."""
+                         ground: np.ndarray, ring: np.ndarray) -> Extended:
+    """/pass3d/proposals in the input's layout: every input row and field untouched plus stage 1's `__pass3d_` columns
+    (module docstring), to `encode` with the input's height. `ring`: the frame's (one per point stage 1 read)."""
     return Extended(source.cloud, {
-        "cluster_id": source.scatter(cluster_id.astype(np.int32), -1),
-        "cluster_id2": source.scatter(cluster_id2.astype(np.int32), -1),
-        "ground": source.scatter(ground.astype(np.uint8), 0),
+        STAGE1_CLUSTER_ID: source.scatter(cluster_id.astype(np.int32), -1),
+        STAGE1_CLUSTER_ID2: source.scatter(cluster_id2.astype(np.int32), -1),
+        STAGE1_GROUND: source.scatter(ground.astype(np.uint8), 0),
+        STAGE1_RING: source.scatter(ring.astype(np.uint16), 0),
         STAGE1_INTENSITY: source.scatter(points[:, 3].astype(np.float32), np.nan),
     })
 
 
 def read_rows(cloud: np.ndarray) -> np.ndarray:
-    """The rows of a full proposals cloud stage 1 read: `stage1_intensity` a number (a row with implausible
+    """The rows of a full proposals cloud stage 1 read: `__pass3d_intensity` a number (a row with implausible
     coordinates there all the same is left out by the segmentation node's check of every received frame)."""
     return np.flatnonzero(~np.isnan(cloud[STAGE1_INTENSITY]))
 

@@ -6,9 +6,11 @@ memory), the segmentation node reads it. Nothing here needs rclpy.
 
 Two forms of the message (docs/outputs.md): compact (the default; the points stage 1 read: x, y, z, intensity 0..1,
 ring, ground, cluster_id, cluster_id2) and, when the cluster node's `output_layout` is `as_input` or its
-`publish_background` is true, the input's own layout (every input point and field, organized as it came) plus
-cluster_id, cluster_id2, ground and `stage1_intensity` (NaN where stage 1 did not read the point); the reader tells
-them apart by that field and keeps the input as the frame's `source` (pass3d_ros.ros.input_layout).
+`publish_background` is true, the input's own layout (every input point and field, organized as it came, untouched)
+plus stage 1's columns under the reserved prefix `__pass3d_` (cluster_id, cluster_id2, ground, ring and intensity,
+NaN where stage 1 did not read the point); the reader tells them apart by `__pass3d_intensity` and keeps the input as
+the frame's `source` (pass3d_ros.ros.input_layout, which also says why the prefix and why the old unprefixed full
+form, marked by `stage1_intensity`, is refused).
 """
 
 from __future__ import annotations
@@ -23,10 +25,20 @@ from sensor_msgs.msg import PointCloud2
 from pass3d_ros.core.stage1 import Stage1Result, proposal_members
 from pass3d_ros.core.stage2.segmentation import nearest_kept
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, finite_mask, to_xyzi
-from pass3d_ros.ros.input_layout import STAGE1_COLUMNS, STAGE1_INTENSITY, InputSource, read_rows
+from pass3d_ros.ros.input_layout import (
+    LEGACY_INTENSITY,
+    STAGE1_CLUSTER_ID,
+    STAGE1_CLUSTER_ID2,
+    STAGE1_COLUMNS,
+    STAGE1_INTENSITY,
+    STAGE1_RING,
+    InputSource,
+    read_rows,
+)
 
 REQUIRED_FIELDS = ("cluster_id",)
-ID_FIELDS = ("cluster_id", "cluster_id2")
+ID_FIELDS = ("cluster_id", "cluster_id2")  # the compact message's (and a labelled cloud's, members_from_cloud)
+FULL_ID_FIELDS = (STAGE1_CLUSTER_ID, STAGE1_CLUSTER_ID2)  # the full message's
 
 
 @dataclass(frozen=True)
@@ -61,9 +73,10 @@ def proposals_cloud(points: np.ndarray, result: Stage1Result, ring: np.ndarray |
     }
 
 
-def proposal_ids(cloud: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The cluster_id and cluster_id2 columns as int64, checked to be integers in -1..N-1 (N points; `rows`: only
-    those rows count, N = len(rows)).
+def proposal_ids(cloud: np.ndarray, rows: np.ndarray | None = None, fields: tuple[str, str] = ID_FIELDS
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The cluster_id and cluster_id2 columns (`fields`: their names) as int64, checked to be integers in -1..N-1
+    (N points; `rows`: only those rows count, N = len(rows)).
 
     Anything else is a malformed message (PointCloud2Error naming the field): work must follow the number of
     points, never the id values a sender chose.
@@ -71,7 +84,7 @@ def proposal_ids(cloud: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.
     names = cloud.dtype.names or ()
     n = len(cloud) if rows is None else len(rows)
     ids = []
-    for name in ID_FIELDS:
+    for name in fields:
         if name not in names:
             ids.append(np.full(n, -1, np.int64))
             continue
@@ -90,11 +103,17 @@ def proposal_ids(cloud: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.
 
 def proposal_frame(msg: PointCloud2) -> ProposalFrame:
     """A /pass3d/proposals message as arrays (PointCloud2Error when it is not one); NaN points are left out. A message
-    in the input's layout (a `stage1_intensity` field) gives the rows stage 1 read, and the whole input as `source`."""
+    in the input's layout (a `__pass3d_intensity` field) gives the rows stage 1 read, and the whole input as `source`;
+    one in the old full form (`stage1_intensity`, an older cluster node) is refused (pass3d_ros.ros.input_layout)."""
     cloud = decode(msg)
     names = cloud.dtype.names or ()
     if STAGE1_INTENSITY in names:
         return _full_frame(msg, cloud)
+    if LEGACY_INTENSITY in names and "cluster_id" in names:
+        raise PointCloud2Error(
+            f"a {LEGACY_INTENSITY} field and no {STAGE1_INTENSITY}: /pass3d/proposals in the input's layout from an "
+            "older cluster_proposal_node, which drops input fields named like its own columns; refused, restart "
+            "cluster_proposal_node from this install")
     keep = finite_mask(cloud)
     cloud = cloud if keep.all() else cloud[keep]
     missing = [name for name in REQUIRED_FIELDS if name not in names]
@@ -111,15 +130,20 @@ def _full_frame(msg: PointCloud2, cloud: np.ndarray) -> ProposalFrame:
     missing = [name for name in STAGE1_COLUMNS if name not in names]
     if missing:
         raise PointCloud2Error(f"a {STAGE1_INTENSITY} field without {', '.join(missing)}: is this /pass3d/proposals?")
+    wide = [name for name in STAGE1_COLUMNS if cloud[name].ndim != 1]
+    if wide:
+        raise PointCloud2Error(f"field(s) {', '.join(wide)} with count > 1, expected 1")
     if cloud[STAGE1_INTENSITY].dtype.kind != "f":
         raise PointCloud2Error(f"field {STAGE1_INTENSITY!r} has dtype {cloud[STAGE1_INTENSITY].dtype}, expected float")
+    if cloud[STAGE1_RING].dtype.kind not in "iu":
+        raise PointCloud2Error(f"field {STAGE1_RING!r} has dtype {cloud[STAGE1_RING].dtype}, expected an integer type")
     rows = read_rows(cloud)
-    first, second = proposal_ids(cloud, rows)
+    first, second = proposal_ids(cloud, rows, FULL_ID_FIELDS)
     points = np.empty((len(rows), 4), np.float32)
     for column, name in enumerate(("x", "y", "z", STAGE1_INTENSITY)):
         points[:, column] = cloud[name][rows]
-    ring_field = "ring" if "ring" in names else "channel" if "channel" in names else None
-    ring = None if ring_field is None else cloud[ring_field][rows]
+    ring = cloud[STAGE1_RING][rows]
+    # the input's fields untouched, at their offsets (the __pass3d_ bytes stay as padding past them, never copied out)
     source = InputSource(cloud[[name for name in names if name not in STAGE1_COLUMNS]], int(msg.height),
                          int(msg.width), bool(msg.is_dense), None if len(rows) == len(cloud) else rows)
     return ProposalFrame(msg.header, points, ring, first, second, source)
