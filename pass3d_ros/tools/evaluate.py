@@ -229,29 +229,24 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
             if not isinstance(classifier, Segmenter):
                 raise UserError("--sampling needs the network classifier in this process")
             classifier.sampling = sampling
-    if mode == "full":
-        if isinstance(classifier, Segmenter):
-            classifier.average_draws = args.average_draws
-            classifier.average_below = args.average_below
+        if mode == "full":
+            if isinstance(classifier, Segmenter):
+                classifier.average_draws = args.average_draws
+                classifier.average_below = args.average_below
+                settings["classifier"]["sampling"] = classifier.sampling
+                settings["classifier"]["average_draws"] = args.average_draws
+                settings["classifier"]["average_below"] = args.average_below
+            once, drawn = evaluate_full, evaluate_draws
+        else:
+            if not isinstance(classifier, Segmenter):
+                raise UserError("--view-agreement needs the network classifier in this process")
             settings["classifier"]["sampling"] = classifier.sampling
-            settings["classifier"]["average_draws"] = args.average_draws
-            settings["classifier"]["average_below"] = args.average_below
-        if args.sample_draws > 1:
+            once, drawn = evaluate_agreement, evaluate_agreement_draws
+        if args.sample_draws > 1:  # each draw reads the frames again
             again = functools.partial(iter_frames, datasets, args.limit, not args.no_progress)
-            return {**evaluate_draws(again, config, classifier, args.sample_draws, args.intensity_match),
-                    **settings}, 0
+            return {**drawn(again, config, classifier, args.sample_draws, args.intensity_match), **settings}, 0
         frames = iter_frames(datasets, args.limit, not args.no_progress)
-        return {**evaluate_full(frames, config, classifier, args.intensity_match), **settings}, 0
-    if mode == "view_agreement":
-        if not isinstance(classifier, Segmenter):
-            raise UserError("--view-agreement needs the network classifier in this process")
-        settings["classifier"]["sampling"] = classifier.sampling
-        if args.sample_draws > 1:
-            again = functools.partial(iter_frames, datasets, args.limit, not args.no_progress)
-            return {**evaluate_agreement_draws(again, config, classifier, args.sample_draws, args.intensity_match),
-                    **settings}, 0
-        frames = iter_frames(datasets, args.limit, not args.no_progress)
-        return {**evaluate_agreement(frames, config, classifier, args.intensity_match), **settings}, 0
+        return {**once(frames, config, classifier, args.intensity_match), **settings}, 0
     options = LiveOptions(lockstep=args.lockstep, rate=args.rate, record_out=args.record_out, timeout_s=args.timeout,
                           keep_labels=False, force=args.force, log_level="warn", progress=not args.no_progress)
     summary, result = evaluate_live(datasets, config, kind, weights, args.device, options)
