@@ -42,9 +42,11 @@ proposal's point count and the draw; a smaller proposal is read whole, its repea
 reruns the evaluation with draws 0..N-1 of that sample and adds, per class (and for the mean IoU), the IoU or view
 agreement of each draw, their mean and the draw-to-draw range (draw 0's report is the default one). With
 --paired-with, two runs that both drew N > 1 samples are compared on each frame's confusion pooled over its draws.
---average-draws K: stage 2 reads each proposal from K seeded draws and averages their class probabilities (an
-experiment, docs/experiments/trials-issue-37-sampling.md, trial 29); with --sample-draws N, N disjoint sets of K.
---average-below P: only proposals whose points' mean winning probability in the first draw is below P (trial 30).
+--average-draws K: stage 2 reads each proposal from K seeded draws and averages their class probabilities, an answer
+that depends less on the draw for K times stage 2's work (an experiment, not the default; measured:
+docs/experiments/trials-issue-37-sampling.md); with --sample-draws N, N disjoint sets of K.
+--average-below P: only proposals whose points' mean winning probability in the first draw is below P, where stage 2
+is unsure, so the others cost one draw.
 
 `--json PATH` writes the summary, nested; docs/evaluate_json.md describes its keys. Full and view-agreement
 runs map each spec's intensities onto the training scale (--no-intensity-match: as read).
@@ -125,10 +127,11 @@ def build_parser() -> argparse.ArgumentParser:
                              "\"draws\"); draw 0 is the default sample (default 1)")
     parser.add_argument("--average-draws", type=number(int, 1, 64), default=1, metavar="K",
                         help="stage 2 reads each proposal from K seeded draws and averages their probabilities "
-                             "(an experiment, trial 29; with --sample-draws: disjoint sets of K)")
+                             "(an experiment: an answer less tied to the draw, for K times the work; with "
+                             "--sample-draws: disjoint sets of K)")
     parser.add_argument("--average-below", type=number(float, 0.0, 1.0), metavar="P",
                         help="with --average-draws: read again only proposals whose points' mean winning probability "
-                             "in the first draw is below P (trial 30)")
+                             "in the first draw is below P (where stage 2 is unsure; the others cost one draw)")
     parser.add_argument("--sampling", choices=SAMPLINGS,
                         help="full and view-agreement modes, network classifier in process: how stage 2 picks "
                              "each proposal's points: "
