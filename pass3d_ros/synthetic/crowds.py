@@ -1,4 +1,5 @@
-"""People close together and people alone far away (issue 37): two world changes of `synthetic.scene.generate_scene`.
+"""People close together and people alone far away: two world changes of `synthetic.scene.generate_scene`, because
+stage 2 misread both on real scans.
 
 On real scans pedestrians in a group are called background more often than lone ones (alone in a proposal 56 % are
 called pedestrian, with two or more others 43 %), and lone pedestrians 0.7-1.6 m long are called cyclist 23 % of the

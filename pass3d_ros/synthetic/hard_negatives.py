@@ -1,4 +1,5 @@
-"""The "negatives" world change (issue 28): car-sized background the real scans hold, fewer thin posts.
+"""The "negatives" world change: car-sized background the real scans hold, fewer thin posts, so that stage 2 trained
+on synthetic scenes meets the background real scans show (docs/experiments/partial-views-and-hard-negatives.md).
 
 `add_hard_negatives` stands jersey barriers, long planters, low hedges and car-sized bushes along the street;
 `thinned_out` tells the street clutter which posts, short poles and trunks to leave out. Both draw from the change's
@@ -18,9 +19,10 @@ from pass3d_ros.synthetic.parts import Part
 from pass3d_ros.synthetic.street import PartsFn, RoadLayout, in_cross
 
 # Street clutter kinds that make thin tall proposals (pole / trunk-like: footprint <= 0.5 m, >= 1.2 m tall). The
-# synthetic world held 8.4 % of its stage-1 proposals thin and tall against 2.5 % on the 13 real unlabelled
-# HDL-64E scans (3.1 a frame against 0.6 a scan; 20 frames of seed 7 against the 13 scans, issue 28); with the
-# "negatives" change this share of them is drawn but not placed (the scene's stream is kept).
+# synthetic world held 8.4 % of its stage-1 proposals thin and tall against 2.5 % on the 13 real unlabelled HDL-64E
+# scans (3.1 a frame against 0.6 a scan; 20 frames of seed 7 against the 13 scans, measured:
+# docs/experiments/partial-views-and-hard-negatives.md); with the "negatives" change this share of them is drawn but not
+# placed (the scene's stream is kept).
 _THIN_CLUTTER = ("post", "short_pole", "trunk")
 _THIN_DROP = 0.5
 
@@ -31,11 +33,12 @@ def thinned_out(name: str, rng: np.random.Generator | None) -> bool:
     return name in _THIN_CLUTTER and rng is not None and rng.random() < _THIN_DROP
 
 
-# Hard negatives (issue 28): car-sized background the real scans hold and the synthetic world lacked. Low wide
-# stage-1 proposals (2.5-6 m long, 0.5-1.1 m tall: barriers, planters, low hedges) are 17.5 % of the proposals of
-# the 13 real unlabelled HDL-64E scans (4.3 a scan), 10.2 % of the synthetic ones (3.7 a frame; 20 frames of
-# seed 7); real stage 2 calls 6.5 % of such separate objects car. Each entry: (model, parts function, weight,
-# where: "walk" back half of the sidewalk, "kerb" the kerb line, "front" the property line, "yard" beyond it).
+# Hard negatives: car-sized background the real scans hold and the synthetic world lacked, so stage 2 never learnt to
+# call it background. Low wide stage-1 proposals (2.5-6 m long, 0.5-1.1 m tall: barriers, planters, low hedges) are
+# 17.5 % of the proposals of the 13 real unlabelled HDL-64E scans (4.3 a scan), 10.2 % of the synthetic ones (3.7 a
+# frame; 20 frames of seed 7); real stage 2 calls 6.5 % of such separate objects car. Each entry: (model, parts
+# function, weight, where: "walk" back half of the sidewalk, "kerb" the kerb line, "front" the property line, "yard"
+# beyond it).
 _NEGATIVES: tuple[tuple[str, PartsFn, float, str], ...] = (
     ("long_planter", sf.long_planter_parts, 1.0, "walk"),
     ("jersey_barrier", lambda r: sf.jersey_barrier_parts(r, float(r.uniform(4.0, 10.0))), 0.6, "kerb"),

@@ -66,13 +66,13 @@ def add_hidden_pedestrians(b: SceneBuilder, rng: np.random.Generator) -> None:
                     break
 
 
-# Partial views (issue 28). Real cars called background are occluded and cut ones (visible width 1.1 vs 1.55 m,
-# proposal length 1.8 vs 3.4 m, lowest point 0.13 m higher): real partial cars (visible length < 2.5 m) fail 6 of
-# 14, synthetic ones 0 of 58, and the real short fragments are cut at both ends by nearer things (trial 4). A share
-# of the cars 6-28 m away get occluders in the sensor's line of sight: two that leave a 0.7-2.4 m piece, one that
-# hides an end, or a low one (planter, low hedge, barrier, bush) that hides the lower part. Occluders stand where
-# such things stand: vehicles in the lanes and parking lanes, street trees, utility boxes, bushes and hedges on the
-# sidewalk and beyond.
+# Partial views, because real cars called background are occluded and cut ones (visible width 1.1 vs 1.55 m, proposal
+# length 1.8 vs 3.4 m, lowest point 0.13 m higher): real partial cars (visible length < 2.5 m) fail 6 of 14, synthetic
+# ones 0 of 58, and the real short fragments are cut at both ends by nearer things (one occluder does not make them:
+# docs/experiments/trials-steps-2-3.md, cars behind cars). A share of the cars 6-28 m away get occluders in the sensor's
+# line of sight: two that leave a 0.7-2.4 m piece, one that hides an end, or a low one (planter, low hedge, barrier,
+# bush) that hides the lower part. Occluders stand where such things stand: vehicles in the lanes and parking lanes,
+# street trees, utility boxes, bushes and hedges on the sidewalk and beyond.
 _PARTIAL_SHARE = 0.4
 _PARTIAL_RANGE_M = (6.0, 28.0)  # real short fragments: 9.5-21 m (docs/experiments/investigations.md)
 _PARTIAL_SCENARIO_P = (("cut2", 0.45), ("cut1", 0.25), ("low", 0.30))

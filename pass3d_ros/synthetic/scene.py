@@ -555,16 +555,18 @@ def generate_scene(rng: np.random.Generator, without: frozenset[str] = frozenset
     scene is drawn from the same stream, so it differs too (except without "hidden", "partial", "negatives", "groups"
     or "lone_people", drawn from their own; without one of these the objects placed after it may stand elsewhere:
     the hidden pedestrians after "negatives" and "partial", the lone pedestrians after those, "hidden" and "groups").
-    "groups" and "lone_people" come last: without both, the scene is the world before issue 37, object for object.
+    "groups" and "lone_people" come last: without both, a seed gives the scene it gave before they were added, object
+    for object.
     """
     style = str(rng.choice(["urban", "residential", "open"], p=[0.45, 0.45, 0.1]))
     lay = road_layout(rng, style)
     gp, bumps, waves = _ground_params(rng, lay)
     b = SceneBuilder(gp, bumps, waves)
-    # The issue-28 changes draw from streams of their own, so leaving one out keeps the rest of the scene.
+    # "negatives", "partial", "groups" and "lone_people" draw from streams of their own, so leaving one out keeps
+    # the rest of the scene.
     negatives_rng = np.random.Generator(rng.bit_generator.jumped(2))
     partial_rng = np.random.Generator(rng.bit_generator.jumped(3))
-    groups_rng = np.random.Generator(rng.bit_generator.jumped(4))  # issue 37's people, placed last
+    groups_rng = np.random.Generator(rng.bit_generator.jumped(4))  # the crowds' people, placed last (see above)
     lone_rng = np.random.Generator(rng.bit_generator.jumped(5))
     negatives = "negatives" not in without
     _add_roadside(b, rng, lay, style, clutter="clutter" not in without, thin_rng=negatives_rng if negatives else None)

@@ -10,6 +10,8 @@ here knows any tool.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import math
 import os
 import signal
@@ -26,7 +28,7 @@ from rosbags.rosbag2 import ReaderError, WriterError
 from pass3d_ros.core.threads import DEFAULT_THREADS
 from pass3d_ros.data.outputs import OutputError, error_text, is_disk_full
 from pass3d_ros.errors import Pass3dError
-from pass3d_ros.training import worker
+from pass3d_ros.training import distributed, worker
 
 EXIT_USAGE = 2
 EXIT_SIGINT = 130
@@ -222,3 +224,30 @@ def run_tool(
             return EXIT_USAGE
         raise
 
+
+
+def reported(work: Callable[[], int]) -> int:
+    """Run `work` (a tool's `run_tool` call) as this rank reports: as is on a rank that reports; elsewhere (under
+    torchrun a rank > 0 says nothing) with its stderr silenced, and a failure's report handed to torchrun's summary
+    (pass3d_ros.training.distributed.record_error). Returns its exit status."""
+    if worker.reports():
+        return work()
+    silenced = io.StringIO()
+    with contextlib.redirect_stderr(silenced):
+        status = work()
+    if status not in (0, EXIT_SIGINT, EXIT_SIGTERM):
+        distributed.record_error(silenced.getvalue())
+    return status
+
+
+def parse_ranked(parser: argparse.ArgumentParser, argv: list[str] | None,
+                 started: str = "processes") -> tuple[argparse.Namespace, list[str]]:
+    """(arguments, argv) of a tool that takes `--nproc N`, parsed once a launched worker is tied to its launcher
+    (worker.die_with_parent); `argv` None reads sys.argv. Under torchrun --nproc is a parser error: the tool's own
+    launcher would start its `started` inside torchrun's."""
+    worker.die_with_parent()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(argv)
+    if args.nproc > 1 and worker.world_size() > 1 and worker.LAUNCHER_ENV not in os.environ:
+        parser.error(f"--nproc starts its own {started}; under torchrun leave it out")
+    return args, argv

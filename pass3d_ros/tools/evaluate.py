@@ -42,9 +42,11 @@ proposal's point count and the draw; a smaller proposal is read whole, its repea
 reruns the evaluation with draws 0..N-1 of that sample and adds, per class (and for the mean IoU), the IoU or view
 agreement of each draw, their mean and the draw-to-draw range (draw 0's report is the default one). With
 --paired-with, two runs that both drew N > 1 samples are compared on each frame's confusion pooled over its draws.
---average-draws K: stage 2 reads each proposal from K seeded draws and averages their class probabilities (an
-experiment, docs/experiments/trials-issue-37-sampling.md, trial 29); with --sample-draws N, N disjoint sets of K.
---average-below P: only proposals whose points' mean winning probability in the first draw is below P (trial 30).
+--average-draws K: stage 2 reads each proposal from K seeded draws and averages their class probabilities, an answer
+that depends less on the draw for K times stage 2's work (an experiment, not the default; measured:
+docs/experiments/trials-issue-37-sampling.md); with --sample-draws N, N disjoint sets of K.
+--average-below P: only proposals whose points' mean winning probability in the first draw is below P, where stage 2
+is unsure, so the others cost one draw.
 
 `--json PATH` writes the summary, nested; docs/evaluate_json.md describes its keys. Full and view-agreement
 runs map each spec's intensities onto the training scale (--no-intensity-match: as read).
@@ -125,10 +127,11 @@ def build_parser() -> argparse.ArgumentParser:
                              "\"draws\"); draw 0 is the default sample (default 1)")
     parser.add_argument("--average-draws", type=number(int, 1, 64), default=1, metavar="K",
                         help="stage 2 reads each proposal from K seeded draws and averages their probabilities "
-                             "(an experiment, trial 29; with --sample-draws: disjoint sets of K)")
+                             "(an experiment: an answer less tied to the draw, for K times the work; with "
+                             "--sample-draws: disjoint sets of K)")
     parser.add_argument("--average-below", type=number(float, 0.0, 1.0), metavar="P",
                         help="with --average-draws: read again only proposals whose points' mean winning probability "
-                             "in the first draw is below P (trial 30)")
+                             "in the first draw is below P (where stage 2 is unsure; the others cost one draw)")
     parser.add_argument("--sampling", choices=SAMPLINGS,
                         help="full and view-agreement modes, network classifier in process: how stage 2 picks "
                              "each proposal's points: "
@@ -229,29 +232,24 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
             if not isinstance(classifier, Segmenter):
                 raise UserError("--sampling needs the network classifier in this process")
             classifier.sampling = sampling
-    if mode == "full":
-        if isinstance(classifier, Segmenter):
-            classifier.average_draws = args.average_draws
-            classifier.average_below = args.average_below
+        if mode == "full":
+            if isinstance(classifier, Segmenter):
+                classifier.average_draws = args.average_draws
+                classifier.average_below = args.average_below
+                settings["classifier"]["sampling"] = classifier.sampling
+                settings["classifier"]["average_draws"] = args.average_draws
+                settings["classifier"]["average_below"] = args.average_below
+            once, drawn = evaluate_full, evaluate_draws
+        else:
+            if not isinstance(classifier, Segmenter):
+                raise UserError("--view-agreement needs the network classifier in this process")
             settings["classifier"]["sampling"] = classifier.sampling
-            settings["classifier"]["average_draws"] = args.average_draws
-            settings["classifier"]["average_below"] = args.average_below
-        if args.sample_draws > 1:
+            once, drawn = evaluate_agreement, evaluate_agreement_draws
+        if args.sample_draws > 1:  # each draw reads the frames again
             again = functools.partial(iter_frames, datasets, args.limit, not args.no_progress)
-            return {**evaluate_draws(again, config, classifier, args.sample_draws, args.intensity_match),
-                    **settings}, 0
+            return {**drawn(again, config, classifier, args.sample_draws, args.intensity_match), **settings}, 0
         frames = iter_frames(datasets, args.limit, not args.no_progress)
-        return {**evaluate_full(frames, config, classifier, args.intensity_match), **settings}, 0
-    if mode == "view_agreement":
-        if not isinstance(classifier, Segmenter):
-            raise UserError("--view-agreement needs the network classifier in this process")
-        settings["classifier"]["sampling"] = classifier.sampling
-        if args.sample_draws > 1:
-            again = functools.partial(iter_frames, datasets, args.limit, not args.no_progress)
-            return {**evaluate_agreement_draws(again, config, classifier, args.sample_draws, args.intensity_match),
-                    **settings}, 0
-        frames = iter_frames(datasets, args.limit, not args.no_progress)
-        return {**evaluate_agreement(frames, config, classifier, args.intensity_match), **settings}, 0
+        return {**once(frames, config, classifier, args.intensity_match), **settings}, 0
     options = LiveOptions(lockstep=args.lockstep, rate=args.rate, record_out=args.record_out, timeout_s=args.timeout,
                           keep_labels=False, force=args.force, log_level="warn", progress=not args.no_progress)
     summary, result = evaluate_live(datasets, config, kind, weights, args.device, options)

@@ -59,8 +59,6 @@ Exit status: 0 done, 2 user error (bad spec, weights, --param, --nproc, non-empt
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import os
 import sys
 import time
@@ -72,10 +70,10 @@ from pass3d_ros.training import worker
 
 PROG = "pass3d_segment"
 
-# Before the seconds of imports below: a launched worker ties itself to its launcher (so a launcher killed meanwhile
-# takes it along), and Ctrl-C meanwhile is the one line and status 130 it is later, not a traceback.
-worker.die_with_parent()
-try:
+# Before the seconds of imports below: a launched worker ties itself to its launcher, and Ctrl-C meanwhile is the one
+# line and status 130 it is later, not a traceback (worker.starting).
+with worker.starting(PROG):
+    import pass3d_ros.tools.cli as cli
     from pass3d_ros.core.metrics import format_metrics
     from pass3d_ros.core.stage1.config import parse_params
     from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
@@ -87,40 +85,24 @@ try:
     from pass3d_ros.data.spec import resolve_datasets
     from pass3d_ros.errors import UserError
     from pass3d_ros.evaluation.segmenting import SUMMARY, Ranks, build_folder, check_out_dir, segment, summary
-    from pass3d_ros.tools.cli import (
-        EXIT_SIGINT,
-        EXIT_SIGTERM,
-        RankParser,
-        add_data,
-        add_param,
-        add_threads,
-        add_weights,
-        check_writable,
-        number,
-        run_tool,
-    )
     from pass3d_ros.training import distributed, launcher
-except KeyboardInterrupt:
-    if worker.reports():
-        print(f"{PROG}: interrupted", file=sys.stderr)
-    sys.exit(130)  # EXIT_SIGINT, whose import was cut short
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `pass3d_segment`."""
-    parser = RankParser(prog=PROG, description=__doc__.splitlines()[0])
-    add_data(parser, "dataset FORMAT:PATH (repeatable), e.g. semantickitti:.../sequences/08, bag:run.mcap")
+    parser = cli.RankParser(prog=PROG, description=__doc__.splitlines()[0])
+    cli.add_data(parser, "dataset FORMAT:PATH (repeatable), e.g. semantickitti:.../sequences/08, bag:run.mcap")
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="output folder (labels/, objects/, bev/, summary.json)")
     parser.add_argument("--classifier", choices=CLASSIFIERS, help="stage-2 classifier (default network)")
-    add_weights(parser)
+    cli.add_weights(parser)
     parser.add_argument("--device", default="cpu", help="torch device for the network (default cpu)")
-    add_param(parser)
+    cli.add_param(parser)
     parser.add_argument("--max-proposals", type=int, default=DEFAULT_MAX_PROPOSALS, metavar="N",
                         help=f"stage 2's budget: at most N proposals per frame, the nearest first; the others are cut "
                              f"(their points background), counted and reported (default {DEFAULT_MAX_PROPOSALS})")
-    add_threads(parser)
-    parser.add_argument("--nproc", type=number(int, 1), default=1, metavar="N",
+    cli.add_threads(parser)
+    parser.add_argument("--nproc", type=cli.number(int, 1), default=1, metavar="N",
                         help="label with N processes on this machine, each its contiguous block of the frames "
                              "(default 1; under torchrun leave it out)")
     parser.add_argument("--stream-warm-up", action=argparse.BooleanOptionalAction, default=True,
@@ -141,26 +123,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None, log: Callable[[str], None] = print) -> int:
     """Console entry point: exit 0 on success, 2 on a user error, 130 / 143 when interrupted. With several processes
     only rank 0 reports (see --nproc)."""
-    worker.die_with_parent()
-    argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.nproc > 1 and worker.world_size() > 1 and worker.LAUNCHER_ENV not in os.environ:
-        parser.error("--nproc starts its own processes; under torchrun leave it out")
+    args, argv = cli.parse_ranked(build_parser(), argv)
     if args.nproc > 1 and worker.world_size() == 1:
-        return run_tool(PROG, lambda: _launch(args, argv), interrupted=f"interrupted; {args.out} left as it was")
-
-    def work() -> int:
-        return run_tool(PROG, lambda: _run(args, log), interrupted=f"interrupted; {args.out} left as it was")
-
-    if worker.reports():
-        return work()
-    silenced = io.StringIO()  # under torchrun a rank > 0 says nothing; its error goes to torchrun's summary
-    with contextlib.redirect_stderr(silenced):
-        status = work()
-    if status not in (0, EXIT_SIGINT, EXIT_SIGTERM):
-        distributed.record_error(silenced.getvalue())
-    return status
+        return cli.run_tool(PROG, lambda: _launch(args, argv), interrupted=f"interrupted; {args.out} left as it was")
+    return cli.reported(lambda: cli.run_tool(PROG, lambda: _run(args, log),
+                                             interrupted=f"interrupted; {args.out} left as it was"))
 
 
 def _check(args: argparse.Namespace) -> Path:
@@ -168,8 +135,8 @@ def _check(args: argparse.Namespace) -> Path:
     out = out_path(args.out)
     datasets = resolve_datasets(args.data)
     check_out_dir(out, args.force, dataset_paths(datasets))
-    check_writable(out, folder=True, what="--out folder")
-    check_writable(build_folder(out).parent, folder=True, what="the folder --out is built in")
+    cli.check_writable(out, folder=True, what="--out folder")
+    cli.check_writable(build_folder(out).parent, folder=True, what="the folder --out is built in")
     parse_params(args.param)
     if args.threads < 1:
         raise UserError(f"--threads must be >= 1, got {args.threads}")

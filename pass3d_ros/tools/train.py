@@ -15,8 +15,6 @@ user error 2, each with one line. `torchrun --nproc_per_node N -m pass3d_ros.too
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import os
 import sys
 from pathlib import Path
@@ -25,25 +23,24 @@ from pass3d_ros.training import worker
 
 PROG = "pass3d_train"
 
-# Before the seconds of imports below: a launched worker ties itself to its launcher (so a launcher killed meanwhile
-# takes it along), and Ctrl-C meanwhile is the one line and status 130 it is later, not a traceback.
-worker.die_with_parent()
-try:
+# Before the seconds of imports below: a launched worker ties itself to its launcher, and Ctrl-C meanwhile is the one
+# line and status 130 it is later, not a traceback (worker.starting).
+with worker.starting(PROG):
     from pass3d_ros.core.stage1.config import parse_params
     from pass3d_ros.core.stage2.pointnet2 import GROUPINGS, TRAIN_GROUPING
     from pass3d_ros.tools.cli import (
-        EXIT_SIGINT,
-        EXIT_SIGTERM,
         RankParser,
         add_data,
         add_param,
         add_threads,
         check_writable,
         number,
+        parse_ranked,
+        reported,
         run_tool,
         torch_device,
     )
-    from pass3d_ros.training import consistency, distributed, launcher
+    from pass3d_ros.training import consistency, launcher
     from pass3d_ros.training.samples import Proposer
     from pass3d_ros.training.trainer import (
         FrameSource,
@@ -51,10 +48,6 @@ try:
         Trainer,
         TrainOptions,
     )
-except KeyboardInterrupt:
-    if worker.reports():
-        print(f"{PROG}: interrupted", file=sys.stderr)
-    sys.exit(130)  # EXIT_SIGINT, whose import was cut short
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -173,12 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the pass3d_train console script: 0 done, 1 another data-parallel worker stopped, 2 unusable
     data, output, checkpoint or argument, nothing to train on, or a run that diverged, 130 / 143 interrupted.
     Data-parallel, only rank 0 reports (see --nproc)."""
-    worker.die_with_parent()
-    argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.nproc > 1 and worker.world_size() > 1 and worker.LAUNCHER_ENV not in os.environ:
-        parser.error("--nproc starts its own workers; under torchrun leave it out")
+    args, argv = parse_ranked(parser, argv, "workers")
     if args.fit_epochs and not args.minutes:
         parser.error("--fit-epochs fits the epochs to a time budget: give --minutes too")
     if args.consistency and args.consistency_samples:
@@ -186,19 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.nproc > 1 and worker.world_size() == 1:
         return run_tool(PROG, lambda: _launch(args, argv))
     holder: list[Trainer] = []
-
-    def work() -> int:
-        return run_tool(PROG, lambda: _work(args, holder),
-                        interrupted=lambda: _interrupted(holder[0]) if holder else "interrupted")
-
-    if worker.reports():
-        return work()
-    silenced = io.StringIO()  # under torchrun a rank > 0 says nothing; its error goes to torchrun's summary
-    with contextlib.redirect_stderr(silenced):
-        status = work()
-    if status not in (0, EXIT_SIGINT, EXIT_SIGTERM):
-        distributed.record_error(silenced.getvalue())
-    return status
+    return reported(lambda: run_tool(PROG, lambda: _work(args, holder),
+                                     interrupted=lambda: _interrupted(holder[0]) if holder else "interrupted"))
 
 
 if __name__ == "__main__":

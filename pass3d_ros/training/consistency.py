@@ -1,4 +1,4 @@
-"""View consistency on unlabelled real scans: adaptation without their labels (issue 28).
+"""View consistency on unlabelled real scans: adaptation without their labels, which a user's sensor does not have.
 
 Stage 2 reads a proposal in one canonical view; on real scans 20-25 % of car proposals change class across the 8
 views, on synthetic ones 1-3 %. Each training step adds a few proposals of unlabelled real scans: the network's own
@@ -7,12 +7,12 @@ with augmented intensity, on the points it is sure of (FixMatch, Sohn et al., Ne
 and the intensity augmentation as the strong augmentation). No label of those scans is read; their intensities are
 put on the training scale per stream, as the segmentation node does.
 
-With `draws` (issue 37: stage 2's answer moved with the 256 points it drew), the student reads another random draw
+With `draws` (because stage 2's answer moved with the 256 points it drew), the student reads another random draw
 of the proposal's points than the teacher, so two draws must agree as well as two views: the teacher labels every
 point of the proposal (its inference pass, sample and queries) and the student's sampled points take those labels.
-With `teacher_draws` K > 1 the teacher's probabilities are the mean of K independent draws (trial 28: a one-draw
-teacher teaches whichever answer its draw gave; the mean over draws is the answer that depends least on the draw,
-and with 8 draws the shipped weights read 19 KITTI frames' cars 10 points better: trial 29).
+With `teacher_draws` K > 1 the teacher's probabilities are the mean of K independent draws (a one-draw teacher teaches
+whichever answer its draw gave; the mean over draws is the answer that depends least on the draw, and with 8 draws the
+shipped weights read 19 KITTI frames' cars 10 points better; measured: docs/experiments/trials-issue-37-sampling.md).
 """
 
 from __future__ import annotations

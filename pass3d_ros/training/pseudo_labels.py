@@ -1,6 +1,6 @@
 """Pseudo-labels for unlabelled real scans: the network's own answer where all 8 canonical views agree and it is sure.
 
-Self-training adapts stage 2 to a sensor's real scans without their labels (issue 28). Per scan: stage 1, then the
+Self-training adapts stage 2 to a sensor's real scans, which come without labels. Per scan: stage 1, then the
 network on every proposal in all 8 views (`Segmenter.view_probabilities`). A proposal becomes a training sample when
 all 8 views give it the same class and the median view-averaged confidence of its points is at least
 `min_confidence`; its points take the view-averaged class. The points of the other proposals are left out of the

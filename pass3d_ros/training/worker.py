@@ -12,6 +12,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
 
 LAUNCHER_ENV = "PASS3D_LAUNCHER_PID"  # set by pass3d_train --nproc in its workers: the launcher's pid
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
@@ -65,6 +66,20 @@ def die_with_parent() -> None:
         with contextlib.suppress(OSError, AttributeError):  # without it, the watchdog still covers it
             ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     threading.Thread(target=_watch_parent, args=(parent,), name="pass3d-parent-watchdog", daemon=True).start()
+
+
+@contextlib.contextmanager
+def starting(prog: str) -> Iterator[None]:
+    """A tool's first step, around the seconds of its heavy imports: tie a launched worker to its launcher first (so
+    a launcher killed meanwhile takes it along), and make Ctrl-C meanwhile the one line (`prog: interrupted`, from a
+    rank that reports) and status 130 it is later, not a traceback."""
+    die_with_parent()
+    try:
+        yield
+    except KeyboardInterrupt:
+        if reports():
+            print(f"{prog}: interrupted", file=sys.stderr)
+        sys.exit(130)  # cli.EXIT_SIGINT, whose module may be what the interrupted import was loading
 
 
 def _watch_parent(parent: int) -> None:

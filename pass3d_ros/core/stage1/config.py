@@ -48,6 +48,22 @@ def closest(name: str, known: Iterable[str]) -> str | None:
     return match[0] if match else None
 
 
+def refuse_problems(config: str, problems: list[str]) -> None:
+    """ConfigError naming every problem found in `config` (a config class's name), if there is any."""
+    if problems:
+        raise ConfigError(f"{config}: " + "; ".join(problems))
+
+
+def refuse_unknown(config: str, values: Iterable[str], known: Iterable[str]) -> None:
+    """ConfigError naming each key of `values` that is no `known` field of `config` (a config class's name), with
+    the nearest known name: a misspelt parameter is an error, not silently ignored."""
+    known = set(known)
+    unknown = sorted(set(values) - known)
+    if unknown:
+        named = [name + (f" (did you mean {near}?)" if (near := closest(name, known)) else "") for name in unknown]
+        raise ConfigError(f"{config}: unknown parameter(s) {', '.join(named)}")
+
+
 def _param(default: Any, description: str, lo: float, hi: float) -> Any:
     """A config field whose metadata carries its description and allowed closed range (ROS parameters)."""
     return field(default=default, metadata={"description": description, "range": (lo, hi)})
@@ -217,9 +233,7 @@ class Stage1Config:
     )
 
     def __post_init__(self) -> None:
-        problems = self._type_problems()
-        if problems:
-            raise ConfigError("Stage1Config: " + "; ".join(problems))
+        refuse_problems("Stage1Config", self._type_problems())
         for f in fields(self):
             if f.type in _NORMAL_TYPES:
                 setattr(self, f.name, _NORMAL_TYPES[f.type](getattr(self, f.name)))
@@ -250,8 +264,7 @@ class Stage1Config:
         """Raise ConfigError naming every parameter of the wrong type, outside its allowed range, or out of order
         with its pair (max_top below min_top)."""
         problems = self._type_problems()
-        if problems:
-            raise ConfigError("Stage1Config: " + "; ".join(problems))
+        refuse_problems("Stage1Config", problems)
         if len(self.enlarge) != 3:
             problems.append(f"enlarge needs 3 values (x, y, z), got {len(self.enlarge)}")
         for f in fields(self):
@@ -274,17 +287,12 @@ class Stage1Config:
         for low, high in ORDERED_PAIRS:
             if getattr(self, low) > getattr(self, high):
                 problems.append(f"{high}={getattr(self, high):g} is below {low}={getattr(self, low):g}")
-        if problems:
-            raise ConfigError("Stage1Config: " + "; ".join(problems))
+        refuse_problems("Stage1Config", problems)
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> Stage1Config:
         """Config from a dict (YAML, ROS parameters); unknown keys are an error, not silently ignored."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            named = [name + (f" (did you mean {near}?)" if (near := closest(name, known)) else "") for name in unknown]
-            raise ConfigError(f"Stage1Config: unknown parameter(s) {', '.join(named)}")
+        refuse_unknown("Stage1Config", values, (f.name for f in fields(cls)))
         return cls(**dict(values))
 
     @property

@@ -9,8 +9,8 @@ the first octant. Views 0..3 are the four right-handed frames (origin at vertex 
 views 4..7 are their mirror images (x and y swapped, left-handed). Training draws any of the 8; inference
 uses the right-handed view at the vertex nearest the sensor and, for the shipped ("slot") weights,
 `content_sample`: a proposal of more than N points gives the N points of smallest hash of their values (and a draw
-index, 0 by default), the same points in any order; a smaller one is read whole in input order (trial 34). The
-count-seeded draw (`inference_sample`, `--sampling draw`, the default until trial 34) picks positions in the
+index, 0 by default), the same points in any order; a smaller one is read whole in input order, as trained. The
+count-seeded draw (`inference_sample`, `--sampling draw`, the former default) picks positions in the
 members' list from a generator seeded by the point count, so its input depends on the points' order too.
 """
 
@@ -318,7 +318,7 @@ def content_sample(points: np.ndarray, num_points: int, draw: int = 0) -> np.nda
     random subset in random order, as `sample_indices`). With as many or fewer, every point in input order, as
     `sample_indices` lists them, and the repeats it would add drawn from a generator seeded by the proposal's content
     (the xor of its hashes), count and draw: the network reads a small proposal in scan order, as it was trained,
-    and a new order per draw made its class a dice roll (trial 34, docs/experiments/trials-issue-37-sampling.md)."""
+    and a new order per draw made its class a dice roll (measured: docs/experiments/trials-issue-37-sampling.md)."""
     return content_positions(point_hashes(points, draw), num_points, draw)
 
 

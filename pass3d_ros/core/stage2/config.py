@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-from pass3d_ros.core.stage1.config import ConfigError, closest
+from pass3d_ros.core.stage1.config import refuse_problems, refuse_unknown
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.threads import DEFAULT_THREADS
@@ -82,17 +82,12 @@ class Stage2Config:
             value_range = f.metadata["range"]
             if value_range is not None and not value_range[0] <= value <= value_range[1]:
                 problems.append(f"{f.name}={value:g} outside [{value_range[0]:g}, {value_range[1]:g}]")
-        if problems:
-            raise ConfigError("Stage2Config: " + "; ".join(problems))
+        refuse_problems("Stage2Config", problems)
 
     @classmethod
     def from_mapping(cls, values: dict[str, Any]) -> Stage2Config:
         """Config from a dict (YAML, ROS parameters); unknown keys are an error, not silently ignored."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            named = [name + (f" (did you mean {near}?)" if (near := closest(name, known)) else "") for name in unknown]
-            raise ConfigError(f"Stage2Config: unknown parameter(s) {', '.join(named)}")
+        refuse_unknown("Stage2Config", values, (f.name for f in fields(cls)))
         return cls(**values)
 
     def to_dict(self) -> dict[str, Any]:

@@ -28,13 +28,15 @@ from pass3d_ros.core.stage2 import pointnet2_cpu as _cpu
 # Per-point input features beside the local xyz: intensity and the point-count feature n.
 NUM_POINT_FEATURES = 2
 
-# How a set-abstraction level groups its N points. "slot" (every checkpoint before issue 37): FPS starts at slot 0
-# and a ball keeps its first members in slot order, so the answer depends on the order of the points. "set": FPS
-# starts at the point nearest the points' centroid and a ball keeps its nearest members (ties to the lower slot,
+# How a set-abstraction level groups its N points. "slot" (the shipped weights and every older checkpoint): FPS starts
+# at slot 0 and a ball keeps its first members in slot order, so the answer depends on the order of the points. "set":
+# FPS starts at the point nearest the points' centroid and a ball keeps its nearest members (ties to the lower slot,
 # which only identical points share), so the answer is a function of the point set alone.
 GROUPINGS = ("slot", "set")
 CHECKPOINT_GROUPING = "slot"  # a checkpoint that names no grouping was trained with this one
-TRAIN_GROUPING = CHECKPOINT_GROUPING  # a new run's default: the shipped one ("set" lost a held-out sensor, trial 27)
+# A new run's default: the shipped one. "set", trained, lost the held-out VLP-32C's pedestrians by 9-11 IoU points
+# (docs/experiments/trials-issue-37-sampling.md).
+TRAIN_GROUPING = CHECKPOINT_GROUPING
 
 
 @dataclass
