@@ -243,7 +243,8 @@ class ClusterProposalNode(PointCloudNode):
         source = input_source(decoded, msg.height, msg.width, len(scan.points), prepared.kept) \
             if self.sink is not None or self._full else None
         if self.sink is not None:
-            self.sink(ProposalFrame(msg.header, points, out_ring, result.cluster_id, result.cluster_id2, source))
+            self.sink(ProposalFrame(msg.header, points, out_ring, result.cluster_id, result.cluster_id2, source,
+                                    result.level))
             clock.mark("sink")
         if self.sink is None or self.proposals_pub.get_subscription_count() > 0:
             if self._full:
@@ -255,7 +256,7 @@ class ClusterProposalNode(PointCloudNode):
                                    "on /pass3d/proposals (output_layout as_input / publish_background): the "
                                    f"{WIRE_PREFIX} prefix is reserved for this package's own columns")
                 full = full_proposals_cloud(source, points, result.cluster_id, result.cluster_id2, result.ground,
-                                            out_ring)
+                                            out_ring, result.level)
                 cloud = encode(full, header=msg.header, height=source.height, is_dense=source.is_dense)
             else:
                 cloud = encode(proposals_cloud(points, result, out_ring), header=msg.header)

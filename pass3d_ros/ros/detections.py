@@ -12,6 +12,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
@@ -28,27 +29,53 @@ else:
     MISSING = None
 
 
-def detections_message(objects: Sequence[LabelledObject], header: Any) -> Any:
+def detections_message(objects: Sequence[LabelledObject], header: Any, level: np.ndarray | None = None) -> Any:
     """A Detection3DArray: `header` (the labelled cloud's), one Detection3D per object with its oriented box, one
-    hypothesis (class name, mean confidence, the box's pose) and the cluster id as `id`."""
+    hypothesis (class name, mean confidence, the box's pose) and the cluster id as `id`. `level`: the rotation from
+    the sensor's frame to the level frame the objects' boxes are in; the poses are given in the sensor's frame."""
     detections = []
     for obj in objects:
         detection = vision.Detection3D(header=header, id=str(obj.cluster_id))
-        _set_pose(detection.bbox.center, obj)
+        _set_pose(detection.bbox.center, obj, level)
         detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z = obj.size
         result = vision.ObjectHypothesisWithPose()
         result.hypothesis.class_id = obj.class_id
         result.hypothesis.score = obj.score
-        _set_pose(result.pose.pose, obj)
+        _set_pose(result.pose.pose, obj, level)
         detection.results = [result]
         detections.append(detection)
     return vision.Detection3DArray(header=header, detections=detections)
 
 
-def _set_pose(pose: Any, obj: LabelledObject) -> None:
-    """Fill a geometry_msgs/Pose with the object's box centre and its yaw about z."""
-    pose.position.x, pose.position.y, pose.position.z = obj.center
-    pose.orientation.z, pose.orientation.w = math.sin(obj.yaw / 2), math.cos(obj.yaw / 2)
+def _set_pose(pose: Any, obj: LabelledObject, level: np.ndarray | None = None) -> None:
+    """Fill a geometry_msgs/Pose with the object's box centre and its yaw about z (about the level frame's z, turned
+    back into the sensor's frame, with `level`)."""
+    if level is None:
+        pose.position.x, pose.position.y, pose.position.z = obj.center
+        pose.orientation.z, pose.orientation.w = math.sin(obj.yaw / 2), math.cos(obj.yaw / 2)
+        return
+    back = np.asarray(level, dtype=float).T  # level frame -> sensor frame
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in back @ np.asarray(obj.center, float))
+    c, s = math.cos(obj.yaw), math.sin(obj.yaw)
+    w, x, y, z = _quaternion(back @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]))
+    pose.orientation.w, pose.orientation.x, pose.orientation.y, pose.orientation.z = w, x, y, z
+
+
+def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
+    """(w, x, y, z) of a rotation matrix (Shepperd's method: the largest diagonal term picks the stable branch)."""
+    m = rotation
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    if trace > 0.0:
+        s = 2.0 * math.sqrt(1.0 + trace)
+        return 0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s
+    k = int(np.argmax(np.diag(m)))
+    i, j, n = k, (k + 1) % 3, (k + 2) % 3
+    s = 2.0 * math.sqrt(1.0 + m[i, i] - m[j, j] - m[n, n])
+    q = [0.0, 0.0, 0.0]
+    q[i] = 0.25 * s
+    q[j] = (m[j, i] + m[i, j]) / s
+    q[n] = (m[n, i] + m[i, n]) / s
+    return (m[n, j] - m[j, n]) / s, q[0], q[1], q[2]
 
 
 def label_info_message(threshold: float) -> Any:
@@ -85,9 +112,9 @@ class DetectionOutputs:
         return self.detections_pub.get_subscription_count() > 0
 
     @staticmethod
-    def message(objects: Sequence[LabelledObject], header: Any) -> Any:
+    def message(objects: Sequence[LabelledObject], header: Any, level: np.ndarray | None = None) -> Any:
         """One frame's Detection3DArray (`detections_message`)."""
-        return detections_message(objects, header)
+        return detections_message(objects, header, level)
 
     def publish(self, message: Any) -> None:
         """Publish one frame's Detection3DArray."""

@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, packed_rgb
+from pass3d_ros.core.stage1.proposals import level_points
 from pass3d_ros.msgs.pointcloud2 import Extended, finite_mask
 
 COMPACT = "compact"
@@ -70,6 +71,10 @@ STAGE1_CLUSTER_ID2 = WIRE_PREFIX + "cluster_id2"
 STAGE1_GROUND = WIRE_PREFIX + "ground"
 STAGE1_RING = WIRE_PREFIX + "ring"
 STAGE1_COLUMNS: tuple[str, ...] = (STAGE1_CLUSTER_ID, STAGE1_CLUSTER_ID2, STAGE1_GROUND, STAGE1_RING, STAGE1_INTENSITY)
+# With a levelled scan (a tilted, high or upside-down mount: pass3d_ros.core.stage1.mounting), both forms carry each
+# point's coordinates in the level frame stage 1 ran in, so stage 2 reads the proposals standing on the ground.
+LEVEL_COLUMNS: tuple[str, ...] = (WIRE_PREFIX + "level_x", WIRE_PREFIX + "level_y", WIRE_PREFIX + "level_z")
+WIRE_COLUMNS: tuple[str, ...] = STAGE1_COLUMNS + LEVEL_COLUMNS  # every column of ours, never an input's
 LEGACY_INTENSITY = "stage1_intensity"  # the old full message's marker (unprefixed columns): refused, see above
 LABEL_COLUMNS: tuple[str, ...] = ("cluster_id", "confidence", "rgb", "label")
 COMPACT_BACKGROUND: tuple[str, ...] = ("x", "y", "z", "intensity", "ring")  # without a source
@@ -114,16 +119,21 @@ def input_source(cloud: np.ndarray, height: int, width: int, read: int, kept: np
 
 
 def full_proposals_cloud(source: InputSource, points: np.ndarray, cluster_id: np.ndarray, cluster_id2: np.ndarray,
-                         ground: np.ndarray, ring: np.ndarray) -> Extended:
+                         ground: np.ndarray, ring: np.ndarray, level: np.ndarray | None = None) -> Extended:
     """/pass3d/proposals in the input's layout: every input row and field untouched plus stage 1's `__pass3d_` columns
-    (module docstring), to `encode` with the input's height. `ring`: the frame's (one per point stage 1 read)."""
-    return Extended(source.cloud, {
+    (module docstring), to `encode` with the input's height. `ring`: the frame's (one per point stage 1 read);
+    `level`: the level frame's rotation when stage 1 levelled the scan (adds LEVEL_COLUMNS)."""
+    columns = {
         STAGE1_CLUSTER_ID: source.scatter(cluster_id.astype(np.int32), -1),
         STAGE1_CLUSTER_ID2: source.scatter(cluster_id2.astype(np.int32), -1),
         STAGE1_GROUND: source.scatter(ground.astype(np.uint8), 0),
         STAGE1_RING: source.scatter(ring.astype(np.uint16), 0),
         STAGE1_INTENSITY: source.scatter(points[:, 3].astype(np.float32), np.nan),
-    })
+    }
+    if level is not None:
+        flat = level_points(points, level)
+        columns.update({name: source.scatter(flat[:, k], np.nan) for k, name in enumerate(LEVEL_COLUMNS)})
+    return Extended(source.cloud, columns)
 
 
 def read_rows(cloud: np.ndarray) -> np.ndarray:

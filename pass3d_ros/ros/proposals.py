@@ -23,15 +23,18 @@ import numpy as np
 from sensor_msgs.msg import PointCloud2
 
 from pass3d_ros.core.stage1 import Stage1Result, proposal_members
+from pass3d_ros.core.stage1.proposals import level_points
 from pass3d_ros.core.stage2.segmentation import nearest_kept
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, finite_mask, to_xyzi
 from pass3d_ros.ros.input_layout import (
     LEGACY_INTENSITY,
+    LEVEL_COLUMNS,
     STAGE1_CLUSTER_ID,
     STAGE1_CLUSTER_ID2,
     STAGE1_COLUMNS,
     STAGE1_INTENSITY,
     STAGE1_RING,
+    WIRE_COLUMNS,
     InputSource,
     read_rows,
 )
@@ -51,6 +54,11 @@ class ProposalFrame:
     cluster_id: np.ndarray  # (N,) primary proposal id, -1 = none
     cluster_id2: np.ndarray  # (N,) secondary proposal id (overlapping enlarged boxes), -1 = none
     source: InputSource | None = None  # the input as it came (pipeline, or proposals in the input's layout)
+    level: np.ndarray | None = None  # (3, 3) sensor -> level frame when stage 1 levelled the scan (Stage1Result.level)
+
+    def level_points(self) -> np.ndarray:
+        """The points as stage 1 ran them: in the level frame (its canonical boxes stand on the ground)."""
+        return level_points(self.points, self.level)
 
 
 ProposalSink = Callable[[ProposalFrame], None]
@@ -61,7 +69,7 @@ def proposals_cloud(points: np.ndarray, result: Stage1Result, ring: np.ndarray |
     """The columns of /pass3d/proposals: everything the segmentation node needs, point order kept; `ring`: the
     driver's field as it came (its own numbering) when there is one, else stage 1's rings (0 = highest laser)."""
     ring = result.ring if ring is None else ring
-    return {
+    columns = {
         "x": points[:, 0],
         "y": points[:, 1],
         "z": points[:, 2],
@@ -71,6 +79,10 @@ def proposals_cloud(points: np.ndarray, result: Stage1Result, ring: np.ndarray |
         "cluster_id": result.cluster_id.astype(np.int32),
         "cluster_id2": result.cluster_id2.astype(np.int32),
     }
+    if result.level is not None:
+        flat = level_points(points, result.level)
+        columns.update({name: flat[:, k] for k, name in enumerate(LEVEL_COLUMNS)})
+    return columns
 
 
 def proposal_ids(cloud: np.ndarray, rows: np.ndarray | None = None, fields: tuple[str, str] = ID_FIELDS
@@ -121,7 +133,8 @@ def proposal_frame(msg: PointCloud2) -> ProposalFrame:
         raise PointCloud2Error(f"no {', '.join(missing)} field: is this a /pass3d/proposals cloud?")
     first, second = proposal_ids(cloud)
     points = to_xyzi(cloud, with_ring=False).points
-    return ProposalFrame(msg.header, points, cloud["ring"] if "ring" in names else None, first, second)
+    return ProposalFrame(msg.header, points, cloud["ring"] if "ring" in names else None, first, second,
+                         level=_level(cloud, points, None))
 
 
 def _full_frame(msg: PointCloud2, cloud: np.ndarray) -> ProposalFrame:
@@ -144,9 +157,29 @@ def _full_frame(msg: PointCloud2, cloud: np.ndarray) -> ProposalFrame:
         points[:, column] = cloud[name][rows]
     ring = cloud[STAGE1_RING][rows]
     # the input's fields untouched, at their offsets (the __pass3d_ bytes stay as padding past them, never copied out)
-    source = InputSource(cloud[[name for name in names if name not in STAGE1_COLUMNS]], int(msg.height),
+    source = InputSource(cloud[[name for name in names if name not in WIRE_COLUMNS]], int(msg.height),
                          int(msg.width), bool(msg.is_dense), None if len(rows) == len(cloud) else rows)
-    return ProposalFrame(msg.header, points, ring, first, second, source)
+    return ProposalFrame(msg.header, points, ring, first, second, source, _level(cloud, points, rows))
+
+
+LEVEL_FIT_POINTS = 2000  # points the level frame's rotation is read back from
+
+
+def _level(cloud: np.ndarray, points: np.ndarray, rows: np.ndarray | None) -> np.ndarray | None:
+    """The rotation into the level frame a proposals message carries as its points' level coordinates (None without
+    LEVEL_COLUMNS): the least-squares rotation (Kabsch) taking the points' xyz onto them."""
+    names = cloud.dtype.names or ()
+    if not all(name in names for name in LEVEL_COLUMNS):
+        return None
+    level = np.stack([cloud[name] if rows is None else cloud[name][rows] for name in LEVEL_COLUMNS], axis=1)
+    pick = np.arange(0, len(points), max(1, len(points) // LEVEL_FIT_POINTS))
+    a, b = points[pick, :3].astype(np.float64), level[pick].astype(np.float64)
+    good = np.isfinite(b).all(axis=1)
+    if np.count_nonzero(good) < 3:
+        raise PointCloud2Error(f"{LEVEL_COLUMNS[0]}..z: fewer than 3 finite rows to read the level frame from")
+    u, _, vt = np.linalg.svd(a[good].T @ b[good])
+    fix = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    return (u @ fix @ vt).T
 
 
 def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:

@@ -22,6 +22,7 @@ from pass3d_ros.core import scan_checks
 from pass3d_ros.core.objects import labelled_objects
 from pass3d_ros.core.pipeline import ProposalSegmenter
 from pass3d_ros.core.stage1 import proposal_members
+from pass3d_ros.core.stage1.proposals import level_points
 from pass3d_ros.core.stage2 import Classifier, open_classifier
 from pass3d_ros.core.stage2.classifier_process import (
     ClassifierProcessDownError,
@@ -292,7 +293,7 @@ class SegmentationNode(PointCloudNode):
             return self.skipped("empty")
         proposals = self._budget(frame)
         members = proposals.members
-        stage2_points = self._on_training_scale(points)
+        stage2_points = level_points(self._on_training_scale(points), frame.level)
         clock.mark("decode")
         try:
             result = self.stage2.segment(stage2_points, members)
@@ -340,7 +341,7 @@ class SegmentationNode(PointCloudNode):
             positions = np.arange(len(frame.points)) if source.positions is None else source.positions
             source = dataclasses.replace(source, positions=positions[keep])
         return ProposalFrame(frame.header, frame.points[keep], None if frame.ring is None else frame.ring[keep],
-                             frame.cluster_id[keep], frame.cluster_id2[keep], source)
+                             frame.cluster_id[keep], frame.cluster_id2[keep], source, frame.level)
 
     def _budget(self, frame: ProposalFrame) -> Budgeted:
         """Member points and cluster ids of the frame's proposals, at most max_proposals of them (the nearest): the
@@ -416,16 +417,17 @@ class SegmentationNode(PointCloudNode):
         detections = self.detections is not None and self.detections.wanted()
         if not (markers or detections):
             return
-        objects = labelled_objects(frame.points, proposals.members, result.proposal_class, labels, result.confidence,
-                                   proposals.ids)
+        objects = labelled_objects(frame.level_points(), proposals.members, result.proposal_class, labels,
+                                   result.confidence, proposals.ids)  # boxes stand on the ground: level frame
         if markers:
             boxes = [obj.box() for obj in objects]
-            array = boxes_to_markers(boxes, frame.header, "objects", [obj.label for obj in objects], with_text=True)
+            array = boxes_to_markers(boxes, frame.header, "objects", [obj.label for obj in objects], with_text=True,
+                                     level=frame.level)
             clock.mark("encode")
             self.objects_pub.publish(array)
             clock.mark("publish")
         if detections:
-            message = self.detections.message(objects, frame.header)
+            message = self.detections.message(objects, frame.header, frame.level)
             clock.mark("encode")
             self.detections.publish(message)
             clock.mark("publish")

@@ -81,12 +81,32 @@ def _text(default: str, description: str, check: Callable[[str], str]) -> Any:
     return field(default=default, metadata={"description": description, "range": None, "check": check})
 
 
-def _mount_problem(text: str) -> str:
-    """What is wrong with a `mount` value ("" when nothing is): pass3d_ros.core.stage1.mounting.parse_mount reads it."""
-    from pass3d_ros.core.stage1.mounting import parse_mount  # mounting imports this module
+MOUNT_HEIGHT_RANGE_M = (0.1, 10.0)  # a given mount's z (its height above the ground)
 
+
+def mount_values(text: str) -> tuple[float, ...] | None:
+    """`stage1.mount` read: None for auto (read from the scans), else (x, y, z, roll, pitch, yaw) as a URDF's origin
+    states the sensor in a frame on the ground under the vehicle (base_footprint): metres and radians, spaces or
+    commas. ValueError names what is wrong."""
+    if text.strip().lower() == AUTO:
+        return None
+    parts = [p for p in text.replace(",", " ").split() if p]
     try:
-        parse_mount(text)
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        values = ()
+    if len(values) != 6 or not all(np.isfinite(values)):
+        raise ValueError(f"mount={text!r} must be auto or six numbers: x y z roll pitch yaw (m, rad; URDF's origin)")
+    low, high = MOUNT_HEIGHT_RANGE_M
+    if not low <= values[2] <= high:
+        raise ValueError(f"mount={text!r}: z (the height above the ground) must lie in [{low:g}, {high:g}] m")
+    return values
+
+
+def _mount_problem(text: str) -> str:
+    """What is wrong with a `mount` value ("" when nothing is)."""
+    try:
+        mount_values(text)
     except ValueError as exc:
         return str(exc)
     return ""

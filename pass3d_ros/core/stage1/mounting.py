@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pass3d_ros.core.stage1.config import AUTO, Stage1Config
+from pass3d_ros.core.stage1.config import AUTO, Stage1Config, mount_values
 
 MOUNTING_SCANS = 5  # readings whose median is held
 MIN_GROUND_POINTS = 100  # points of the near ground plane a reading needs
@@ -180,21 +180,12 @@ def read_mounting(points: np.ndarray) -> Mounting | None:
 
 
 def parse_mount(text: str) -> Mounting | None:
-    """`stage1.mount`: "auto" (None: read from the scans), or "x y z roll pitch yaw" as a URDF's origin states the
-    sensor in a frame on the ground under the vehicle (base_footprint): metres and radians, spaces or commas. x and y
-    are not used (stage 1 stays at the sensor); z is the height. ValueError names what is wrong."""
-    if text.strip().lower() == AUTO:
+    """`stage1.mount` as a mounting (pass3d_ros.core.stage1.config.mount_values; None: auto). x and y are not used:
+    stage 1 stays at the sensor; z is the height."""
+    values = mount_values(text)
+    if values is None:
         return None
-    parts = [p for p in text.replace(",", " ").split() if p]
-    try:
-        x, y, z, roll, pitch, yaw = (float(p) for p in parts) if len(parts) == 6 else (None,) * 6
-    except ValueError:
-        x = None
-    if x is None or not all(math.isfinite(v) for v in (x, y, z, roll, pitch, yaw)):
-        raise ValueError(f"mount={text!r} must be auto or six numbers: x y z roll pitch yaw (m, rad; URDF's origin)")
-    if not MIN_HEIGHT_M <= z <= MAX_HEIGHT_M:
-        raise ValueError(f"mount={text!r}: z (the height above the ground) must lie in [{MIN_HEIGHT_M:g}, "
-                         f"{MAX_HEIGHT_M:g}] m")
+    _, _, z, roll, pitch, yaw = values
     return Mounting(z, math.degrees(roll), math.degrees(pitch), math.degrees(yaw))
 
 
