@@ -7,12 +7,12 @@ import ast
 import re
 from pathlib import Path
 
-TEST_DIR = Path(__file__).resolve().parent
+TEST_DIR = Path(__file__).resolve().parents[1]
 ROOT = TEST_DIR.parent
 
 
 def modules() -> list[Path]:
-    return sorted([*TEST_DIR.glob("*.py"), *(TEST_DIR / "helpers").glob("*.py")])
+    return sorted(TEST_DIR.rglob("*.py"))
 
 
 def imported(path: Path) -> set[str]:
