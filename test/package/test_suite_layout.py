@@ -1,5 +1,6 @@
-"""The suite's own shape (issue 36): shared code lives in test/helpers and conftest.py, no test module imports another,
-each fixture is declared once, and CI runs every test although `make test` leaves the slow ones out."""
+"""The suite's own shape (issue 36): the test folders mirror pass3d_ros/ (test/package/ for the package as a whole),
+shared code lives in test/helpers and the conftest.py files, no test module imports another, each fixture is declared
+once, and CI runs every test although `make test` leaves the slow ones out."""
 
 from __future__ import annotations
 
@@ -9,10 +10,39 @@ from pathlib import Path
 
 TEST_DIR = Path(__file__).resolve().parents[1]
 ROOT = TEST_DIR.parent
+PACKAGE = ROOT / "pass3d_ros"
+WHOLE_PACKAGE = "package"  # test/package/: docs, launch configs, dependencies, this layout
 
 
 def modules() -> list[Path]:
     return sorted(TEST_DIR.rglob("*.py"))
+
+
+def files_of_tests() -> list[Path]:
+    return sorted(TEST_DIR.rglob("test_*.py"))
+
+
+def test_each_test_module_lives_where_its_package_does() -> None:
+    """test/core/stage1/test_x.py tests pass3d_ros/core/stage1/: every test folder is a pass3d_ros package's path (or
+    test/package/), and none sits directly in test/."""
+    misplaced = []
+    for path in files_of_tests():
+        folder = path.parent.relative_to(TEST_DIR)
+        mirrors = folder.parts and (PACKAGE / folder / "__init__.py").is_file()
+        if not (mirrors or folder == Path(WHOLE_PACKAGE)):
+            misplaced.append(str(path.relative_to(TEST_DIR)))
+    assert not misplaced, f"move them under the folder of the pass3d_ros package they test: {misplaced}"
+    assert not (PACKAGE / WHOLE_PACKAGE).exists(), "test/package/ would shadow a pass3d_ros package of that name"
+
+
+def test_test_module_names_are_unique_without_init_files() -> None:
+    """pytest's default (prepend) imports need one basename per test module while the folders have no __init__.py."""
+    seen: dict[str, list[str]] = {}
+    for path in files_of_tests():
+        seen.setdefault(path.name, []).append(str(path.relative_to(TEST_DIR)))
+    assert not {name: paths for name, paths in seen.items() if len(paths) > 1}
+    inits = [p for p in TEST_DIR.rglob("__init__.py") if p.parent != TEST_DIR / "helpers"]
+    assert not inits, f"test folders are no packages: {inits}"
 
 
 def imported(path: Path) -> set[str]:
@@ -31,7 +61,8 @@ def is_fixture(decorator: ast.expr) -> bool:
 
 
 def test_no_test_module_imports_another_or_conftest() -> None:
-    offending = {path.name: sorted(n for n in imported(path) if n.startswith("test_") or n == "conftest")
+    offending = {str(path.relative_to(TEST_DIR)): sorted(n for n in imported(path)
+                                                         if n.startswith("test_") or n == "conftest")
                  for path in modules()}
     offending = {name: found for name, found in offending.items() if found}
     assert not offending, f"move what they share into test/helpers or conftest.py: {offending}"
@@ -42,7 +73,7 @@ def test_each_fixture_is_declared_once() -> None:
     for path in modules():
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.FunctionDef) and any(is_fixture(d) for d in node.decorator_list):
-                where.setdefault(node.name, []).append(path.name)
+                where.setdefault(node.name, []).append(str(path.relative_to(TEST_DIR)))
     twice = {name: files for name, files in where.items() if len(files) > 1}
     assert not twice, f"one declaration in conftest.py, or distinct names where they differ: {twice}"
     assert {"ros", "frame", "proposal_columns", "shipped"} <= where.keys()
