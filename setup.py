@@ -2,7 +2,7 @@
 
 The one list of dependencies: INSTALL_REQUIRES (what the package needs to run) and the `test` extra (what its tests and
 `make lint` add); `make setup` installs `-e .[test]`, package.xml names the same runtime dependencies as rosdep keys and
-test/test_dependencies.py keeps the two (and the README's Dependencies section) in agreement."""
+test/package/test_dependencies.py keeps the two (and the README's Dependencies section) in agreement."""
 
 from glob import glob
 

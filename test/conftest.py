@@ -3,11 +3,15 @@
 never cross-talk), the synthetic scan most node tests use (`frame`, `proposal_columns`), the shipped and an untrained
 checkpoint; test markers. Shared code that is not a fixture lives in test/helpers; no test module imports another.
 
+The folders mirror pass3d_ros/ (test/core/stage1/ tests pass3d_ros/core/stage1/, ...); test/package/ checks the
+package as a whole (docs, launch configs, dependencies, this layout).
+
 Markers: `ros` (needs rclpy and a DDS: the node and live tests), `kitti` (needs the real KITTI development
 frames, skipped with a message when they are absent), `slow` (left out of `make test`; `make test-slow` and CI run
-them). `pytest -m "not ros"` leaves the ROS tests out. A broken rclpy fails the ROS tests instead of skipping
-them; only PASS3D_SKIP_ROS_TESTS=1 (never set by `.ci/run`) leaves their modules uncollected, for a machine that
-knowingly has no ROS.
+them). `pytest -m "not ros"` leaves the ROS tests out. A test is marked `ros` when it takes the `ros` fixture (here)
+or lives where a folder's conftest.py says ROS is needed (all of test/ros/, test/evaluation/test_evaluate.py:
+helpers.markers). A broken rclpy fails the ROS tests instead of skipping them; only PASS3D_SKIP_ROS_TESTS=1 (never
+set by `.ci/run`) leaves those folders' ROS modules uncollected, for a machine that knowingly has no ROS.
 """
 
 from __future__ import annotations
@@ -30,14 +34,11 @@ from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-ROS_TEST_MODULES = ["test_nodes.py", "test_evaluate.py", "test_recording.py", "test_node_input.py",
-                    "test_realtime.py", "test_sensors_live.py", "test_transport.py", "test_quick_flow.py",
-                    "test_segmentation_guard.py", "test_diagnostics_truth.py", "test_detections.py"]
-collect_ignore = ROS_TEST_MODULES if os.environ.get("PASS3D_SKIP_ROS_TESTS") == "1" else []
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Mark the tests that use the real KITTI frames `kitti` and those on a live rclpy context `ros`."""
+    """Mark the tests that use the real KITTI frames `kitti` and those on a live rclpy context `ros` (the folders'
+    conftest.py files mark the rest of the ROS tests)."""
     for item in items:
         fixtures = getattr(item, "fixturenames", ())
         if "kitti_dev" in fixtures:

@@ -343,6 +343,7 @@ def test_the_fine_tune_command_line_gives_pass3d_train_the_same_options(tmp_path
         assert parsed.record() == options.record()
 
 
+@pytest.mark.slow  # two pass3d_train workers under the launcher: the kind test_distributed.py marks slow
 def test_pass3d_adapt_fine_tunes_in_several_processes(tmp_path, capfd, monkeypatch):
     """--nproc 2: the fine-tune runs in two pass3d_train workers that read the recording's proposals from the file
     handed over; the result is checked, judged and written as in one process (the guard is opened wide: one epoch
@@ -364,6 +365,7 @@ def test_pass3d_adapt_fine_tunes_in_several_processes(tmp_path, capfd, monkeypat
     assert Segmenter(out / "weights.pt").checkpoint_info["adapted"]["epochs"] == 1
 
 
+@pytest.mark.slow  # two pass3d_train workers under the launcher: the kind test_distributed.py marks slow
 def test_pass3d_adapt_ctrl_c_in_several_processes_keeps_the_last_epoch_marked_partial(tmp_path, monkeypatch):
     """The launcher answers a Ctrl-C with status 130 once its workers stopped: pass3d_adapt then keeps the last
     finished epoch as it does in one process (here the workers finish one epoch and the launcher reports 130)."""

@@ -13,7 +13,7 @@ from pass3d_ros.core.pipeline import ScanPipeline, matches_intensity
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose, synthetic_scan
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 
-PACKAGE = Path(__file__).resolve().parents[1] / "pass3d_ros"
+PACKAGE = Path(__file__).resolve().parents[2] / "pass3d_ros"
 
 # What running a stage by hand needs: stage 1's entry, the members of its proposals, and a stream's holders.
 DOOR_NAMES = {"propose", "proposal_members", "ScanStream", "LineHolder", "MountingHolder", "BodyHolder",

@@ -14,7 +14,7 @@ from pass3d_ros.core.stage1 import Stage1Config, lasers, ring
 from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.synthetic.sensor import sensor_model
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 NEW_TABLES = {  # name: (lasers, top, bottom), degrees
     "pandar40p": (40, 15.0, -25.0),
     "pandar40": (40, 7.25, -15.589),

@@ -1,7 +1,7 @@
 """Realism scorecard on the real KITTI development frames: the generator must stay inside every tolerance.
 
-Run it alone with `pytest test/test_realism.py` (it carries the `kitti` marker and is skipped with a message when
-the real frames are absent). A failure prints the whole scorecard; the tolerances are the generator's targets
+Run it alone with `pytest test/synthetic/test_realism.py` (it carries the `kitti` marker and is skipped with a message
+when the real frames are absent). A failure prints the whole scorecard; the tolerances are the generator's targets
 (pass3d_ros/synthetic/realism.py says why each one) and are not to be widened to make a generator pass.
 """
 

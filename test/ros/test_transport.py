@@ -19,7 +19,7 @@ from pass3d_ros.ros.dds_profile import PROFILE_NAME, PROFILE_VARIABLE, apply_shi
 from pass3d_ros.ros.input_watch import InputWatch, OverlapFilter
 from pass3d_ros.ros.qos import offered_qos
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_the_shipped_profile_is_applied_unless_the_user_chose_one(tmp_path: Path) -> None:

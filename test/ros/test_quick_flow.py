@@ -20,7 +20,7 @@ from pass3d_ros.ros.dds_profile import USER_VARIABLES
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.timeout(420)]
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FRAMES = 20
 RATE = 0.25  # the bag is 10 Hz: 2.5 Hz leaves a loaded CI machine time for every frame (the README uses 1)
 MODULES = {"pass3d_pipeline": "pass3d_ros.ros.pipeline", "pass3d_replay": "pass3d_ros.tools.replay",

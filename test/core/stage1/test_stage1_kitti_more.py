@@ -18,7 +18,7 @@ from pass3d_ros.core.stage1 import Stage1Config, propose, split
 
 KITTI_CAR = (3.88, 1.63, 1.53)  # mean KITTI car box (DESIGN.md)
 CAR_X, CAR_Y = 4.4, 2.8  # where frame 000015's car stands (sensor frame)
-KITTI_MORE = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_more" / "object" / "training"
+KITTI_MORE = Path(__file__).resolve().parents[4] / "shared" / "data" / "kitti_more" / "object" / "training"
 
 
 def car_and_hedge(gap: float, hedge_length: float = 3.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

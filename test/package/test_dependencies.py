@@ -11,7 +11,7 @@ import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 # Each third-party module the package imports: (the setup.py requirement that installs it, its package.xml rosdep key).
 IMPORTS = {

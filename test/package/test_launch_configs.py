@@ -16,7 +16,7 @@ from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.ros import cluster_proposal_node, segmentation_node
 from pass3d_ros.tools import params_yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LAUNCH = ROOT / "launch_configs"
 PARAMS_FILE = LAUNCH / "pass3d_params.yaml"
 

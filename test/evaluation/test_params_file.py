@@ -13,7 +13,7 @@ from pass3d_ros.data.params_file import read_params_file
 from pass3d_ros.tools import evaluate
 
 SPEC = "synthetic:frames=1,seed=3"
-SHIPPED = Path(__file__).resolve().parents[1] / "launch_configs" / "pass3d_params.yaml"
+SHIPPED = Path(__file__).resolve().parents[2] / "launch_configs" / "pass3d_params.yaml"
 
 
 def _adapted(tmp_path: Path) -> tuple[Path, Path]:
