@@ -114,7 +114,8 @@ def test_default_sensor_is_unchanged():
 
 def test_spec_parses_sensor():
     spec = parse_synthetic_spec("sensor=VLP16,frames=2,seed=5")
-    assert spec == {"frames": 2, "seed": 5, "start": 0, "sensor": "vlp16", "height": None, "without": frozenset()}
+    assert spec == {"frames": 2, "seed": 5, "start": 0, "sensor": "vlp16", "height": None, "roll": 0.0, "pitch": 0.0,
+                    "without": frozenset()}
     assert parse_synthetic_spec("frames=1,without=dark+clutter")["without"] == frozenset({"dark", "clutter"})
     assert parse_synthetic_spec("frames=1")["sensor"] == "hdl64e"
     with pytest.raises(DatasetError, match="unknown sensor"):

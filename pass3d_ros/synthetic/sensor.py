@@ -89,11 +89,26 @@ class LidarModel:
     ray_drop: float = 0.0  # share of returns lost at random on top of the signal model
     driver: str = "kitti"  # "kitti" (float .bin), "velodyne", "ouster" or "hesai": the ROS 2 driver's conventions
     intensity_max: int = 255  # the driver's intensity scale: Frame intensity 1.0 reads this much
+    # Mount attitude (degrees, REP-103: roll about x, then pitch about y; positive pitch points the sensor's x axis
+    # down, roll 180 is upside down): the rays are cast rotated by it, the points come back in the sensor's frame.
+    mount_roll_deg: float = 0.0
+    mount_pitch_deg: float = 0.0
 
     @property
     def n_lasers(self) -> int:
         """Number of lasers (rings)."""
         return len(self.elevation_deg)
+
+    def mount_rotation(self) -> np.ndarray | None:
+        """Rotation (3 x 3) taking sensor-frame vectors into the level frame (z up), R = Ry(pitch) Rx(roll); None
+        for a level mount."""
+        if not (self.mount_roll_deg or self.mount_pitch_deg):
+            return None
+        roll, pitch = np.deg2rad(self.mount_roll_deg), np.deg2rad(self.mount_pitch_deg)
+        cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+        rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+        ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+        return ry @ rx
 
     def azimuth_steps_deg(self) -> np.ndarray:
         """Azimuth advance (degrees) before each firing of a revolution; they sum to 360."""
@@ -214,7 +229,8 @@ def ray_grid(sensor: LidarModel, rng: np.random.Generator) -> tuple[np.ndarray, 
     """Rays of one revolution, ring after ring in sweep order: origins (N, 3), unit directions (N, 3),
     ring (N,) uint16 and column (N,) int32 (the firing's place in the revolution).
 
-    KITTI order: firings past 360 degrees or into the ego car's shadow are left out.
+    KITTI order: firings past 360 degrees or into the ego car's shadow are left out. Origins and directions are in
+    the level frame: a tilted or inverted mount (mount_rotation) turns the lasers before they are cast.
     """
     if sensor.point_order == "kitti":
         az = firing_azimuths(sensor, rng)
@@ -226,6 +242,9 @@ def ray_grid(sensor: LidarModel, rng: np.random.Generator) -> tuple[np.ndarray, 
         keep = np.ones(az.shape, dtype=bool)
     column = np.broadcast_to(np.arange(sensor.columns, dtype=np.int32)[None, :], az.shape)[keep]
     origins, dirs, ring = _rays(sensor, az, keep)
+    rotation = sensor.mount_rotation()
+    if rotation is not None:
+        origins, dirs = origins @ rotation.T, dirs @ rotation.T
     return origins, dirs, ring, column
 
 
