@@ -19,6 +19,7 @@ SUITES: dict[str, str] = {
     "stage2": "pass3d_ros.bench.stage2",
     "simulate": "pass3d_ros.bench.simulate",
     "live": "pass3d_ros.bench.live",
+    "sensors": "pass3d_ros.bench.sensors",
 }
 
 

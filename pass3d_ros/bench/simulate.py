@@ -17,8 +17,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pass3d_benchmark simulate`."""
     parser.add_argument("--frames", type=int, default=10, help="frames to time (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="sequence seed (default 0)")
+    from pass3d_ros.synthetic.sensor import SENSOR_NAMES
+
     parser.add_argument("--sensor", type=str.lower, default="hdl64e",
-                        help="LiDAR model: hdl64e (default), vlp16, vlp32c, hdl32e, os1-64, os1-128, pandar64")
+                        help=f"LiDAR model: {', '.join(SENSOR_NAMES)} (default hdl64e)")
 
 
 def run(args: argparse.Namespace) -> int:

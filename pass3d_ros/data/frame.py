@@ -42,6 +42,8 @@ class Frame:
     labels: np.ndarray | None = None  # (N,) uint8, 0 background, 1 car, 2 pedestrian, 3 cyclist
     ground: np.ndarray | None = None  # (N,) bool
     instance: np.ndarray | None = None  # (N,) int32, -1 none
+    # Boxes have a yaw only, so they lie in a level frame: the points' frame for a level sensor; a synthetic frame of
+    # a tilted or inverted mount (`synthetic:...,roll=,pitch=`) keeps them level at the sensor's origin.
     boxes: list[Box3D] = field(default_factory=list)
     # (N,) bool: points of a vehicle that is no car (KITTI Van / Truck boxes, SemanticKITTI bus / truck /
     # other-vehicle), background under the SqueezeSeg rule; None when the source does not tell

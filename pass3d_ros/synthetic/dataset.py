@@ -4,9 +4,16 @@ A frame is one HDL-64E revolution ray-cast into a random street scene: points in
 ring, top laser first), per-point labels, instance ids, ground mask and ring, one box per car, van, truck,
 pedestrian and cyclist that has points (instance id = the box's position in the list, foreground only), and
 a 10 Hz stamp. Everything is drawn from SeedSequence([seed, index]), so a (seed, index) pair always gives the
-same bytes. Spec: `synthetic:frames=N,seed=S[,start=K][,sensor=NAME][,height=H][,without=CHANGE+CHANGE]` yields
-frames K .. K+N-1 of seed S, generated on the fly (`height`: the sensor mounted H m above the road instead of its
-model's; `without`: WORLD_CHANGES left out, for an ablation). Another sensor
+same bytes. Spec: `synthetic:frames=N,seed=S[,start=K][,sensor=NAME][,height=H][,roll=DEG][,pitch=DEG]
+[,without=CHANGE+CHANGE]` yields frames K .. K+N-1 of seed S, generated on the fly (`height`: the sensor mounted H m
+above the road instead of its model's; `without`: WORLD_CHANGES left out, for an ablation).
+
+`roll` and `pitch` tilt the mount (REP-103: positive pitch points the sensor's x axis down, roll=180 is upside down):
+the lasers are turned by the mount before they are cast, so a tilted sensor sees the road where a real one would, and
+the points come back in the sensor's own frame (turned back by the mount), rings and point order the sensor's. The
+per-point labels, ground and instances are those of the same points; Frame.boxes stay in the LEVEL frame at the
+sensor's origin (z up, the road about `height` below; Box3D has a yaw only), not turned with the points. A spec without
+roll or pitch gives the same bytes as before they existed. Another sensor
 (`generate_frame(seed, index, sensor_model("vlp16"))`, names in
 sensor.SENSOR_NAMES) scans the same scenes from the same mount height (unless its model says otherwise) and gives
 its points in its ROS 2 driver's order (ring 0 still the top laser, intensity still in [0, 1]).
@@ -71,6 +78,7 @@ MIXED_EDGE_SHARE = 0.05
 EDGE_JUMP_M = 1.0  # a depth edge: neighbouring beams of a ring differ by more than this (and 10 % of the range)
 DEFAULT_SENSOR = HDL64E()
 HEIGHT_RANGE_M = (0.3, 4.0)  # mount heights a spec's height= accepts: a small robot's deck to a truck's roof
+MOUNT_ANGLE_RANGE_DEG = (-180.0, 180.0)  # roll= and pitch= of a spec (degrees, REP-103)
 
 
 @dataclass
@@ -278,14 +286,18 @@ def rings_recoverable(points: np.ndarray, ring: np.ndarray, n_lasers: int) -> bo
 
 
 def _usable(scan: Scan, sensor: LidarModel) -> bool:
-    """Every ring has points (and, in KITTI's order, can be recovered from the azimuth wrap)."""
+    """Every ring has points (and, in KITTI's order, can be recovered from the azimuth wrap in the sensor's frame)."""
     if sensor.point_order == "kitti":
-        return rings_recoverable(scan.points, scan.ring, sensor.n_lasers)
+        rotation = sensor.mount_rotation()
+        points = scan.points if rotation is None else scan.points[:, :3].astype(np.float64) @ rotation
+        return rings_recoverable(points, scan.ring, sensor.n_lasers)
     return len(np.unique(scan.ring)) == sensor.n_lasers
 
 
 def _to_sensor_frame(scan: Scan, sensor: LidarModel) -> Scan:
-    """Points in the driver's order, and lowered into the sensor's frame when it is not mounted MOUNT_HEIGHT_M up."""
+    """Points in the driver's order, lowered into the sensor's frame when it is not mounted MOUNT_HEIGHT_M up, and
+    turned back by the mount's rotation (the rays were cast turned by it); boxes are lowered, not turned: they stay
+    in the level frame at the sensor's origin."""
     order = driver_order(sensor, scan.ring, scan.column)
     if order is not None:
         scan = Scan(scan.points[order], scan.ring[order], scan.labels[order], scan.ground[order],
@@ -295,6 +307,9 @@ def _to_sensor_frame(scan: Scan, sensor: LidarModel) -> Scan:
         scan.points[:, 2] -= np.float32(lift)
         for box in scan.boxes:
             box.center = box.center - np.array([0.0, 0.0, lift])
+    rotation = sensor.mount_rotation()
+    if rotation is not None:  # level -> sensor: R^T p, for row vectors p @ R
+        scan.points[:, :3] = (scan.points[:, :3].astype(np.float64) @ rotation).astype(np.float32)
     return scan
 
 
@@ -326,17 +341,29 @@ def generate_frame(seed: int, index: int, sensor: LidarModel | str = DEFAULT_SEN
 
 
 def parse_synthetic_spec(text: str) -> dict[str, Any]:
-    """`frames=N,seed=S[,start=K][,sensor=NAME][,height=H][,without=CHANGE+CHANGE]` -> {'frames': N, 'seed': S,
-    'start': K, 'sensor': NAME, 'height': H or None, 'without': frozenset}; DatasetError on anything else (sensor
-    defaults to hdl64e, KITTI's; height to the model's mount, HEIGHT_RANGE_M; `without` names WORLD_CHANGES to leave
-    out, for an ablation)."""
+    """`frames=N,seed=S[,start=K][,sensor=NAME][,height=H][,roll=DEG][,pitch=DEG][,without=CHANGE+CHANGE]` ->
+    {'frames': N, 'seed': S, 'start': K, 'sensor': NAME, 'height': H or None, 'roll': DEG, 'pitch': DEG,
+    'without': frozenset}; DatasetError on anything else (sensor defaults to hdl64e, KITTI's; height to the model's
+    mount, HEIGHT_RANGE_M; roll and pitch to 0, each within MOUNT_ANGLE_RANGE_DEG; `without` names WORLD_CHANGES to
+    leave out, for an ablation)."""
     values: dict[str, Any] = {"frames": 10, "seed": 0, "start": 0}
     sensor = "hdl64e"
     height: float | None = None
+    angles = {"roll": 0.0, "pitch": 0.0}
     without: frozenset[str] = frozenset()
     for item in filter(None, (part.strip() for part in text.split(","))):
         key, sep, value = item.partition("=")
         key = key.strip()
+        if sep and key in angles:
+            try:
+                angle = float(value)
+            except ValueError:
+                angle = float("nan")
+            if not MOUNT_ANGLE_RANGE_DEG[0] <= angle <= MOUNT_ANGLE_RANGE_DEG[1]:
+                raise DatasetError(f"synthetic spec {text!r}: {key} must be a number of degrees in "
+                                   f"{MOUNT_ANGLE_RANGE_DEG[0]:g}..{MOUNT_ANGLE_RANGE_DEG[1]:g}, got {value.strip()!r}")
+            angles[key] = angle + 0.0  # -0.0 -> 0.0
+            continue
         if sep and key == "height":
             try:
                 height = float(value)
@@ -360,7 +387,7 @@ def parse_synthetic_spec(text: str) -> dict[str, Any]:
             continue
         if not sep or key not in values:
             raise DatasetError(f"synthetic spec {text!r}: expected frames=N,seed=S[,start=K][,sensor=NAME]"
-                               f"[,height=H][,without=CHANGE+CHANGE], got {item!r}")
+                               f"[,height=H][,roll=DEG][,pitch=DEG][,without=CHANGE+CHANGE], got {item!r}")
         try:
             values[key] = int(value)
         except ValueError as exc:
@@ -369,19 +396,27 @@ def parse_synthetic_spec(text: str) -> dict[str, Any]:
         raise DatasetError(f"synthetic spec {text!r}: frames, seed and start must not be negative")
     values["sensor"] = sensor
     values["height"] = height
+    values.update(angles)
     values["without"] = without
     return values
 
 
 def _spec_sensor(spec: dict[str, Any]) -> LidarModel:
+    overrides: dict[str, float] = {}
     if spec["height"] is not None:
-        return sensor_model(str(spec["sensor"]), mount_height_m=spec["height"])
+        overrides["mount_height_m"] = spec["height"]
+    if spec.get("roll", 0.0):
+        overrides["mount_roll_deg"] = spec["roll"]
+    if spec.get("pitch", 0.0):
+        overrides["mount_pitch_deg"] = spec["pitch"]
+    if overrides:
+        return sensor_model(str(spec["sensor"]), **overrides)
     return DEFAULT_SENSOR if spec["sensor"] == "hdl64e" else sensor_model(str(spec["sensor"]))
 
 
 def read_synthetic(path: str) -> Iterator[Frame]:
-    """Frames of the spec `synthetic:frames=N,seed=S[,start=K][,sensor=NAME][,height=H][,without=...]`, generated
-    as they are read."""
+    """Frames of the spec `synthetic:frames=N,seed=S[,start=K][,sensor=NAME][,height=H][,roll=DEG][,pitch=DEG]
+    [,without=...]`, generated as they are read (boxes in the level frame, see the module's notes)."""
     spec = parse_synthetic_spec(path)
     sensor = _spec_sensor(spec)
 

@@ -1,7 +1,8 @@
 """Spinning LiDAR models: laser tables, firing and driver point order, ego-vehicle shadow, range noise, returns.
 
 The default model is KITTI's Velodyne HDL-64E; `sensor_model(name)` gives the others of
-pass3d_ros.core.stage1.lasers (VLP-16, VLP-32C, HDL-32E, OS1-64, OS1-128, Pandar64), see SENSOR_SPECS.
+pass3d_ros.core.stage1.lasers (VLP-16, VLP-32C, HDL-32E, OS1-32, OS1-64, OS1-128, Pandar40, Pandar40P, Pandar64,
+PandarXT-32), see SENSOR_SPECS.
 
 KITTI geometry measured on KITTI object scans (which lie exactly on 64 cones): laser k fires from (0, 0, v_k)
 at elevation e_k, so its points satisfy z = v_k + r_xy * tan(e_k). The upper block (lasers 0-31) is about
@@ -88,11 +89,26 @@ class LidarModel:
     ray_drop: float = 0.0  # share of returns lost at random on top of the signal model
     driver: str = "kitti"  # "kitti" (float .bin), "velodyne", "ouster" or "hesai": the ROS 2 driver's conventions
     intensity_max: int = 255  # the driver's intensity scale: Frame intensity 1.0 reads this much
+    # Mount attitude (degrees, REP-103: roll about x, then pitch about y; positive pitch points the sensor's x axis
+    # down, roll 180 is upside down): the rays are cast rotated by it, the points come back in the sensor's frame.
+    mount_roll_deg: float = 0.0
+    mount_pitch_deg: float = 0.0
 
     @property
     def n_lasers(self) -> int:
         """Number of lasers (rings)."""
         return len(self.elevation_deg)
+
+    def mount_rotation(self) -> np.ndarray | None:
+        """Rotation (3 x 3) taking sensor-frame vectors into the level frame (z up), R = Ry(pitch) Rx(roll); None
+        for a level mount."""
+        if not (self.mount_roll_deg or self.mount_pitch_deg):
+            return None
+        roll, pitch = np.deg2rad(self.mount_roll_deg), np.deg2rad(self.mount_pitch_deg)
+        cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+        rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+        ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+        return ry @ rx
 
     def azimuth_steps_deg(self) -> np.ndarray:
         """Azimuth advance (degrees) before each firing of a revolution; they sum to 360."""
@@ -117,12 +133,19 @@ _VLP32C_FIRING = tuple(LASER_TABLES["vlp32c"].index(e) for e in _VLP32C_ID_DEG)
 
 # Per-sensor parameters at 10 Hz, all mounted at KITTI's 1.73 m (sensor_model(name, mount_height_m=...) moves it).
 # columns: firings per revolution (VLP-16 / VLP-32C 55.296 us firing cycle -> ~0.2 deg, HDL-32E 46.08 us -> ~0.166
-# deg, OS1 1024 or 2048 columns, Pandar64 0.2 deg); range_noise_m: 1 sigma = the data sheet's typical accuracy
-# (VLP-16 +-3 cm, VLP-32C +-3 cm, HDL-32E +-2 cm, OS1 +-3..5 cm: 4 cm, Pandar64 +-2 cm); max_range_m from the data
-# sheets; fade_range_m (where returns thin out) scaled from KITTI's 75 of 120 m; ray_drop is a guess (Ouster's
-# dark/far dropouts more than Velodyne's). Approximate throughout: no per-unit calibration, no per-laser azimuth
-# offsets, no per-point time. Vertical offsets: VLP-16 manual's vertical correction (+-11.2 mm, proportional to the
-# elevation); HDL-32E, VLP-32C, OS1, Pandar64: none modelled (beam origin offsets of a few mm to cm, radial).
+# deg, OS1 512, 1024 or 2048 columns: 1024, Pandar64 / Pandar40 / Pandar40P 0.2 deg, PandarXT-32 0.18 deg);
+# range_noise_m: 1 sigma = the data sheet's typical accuracy (VLP-16 +-3 cm, VLP-32C +-3 cm, HDL-32E +-2 cm, OS1
+# +-3..5 cm: 4 cm, Pandar64 / Pandar40 / Pandar40P +-2 cm beyond 0.5 m, PandarXT-32 +-1 cm); max_range_m from the data
+# sheets (Pandar40 / 40P: 200 m at 20 % reflectivity, PandarXT-32: 120 m instrument range, OS1: 120 m); fade_range_m
+# (where returns thin out) scaled from KITTI's 75 of 120 m; ray_drop is a guess (Ouster's dark/far dropouts more than
+# Velodyne's). Approximate throughout: no per-unit calibration, no per-laser azimuth offsets (the Pandar40's
+# -5.2..+3.1 degrees among them), no per-point time. Vertical offsets: VLP-16 manual's vertical correction (+-11.2 mm,
+# proportional to the elevation); the others: none modelled (beam origin offsets of a few mm to cm, radial).
+# Driver conventions: Hesai (HesaiLidar_General_ROS, and the UDP layout of the Pandar40 / 40P / 64 / XT-32 manuals:
+# each block one azimuth, channels 1..N from the top laser down) publish column after column, each column's lasers
+# top down, ring = the channel index, 0 the top laser, intensity the 1-byte reflectivity 0..255; Ouster (ouster-ros)
+# an organized cloud, row (beam, 0 the top one) after row, intensity 16-bit. The Frame carries ring 0 = the top laser
+# for every sensor (the Hesai and Ouster drivers' numbering; velodyne_pointcloud numbers bottom-up).
 SENSOR_SPECS: dict[str, dict] = {
     "hdl64e": {},
     "vlp16": dict(columns=1800, max_range_m=100.0, fade_range_m=62.0, range_noise_m=0.03, firing_order=_VLP16_FIRING,
@@ -131,12 +154,20 @@ SENSOR_SPECS: dict[str, dict] = {
                    firing_order=_VLP32C_FIRING, point_order="column", driver="velodyne", ray_drop=0.005),
     "hdl32e": dict(columns=2170, max_range_m=100.0, fade_range_m=62.0, range_noise_m=0.02,
                    firing_order=_HDL32E_FIRING, point_order="column", driver="velodyne", ray_drop=0.005),
+    "os1-32": dict(columns=1024, max_range_m=120.0, fade_range_m=75.0, range_noise_m=0.04, point_order="row",
+                   start_azimuth_deg=180.0, driver="ouster", intensity_max=65535, ray_drop=0.02),
     "os1-64": dict(columns=1024, max_range_m=120.0, fade_range_m=75.0, range_noise_m=0.04, point_order="row",
                    start_azimuth_deg=180.0, driver="ouster", intensity_max=65535, ray_drop=0.02),
     "os1-128": dict(columns=1024, max_range_m=120.0, fade_range_m=75.0, range_noise_m=0.04, point_order="row",
                     start_azimuth_deg=180.0, driver="ouster", intensity_max=65535, ray_drop=0.02),
+    "pandar40": dict(columns=1800, max_range_m=200.0, fade_range_m=110.0, range_noise_m=0.02, point_order="column",
+                     start_azimuth_deg=0.0, driver="hesai", ray_drop=0.01),
+    "pandar40p": dict(columns=1800, max_range_m=200.0, fade_range_m=110.0, range_noise_m=0.02, point_order="column",
+                      start_azimuth_deg=0.0, driver="hesai", ray_drop=0.01),
     "pandar64": dict(columns=1800, max_range_m=200.0, fade_range_m=110.0, range_noise_m=0.02, point_order="column",
                      start_azimuth_deg=0.0, driver="hesai", ray_drop=0.01),
+    "pandarxt32": dict(columns=2000, max_range_m=120.0, fade_range_m=75.0, range_noise_m=0.01, point_order="column",
+                       start_azimuth_deg=0.0, driver="hesai", ray_drop=0.01),
 }
 SENSOR_NAMES: tuple[str, ...] = tuple(SENSOR_SPECS)
 
@@ -198,7 +229,8 @@ def ray_grid(sensor: LidarModel, rng: np.random.Generator) -> tuple[np.ndarray, 
     """Rays of one revolution, ring after ring in sweep order: origins (N, 3), unit directions (N, 3),
     ring (N,) uint16 and column (N,) int32 (the firing's place in the revolution).
 
-    KITTI order: firings past 360 degrees or into the ego car's shadow are left out.
+    KITTI order: firings past 360 degrees or into the ego car's shadow are left out. Origins and directions are in
+    the level frame: a tilted or inverted mount (mount_rotation) turns the lasers before they are cast.
     """
     if sensor.point_order == "kitti":
         az = firing_azimuths(sensor, rng)
@@ -210,6 +242,9 @@ def ray_grid(sensor: LidarModel, rng: np.random.Generator) -> tuple[np.ndarray, 
         keep = np.ones(az.shape, dtype=bool)
     column = np.broadcast_to(np.arange(sensor.columns, dtype=np.int32)[None, :], az.shape)[keep]
     origins, dirs, ring = _rays(sensor, az, keep)
+    rotation = sensor.mount_rotation()
+    if rotation is not None:
+        origins, dirs = origins @ rotation.T, dirs @ rotation.T
     return origins, dirs, ring, column
 
 

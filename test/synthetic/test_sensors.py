@@ -53,7 +53,7 @@ def test_ring_elevations_follow_the_laser_table(frame_per_sensor, name):
             assert abs(np.median(elev[sel]) - sensor.elevation_deg[ring]) < 0.1, (name, ring)
 
 
-@pytest.mark.parametrize("name", ["os1-64", "pandar64", "vlp16"])
+@pytest.mark.parametrize("name", ["os1-64", "pandar64", "vlp16", "os1-32", "pandar40", "pandar40p", "pandarxt32"])
 def test_driver_point_order(frame_per_sensor, name):
     """Hesai and Velodyne drivers: column after column (firing order); Ouster: an organized cloud, row (ring) after
     row, each sweeping clockwise."""
@@ -74,6 +74,34 @@ def test_driver_point_order(frame_per_sensor, name):
         assert np.all(np.diff(ranks)[same_col] > 0)  # within a column, the driver's firing order
 
 
+# The sensors added from laser tables: (lasers, driver).
+ZOO = {"os1-32": (32, "ouster"), "pandar40": (40, "hesai"), "pandar40p": (40, "hesai"), "pandarxt32": (32, "hesai")}
+
+
+@pytest.mark.parametrize("name", ZOO)
+def test_zoo_sensor_has_its_tables_lasers_and_its_drivers_rings(frame_per_sensor, name):
+    """Every laser of the table gives a ring; the ring field is the driver's numbering (Hesai's channel index and
+    Ouster's row: 0 the top laser, so the rings' elevations fall with the number); Hesai columns list their channels
+    1..N top down (the UDP block layout), Ouster rows sweep clockwise from the back (an organized cloud); intensity on
+    the driver's scale (Hesai 0..255, Ouster 16-bit)."""
+    frame, sensor = frame_per_sensor[name], sensor_model(name)
+    count, driver = ZOO[name]
+    assert sensor.n_lasers == count == len(lasers.LASER_TABLES[name]) and sensor.driver == driver
+    assert np.array_equal(np.unique(frame.ring), np.arange(count))
+    far = np.linalg.norm(frame.points[:, :2], axis=1) > 5.0
+    elev = _elevation_deg(frame, sensor)
+    medians = [np.median(elev[far & (frame.ring == r)]) for r in range(count) if np.sum(far & (frame.ring == r)) > 20]
+    assert np.all(np.diff(medians) < 0.0)
+    ring = frame.ring.astype(int)
+    if driver == "hesai":
+        same_column = np.diff(ring) > 0
+        assert np.mean(same_column) > 0.9  # within a column the channel index only rises: top laser first
+        assert driver_intensity(sensor, np.float32([1.0]))[0] == 255.0
+    else:
+        assert np.all(np.diff(ring) >= 0)  # row after row
+        assert driver_intensity(sensor, np.float32([1.0]))[0] == 65535.0
+
+
 def test_default_sensor_is_unchanged():
     """No sensor, the hdl64e name and the hdl64e model give the same bytes (KITTI's HDL-64E, as before)."""
     for seed in (7, 99):
@@ -86,7 +114,8 @@ def test_default_sensor_is_unchanged():
 
 def test_spec_parses_sensor():
     spec = parse_synthetic_spec("sensor=VLP16,frames=2,seed=5")
-    assert spec == {"frames": 2, "seed": 5, "start": 0, "sensor": "vlp16", "height": None, "without": frozenset()}
+    assert spec == {"frames": 2, "seed": 5, "start": 0, "sensor": "vlp16", "height": None, "roll": 0.0, "pitch": 0.0,
+                    "without": frozenset()}
     assert parse_synthetic_spec("frames=1,without=dark+clutter")["without"] == frozenset({"dark", "clutter"})
     assert parse_synthetic_spec("frames=1")["sensor"] == "hdl64e"
     with pytest.raises(DatasetError, match="unknown sensor"):

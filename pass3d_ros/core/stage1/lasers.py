@@ -65,6 +65,11 @@ _OS1_32 = (
     0.178, -1.245, -2.667, -4.084, -5.496, -6.899, -8.294, -9.678, -11.05, -12.409, -13.754, -15.084, -16.398,
     -17.696, -18.975, -20.236, -21.476,
 )
+# Hesai PandarXT-32 design values: HesaiLidar_General_ROS's pandarXT_elev_angle_map (channel 1 = top), in
+# src/HesaiLidar_General_SDK/src/PandarGeneralRaw/src/pandarXT.h: +15..-16 degrees in 1 degree steps (the XT-16 takes
+# every second one, +15..-15 in 2 degree steps as its user manual's Appendix I lists). Approximate: per-unit
+# calibrations differ.
+_PANDARXT32 = tuple(np.arange(15.0, -16.5, -1.0))
 
 LASER_TABLES: dict[str, tuple[float, ...]] = {
     "hdl64e": _HDL64E,
@@ -77,6 +82,7 @@ LASER_TABLES: dict[str, tuple[float, ...]] = {
     "pandar40": _PANDAR40,
     "pandar40p": _PANDAR40P,
     "pandar64": _PANDAR64,
+    "pandarxt32": _PANDARXT32,
 }
 SENSORS: tuple[str, ...] = ("auto", *LASER_TABLES)
 STANDARD_RING_COUNTS: tuple[int, ...] = (16, 32, 64, 128)
