@@ -212,7 +212,9 @@ def cache_key(specs: list[str], background_keep: float, seed: int, keep_frame_la
     return hashlib.sha1(text.encode()).hexdigest()[:12]
 
 
-STAGE1_PACKAGE = "pass3d_ros.core.stage1"  # every module of it, and all they import, can change the proposals
+# Every module of these, and all they import, can change the proposals: stage 1's steps, and what a stream holds across
+# scans (laser lines, mounting), through which training samples are proposed (pass3d_ros.core.pipeline).
+STAGE1_PACKAGES: tuple[str, ...] = ("pass3d_ros.core.stage1", "pass3d_ros.core.stream")
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]  # the pass3d_ros folder
 
 
@@ -263,7 +265,7 @@ def _digest(paths: list[Path]) -> str:
 
 def stage1_identity(root: Path = PACKAGE_ROOT) -> str:
     """A hash of every source file stage 1 runs (`source_closure`), so a changed stage 1 rebuilds the caches."""
-    files = source_closure(package_modules(STAGE1_PACKAGE, root), root)
+    files = source_closure([name for package in STAGE1_PACKAGES for name in package_modules(package, root)], root)
     return _digest(files)
 
 

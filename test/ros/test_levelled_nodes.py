@@ -76,14 +76,14 @@ def label_once(layout, cloud: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]
 
 
 @pytest.fixture(scope="module")
-def scan() -> Frame:
+def hdl32e_scan() -> Frame:
     return generate_frame(seed=5, index=0, sensor="hdl32e")
 
 
 @pytest.mark.parametrize("layout", [two_nodes, pipeline], ids=["two_nodes", "pipeline"])
-def test_an_upside_down_scan_is_labelled_as_the_level_one_in_its_own_frame(scan: Frame, layout) -> None:
-    level, level_wires = label_once(layout, cloud_of(scan.points, scan.ring))
-    flipped, flipped_wires = label_once(layout, cloud_of(rotated(scan, 180.0, 0.0), scan.ring))
+def test_an_upside_down_scan_is_labelled_as_the_level_one_in_its_own_frame(hdl32e_scan: Frame, layout) -> None:
+    level, level_wires = label_once(layout, cloud_of(hdl32e_scan.points, hdl32e_scan.ring))
+    flipped, flipped_wires = label_once(layout, cloud_of(rotated(hdl32e_scan, 180.0, 0.0), hdl32e_scan.ring))
     # the same points come back (x, -y, -z: the flip is exact in float32), in the sensor's own frame
     assert np.array_equal(flipped["x"], level["x"]) and np.array_equal(flipped["y"], -level["y"])
     assert np.array_equal(flipped["z"], -level["z"])
@@ -98,12 +98,12 @@ def test_an_upside_down_scan_is_labelled_as_the_level_one_in_its_own_frame(scan:
     assert np.mean(gaps < 0.3) >= 0.8, gaps
 
 
-def test_a_pitched_scan_gives_the_pipelines_labels_on_both_node_paths(scan: Frame) -> None:
+def test_a_pitched_scan_gives_the_pipelines_labels_on_both_node_paths(hdl32e_scan: Frame) -> None:
     """Pitched 10 degrees (levelled from the first scan: over PROVISIONAL_LEVEL_DEG): two nodes, the one-process
     pipeline and the offline door label every point alike."""
-    points = rotated(scan, 0.0, 10.0)
-    offline = ScanPipeline(classifier=SizeRuleClassifier()).run(points, scan.ring)
+    points = rotated(hdl32e_scan, 0.0, 10.0)
+    offline = ScanPipeline(classifier=SizeRuleClassifier()).run(points, hdl32e_scan.ring)
     assert offline.proposed.result.level is not None
     for layout in (two_nodes, pipeline):
-        labeled, _ = label_once(layout, cloud_of(points, scan.ring))
+        labeled, _ = label_once(layout, cloud_of(points, hdl32e_scan.ring))
         assert np.array_equal(labeled["label"], offline.labels_in_input(len(points))), layout.__name__

@@ -1,5 +1,5 @@
 """The stage-1 sample caches are named after every file stage 1 runs, found from the imports: an edit to any of
-them (split.py, protrusion.py, held_lines.py were once left out of a hand-written list) gives a new name."""
+them (split.py, protrusion.py, the held laser lines were once left out of a hand-written list) gives a new name."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pass3d_ros.training.samples import (
     PACKAGE_ROOT,
-    STAGE1_PACKAGE,
+    STAGE1_PACKAGES,
     package_modules,
     source_closure,
     stage1_identity,
@@ -16,14 +16,14 @@ from pass3d_ros.training.samples import (
 
 
 def closure(root: Path = PACKAGE_ROOT) -> list[Path]:
-    return source_closure(package_modules(STAGE1_PACKAGE, root), root)
+    return source_closure([name for package in STAGE1_PACKAGES for name in package_modules(package, root)], root)
 
 
 def test_the_closure_holds_every_file_of_the_stage1_package() -> None:
     files = closure()
-    stage1 = PACKAGE_ROOT / "core" / "stage1"
-    assert set(stage1.glob("*.py")) <= set(files)
-    assert {"held_lines.py", "split.py", "protrusion.py", "ring_field.py"} <= {path.name for path in files}
+    for package in ("stage1", "stream"):
+        assert set((PACKAGE_ROOT / "core" / package).glob("*.py")) <= set(files)
+    assert {"lines.py", "mounting.py", "split.py", "protrusion.py", "ring_field.py"} <= {path.name for path in files}
     assert not any("stage2" in path.parts or path.name == "trainer.py" for path in files), \
         "stage 2 and training do not change the proposals"
 

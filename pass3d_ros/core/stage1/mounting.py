@@ -169,14 +169,24 @@ def read_mounting(points: np.ndarray) -> Mounting | None:
     seeds = xyz[_strided(on_ground[ground_r2 < reach2], MAX_NEAR_POINTS)]
     near = xyz[_strided(np.flatnonzero(field & (r2 < reach2)), MAX_NEAR_POINTS)]
     plane = _best_plane(seeds, near, INLIER_M) if len(seeds) >= 3 else None
-    if plane is None:
-        return None
+    fine = None if plane is None else _refit(near, plane, INLIER_M)
+    if fine is not None:
+        return mounting_from_plane(fine)
+    # the first ring to meet the road runs over kerbs and pavements (a sensor 3.5 m up sees no road nearer than 11
+    # m): no near plane holds enough of it, so the coarse ground speaks
+    coarse = _refit(sample, coarse, COARSE_INLIER_M)
+    return None if coarse is None else mounting_from_plane(coarse)
+
+
+def _refit(xyz: np.ndarray, plane: np.ndarray, inlier_m: float) -> np.ndarray | None:
+    """The plane refitted by least squares twice on the points within `inlier_m` of it; None with fewer than
+    MIN_GROUND_POINTS of them."""
     for _ in range(2):
-        inliers = near[np.abs(near @ plane[:3] + plane[3]) < INLIER_M]
+        inliers = xyz[np.abs(xyz @ plane[:3] + plane[3]) < inlier_m]
         if len(inliers) < MIN_GROUND_POINTS:
             return None
         plane = _fit(inliers)
-    return mounting_from_plane(plane)
+    return plane
 
 
 def parse_mount(text: str) -> Mounting | None:
