@@ -345,7 +345,7 @@ def _segment_frame(spec: str, frame: Frame, stats: SegmentStats) -> tuple[np.nda
     segmented = labelled.segmented
     stats.stage2_ms.append(labelled.stage2_ms)
     stats.stage1_ms.append(proposed.result.timings_ms["total"])
-    objects = labelled_objects(proposed.scan.points, proposed.members, segmented.proposal_class, segmented.labels,
+    objects = labelled_objects(proposed.points, proposed.members, segmented.proposal_class, segmented.labels,
                                segmented.confidence)
     return (labelled.labels_in_input(len(frame.points)),
             proposed.in_input(proposed.result.cluster_id, len(frame.points), -1), objects)
