@@ -54,6 +54,7 @@ import numpy as np
 
 from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage1.lasers import STANDARD_RING_COUNTS, laser_elevations, ring_limit
+from pass3d_ros.core.stage1.ring_field import measure_ring_order
 
 RING_SOURCES: tuple[str, ...] = (
     "field", "azimuth_wrap", "azimuth_jump", "laser_table", "laser_table_moving", "elevation_lines",
@@ -899,7 +900,7 @@ def rings_for(points: np.ndarray, ring: np.ndarray | None, config: Stage1Config,
 
 
 def warm_up() -> None:
-    """Compile the ring kernels on a tiny synthetic scan."""
+    """Compile the ring kernels (and the ring field's) on a tiny synthetic scan."""
     az = np.linspace(0.0, 4.0 * np.pi, 64, endpoint=False)
     pts = np.zeros((64, 4), dtype=np.float32)
     pts[:, 0] = 10.0 * np.cos(az)
@@ -911,3 +912,4 @@ def warm_up() -> None:
     rings_from_known_lines(pts, LaserLines(np.array([0.0, -0.1]), np.zeros(2)), "elevation_lines")
     _motion_scores(pts, np.zeros(1), np.zeros(1), np.zeros(1))
     _moved_origin(pts, 0.1, 0.0)
+    measure_ring_order(pts, (np.arange(64) // 32).astype(np.uint16))
