@@ -193,19 +193,69 @@ def _edge_height(plane: np.ndarray, x: float) -> float:
     return -(plane[0] * x + plane[3]) / plane[2]
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
-def _accumulate(acc: np.ndarray, s: int, x: float, y: float, z: float) -> None:
-    """Add a point to segment s's moment sums (count, first and second moments)."""
-    acc[s, 0] += 1.0
-    acc[s, 1] += x
-    acc[s, 2] += y
-    acc[s, 3] += z
-    acc[s, 4] += x * x
-    acc[s, 5] += x * y
-    acc[s, 6] += x * z
-    acc[s, 7] += y * y
-    acc[s, 8] += y * z
-    acc[s, 9] += z * z
+@nb.njit(cache=True, nogil=True)
+def _by_segment(sample: np.ndarray, x0: float, width: float, n_seg: int) -> tuple[np.ndarray, np.ndarray]:
+    """The sample's x, y, z (N x 3, its own dtype) grouped by segment, each group in sample order, and the n_seg + 1
+    bounds of the groups."""
+    n = sample.shape[0]
+    seg = np.empty(n, dtype=np.int64)
+    bounds = np.zeros(n_seg + 1, dtype=np.int64)
+    for i in range(n):
+        seg[i] = _segment_of(sample[i, 0], x0, width, n_seg)
+        bounds[seg[i] + 1] += 1
+    for s in range(n_seg):
+        bounds[s + 1] += bounds[s]
+    fill = bounds[:n_seg].copy()
+    grouped = np.empty((n, 3), dtype=sample.dtype)
+    for i in range(n):
+        t = fill[seg[i]]
+        grouped[t, 0] = sample[i, 0]
+        grouped[t, 1] = sample[i, 1]
+        grouped[t, 2] = sample[i, 2]
+        fill[seg[i]] = t + 1
+    return grouped, bounds
+
+
+@nb.njit(cache=True, nogil=True)
+def _moments(acc: np.ndarray, s: int, pts: np.ndarray, plane: np.ndarray, z_floor: float, z_top: float,
+             th_dist: float, band: float, seeds: bool) -> None:
+    """Segment s's moment sums (count, first and second moments, summed in sample order) over its points `pts`,
+    written to acc[s]: of the seeds (`seeds`: z_floor <= z < z_top) or of the points within th_dist of `plane`; both
+    within |y| < band."""
+    c0 = c1 = c2 = c3 = c4 = c5 = c6 = c7 = c8 = c9 = 0.0
+    a = plane[0]
+    b = plane[1]
+    c = plane[2]
+    d = plane[3]
+    for i in range(pts.shape[0]):
+        x = pts[i, 0]
+        y = pts[i, 1]
+        z = pts[i, 2]
+        if seeds:
+            take = z >= z_floor and z < z_top and abs(y) < band
+        else:
+            take = abs(a * x + b * y + c * z + d) < th_dist and abs(y) < band
+        if take:
+            c0 += 1.0
+            c1 += x
+            c2 += y
+            c3 += z
+            c4 += x * x
+            c5 += x * y
+            c6 += x * z
+            c7 += y * y
+            c8 += y * z
+            c9 += z * z
+    acc[s, 0] = c0
+    acc[s, 1] = c1
+    acc[s, 2] = c2
+    acc[s, 3] = c3
+    acc[s, 4] = c4
+    acc[s, 5] = c5
+    acc[s, 6] = c6
+    acc[s, 7] = c7
+    acc[s, 8] = c8
+    acc[s, 9] = c9
 
 
 @nb.njit(cache=True, nogil=True)
@@ -311,25 +361,17 @@ def _ground_kernel(pts: np.ndarray, sample: np.ndarray, edges: np.ndarray, n_lpr
     lpr = _lowest_means(sample, x0, width, n_seg, n_lpr, z_floor, band, outlier_share, 0.1)
     fallback_z = np.where(np.isnan(lpr), z_floor, lpr)
     acc = np.zeros((n_seg, 10))
-    for i in range(sample.shape[0]):
-        x = sample[i, 0]
-        y = sample[i, 1]
-        z = sample[i, 2]
-        s = _segment_of(x, x0, width, n_seg)
-        if z >= z_floor and z < lpr[s] + th_seeds and abs(y) < band:
-            _accumulate(acc, s, x, y, z)
+    # The sample grouped by segment (a stable counting sort: each segment's points in sample order), so that each
+    # segment's moments are summed in registers (`_moments`), in the same order: a third of the fits' time.
+    grouped, bounds = _by_segment(sample, x0, width, n_seg)
+    planes = np.zeros((n_seg, 4))
+    for s in range(n_seg):
+        _moments(acc, s, grouped[bounds[s]:bounds[s + 1]], planes[s], z_floor, lpr[s] + th_seeds, th_dist, band, True)
     min_points = max(n_lpr // stride, 3)
     planes = _planes_from_sums(acc, edges, fallback_z, min_normal_z, min_points, max_step)
     for _ in range(n_iter - 1):
-        acc[:] = 0.0
-        for i in range(sample.shape[0]):
-            x = sample[i, 0]
-            y = sample[i, 1]
-            z = sample[i, 2]
-            s = _segment_of(x, x0, width, n_seg)
-            d = planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * z + planes[s, 3]
-            if abs(d) < th_dist and abs(y) < band:
-                _accumulate(acc, s, x, y, z)
+        for s in range(n_seg):
+            _moments(acc, s, grouped[bounds[s]:bounds[s + 1]], planes[s], z_floor, 0.0, th_dist, band, False)
         planes = _planes_from_sums(acc, edges, fallback_z, min_normal_z, min_points, max_step)
     ground = np.empty(n, dtype=np.bool_)
     for i in range(n):
