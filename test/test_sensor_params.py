@@ -143,6 +143,20 @@ def test_a_laser_spacing_read_before_is_not_read_again(monkeypatch: pytest.Monke
     _, unknown = effective_config(Stage1Config(), points, ring, 64, binned=True, spacing=float("nan"))
     assert unknown == effective_config(Stage1Config(), points, ring, 64)[1], "nan: the bins' estimate stays"
 
+def test_resolutions_read_before_are_not_read_again(hdl64_frames: list[Frame],
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """A frame given the resolutions an earlier frame read (SensorScale.resolution) runs with them, unread."""
+    frame = hdl64_frames[0]
+    read, scale = effective_config(Stage1Config(), frame.points, frame.ring, 64)
+    assert scale.resolution == resolutions(frame.points, frame.ring)
+
+    def no_read(points: np.ndarray, ring: np.ndarray) -> tuple[float, float]:
+        raise AssertionError("resolutions read again")
+
+    monkeypatch.setattr("pass3d_ros.core.stage1.sensor_params.resolutions", no_read)
+    given, given_scale = effective_config(Stage1Config(), frame.points, frame.ring, 64, resolution=scale.resolution)
+    assert given_scale == scale and given == read
+
 def test_a_scan_whose_lines_are_not_found_runs_with_its_laser_spacing(monkeypatch: pytest.MonkeyPatch) -> None:
     """The HDL-32E frame of nuScenes: no ring field, no firing order, a line search that finds nothing."""
     points = generate_frame(3, 0, "hdl32e").points

@@ -63,6 +63,8 @@ class SensorScale:
     spacing_deg: float | None = field(default=None, compare=False)  # `laser_spacing` of binned rings (nan: no lasers
     # found; None: not read): a stream's holder passes it to its next scans' `effective_config` (`spacing`). Not
     # compared: it says how vertical_deg was read, not what the frame runs with
+    resolution: tuple[float, float] | None = field(default=None, compare=False)  # what `resolutions` read (or was
+    # given): a stream's holder may pass it on as `effective_config`'s `resolution`. Not compared, as spacing_deg
 
     def describe(self) -> str:
         """One line for logs: resolutions, density and the effective values."""
@@ -255,15 +257,19 @@ def _ratio(reference: float, measured: float) -> float:
 
 
 def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
-                     n_rings: int, binned: bool = False, spacing: float | None = None
-                     ) -> tuple[Stage1Config, SensorScale]:
+                     n_rings: int, binned: bool = False, spacing: float | None = None,
+                     resolution: tuple[float, float] | None = None) -> tuple[Stage1Config, SensorScale]:
     """The config a frame runs with (module docstring) and what it was derived from. `points` and `ring` in scan
     order; `binned`: the rings are elevation bins, not lasers (the vertical resolution is then `laser_spacing`'s
     where it reads one). `spacing`: `laser_spacing` of binned rings read before, on an earlier scan of the same
     sensor (its `SensorScale.spacing_deg`, nan included): used as it is instead of reading this scan's (6 ms on a
-    120k-point scan; the lasers' spacing is the sensor's, not the frame's). The config itself is returned (not a
-    copy) when nothing changes."""
-    vertical, horizontal = resolutions(points, ring)
+    120k-point scan; the lasers' spacing is the sensor's, not the frame's). `resolution`: `resolutions`' (vertical,
+    horizontal) read before (an earlier scan's `SensorScale.resolution`), used instead of reading this scan's (0.2-0.4
+    ms on a KITTI scan): the frame then runs with the earlier scan's values, the same wherever both snap to the
+    paper's. The config itself is returned (not a copy) when nothing changes."""
+    if resolution is None:
+        resolution = resolutions(points, ring)
+    vertical, horizontal = (float(v) for v in resolution)
     if binned:
         spacing = laser_spacing(points) if spacing is None else float(spacing)
         vertical = spacing if np.isfinite(spacing) else vertical
@@ -277,5 +283,6 @@ def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
         cfg = copy.copy(config)
         cfg.th_num_near = max(1.0, config.th_num_near * density)
         cfg.th_num_floor = max(min(MIN_FLOOR, config.th_num_floor), round(config.th_num_floor * density))
-    scale = SensorScale(n_rings, vertical, horizontal, density, cfg.th_num_near, cfg.th_num_floor, cfg.th_prop, spacing)
+    scale = SensorScale(n_rings, vertical, horizontal, density, cfg.th_num_near, cfg.th_num_floor, cfg.th_prop, spacing,
+                        resolution)
     return cfg, scale
