@@ -99,22 +99,25 @@ def _segment_of(x: float, x0: float, width: float, n_seg: int) -> int:
 
 
 @nb.njit(cache=True, nogil=True)
-def _lowest_means(pts: np.ndarray, x0: float, width: float, n_seg: int, n_lpr: int, z_floor: float, band: float,
+def _lowest_means(grouped: np.ndarray, bounds: np.ndarray, n_lpr: int, z_floor: float, band: float,
                   outlier_share: float, bin_size: float) -> np.ndarray:
-    """Per segment, the mean z of the `n_lpr` lowest candidate points of `pts` (the sample; NaN if none).
+    """Per segment, the mean z of the `n_lpr` lowest candidate points of its part of the sample (`_by_segment`'s
+    groups; NaN if none).
 
     Candidates lie above `z_floor`, within |y| < band, and not below the lowest height bin that holds at
     least `outlier_share` of the fullest bin (a pit or a few stray returns below the road cannot set the LPR).
     """
+    n_seg = bounds.shape[0] - 1
     n_bins = 64
     hist = np.zeros((n_seg, n_bins), dtype=np.int64)
-    for i in range(pts.shape[0]):
-        z = pts[i, 2]
-        if z < z_floor or abs(pts[i, 1]) >= band:
-            continue
-        b = int((z - z_floor) / bin_size)
-        if b < n_bins:
-            hist[_segment_of(pts[i, 0], x0, width, n_seg), b] += 1
+    for s in range(n_seg):
+        for i in range(bounds[s], bounds[s + 1]):
+            z = grouped[i, 2]
+            if z < z_floor or abs(grouped[i, 1]) >= band:
+                continue
+            b = int((z - z_floor) / bin_size)
+            if b < n_bins:
+                hist[s, b] += 1
     z_low = np.full(n_seg, z_floor)
     for s in range(n_seg):
         need = outlier_share * hist[s].max()
@@ -122,19 +125,19 @@ def _lowest_means(pts: np.ndarray, x0: float, width: float, n_seg: int, n_lpr: i
             if hist[s, b] > 0 and hist[s, b] >= need:
                 z_low[s] = z_floor + b * bin_size
                 break
-    low = np.full((n_seg, n_lpr), np.inf)  # per segment, ascending
-    for i in range(pts.shape[0]):
-        z = pts[i, 2]
-        if abs(pts[i, 1]) >= band:
-            continue
-        s = _segment_of(pts[i, 0], x0, width, n_seg)
-        if z < z_low[s] or z >= low[s, n_lpr - 1]:
-            continue
-        j = n_lpr - 1
-        while j > 0 and low[s, j - 1] > z:
-            low[s, j] = low[s, j - 1]
-            j -= 1
-        low[s, j] = z
+    low = np.full((n_seg, n_lpr), np.inf)  # per segment, ascending: the n_lpr lowest, in any reading order
+    for s in range(n_seg):
+        for i in range(bounds[s], bounds[s + 1]):
+            z = grouped[i, 2]
+            if abs(grouped[i, 1]) >= band:
+                continue
+            if z < z_low[s] or z >= low[s, n_lpr - 1]:
+                continue
+            j = n_lpr - 1
+            while j > 0 and low[s, j - 1] > z:
+                low[s, j] = low[s, j - 1]
+                j -= 1
+            low[s, j] = z
     out = np.full(n_seg, np.nan)
     for s in range(n_seg):
         total = 0.0
@@ -146,6 +149,7 @@ def _lowest_means(pts: np.ndarray, x0: float, width: float, n_seg: int, n_lpr: i
         if count > 0:
             out[s] = total / count
     return out
+
 
 
 @nb.njit(cache=True, nogil=True)
@@ -193,19 +197,72 @@ def _edge_height(plane: np.ndarray, x: float) -> float:
     return -(plane[0] * x + plane[3]) / plane[2]
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
-def _accumulate(acc: np.ndarray, s: int, x: float, y: float, z: float) -> None:
-    """Add a point to segment s's moment sums (count, first and second moments)."""
-    acc[s, 0] += 1.0
-    acc[s, 1] += x
-    acc[s, 2] += y
-    acc[s, 3] += z
-    acc[s, 4] += x * x
-    acc[s, 5] += x * y
-    acc[s, 6] += x * z
-    acc[s, 7] += y * y
-    acc[s, 8] += y * z
-    acc[s, 9] += z * z
+@nb.njit(cache=True, nogil=True)
+def _by_segment(pts: np.ndarray, sample: np.ndarray, x0: float, width: float, n_seg: int
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The x, y, z (N x 3, pts' dtype) of the sample's points (`sample`: indices into pts, ascending) grouped by
+    segment, each group in sample order (a stable counting sort), and the n_seg + 1 bounds of the groups: gathered
+    once, so that a shuffled scan's sample is not read scattered over memory by every pass."""
+    n = sample.shape[0]
+    seg = np.empty(n, dtype=np.int64)
+    bounds = np.zeros(n_seg + 1, dtype=np.int64)
+    for i in range(n):
+        seg[i] = _segment_of(pts[sample[i], 0], x0, width, n_seg)
+        bounds[seg[i] + 1] += 1
+    for s in range(n_seg):
+        bounds[s + 1] += bounds[s]
+    fill = bounds[:n_seg].copy()
+    grouped = np.empty((n, 3), dtype=pts.dtype)
+    for i in range(n):
+        t = fill[seg[i]]
+        p = sample[i]
+        grouped[t, 0] = pts[p, 0]
+        grouped[t, 1] = pts[p, 1]
+        grouped[t, 2] = pts[p, 2]
+        fill[seg[i]] = t + 1
+    return grouped, bounds
+
+
+@nb.njit(cache=True, nogil=True)
+def _moments(acc: np.ndarray, s: int, pts: np.ndarray, plane: np.ndarray, z_floor: float, z_top: float,
+             th_dist: float, band: float, seeds: bool) -> None:
+    """Segment s's moment sums (count, first and second moments, summed in sample order) over its points `pts`,
+    written to acc[s]: of the seeds (`seeds`: z_floor <= z < z_top) or of the points within th_dist of `plane`; both
+    within |y| < band."""
+    c0 = c1 = c2 = c3 = c4 = c5 = c6 = c7 = c8 = c9 = 0.0
+    a = plane[0]
+    b = plane[1]
+    c = plane[2]
+    d = plane[3]
+    for i in range(pts.shape[0]):
+        x = pts[i, 0]
+        y = pts[i, 1]
+        z = pts[i, 2]
+        if seeds:
+            take = z >= z_floor and z < z_top and abs(y) < band
+        else:
+            take = abs(a * x + b * y + c * z + d) < th_dist and abs(y) < band
+        if take:
+            c0 += 1.0
+            c1 += x
+            c2 += y
+            c3 += z
+            c4 += x * x
+            c5 += x * y
+            c6 += x * z
+            c7 += y * y
+            c8 += y * z
+            c9 += z * z
+    acc[s, 0] = c0
+    acc[s, 1] = c1
+    acc[s, 2] = c2
+    acc[s, 3] = c3
+    acc[s, 4] = c4
+    acc[s, 5] = c5
+    acc[s, 6] = c6
+    acc[s, 7] = c7
+    acc[s, 8] = c8
+    acc[s, 9] = c9
 
 
 @nb.njit(cache=True, nogil=True)
@@ -301,35 +358,27 @@ def _sample(pts: np.ndarray, stride: int, in_scan_order: bool = True) -> np.ndar
 def _ground_kernel(pts: np.ndarray, sample: np.ndarray, edges: np.ndarray, n_lpr: int, n_iter: int, th_seeds: float,
                    th_dist: float, z_floor: float, min_normal_z: float, band: float, outlier_share: float,
                    max_step: float, stride: int, hist: np.ndarray, origin: float) -> tuple:
-    """Ground mask and planes; the LPR and the plane fits read `sample` (the points `_sample` picks, about one in
-    `stride`, gathered: read in place, a shuffled scan's sample was scattered over memory), the final test all; the
-    sample's plane distances are counted into `hist` (nx, ny, n_bins; empty: none) for the local ground."""
+    """Ground mask and planes; the LPR and the plane fits read `sample` (indices of the points `_sample` picks, about
+    one in `stride`; gathered by segment, `_by_segment`), the final test all; the sample's plane distances are counted
+    into `hist` (nx, ny, n_bins; empty: none) for the local ground."""
     n = pts.shape[0]
     n_seg = edges.shape[0] - 1
     x0 = edges[0]
     width = edges[1] - edges[0]
-    lpr = _lowest_means(sample, x0, width, n_seg, n_lpr, z_floor, band, outlier_share, 0.1)
+    # Each segment's part of the sample in sample order: its moments are summed in registers (`_moments`) in the
+    # order the points come, and the LPR and the local ground's counts need no segment per point.
+    grouped, bounds = _by_segment(pts, sample, x0, width, n_seg)
+    lpr = _lowest_means(grouped, bounds, n_lpr, z_floor, band, outlier_share, 0.1)
     fallback_z = np.where(np.isnan(lpr), z_floor, lpr)
     acc = np.zeros((n_seg, 10))
-    for i in range(sample.shape[0]):
-        x = sample[i, 0]
-        y = sample[i, 1]
-        z = sample[i, 2]
-        s = _segment_of(x, x0, width, n_seg)
-        if z >= z_floor and z < lpr[s] + th_seeds and abs(y) < band:
-            _accumulate(acc, s, x, y, z)
+    planes = np.zeros((n_seg, 4))
+    for s in range(n_seg):
+        _moments(acc, s, grouped[bounds[s]:bounds[s + 1]], planes[s], z_floor, lpr[s] + th_seeds, th_dist, band, True)
     min_points = max(n_lpr // stride, 3)
     planes = _planes_from_sums(acc, edges, fallback_z, min_normal_z, min_points, max_step)
     for _ in range(n_iter - 1):
-        acc[:] = 0.0
-        for i in range(sample.shape[0]):
-            x = sample[i, 0]
-            y = sample[i, 1]
-            z = sample[i, 2]
-            s = _segment_of(x, x0, width, n_seg)
-            d = planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * z + planes[s, 3]
-            if abs(d) < th_dist and abs(y) < band:
-                _accumulate(acc, s, x, y, z)
+        for s in range(n_seg):
+            _moments(acc, s, grouped[bounds[s]:bounds[s + 1]], planes[s], z_floor, 0.0, th_dist, band, False)
         planes = _planes_from_sums(acc, edges, fallback_z, min_normal_z, min_points, max_step)
     ground = np.empty(n, dtype=np.bool_)
     for i in range(n):
@@ -337,17 +386,17 @@ def _ground_kernel(pts: np.ndarray, sample: np.ndarray, edges: np.ndarray, n_lpr
         s = _segment_of(x, x0, width, n_seg)
         ground[i] = abs(planes[s, 0] * x + planes[s, 1] * pts[i, 1] + planes[s, 2] * pts[i, 2] + planes[s, 3]) < th_dist
     if hist.shape[0] > 0:
-        _count_heights(sample, planes, x0, width, hist, origin)
+        _count_heights(grouped, bounds, planes, hist, origin)
     return ground, planes
 
 
 @nb.njit(cache=True, nogil=True)
-def _count_heights(sample: np.ndarray, planes: np.ndarray, x0: float, width: float, hist: np.ndarray,
+def _count_heights(grouped: np.ndarray, bounds: np.ndarray, planes: np.ndarray, hist: np.ndarray,
                    origin: float) -> None:
-    """Count the sample's signed plane distances into the local ground's per-cell histograms: first each point's
-    slot (branch-free, the last slot for "outside"), then the counts."""
-    n = sample.shape[0]
-    n_seg = planes.shape[0]
+    """Count the sample's signed plane distances (`_by_segment`'s groups, each under its segment's plane) into the
+    local ground's per-cell histograms: first each point's slot (branch-free, the last slot for "outside"), then the
+    counts (saturating: the same counts in any order)."""
+    n = grouped.shape[0]
     nx = hist.shape[0]
     ny = hist.shape[1]
     n_bins = hist.shape[2]
@@ -356,16 +405,16 @@ def _count_heights(sample: np.ndarray, planes: np.ndarray, x0: float, width: flo
     slot = np.empty(n, dtype=np.int64)
     inv_cell = 1.0 / LOCAL_CELL_M
     inv_bin = 1.0 / LOCAL_BIN_M
-    for i in range(n):
-        x = sample[i, 0]
-        y = sample[i, 1]
-        s = _segment_of(x, x0, width, n_seg)
-        d = planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * sample[i, 2] + planes[s, 3]
-        fx = (x - origin) * inv_cell
-        fy = (y - origin) * inv_cell
-        fb = (d + LOCAL_BAND_M) * inv_bin
-        inside = (fx >= 0.0) & (fy >= 0.0) & (fb >= 0.0) & (fx < nx) & (fy < ny) & (fb < n_bins)
-        slot[i] = (np.int64(fx) * ny + np.int64(fy)) * n_bins + np.int64(fb) if inside else outside
+    for s in range(bounds.shape[0] - 1):
+        for i in range(bounds[s], bounds[s + 1]):
+            x = grouped[i, 0]
+            y = grouped[i, 1]
+            d = planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * grouped[i, 2] + planes[s, 3]
+            fx = (x - origin) * inv_cell
+            fy = (y - origin) * inv_cell
+            fb = (d + LOCAL_BAND_M) * inv_bin
+            inside = (fx >= 0.0) & (fy >= 0.0) & (fb >= 0.0) & (fx < nx) & (fy < ny) & (fb < n_bins)
+            slot[i] = (np.int64(fx) * ny + np.int64(fy)) * n_bins + np.int64(fb) if inside else outside
     for i in range(n):
         if slot[i] < outside and flat[slot[i]] < 65535:  # uint16: saturates, never wraps
             flat[slot[i]] += 1
@@ -396,7 +445,7 @@ def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = T
     origin = -0.5 * n_cells * LOCAL_CELL_M
     sample = _sample(pts, int(config.fit_stride), in_scan_order)  # apart: in the kernel, the fit took 3.7 ms, not 2.5
     ground, planes = _ground_kernel(
-        pts, np.take(pts, sample, axis=0), edges, int(config.n_lpr), int(config.n_iter), config.th_seeds,
+        pts, sample, edges, int(config.n_lpr), int(config.n_iter), config.th_seeds,
         config.th_dist,
         -(config.seed_height + config.below_ground_margin), float(np.cos(np.deg2rad(config.ground_max_slope_deg))),
         config.ground_seed_band, config.ground_lpr_outlier_share, config.ground_max_step, int(config.fit_stride),

@@ -54,6 +54,7 @@ import numpy as np
 
 from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage1.lasers import STANDARD_RING_COUNTS, laser_elevations, ring_limit
+from pass3d_ros.core.stage1.ring_field import measure_ring_order
 
 RING_SOURCES: tuple[str, ...] = (
     "field", "azimuth_wrap", "azimuth_jump", "laser_table", "laser_table_moving", "elevation_lines",
@@ -132,37 +133,47 @@ def _is_start(x0: float, y0: float, x1: float, y1: float, rule: int, min_cos_jum
 
 
 @nb.njit(cache=True, nogil=True)
-def _count_rings(pts: np.ndarray, min_cos_jump: float, min_gap: int, max_count: int) -> np.ndarray:
-    """Rings found by each of the three rules (one pass); starts closer than `min_gap` points are noise. The pass
-    stops once every rule has found more than `max_count` (none can be the firing order)."""
-    count = np.ones(3, dtype=np.int64)
-    last = np.zeros(3, dtype=np.int64)
+def _ring_starts(pts: np.ndarray, min_cos_jump: float, min_gap: int, max_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rings found by each of the three rules (one pass; starts closer than `min_gap` points are noise), and where
+    each rule's rings start (3 x max_count + 1: ring r of a rule starts at point starts[rule, r]; recorded while the
+    count is at most `max_count`). The pass stops once every rule has found more than `max_count` (none can be the
+    firing order). Recording the starts spares a second pass over the points per rule (`_fill_rings`)."""
+    starts = np.zeros((3, max_count + 1), dtype=np.int64)
+    c0, c1, c2 = 1, 1, 1  # counters and last starts in registers, not arrays: a third of the pass's time
+    l0, l1, l2 = 0, 0, 0
     for i in range(1, pts.shape[0]):
-        if count[0] > max_count and count[1] > max_count and count[2] > max_count:
+        if c0 > max_count and c1 > max_count and c2 > max_count:
             break
         x0 = pts[i - 1, 0]
         y0 = pts[i - 1, 1]
         x1 = pts[i, 0]
         y1 = pts[i, 1]
-        for rule in range(3):
-            if i - last[rule] >= min_gap and _is_start(x0, y0, x1, y1, rule, min_cos_jump):
-                count[rule] += 1
-                last[rule] = i
-    return count
+        if i - l0 >= min_gap and _is_start(x0, y0, x1, y1, 0, min_cos_jump):
+            if c0 <= max_count:
+                starts[0, c0] = i
+            c0 += 1
+            l0 = i
+        if i - l1 >= min_gap and _is_start(x0, y0, x1, y1, 1, min_cos_jump):
+            if c1 <= max_count:
+                starts[1, c1] = i
+            c1 += 1
+            l1 = i
+        if i - l2 >= min_gap and _is_start(x0, y0, x1, y1, 2, min_cos_jump):
+            if c2 <= max_count:
+                starts[2, c2] = i
+            c2 += 1
+            l2 = i
+    count = np.empty(3, dtype=np.int64)
+    count[0], count[1], count[2] = c0, c1, c2
+    return count, starts
 
 
 @nb.njit(cache=True, nogil=True)
-def _segment(pts: np.ndarray, rule: int, min_cos_jump: float, min_gap: int) -> np.ndarray:
-    """Ring index per point under one rule, counted as in `_count_rings`."""
-    n = pts.shape[0]
-    ring = np.zeros(n, dtype=np.uint16)
-    current = 0
-    last = 0
-    for i in range(1, n):
-        if i - last >= min_gap and _is_start(pts[i - 1, 0], pts[i - 1, 1], pts[i, 0], pts[i, 1], rule, min_cos_jump):
-            current += 1
-            last = i
-        ring[i] = current
+def _fill_rings(n: int, starts: np.ndarray, n_found: int) -> np.ndarray:
+    """Ring index per point of n points whose `n_found` rings start at `starts` (one rule's row of `_ring_starts`)."""
+    ring = np.empty(n, dtype=np.uint16)
+    for r in range(n_found):
+        ring[starts[r]:starts[r + 1] if r + 1 < n_found else n] = r
     return ring
 
 
@@ -858,13 +869,13 @@ def _from_firing_order(pts: np.ndarray, n_rings: int, min_jump_deg: float, min_r
     """Rings from the point order (azimuth wrap or jump, `recover_rings`' arguments), the best-validated rule that
     finds between `n_rings` - `missing_tolerance` and `n_rings` rings; None when none does."""
     min_cos_jump = float(np.cos(np.deg2rad(min_jump_deg)))
-    counts = _count_rings(pts, min_cos_jump, min_ring_points, n_rings)
+    counts, starts = _ring_starts(pts, min_cos_jump, min_ring_points, n_rings)
     best: tuple[float, np.ndarray, str, int] | None = None
     for rule, source in ((0, "azimuth_wrap"), (1, "azimuth_wrap"), (2, "azimuth_jump")):
         n_found = int(counts[rule])
         if n_found > n_rings or n_found < n_rings - missing_tolerance:
             continue
-        ring = _segment(pts, rule, min_cos_jump, min_ring_points)
+        ring = _fill_rings(len(pts), starts[rule], n_found)
         spread = _validate(pts, ring, n_found, missing_tolerance, min_range)
         if spread is not None and (best is None or spread < best[0]):
             best = (spread, ring, source, n_found)
@@ -889,7 +900,7 @@ def rings_for(points: np.ndarray, ring: np.ndarray | None, config: Stage1Config,
 
 
 def warm_up() -> None:
-    """Compile the ring kernels on a tiny synthetic scan."""
+    """Compile the ring kernels (and the ring field's) on a tiny synthetic scan."""
     az = np.linspace(0.0, 4.0 * np.pi, 64, endpoint=False)
     pts = np.zeros((64, 4), dtype=np.float32)
     pts[:, 0] = 10.0 * np.cos(az)
@@ -901,3 +912,4 @@ def warm_up() -> None:
     rings_from_known_lines(pts, LaserLines(np.array([0.0, -0.1]), np.zeros(2)), "elevation_lines")
     _motion_scores(pts, np.zeros(1), np.zeros(1), np.zeros(1))
     _moved_origin(pts, 0.1, 0.0)
+    measure_ring_order(pts, (np.arange(64) // 32).astype(np.uint16))

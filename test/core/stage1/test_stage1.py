@@ -267,6 +267,27 @@ def test_min_area_rectangle_recovers_rotated_rectangles():
     assert refinement.min_area_rectangle(np.ones((4, 2)))[2:4] == (0.0, 0.0)
 
 
+
+def test_hull_order_is_argsorts_permutation_for_large_clusters():
+    """The radix-sorted hull order equals np.argsort of the chain's key where no key is shared by different points
+    (shared by duplicates: the same points, in any order); where one is, argsort itself orders them."""
+    rng = np.random.default_rng(5)
+    xy = rng.normal(0.0, 20.0, (5000, 2)).astype(np.float32).astype(np.float64)
+    xy[::7] = xy[1::7][: len(xy[::7])]  # exact duplicates
+    xy[3, 0] = -0.0
+    key = xy[:, 0] + 1e-9 * xy[:, 1]
+    order = refinement._hull_order(xy[:, 0].copy(), xy[:, 1].copy())
+    assert np.array_equal(key[order], np.sort(key)) and np.array_equal(xy[order], xy[np.argsort(key)])
+    assert np.array_equal(refinement._radix_argsort(key), np.argsort(key, kind="stable"))
+    tied = xy.copy()
+    tied[10] = [1.0, 0.0]
+    tied[11] = [1.0 - 1e-9 * 2.0 ** -20, 2.0 ** -20]  # another point with the same key: argsort's order is kept
+    key = tied[:, 0] + 1e-9 * tied[:, 1]
+    assert key[10] == key[11]
+    assert np.array_equal(key[refinement._hull_order(tied[:, 0].copy(), tied[:, 1].copy())], np.sort(key))
+    assert len(xy) >= refinement.RADIX_MIN_POINTS  # the radix path was the one tested
+
+
 # ---------------------------------------------------------------- propose()
 
 
