@@ -14,6 +14,8 @@ benchmark, training's samples) hold their lines through a `LineHolder`, so a str
 
 A driver's ring field is read in the order of its rings' measured elevations (pass3d_ros.core.stage1.ring_field);
 the order is measured on a stream's first scan with a field and held with the lines, so the stream pays for it once.
+So is the laser spacing of a stream whose rings fall back to elevation bins (pass3d_ros.core.stage1.sensor_params
+.laser_spacing, 6 ms a 120k-point scan): read on its first binned scan, held until the next line search.
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ class LineHolder:
         self._scans = 0
         self._lines: LaserLines | None = None
         self._ring_order: RingFieldOrder | None = None
+        self._spacing: float | None = None  # the laser spacing read off elevation-bin rings (nan: none to read)
         self._searched_at = 0.0  # when a line search last found none (clock time)
         self._failures = 0  # line searches in a row that found none
         self._key: Hashable = None
@@ -79,6 +82,7 @@ class LineHolder:
         searches."""
         self._lines = None
         self._ring_order = None
+        self._spacing = None
         self._searched_at = 0.0
         self._failures = 0
 
@@ -113,7 +117,12 @@ class LineHolder:
         """`pass3d_ros.core.stage1.propose` on the stream's next scan, given the held lines, holding what it found;
         `level`: the rotation that levels the scan (None: it runs as it comes)."""
         given = self.lines()
-        result = _stage1.propose(points, ring, config, lines=given, ring_order=self._ring_order, level=level)
+        if given is None:  # a new search: the bins it may fall back to are read afresh too
+            self._spacing = None
+        result = _stage1.propose(points, ring, config, lines=given, ring_order=self._ring_order, level=level,
+                                 spacing=self._spacing)
+        if result.ring_source == "elevation_bins" and result.sensor is not None:
+            self._spacing = result.sensor.spacing_deg
         self.hold(given, result.lines)
         self._ring_order = result.ring_order or self._ring_order
         return result

@@ -188,3 +188,29 @@ def test_training_samples_hold_the_lines_across_frames(searches: list[int]) -> N
     frames = [Frame(f"{k}", shuffled(SCAN64, k), labels=np.zeros(len(SCAN64), np.uint8)) for k in range(3)]
     samples = build_samples(frames, progress=False)
     assert len(searches) == 1 and len(samples) > 0
+
+
+def test_a_binned_stream_reads_its_laser_spacing_once_until_it_searches_again(
+        monkeypatch: pytest.MonkeyPatch, searches: list[int]) -> None:
+    """Rings that fall back to elevation bins take the laser spacing read on the stream's first binned scan; a new
+    line search (after the retry wait) reads it afresh, and every scan's result reports the spacing it ran with."""
+    from pass3d_ros.core.stage1 import sensor_params
+
+    reads: list[float] = []
+    spacing = sensor_params.laser_spacing
+
+    def counted(points: np.ndarray) -> float:
+        reads.append(spacing(points))
+        return reads[-1]
+
+    monkeypatch.setattr(sensor_params, "laser_spacing", counted)
+    holder = LineHolder()
+    scans = [no_laser_lines_scan(seed=k) for k in range(4)]
+    results = [holder.propose(scan) for scan in scans]
+    assert all(r.ring_source == "elevation_bins" for r in results)
+    assert len(searches) == 3 and len(reads) == 3  # scans 0, 1 and 3 search (retry waits of 1 and 2 scans)
+    assert results[2].sensor.spacing_deg is results[1].sensor.spacing_deg or (
+        np.isnan(results[2].sensor.spacing_deg) and np.isnan(results[1].sensor.spacing_deg))
+    holder.reset()
+    holder.propose(scans[0])
+    assert len(reads) == 4, "a new stream reads its own"
