@@ -35,15 +35,15 @@ FAR_RANGE_M = 40.0  # ... but no further (a narrow sensor 4 m up meets the road 
 COARSE_INLIER_M = 0.3  # the first pass's ground band over the whole near field
 MAX_NEAR_POINTS = 3000  # the near ground plane reads at most this many points (evenly strided)
 RANSAC_TRIALS = 300  # planes through three near points tried
-MAX_TILT_DEG = 40.0  # a ground candidate's normal lies within this of the sensor's z axis, or of its reverse
+MAX_TILT_DEG = 25.0  # a ground candidate's normal lies within this of the sensor's z axis, or of its reverse
 MIN_HEIGHT_M, MAX_HEIGHT_M = 0.1, 10.0  # a ground candidate lies this far below the sensor
 INLIER_M = 0.1  # a point this close to a plane is on it
 BELOW_M = 0.3  # ... and this far under it, beneath it (the ground has points on it and next to none beneath it)
 HEIGHT_DISAGREE_M = 0.3  # a hand-set sensor_height further than this from the estimate is worth a warning
 TILT_WARN_DEG = 5.0  # a sensor tilted more than this from the ground's normal is worth a note
 LEVEL_MIN_DEG = 2.0  # a stream read as tilted less than this runs unrotated (a level sensor keeps its exact output)
-PROVISIONAL_LEVEL_DEG = 5.0  # ... and before its mounting is held, less than this (one scan's reading can be 3 deg
-# off where the road slopes or a kerb runs beside the vehicle; a 10-degree or upside-down mount is levelled at once)
+PROVISIONAL_LEVEL_DEG = 3.0  # ... and before its mounting is held, less than this (one scan's reading can be 2-3 deg
+# off gravity where the road slopes: levelling to that road is what stage 1 wants; 5 degrees pitched is levelled at once)
 SEED_DEADBAND_M = 0.3  # a held height this close to AUTO_START_HEIGHT_M bounds the seeds from AUTO_START_HEIGHT_M
 _HEIGHT_RANGE = (0.0, 10.0)  # Stage1Config.sensor_height's range: a held height is clipped into it
 
@@ -180,13 +180,14 @@ def read_mounting(points: np.ndarray) -> Mounting | None:
 
 def _refit(xyz: np.ndarray, plane: np.ndarray, inlier_m: float) -> np.ndarray | None:
     """The plane refitted by least squares twice on the points within `inlier_m` of it; None with fewer than
-    MIN_GROUND_POINTS of them."""
+    MIN_GROUND_POINTS of them, or when the refit leaves the bounds a candidate keeps (`_best_plane`)."""
     for _ in range(2):
         inliers = xyz[np.abs(xyz @ plane[:3] + plane[3]) < inlier_m]
         if len(inliers) < MIN_GROUND_POINTS:
             return None
         plane = _fit(inliers)
-    return plane
+    upright = abs(plane[2]) >= math.cos(math.radians(MAX_TILT_DEG))
+    return plane if upright and MIN_HEIGHT_M <= plane[3] <= MAX_HEIGHT_M else None
 
 
 def parse_mount(text: str) -> Mounting | None:
