@@ -454,6 +454,33 @@ def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = T
     return GroundFit(ground, planes, edges, _local_ground(planes, edges, hist, origin, config))
 
 
+def with_local_ground(points: np.ndarray, fit: GroundFit, band: float) -> np.ndarray:
+    """`fit.ground` and the points within `band` (vertically) of the local ground
+    (`Stage1Config.local_ground_as_ground`): the local ground is read once per LOCAL_CELL_M cell that holds such a
+    point, at its centre, and its height at a point is the point's segment plane's there moved by its cell's offset.
+    The same mask without a local ground."""
+    local = fit.local
+    if local is None or len(points) == 0:
+        return fit.ground
+    rest = np.flatnonzero(~fit.ground)
+    xyz = np.asarray(points[rest, :3], dtype=np.float64)
+    n_cells = local.hist.shape[0]
+    cell = np.floor((xyz[:, :2] - local.origin) / LOCAL_CELL_M).astype(np.int64)
+    inside = np.all((cell >= 0) & (cell < n_cells), axis=1)
+    rest, xyz, cell = rest[inside], xyz[inside], cell[inside]
+    key = cell[:, 0] * n_cells + cell[:, 1]
+    cells, which = np.unique(key, return_inverse=True)
+    centres = local.origin + LOCAL_CELL_M * (np.column_stack([cells // n_cells, cells % n_cells]) + 0.5)
+    offsets = local.offsets(centres)[which]
+    width = local.segment_edges[1] - local.segment_edges[0]
+    segment = np.clip(((xyz[:, 0] - local.segment_edges[0]) / width).astype(np.int64), 0, len(local.planes) - 1)
+    a, b, c, d = local.planes[segment].T
+    height = (offsets - a * xyz[:, 0] - b * xyz[:, 1] - d) / c
+    ground = fit.ground.copy()
+    ground[rest[np.abs(xyz[:, 2] - height) < band]] = True
+    return ground
+
+
 def _local_ground(planes: np.ndarray, edges: np.ndarray, hist: np.ndarray, origin: float,
                   config: Stage1Config) -> LocalGround | None:
     """The LocalGround of counted histograms (None when config.local_ground is off)."""

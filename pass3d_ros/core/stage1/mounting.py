@@ -43,7 +43,7 @@ HEIGHT_DISAGREE_M = 0.3  # a hand-set sensor_height further than this from the e
 TILT_WARN_DEG = 5.0  # a sensor tilted more than this from the ground's normal is worth a note
 LEVEL_MIN_DEG = 2.0  # a stream read as tilted less than this runs unrotated (a level sensor keeps its exact output)
 PROVISIONAL_LEVEL_DEG = 3.0  # ... and before its mounting is held, less than this (one scan's reading can be 2-3 deg
-# off gravity where the road slopes: levelling to that road is what stage 1 wants; 5 degrees pitched is levelled at once)
+# off gravity where the road slopes: levelling to that road is what stage 1 wants; 5 degrees pitched is levelled)
 SEED_DEADBAND_M = 0.3  # a held height this close to AUTO_START_HEIGHT_M bounds the seeds from AUTO_START_HEIGHT_M
 _HEIGHT_RANGE = (0.0, 10.0)  # Stage1Config.sensor_height's range: a held height is clipped into it
 

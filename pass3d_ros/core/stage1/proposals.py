@@ -146,6 +146,8 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
         work = flat if order is None else np.take(flat, order, axis=0)
     t1 = time.perf_counter()
     fit = beside.result() if beside is not None else _ground.fit_ground(flat, cfg)
+    if cfg.local_ground_as_ground:
+        fit = fit._replace(ground=_ground.with_local_ground(flat, fit, cfg.th_dist))
     work_ground = fit.ground if order is None else np.take(fit.ground, order)
     t2 = time.perf_counter()
     label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~work_ground, cfg)
