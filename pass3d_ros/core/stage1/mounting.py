@@ -39,6 +39,8 @@ MAX_TILT_DEG = 25.0  # a ground candidate's normal lies within this of the senso
 MIN_HEIGHT_M, MAX_HEIGHT_M = 0.1, 10.0  # a ground candidate lies this far below the sensor
 INLIER_M = 0.1  # a point this close to a plane is on it
 BELOW_M = 0.3  # ... and this far under it, beneath it (the ground has points on it and next to none beneath it)
+MAX_BENEATH_SHARE = 0.25  # a plane with more points beneath it than this share of those on it is no ground
+INVERTED_MARGIN = 2.0  # an upside-down reading needs this many times the best upright candidate's score
 HEIGHT_DISAGREE_M = 0.3  # a hand-set sensor_height further than this from the estimate is worth a warning
 TILT_WARN_DEG = 5.0  # a sensor tilted more than this from the ground's normal is worth a note
 LEVEL_MIN_DEG = 2.0  # a stream read as tilted less than this runs unrotated (a level sensor keeps its exact output)
@@ -141,7 +143,12 @@ def _best_plane(seeds: np.ndarray, xyz: np.ndarray, inlier_m: float) -> np.ndarr
     distance = (xyz[:, 0:1] * candidates[:, 0] + xyz[:, 1:2] * candidates[:, 1] + xyz[:, 2:3] * candidates[:, 2]
                 + candidates[:, 3])
     score = (np.abs(distance) < inlier_m).sum(axis=0) - (distance < -BELOW_M).sum(axis=0)
-    return candidates[int(np.argmax(score))]
+    upright = candidates[:, 2] > 0.0
+    best_up = int(np.argmax(np.where(upright, score, np.iinfo(np.int64).min))) if upright.any() else -1
+    best_down = int(np.argmax(np.where(upright, np.iinfo(np.int64).min, score))) if (~upright).any() else -1
+    if best_down < 0 or (best_up >= 0 and score[best_down] <= INVERTED_MARGIN * max(score[best_up], 0)):
+        return candidates[best_up]  # upside down only on clear evidence: a ceiling, or the top of clutter, is no road
+    return candidates[best_down]
 
 
 def read_mounting(points: np.ndarray) -> Mounting | None:
@@ -187,7 +194,10 @@ def _refit(xyz: np.ndarray, plane: np.ndarray, inlier_m: float) -> np.ndarray | 
             return None
         plane = _fit(inliers)
     upright = abs(plane[2]) >= math.cos(math.radians(MAX_TILT_DEG))
-    return plane if upright and MIN_HEIGHT_M <= plane[3] <= MAX_HEIGHT_M else None
+    distance = xyz @ plane[:3] + plane[3]
+    beneath = np.count_nonzero(distance < -BELOW_M)  # a ground has next to nothing beneath it; noise has plenty
+    ground = upright and MIN_HEIGHT_M <= plane[3] <= MAX_HEIGHT_M and beneath <= MAX_BENEATH_SHARE * len(inliers)
+    return plane if ground else None
 
 
 def parse_mount(text: str) -> Mounting | None:
