@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from pass3d_ros.core.stage1.scanline import nearer_of_two
 from pass3d_ros.errors import Pass3dError
 
 RING_CONVENTIONS: tuple[str, ...] = ("top_down", "bottom_up", "driver_order", "unfit")
@@ -108,20 +109,10 @@ def _elevations_kernel(r: np.ndarray, tan: np.ndarray, ring: np.ndarray, n_value
     well = np.zeros(n_values, dtype=np.bool_)
     buf = np.empty(n, dtype=tan.dtype)
     for v in range(n_values):
-        m = 0
-        for t in range(start[v], start[v + 1]):
-            i = members[t]
-            if r[i] > min_range:
-                buf[m] = tan[i]
-                m += 1
+        m = _beyond(members[start[v]:start[v + 1]], r, tan, min_range, buf)
         well[v] = m >= min_points
         if not well[v]:
-            m = 0
-            for t in range(start[v], start[v + 1]):
-                i = members[t]
-                if r[i] > off_origin:
-                    buf[m] = tan[i]
-                    m += 1
+            m = _beyond(members[start[v]:start[v + 1]], r, tan, off_origin, buf)
         if m > 0:
             half = m // 2
             if m % 2:
@@ -130,6 +121,17 @@ def _elevations_kernel(r: np.ndarray, tan: np.ndarray, ring: np.ndarray, n_value
                 part = np.partition(buf[:m], (half - 1, half))
                 medians[v] = (part[half - 1] + part[half]) / 2
     return medians, well
+
+
+@nb.njit(cache=True, nogil=True)
+def _beyond(members: np.ndarray, r: np.ndarray, tan: np.ndarray, reach: float, buf: np.ndarray) -> int:
+    """Copy the `tan` of the `members` farther than `reach` into `buf`, in order; how many."""
+    m = 0
+    for i in members:
+        if r[i] > reach:
+            buf[m] = tan[i]
+            m += 1
+    return m
 
 
 def _fit_share(r: np.ndarray, tan: np.ndarray, ring: np.ndarray, medians: np.ndarray, measured: np.ndarray
@@ -154,24 +156,13 @@ def _fit_counts(r: np.ndarray, tan: np.ndarray, ring: np.ndarray, is_measured: n
     """`_fit_share`'s counts in one pass (numpy's masks, searchsorted and comparisons took 0.8 ms of a 28k-point
     scan): the returns beyond `min_range` of measured values whose nearest level (`levels` ascending; the lower one
     on a tie) is within `neighbours` ranks of their own, and all of those returns."""
-    n_levels = levels.shape[0]
     fitting = 0
     far = 0
     for i in range(ring.shape[0]):
         if not (r[i] > min_range and is_measured[ring[i]]):
             continue
         far += 1
-        t = np.float64(tan[i])
-        lo = 0
-        hi = n_levels
-        while lo < hi:  # numpy's searchsorted (left)
-            mid = (lo + hi) >> 1
-            if levels[mid] < t:
-                lo = mid + 1
-            else:
-                hi = mid
-        pos = min(max(lo, 1), n_levels - 1)
-        nearest = pos - 1 if abs(t - levels[pos - 1]) <= abs(levels[pos] - t) else pos
+        nearest = nearer_of_two(levels, np.float64(tan[i]))
         if abs(nearest - rank[ring[i]]) <= neighbours:
             fitting += 1
     return fitting, far

@@ -32,7 +32,7 @@ import numba as nb
 import numpy as np
 
 from pass3d_ros.core.stage1.config import Stage1Config
-from pass3d_ros.core.stage1.scanline import group_starts
+from pass3d_ros.core.stage1.scanline import group_starts, nearer_of_two
 
 REFERENCE_DV_DEG = 0.42  # KITTI's HDL-64E: median elevation gap between neighbouring rings (this module's estimate)
 REFERENCE_DH_DEG = 0.17  # KITTI's HDL-64E at 10 Hz: median azimuth step between neighbouring points of a ring
@@ -149,20 +149,10 @@ def _histogram(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
 def _near_peaks(elevation: np.ndarray, centres: np.ndarray, tolerance: float) -> int:
     """How many elevations lie within `tolerance` of the nearest of `centres` (ascending, at least 2): the nearer of
     the two centres around numpy's searchsorted position, as `laser_spacing` read it with numpy."""
-    n = centres.shape[0]
     near = 0
     for i in range(elevation.shape[0]):
         e = elevation[i]
-        lo = 0
-        hi = n
-        while lo < hi:  # searchsorted (left)
-            mid = (lo + hi) >> 1
-            if centres[mid] < e:
-                lo = mid + 1
-            else:
-                hi = mid
-        right = min(max(lo, 1), n - 1)
-        if min(abs(e - centres[right - 1]), abs(e - centres[right])) <= tolerance:
+        if abs(e - centres[nearer_of_two(centres, e)]) <= tolerance:
             near += 1
     return near
 
