@@ -340,6 +340,18 @@ def generate_frame(seed: int, index: int, sensor: LidarModel | str = DEFAULT_SEN
                  labels=scan.labels, ground=scan.ground, instance=scan.instance, boxes=scan.boxes)
 
 
+def _number_in(text: str, key: str, value: str, bounds: tuple[float, float], unit: str) -> float:
+    """A spec item's number within `bounds`; DatasetError naming the spec, the key and the bounds otherwise."""
+    try:
+        number = float(value)
+    except ValueError:
+        number = float("nan")
+    if not bounds[0] <= number <= bounds[1]:
+        raise DatasetError(f"synthetic spec {text!r}: {key} must be a number of {unit} in "
+                           f"{bounds[0]:g}..{bounds[1]:g}, got {value.strip()!r}")
+    return number
+
+
 def parse_synthetic_spec(text: str) -> dict[str, Any]:
     """`frames=N,seed=S[,start=K][,sensor=NAME][,height=H][,roll=DEG][,pitch=DEG][,without=CHANGE+CHANGE]` ->
     {'frames': N, 'seed': S, 'start': K, 'sensor': NAME, 'height': H or None, 'roll': DEG, 'pitch': DEG,
@@ -355,23 +367,10 @@ def parse_synthetic_spec(text: str) -> dict[str, Any]:
         key, sep, value = item.partition("=")
         key = key.strip()
         if sep and key in angles:
-            try:
-                angle = float(value)
-            except ValueError:
-                angle = float("nan")
-            if not MOUNT_ANGLE_RANGE_DEG[0] <= angle <= MOUNT_ANGLE_RANGE_DEG[1]:
-                raise DatasetError(f"synthetic spec {text!r}: {key} must be a number of degrees in "
-                                   f"{MOUNT_ANGLE_RANGE_DEG[0]:g}..{MOUNT_ANGLE_RANGE_DEG[1]:g}, got {value.strip()!r}")
-            angles[key] = angle + 0.0  # -0.0 -> 0.0
+            angles[key] = _number_in(text, key, value, MOUNT_ANGLE_RANGE_DEG, "degrees") + 0.0  # -0.0 -> 0.0
             continue
         if sep and key == "height":
-            try:
-                height = float(value)
-            except ValueError:
-                height = float("nan")
-            if not HEIGHT_RANGE_M[0] <= height <= HEIGHT_RANGE_M[1]:
-                raise DatasetError(f"synthetic spec {text!r}: height must be a number of metres in "
-                                   f"{HEIGHT_RANGE_M[0]:g}..{HEIGHT_RANGE_M[1]:g}, got {value.strip()!r}")
+            height = _number_in(text, key, value, HEIGHT_RANGE_M, "metres")
             continue
         if sep and key == "sensor":
             sensor = value.strip().lower()

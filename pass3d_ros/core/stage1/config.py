@@ -182,11 +182,6 @@ class Stage1Config:
         "of height histograms built once per frame) instead of above the segment plane alone; kept boxes take in "
         "the ground band under them", 0, 1,
     )
-    local_ground_as_ground: bool = _param(
-        False, "ground: points within th_dist of the local ground (the height gates' surface) are ground too, so a "
-        "road the segment planes miss (a tilted sensor, a cambered or sloping road) is never clustered (needs "
-        "local_ground)", 0, 1,
-    )
     local_ground_radius: float = _param(
         4.0, "refinement: half-width of the square around a cluster that the local ground is read from (m; grows by "
         "5 % of the range)", 0.5, 50.0,
@@ -255,6 +250,11 @@ class Stage1Config:
     )
     ground_thread: bool = _param(
         True, "ground: fit the ground planes on a second thread while rings are recovered (same result)", 0, 1,
+    )
+    local_ground_as_ground: bool = _param(
+        False, "ground: points within th_dist of the local ground (the height gates' surface) are ground too, so a "
+        "road the segment planes miss (a tilted sensor, a sloping road) is never clustered (needs local_ground)",
+        0, 1,
     )
 
     def __post_init__(self) -> None:

@@ -219,30 +219,8 @@ def proposal_members(
         if n_proposals < k:
             raise ValueError(f"n_proposals={n_proposals} but ids go up to {k - 1}")
         k = n_proposals
-    index, bounds = _members_kernel(cluster_id.reshape(-1), cluster_id2.reshape(-1), k)
+    index, bounds = _refinement.grouped_points(cluster_id.reshape(-1), cluster_id2.reshape(-1), k)
     return [index[bounds[j]:bounds[j + 1]] for j in range(k)]
-
-
-@nb.njit(cache=True, nogil=True)
-def _members_kernel(first: np.ndarray, second: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Point indices grouped by proposal (a counting sort: ascending within each proposal, as the points come),
-    and the k + 1 bounds of the groups; ids below 0 are no proposal."""
-    bounds = np.zeros(k + 1, dtype=np.int64)
-    for i in range(first.shape[0]):
-        if first[i] >= 0:
-            bounds[first[i] + 1] += 1
-        if second[i] >= 0:
-            bounds[second[i] + 1] += 1
-    for j in range(k):
-        bounds[j + 1] += bounds[j]
-    fill = bounds[:k].copy()
-    index = np.empty(bounds[k], dtype=np.int64)
-    for i in range(first.shape[0]):
-        for proposal in (first[i], second[i]):
-            if proposal >= 0:
-                index[fill[proposal]] = i
-                fill[proposal] += 1
-    return index, bounds
 
 
 def synthetic_scan(n_rings: int = 64, points_per_ring: int = 720) -> np.ndarray:

@@ -282,24 +282,40 @@ def min_area_rectangle(xy: np.ndarray) -> tuple[float, float, float, float, floa
 
 
 @nb.njit(cache=True, nogil=True)
+def grouped_points(first: np.ndarray, second: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Point indices grouped by group id (a counting sort: ascending within each group, as the points come), and the
+    k + 1 bounds of the groups; a point belongs to group first[i] and to second[i] (ids below 0: none; `second`
+    empty: no second group)."""
+    two = second.shape[0] > 0
+    bounds = np.zeros(k + 1, dtype=np.int64)
+    for i in range(first.shape[0]):
+        if first[i] >= 0:
+            bounds[first[i] + 1] += 1
+        if two and second[i] >= 0:
+            bounds[second[i] + 1] += 1
+    for j in range(k):
+        bounds[j + 1] += bounds[j]
+    fill = bounds[:k].copy()
+    index = np.empty(bounds[k], dtype=np.int64)
+    for i in range(first.shape[0]):
+        if first[i] >= 0:
+            index[fill[first[i]]] = i
+            fill[first[i]] += 1
+        if two and second[i] >= 0:
+            index[fill[second[i]]] = i
+            fill[second[i]] += 1
+    return index, bounds
+
+
+@nb.njit(cache=True, nogil=True)
 def grouped_by_slot(label: np.ndarray, slot: np.ndarray, n_slots: int) -> tuple[np.ndarray, np.ndarray]:
     """The points of the clusters that have a slot (slot[cluster] >= 0), grouped by slot in point order (a counting
     sort), and the n_slots + 1 bounds of the groups."""
-    bounds = np.zeros(n_slots + 1, dtype=np.int64)
+    group = np.full(label.shape[0], -1, dtype=np.int64)
     for i in range(label.shape[0]):
-        c = label[i]
-        if c >= 0 and slot[c] >= 0:
-            bounds[slot[c] + 1] += 1
-    for t in range(n_slots):
-        bounds[t + 1] += bounds[t]
-    fill = bounds[:n_slots].copy()
-    members = np.empty(bounds[n_slots], dtype=np.int64)
-    for i in range(label.shape[0]):
-        c = label[i]
-        if c >= 0 and slot[c] >= 0:
-            members[fill[slot[c]]] = i
-            fill[slot[c]] += 1
-    return members, bounds
+        if label[i] >= 0:
+            group[i] = slot[label[i]]
+    return grouped_points(group, np.empty(0, dtype=np.int64), n_slots)
 
 
 @nb.njit(cache=True, nogil=True)

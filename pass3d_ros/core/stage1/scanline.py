@@ -314,15 +314,7 @@ def group_starts(group: np.ndarray, n_groups: int) -> np.ndarray:
 def nearer_of_two(levels: np.ndarray, value: float) -> int:
     """Index of the nearer of the two `levels` (ascending, at least 2) around numpy's searchsorted (left) position of
     `value`; the lower one on a tie."""
-    lo = 0
-    hi = levels.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if levels[mid] < value:
-            lo = mid + 1
-        else:
-            hi = mid
-    pos = min(max(lo, 1), levels.shape[0] - 1)
+    pos = min(max(_lower_bound(levels, 0, levels.shape[0], value), 1), levels.shape[0] - 1)
     return pos - 1 if abs(value - levels[pos - 1]) <= abs(levels[pos] - value) else pos
 
 
