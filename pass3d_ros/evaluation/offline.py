@@ -71,13 +71,14 @@ def proposed_frame(pipeline: ScanPipeline, spec: str, frame: Frame, printed: set
     once."""
     pipeline.follow(spec)
     scan = pipeline.prepare(frame.points, frame.ring)
-    for note in pipeline.stream.first_notes(scan):
+    proposed = pipeline.stage1(scan)
+    for note in pipeline.stream.first_notes(scan.notes + pipeline.stream.mounting_notes(pipeline.config)):
         key = f"{spec}|{note.topic}"
         if printed is None or key not in printed:
             print(f"{spec}: {note.text}", file=sys.stderr)
         if printed is not None:
             printed.add(key)
-    return pipeline.stage1(scan)
+    return proposed
 
 
 def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config,

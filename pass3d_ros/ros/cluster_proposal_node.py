@@ -14,6 +14,7 @@ from pass3d_ros.core import scan_checks
 from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result, warm_up
 from pass3d_ros.core.stage1.config import AUTO, STAGE1_PREFIX
+from pass3d_ros.core.stage1.mounting import level_rotation
 from pass3d_ros.core.stage1.mounting import problems as mounting_problems
 from pass3d_ros.core.stage1.ring_field import RingFieldOrder
 from pass3d_ros.core.stream import Note
@@ -164,13 +165,17 @@ class ClusterProposalNode(PointCloudNode):
 
     def _report_mounting(self) -> None:
         """Log the stream's mounting once it is held (INFO), and what it says is wrong (WARN: a hand-set
-        sensor_height more than 0.3 m off it, a tilt over 5 deg), again only when the held mounting or the
-        sensor_height changes (pass3d_ros.core.stage1.mounting)."""
+        sensor_height more than 0.3 m off it, a sensor read upside down, readings that disagree), again only when the
+        held mounting or the sensor_height changes (pass3d_ros.core.stage1.mounting)."""
         held = self.stream.mounting.held
         if held is None or (held, self.config.sensor_height) == self._mounting_said:
             return
         if held is not self._mounting_said[0]:
-            self.get_logger().info(f"mounting: {held}")
+            levelled = level_rotation(held) is not None
+            said = "; the scans are levelled before stage 1" if levelled else ""
+            self.get_logger().info(f"mounting: {held}{said}")
+            for text in self.stream.mounting.unsure():
+                self.get_logger().warning(f"mounting: {text}")
         self._mounting_said = (held, self.config.sensor_height)
         for problem in mounting_problems(self.config, held):
             self.get_logger().warning(f"mounting: {problem}")
@@ -192,8 +197,9 @@ class ClusterProposalNode(PointCloudNode):
         """`ring_field`: the numbering measured in the input's ring field (none, top_down, bottom_up, driver_order,
         unfit); an unfit field turns the status WARN. `mounting`: none, estimating (scans read so far) or held;
         `sensor_height_m`, `sensor_tilt_deg`, `sensor_roll_deg`, `sensor_pitch_deg`: the estimate
-        (pass3d_ros.core.stage1.mounting); a held one that disagrees with a hand-set sensor_height by more than 0.3 m,
-        or is tilted over 5 deg, turns the status WARN. `min_range_m`: with stage1.min_range auto, the body radius held
+        (pass3d_ros.core.stage1.mounting), `mounting_levelled`: the held one levels the scans; a held one that disagrees
+        with a hand-set sensor_height by more than 0.3 m, reads upside down, or was read from readings that disagree,
+        or no ground read at all, turns the status WARN. `min_range_m`: with stage1.min_range auto, the body radius held
         (0 until read, and when the vehicle showed none)."""
         order = self._ring_order
         warnings = ["ring field does not fit the points: ignored, rings recovered"] if order and not order.fits else []
@@ -207,7 +213,9 @@ class ClusterProposalNode(PointCloudNode):
                            "sensor_tilt_deg": round(estimate.tilt_deg, 2),
                            "sensor_roll_deg": round(estimate.roll_deg, 2),
                            "sensor_pitch_deg": round(estimate.pitch_deg, 2)})
+        values["mounting_levelled"] = bool(holder.held is not None and level_rotation(holder.held) is not None)
         warnings += [f"mounting: {problem}" for problem in mounting_problems(self.config, holder.held)]
+        warnings += [f"mounting: {text}" for text in holder.unsure()]
         if self.config.min_range == AUTO:
             values["min_range_m"] = self.stream.body.radius_m
         return values, warnings

@@ -27,8 +27,8 @@ def test_prepare_repairs_a_scan_and_says_what_it_did() -> None:
     np.testing.assert_array_equal(scan.ring, ring[1:])
     wide = stream.prepare(pts, (ring * 2).astype(np.uint16), Stage1Config(sensor="vlp16"))
     assert wide.ring is None and wide.field is not None and any(n.topic == "ring" for n in wide.notes)
-    assert stream.first_notes(scan) == scan.notes
-    assert stream.first_notes(scan) == []
+    assert stream.first_notes(scan.notes) == scan.notes
+    assert stream.first_notes(scan.notes) == []
 
 
 def test_offline_stage1_reads_a_0_255_stream_as_the_node_does(capsys) -> None:

@@ -42,7 +42,8 @@ BELOW_M = 0.3  # ... and this far under it, beneath it (the ground has points on
 MAX_BENEATH_SHARE = 0.25  # a plane with more points beneath it than this share of those on it is no ground
 INVERTED_MARGIN = 2.0  # an upside-down reading needs this many times the best upright candidate's score
 HEIGHT_DISAGREE_M = 0.3  # a hand-set sensor_height further than this from the estimate is worth a warning
-TILT_WARN_DEG = 5.0  # a sensor tilted more than this from the ground's normal is worth a note
+SPREAD_WARN_DEG = 3.0  # readings of one stream further apart than this make the held mounting unsure
+NO_GROUND_SCANS = 10  # a stream that read no ground in this many scans says so
 LEVEL_MIN_DEG = 2.0  # a stream read as tilted less than this runs unrotated (a level sensor keeps its exact output)
 PROVISIONAL_LEVEL_DEG = 3.0  # ... and before its mounting is held, less than this (one scan's reading can be 2-3 deg
 # off gravity where the road slopes: levelling to that road is what stage 1 wants; 5 degrees pitched is levelled)
@@ -221,8 +222,8 @@ def median_mounting(readings: list[Mounting]) -> Mounting:
 
 
 def problems(config: Stage1Config, mounting: Mounting | None) -> list[str]:
-    """What a held mounting says is wrong: a hand-set sensor_height more than HEIGHT_DISAGREE_M off it, a tilt of
-    more than TILT_WARN_DEG."""
+    """What a held mounting says is wrong or unsure: a hand-set sensor_height more than HEIGHT_DISAGREE_M off it, a
+    sensor read as upside down (a ceiling over an upright one could read so). A steady tilt is levelled: no problem."""
     if mounting is None:
         return []
     out = []
@@ -231,10 +232,14 @@ def problems(config: Stage1Config, mounting: Mounting | None) -> list[str]:
                    f"{mounting.height_m:.2f} m below it (more than {HEIGHT_DISAGREE_M:g} m off): set "
                    f"{mounting.height_m:.2f} or auto")
     if mounting.inverted:
-        out.append(f"sensor upside down (roll {mounting.roll_deg:.1f}, pitch {mounting.pitch_deg:.1f}): stage 1 levels "
-                   "the scan; if it is not, set stage1.mount")
-    elif mounting.tilt_deg > TILT_WARN_DEG:
-        out.append(f"sensor tilted {mounting.tilt_deg:.1f} deg from the ground's normal (roll {mounting.roll_deg:.1f}, "
-                   f"pitch {mounting.pitch_deg:.1f}; more than {TILT_WARN_DEG:g} deg): stage 1 levels the scan; a "
-                   "sloping road under the sensor reads as tilt too (stage1.mount states it)")
+        out.append(f"sensor read as upside down (roll {mounting.roll_deg:.1f}, pitch {mounting.pitch_deg:.1f}): stage "
+                   "1 levels the scan; if it is not upside down, set stage1.mount")
     return out
+
+
+def spread_deg(readings: list[Mounting], held: Mounting) -> float:
+    """The largest angle (degrees) between a reading's ground normal and the held one's: how far the readings a
+    mounting was held from disagree."""
+    up = held.rotation()[2]  # the level frame's z in the sensor's frame
+    cosines = [float(np.clip(m.rotation()[2] @ up, -1.0, 1.0)) for m in readings]
+    return math.degrees(math.acos(min(cosines))) if cosines else 0.0

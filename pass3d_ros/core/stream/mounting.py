@@ -13,13 +13,17 @@ import numpy as np
 from pass3d_ros.core.stage1.config import AUTO, AUTO_START_HEIGHT_M, Stage1Config
 from pass3d_ros.core.stage1.mounting import (
     _HEIGHT_RANGE,
+    MAX_HEIGHT_M,
     MOUNTING_SCANS,
+    NO_GROUND_SCANS,
     SEED_DEADBAND_M,
+    SPREAD_WARN_DEG,
     Mounting,
     level_rotation,
     median_mounting,
     parse_mount,
     read_mounting,
+    spread_deg,
 )
 
 
@@ -31,6 +35,7 @@ class MountingHolder:
         self.scans = scans
         self._lock = threading.Lock()  # the node's diagnostics read while its worker updates
         self._readings: list[Mounting] = []
+        self._observed = 0  # scans offered for a reading
         self.held: Mounting | None = None
         self._given: tuple[str, Mounting | None] = (AUTO, None)  # stage1.mount as last parsed
         self._cached: tuple[Stage1Config, Mounting, Stage1Config] | None = None
@@ -39,6 +44,7 @@ class MountingHolder:
         """Forget the readings and the held mounting."""
         with self._lock:
             self._readings = []
+            self._observed = 0
             self.held = None
             self._cached = None
 
@@ -67,6 +73,7 @@ class MountingHolder:
         if given is not None:
             return given, level_rotation(given, given=True)
         if self.held is None:
+            self._observed += 1
             reading = read_mounting(points)
             if reading is not None:
                 with self._lock:
@@ -75,6 +82,21 @@ class MountingHolder:
                         self.held = median_mounting(self._readings)
         mounting = self.estimate
         return mounting, level_rotation(mounting, held=self.held is not None)
+
+    def unsure(self) -> list[str]:
+        """Why the mounting read is not to be trusted, if it is not: readings more than SPREAD_WARN_DEG apart (a
+        changing road, a loose mount), or no ground read in NO_GROUND_SCANS scans (the mount is higher than
+        MAX_HEIGHT_M, the sensor sees no road, or sits indoors)."""
+        with self._lock:
+            readings, held, observed = list(self._readings), self.held, self._observed
+        if held is not None and spread_deg(readings, held) > SPREAD_WARN_DEG:
+            return [f"mounting readings of the first {len(readings)} scans disagree by up to "
+                    f"{spread_deg(readings, held):.1f} deg (a changing road or a loose mount): the median is held; "
+                    "set stage1.mount if it is known"]
+        if not readings and observed >= NO_GROUND_SCANS:
+            return [f"no ground read in {observed} scans (a mount over {MAX_HEIGHT_M:g} m, a sensor that sees no "
+                    "road, or indoors): the scans run as they come; set stage1.mount"]
+        return []
 
     def config_for(self, config: Stage1Config) -> Stage1Config:
         """`config` as the next scan runs it: with sensor_height auto and a mounting (given, held, or estimated so far)

@@ -21,6 +21,7 @@ from pass3d_ros.core import scan_checks
 from pass3d_ros.core.stage1 import Stage1Config, Stage1Result
 from pass3d_ros.core.stage1.config import AUTO
 from pass3d_ros.core.stage1.lasers import ring_limit
+from pass3d_ros.core.stage1.mounting import level_rotation, problems
 from pass3d_ros.core.stream.body import BodyHolder
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stream.intensity_match import StreamIntensityMatch
@@ -184,8 +185,20 @@ class ScanStream:
             self.maps[str(self._key)] = str(self.match.map)
         return self.match.on_training_scale(points)
 
-    def first_notes(self, scan: PreparedScan) -> list[Note]:
-        """The scan's notes on topics this stream has not noted yet: what an offline tool prints once a stream."""
-        fresh = [note for note in scan.notes if note.topic not in self._noted]
-        self._noted.update(note.topic for note in scan.notes)
+    def first_notes(self, notes: list[Note]) -> list[Note]:
+        """The notes on topics this stream has not noted yet: what an offline tool prints once a stream."""
+        fresh = [note for note in notes if note.topic not in self._noted]
+        self._noted.update(note.topic for note in notes)
         return fresh
+
+    def mounting_notes(self, config: Stage1Config) -> list[Note]:
+        """Once the mounting is held: what it is when the scans are levelled, and what is wrong or unsure about it
+        (pass3d_ros.core.stage1.mounting.problems, MountingHolder.unsure); each its own topic."""
+        held = self.mounting.held
+        if held is None:
+            return []
+        notes = [Note("mounting-levelled", f"mounting: {held}; the scans are levelled before stage 1")] \
+            if level_rotation(held) is not None else []
+        notes += [Note(f"mounting-{k}", f"mounting: {text}")
+                  for k, text in enumerate(problems(config, held) + self.mounting.unsure())]
+        return notes

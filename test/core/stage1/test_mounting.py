@@ -9,6 +9,7 @@ mount is the level scan rotated (the beams turn with the sensor).
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -22,7 +23,7 @@ from pass3d_ros.core.stage1.config import AUTO, ConfigError, config_from_text, p
 from pass3d_ros.core.stage1.mounting import (
     HEIGHT_DISAGREE_M,
     MOUNTING_SCANS,
-    TILT_WARN_DEG,
+    NO_GROUND_SCANS,
     Mounting,
     problems,
 )
@@ -111,14 +112,50 @@ def test_the_tools_param_reads_a_number_or_auto() -> None:
         parse_params(["sensor_height=True"])
 
 
-def test_problems_name_a_hand_set_height_off_the_estimate_and_a_tilt() -> None:
+def test_problems_name_a_hand_set_height_off_the_estimate_and_an_upside_down_reading() -> None:
     level = Mounting(1.73, 0.5, -0.5)
     assert problems(Stage1Config(), level) == [] and problems(Stage1Config(sensor_height=1.9), level) == []
     off = problems(Stage1Config(sensor_height=1.73 + HEIGHT_DISAGREE_M + 0.2), level)
     assert len(off) == 1 and "sensor_height is 2.23 m" in off[0] and "1.73" in off[0]
-    steep = problems(Stage1Config(), Mounting(1.73, 4.0, 4.0))
-    assert len(steep) == 1 and "tilted 5.7 deg" in steep[0]  # acos(cos 4 cos 4): roll, then pitch, as URDF turns
+    steep = Mounting(1.73, 4.0, 4.0)
+    assert round(steep.tilt_deg, 1) == 5.7  # acos(cos 4 cos 4): roll, then pitch, as URDF turns
+    assert problems(Stage1Config(), steep) == [], "a steady tilt is levelled, nothing to warn about"
+    flipped = problems(Stage1Config(), Mounting(1.73, 180.0, 0.0))
+    assert len(flipped) == 1 and "upside down" in flipped[0] and "stage1.mount" in flipped[0]
     assert problems(Stage1Config(sensor_height=0.2), None) == []
+
+
+def test_readings_that_disagree_or_no_ground_at_all_make_the_mounting_unsure(low: list[Frame]) -> None:
+    holder = MountingHolder()
+    for k, frame in enumerate(low[:MOUNTING_SCANS]):
+        points = frame.points if k % 2 else tilted(frame, 0.0, 6.0).points  # a loose mount nodding 6 degrees
+        holder.observe(points, Stage1Config())
+    assert holder.held is not None
+    assert len(holder.unsure()) == 1 and "disagree" in holder.unsure()[0]
+    steady = MountingHolder()
+    for frame in low[:MOUNTING_SCANS]:
+        steady.observe(frame.points, Stage1Config())
+    assert steady.held is not None and steady.unsure() == []
+    sky = MountingHolder()
+    wall = np.zeros((500, 4), np.float32)
+    wall[:, 0], wall[:, 1] = 5.0, np.linspace(-10.0, 10.0, 500)
+    for k in range(NO_GROUND_SCANS):
+        assert sky.unsure() == [], k
+        sky.observe(wall, Stage1Config())
+    assert len(sky.unsure()) == 1 and "no ground read in 10 scans" in sky.unsure()[0]
+
+
+def test_offline_tools_say_once_that_a_pitched_stream_is_levelled(capsys: pytest.CaptureFixture[str]) -> None:
+    import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
+    from pass3d_ros.data.spec import open_dataset
+    from pass3d_ros.evaluation.offline import evaluate_stage1
+
+    spec = "synthetic:frames=6,seed=97,sensor=vlp16,pitch=8"
+    evaluate_stage1(((spec, frame) for frame in open_dataset(spec)), Stage1Config())
+    err = capsys.readouterr().err
+    assert err.count("the scans are levelled before stage 1") == 1, err
+    pitch = float(re.search(r"pitch (-?[0-9.]+)\)", err).group(1))
+    assert abs(pitch - 8.0) < 1.0, err  # the simulated road has slopes of its own
 
 
 # ---- the estimate ----
@@ -142,7 +179,7 @@ def test_a_tilted_mount_reads_its_roll_and_pitch(kitti_high: list[Frame]) -> Non
     assert abs((held.roll_deg - flat.roll_deg) - 3.0) < TILT_TOLERANCE_DEG, held
     assert abs((held.pitch_deg - flat.pitch_deg) + 4.0) < TILT_TOLERANCE_DEG, held
     assert abs(held.tilt_deg - 5.0) < 2 * TILT_TOLERANCE_DEG and abs(held.height_m - flat.height_m) < 0.05
-    assert any("tilted" in p for p in problems(Stage1Config(), held)) == (held.tilt_deg > TILT_WARN_DEG)
+    assert problems(Stage1Config(), held) == [], "a steady tilt is levelled, nothing to warn about"
 
 
 def test_the_estimate_is_held_after_the_first_scans_and_a_new_stream_starts_over(low: list[Frame]) -> None:
