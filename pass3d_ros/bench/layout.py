@@ -61,7 +61,7 @@ def timings(msg: Any, repeat: int) -> list[tuple[str, tuple[float, float]]]:
                          "ring": ring, "ground": ground.astype(np.uint8), "cluster_id": ids, "cluster_id2": ids}
 
     def as_input() -> Any:
-        columns = labeled_cloud(frame, result, 0.0)
+        columns = labeled_cloud(frame, labels, ids, result.confidence)
         return encode(labeled_as_input(source, columns), header=msg.header, height=source.height,
                       is_dense=source.is_dense)
 
@@ -71,8 +71,8 @@ def timings(msg: Any, repeat: int) -> list[tuple[str, tuple[float, float]]]:
 
     full_msg, compact_msg = full(), encode(compact_proposals, header=msg.header)
     return [
-        ("labeled compact", time_ms(lambda: encode(labeled_cloud(frame, result, 0.0), header=msg.header,
-                                                   is_dense=True), repeat)),
+        ("labeled compact", time_ms(lambda: encode(labeled_cloud(frame, labels, ids, result.confidence),
+                                                   header=msg.header, is_dense=True), repeat)),
         ("labeled as_input", time_ms(as_input, repeat)),
         ("background", time_ms(lambda: encode(background_cloud(source, labels), header=msg.header), repeat)),
         ("proposals compact", time_ms(lambda: encode(compact_proposals, header=msg.header), repeat)),

@@ -15,6 +15,7 @@ from functools import cached_property
 
 import numpy as np
 
+from pass3d_ros.core.objects import FrameObjects, frame_objects
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, proposal_members
 from pass3d_ros.core.stage1.proposals import level_points
 from pass3d_ros.core.stage2 import Classifier
@@ -85,10 +86,28 @@ class LabelledScan:
     proposed: ProposedScan
     segmented: SegmentResult
     stage2_ms: float = 0.0
+    all_proposals: bool = True  # segmented with every proposal of `proposed`, in order (see `published`)
 
     def labels_in_input(self, size: int) -> np.ndarray:
-        """The labels at the input's positions; points the checks left out are background (0)."""
+        """Stage 2's labels at the input's positions; points the checks left out are background (0). What the nodes
+        publish is `published`."""
         return self.proposed.in_input(self.segmented.labels.astype(np.uint8), size, 0)
+
+    @cached_property
+    def published(self) -> FrameObjects:
+        """The labels, cluster ids and objects the nodes publish for this scan (core.objects.frame_objects: each point
+        owned by its primary proposal; boxes in the level frame). Only for a scan segmented with all its proposals."""
+        if not self.all_proposals:
+            raise ValueError("published: the scan was segmented with a chosen subset of its proposals")
+        segmented = self.segmented
+        return frame_objects(self.proposed.points, self.proposed.result.cluster_id, segmented.proposal_class,
+                             segmented.labels, segmented.confidence)
+
+    def published_in_input(self, size: int) -> tuple[np.ndarray, np.ndarray]:
+        """The published labels and cluster ids at the input's positions; points the checks left out are background
+        in no proposal (0, -1)."""
+        out = self.published
+        return self.proposed.in_input(out.labels, size, 0), self.proposed.in_input(out.cluster_id, size, -1)
 
 
 def _nothing_proposed() -> Stage1Result:
@@ -168,7 +187,7 @@ class ScanPipeline:
         started = time.perf_counter()
         chosen = proposed.members if members is None else members
         segmented = self.segmenter.segment(proposed.points, chosen)
-        return LabelledScan(proposed, segmented, 1e3 * (time.perf_counter() - started))
+        return LabelledScan(proposed, segmented, 1e3 * (time.perf_counter() - started), members is None)
 
     def run(self, points: np.ndarray, ring: np.ndarray | None = None, **checks: float | bool) -> LabelledScan:
         """Both stages on one scan (`propose`, then `segment`); a scan the checks empty is all background."""

@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from pass3d_ros.classes import NUM_CLASSES
 from pass3d_ros.core.metrics import ConfusionAccumulator
-from pass3d_ros.core.objects import LabelledObject, labelled_objects, objects_json
+from pass3d_ros.core.objects import LabelledObject, objects_json
 from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage2 import Classifier
@@ -333,8 +333,9 @@ def _move_into_place(build: Path, out: Path) -> None:
 
 def _segment_frame(spec: str, frame: Frame, stats: SegmentStats) -> tuple[np.ndarray, np.ndarray,
                                                                           list[LabelledObject]]:
-    """Labels, proposal ids (-1 none) and objects of one scan, through its stream's input checks: points they leave
-    out (non-finite, as KITTI raw may hold, or absurd) are background in no proposal and never reach the core."""
+    """Labels, cluster ids (-1 none) and objects of one scan as the nodes publish them (core.objects.frame_objects),
+    through its stream's input checks: points they leave out (non-finite, as KITTI raw may hold, or absurd) are
+    background in no proposal and never reach the core."""
     proposed = proposed_frame(stats.pipeline, spec, frame)
     if proposed.empty:
         stats.stage1_ms.append(0.0)
@@ -342,13 +343,10 @@ def _segment_frame(spec: str, frame: Frame, stats: SegmentStats) -> tuple[np.nda
         return np.zeros(len(frame.points), dtype=np.uint8), np.full(len(frame.points), -1, dtype=np.int32), []
     stats.budget.add(len(proposed.nonempty_members()))
     labelled = stats.pipeline.segment(proposed)
-    segmented = labelled.segmented
     stats.stage2_ms.append(labelled.stage2_ms)
     stats.stage1_ms.append(proposed.result.timings_ms["total"])
-    objects = labelled_objects(proposed.points, proposed.members, segmented.proposal_class, segmented.labels,
-                               segmented.confidence)
-    return (labelled.labels_in_input(len(frame.points)),
-            proposed.in_input(proposed.result.cluster_id, len(frame.points), -1), objects)
+    labels, cluster_id = labelled.published_in_input(len(frame.points))
+    return labels, cluster_id, labelled.published.objects
 
 
 def _median(values: list[float]) -> float | None:

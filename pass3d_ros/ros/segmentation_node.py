@@ -19,7 +19,7 @@ from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN, packed_rgb
 from pass3d_ros.core import scan_checks
-from pass3d_ros.core.objects import labelled_objects
+from pass3d_ros.core.objects import FrameObjects, LabelledObject, frame_objects
 from pass3d_ros.core.pipeline import ProposalSegmenter
 from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage1.proposals import level_points
@@ -77,11 +77,27 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
 PARAMETERS = params.NodeParameters("segmentation_node", NODE_PARAMETERS)
 
 
-def labeled_cloud(frame: ProposalFrame, result: SegmentResult, min_confidence: float) -> dict:
-    """The columns of /pass3d/labeled: input geometry and ids plus label, confidence and rgb."""
+def thresholded(result: SegmentResult, min_confidence: float) -> np.ndarray:
+    """Stage 2's labels (uint8) with the points below `min_confidence` background."""
     labels = result.labels.astype(np.uint8)
     if min_confidence > 0.0:
         labels = np.where(result.confidence >= min_confidence, labels, BACKGROUND).astype(np.uint8)
+    return labels
+
+
+def published(frame: ProposalFrame, proposals: Budgeted, result: SegmentResult, min_confidence: float
+              ) -> FrameObjects:
+    """The labels, cluster ids and objects the frame publishes: core.objects.frame_objects on the thresholded labels,
+    each point owned by the proposal it is published with; boxes fitted in the level frame (they stand on the
+    ground)."""
+    return frame_objects(frame.level_points(), proposals.owner, result.proposal_class,
+                         thresholded(result, min_confidence), result.confidence, frame.cluster_id)
+
+
+def labeled_cloud(frame: ProposalFrame, labels: np.ndarray, cluster_id: np.ndarray, confidence: np.ndarray) -> dict:
+    """The columns of /pass3d/labeled: input geometry, and the published cluster ids, labels (`published`) and
+    stage 2's confidences, and rgb."""
+    labels = np.asarray(labels, dtype=np.uint8)
     points = frame.points
     columns = {
         "x": points[:, 0],
@@ -91,18 +107,20 @@ def labeled_cloud(frame: ProposalFrame, result: SegmentResult, min_confidence: f
     }
     if frame.ring is not None:
         columns["ring"] = frame.ring.astype(np.uint16, copy=False)
-    columns["cluster_id"] = frame.cluster_id.astype(np.int32, copy=False)
+    columns["cluster_id"] = np.asarray(cluster_id, dtype=np.int32)
     columns["label"] = labels
-    columns["confidence"] = result.confidence.astype(np.float32)
+    columns["confidence"] = np.asarray(confidence, dtype=np.float32)
     columns["rgb"] = packed_rgb(labels)
     return columns
 
 
 class Budgeted(NamedTuple):
-    """The proposals of a frame stage 2 classifies: their member points and their cluster ids in the message."""
+    """The proposals of a frame stage 2 classifies: their member points, their cluster ids in the message, and per
+    point the proposal it is published with (its primary; -1: none, or cut by the budget)."""
 
     members: list[np.ndarray]
     ids: np.ndarray
+    owner: np.ndarray
 
 
 class Labeled(NamedTuple):
@@ -357,14 +375,16 @@ class SegmentationNode(PointCloudNode):
                 f"points of the other {count - limit} labeled background", throttle_duration_sec=LOG_PERIOD_S)
             count = limit
         ids = source_ids((frame.cluster_id, frame.cluster_id2), (first, second), count)
-        return Budgeted(proposal_members(first, second, n_proposals=count), ids)
+        return Budgeted(proposal_members(first, second, n_proposals=count), ids, first)
 
     def _publish(self, labeled: Labeled) -> None:
         """Encode and publish one segmented frame (and its objects, as markers and detections, to whoever listens)."""
         frame, proposals, result, clock = labeled
         if self.publisher is not None:
             clock.mark("handoff")  # the wait in the publishing thread's slot
-        columns = labeled_cloud(frame, result, self.get_parameter("min_confidence").value)
+        out = published(frame, proposals, result, self.get_parameter("min_confidence").value)
+        clock.mark("compute")  # the objects, and the labels and ids they settle
+        columns = labeled_cloud(frame, out.labels, out.cluster_id, result.confidence)
         source = frame.source
         if self.output_layout == AS_INPUT and source is None:
             self.warn_once("as_input", "output_layout as_input, but the proposals carry only the points stage 1 read: "
@@ -383,7 +403,7 @@ class SegmentationNode(PointCloudNode):
         clock.mark("publish")
         labels = columns["label"]
         self._publish_background(frame, columns, clock)
-        self._publish_objects(frame, proposals, result, labels, clock)
+        self._publish_objects(frame, out.objects, clock)
         self.stats.frame(clock.steps_ms)
         # counted class by class: np.bincount of 120k uint8 labels took 1.3-3 ms
         counts = [int(np.count_nonzero(labels == k)) for k in (CAR, PEDESTRIAN, CYCLIST)]
@@ -409,16 +429,12 @@ class SegmentationNode(PointCloudNode):
         self.background_pub.publish(cloud)
         clock.mark("publish")
 
-    def _publish_objects(self, frame: ProposalFrame, proposals: Budgeted, result: SegmentResult, labels: np.ndarray,
-                         clock: StepClock) -> None:
-        """The frame's objects (boxes of each labelled proposal's points of its class) as markers and as detections,
-        each only while something subscribes; `labels`: the published ones (after min_confidence)."""
+    def _publish_objects(self, frame: ProposalFrame, objects: list[LabelledObject], clock: StepClock) -> None:
+        """The frame's objects (`published`) as markers and as detections, each only while something subscribes."""
         markers = self.objects_pub.get_subscription_count() > 0
         detections = self.detections is not None and self.detections.wanted()
         if not (markers or detections):
             return
-        objects = labelled_objects(frame.level_points(), proposals.members, result.proposal_class, labels,
-                                   result.confidence, proposals.ids)  # boxes stand on the ground: level frame
         if markers:
             boxes = [obj.box() for obj in objects]
             array = boxes_to_markers(boxes, frame.header, "objects", [obj.label for obj in objects], with_text=True,

@@ -15,6 +15,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 import rclpy.logging
+from helpers.objects import assert_one_object_per_point_group
 from helpers.ros import STAMP0, WAIT_S, Collector, Ros, columns, connect, scan_message
 from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
@@ -22,13 +23,14 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import Marker, MarkerArray
 
-from pass3d_ros.classes import CLASS_NAMES, FOREGROUND
-from pass3d_ros.core.objects import LabelledObject, labelled_objects
+from pass3d_ros.classes import BACKGROUND, CAR, CLASS_NAMES, CYCLIST, FOREGROUND, PEDESTRIAN
+from pass3d_ros.core.objects import SPLIT_ID_STRIDE, LabelledObject, frame_objects
 from pass3d_ros.core.stage1 import proposal_members, propose
+from pass3d_ros.core.stage2.segmentation import SegmentResult
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 from pass3d_ros.data.frame import Box3D, Frame
 from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
-from pass3d_ros.ros import detections
+from pass3d_ros.ros import detections, segmentation_node
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
 from pass3d_ros.ros.inprocess import in_memory_factories
 from pass3d_ros.ros.proposals import dense_ids, nearest_proposals, source_ids
@@ -75,7 +77,8 @@ def offline_objects(frame: Frame) -> list[LabelledObject]:
     stage1 = propose(frame.points, frame.ring)
     members = proposal_members(stage1.cluster_id, stage1.cluster_id2)
     result = SizeRuleClassifier().segment(frame.points, members)
-    return labelled_objects(frame.points, members, result.proposal_class, result.labels, result.confidence)
+    return frame_objects(frame.points, stage1.cluster_id, result.proposal_class, result.labels,
+                         result.confidence).objects
 
 
 def yaw_of(orientation: object) -> float:
@@ -187,3 +190,64 @@ def test_detections_per_labelled_frame_and_label_info_for_a_late_subscriber(
     info = late.messages[0]
     assert [(c.class_id, c.class_name) for c in info.class_map] == list(enumerate(CLASS_NAMES))
     assert info.threshold == 0.0
+
+
+class MixedClassifier(SizeRuleClassifier):
+    """Size rules with every point's label scrambled by where it lies (a stand-in for a network that mixes classes
+    within a proposal): proposals of several classes, background proposals with road-user points, points labelled
+    through their second proposal; each proposal's class is its points' majority, as the network's."""
+
+    def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult:
+        result = super().segment(points, members)
+        cell = (np.floor(points[:, 0] * 2.0) + np.floor(points[:, 1] * 2.0)).astype(np.int64) % 6
+        inside = np.zeros(len(points), bool)
+        for member in members:
+            inside[member] = True
+        labels = np.where(cell < 3, result.labels, np.array([0, 0, 0, CAR, PEDESTRIAN, CYCLIST])[cell])
+        labels = np.where(inside, labels, BACKGROUND).astype(np.uint8)
+        confidence = np.where(inside, 0.4 + 0.1 * cell, 1.0).astype(np.float32)
+        proposal_class = np.array([np.bincount(labels[m], minlength=4).argmax() if len(m) else -1 for m in members],
+                                  np.int16)
+        return SegmentResult(labels, confidence, proposal_class)
+
+
+def mixed_offline(frame: Frame) -> tuple[list[LabelledObject], np.ndarray]:
+    """The objects and published labels of `frame` under MixedClassifier, computed offline."""
+    stage1 = propose(frame.points, frame.ring)
+    members = proposal_members(stage1.cluster_id, stage1.cluster_id2)
+    result = MixedClassifier().segment(frame.points, members)
+    published = frame_objects(frame.points, stage1.cluster_id, result.proposal_class, result.labels,
+                              result.confidence)
+    return published.objects, published.labels
+
+
+@pytest.mark.parametrize("layout", [two_nodes, pipeline], ids=["two_nodes", "pipeline"])
+def test_every_road_user_point_is_in_exactly_one_object_of_its_class(
+        ros: Ros, frame: Frame, layout: Callable[[Ros], None], monkeypatch: pytest.MonkeyPatch) -> None:
+    """The one object concept through the nodes, with a classifier that mixes classes within proposals: every
+    road-user point of /pass3d/labeled has the (cluster_id, label) of exactly one detection and marker, every
+    detection has points, and it all equals the offline computation (pass3d_segment's)."""
+    monkeypatch.setattr(segmentation_node, "open_classifier", lambda *args, **kwargs: MixedClassifier())
+    layout(ros)
+    labeled = Collector(ros, PointCloud2, "/pass3d/labeled")
+    markers = Collector(ros, MarkerArray, "/pass3d/objects")
+    collectors = [labeled, markers]
+    if detections.MISSING is None:
+        found = Collector(ros, detections.vision.Detection3DArray, "/pass3d/detections")
+        collectors.append(found)
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, *collectors)
+    pub.publish(scan_message(frame, STAMP0))
+    cloud = columns(labeled.wait(1)[0])
+    expected, labels = mixed_offline(frame)
+    np.testing.assert_array_equal(cloud["label"], labels)
+    assert len(expected) >= 5 and {o.label for o in expected} == set(FOREGROUND), "the scrambled labels make objects"
+    assert any(o.cluster_id >= SPLIT_ID_STRIDE for o in expected), "a minority class became an object of its own"
+    wires = [m for m in markers.wait(1)[0].markers if m.type == Marker.LINE_LIST]
+    assert len(wires) == len(expected)
+    assert_one_object_per_point_group(cloud["label"], cloud["cluster_id"], [(o.cluster_id, o.label) for o in expected])
+    if detections.MISSING is None:
+        array = found.wait(1)[0]
+        got = [(d.id, CLASS_NAMES.index(d.results[0].hypothesis.class_id)) for d in array.detections]
+        assert got == [(str(o.cluster_id), o.label) for o in expected]
+        assert_one_object_per_point_group(cloud["label"], cloud["cluster_id"], got)

@@ -106,4 +106,6 @@ def test_a_pitched_scan_gives_the_pipelines_labels_on_both_node_paths(hdl32e_sca
     assert offline.proposed.result.level is not None
     for layout in (two_nodes, pipeline):
         labeled, _ = label_once(layout, cloud_of(points, hdl32e_scan.ring))
-        assert np.array_equal(labeled["label"], offline.labels_in_input(len(points))), layout.__name__
+        labels, cluster_id = offline.published_in_input(len(points))
+        assert np.array_equal(labeled["label"], labels), layout.__name__
+        assert np.array_equal(labeled["cluster_id"], cluster_id), layout.__name__

@@ -20,6 +20,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 
 from pass3d_ros.classes import BACKGROUND
+from pass3d_ros.core.objects import frame_objects
 from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.segmentation import nearest_first
@@ -69,11 +70,13 @@ def test_a_point_at_1e20_m_is_dropped_and_the_frame_labeled(
     cloud = decode(labeled.wait(1)[0])
 
     keep = np.arange(len(bad["x"])) != inside
+    first = proposal_columns["cluster_id"][keep].astype(np.int64)
+    points = points_of(proposal_columns)[keep]
     expected = open_classifier(str(lite_weights), "network").segment(
-        points_of(proposal_columns)[keep], members_from_ids(proposal_columns["cluster_id"][keep].astype(np.int64),
-                                                            proposal_columns["cluster_id2"][keep].astype(np.int64)))
+        points, members_from_ids(first, proposal_columns["cluster_id2"][keep].astype(np.int64)))
     assert len(cloud) == len(keep) - 1 and np.all(np.abs(cloud["x"]) < 1e4)
-    np.testing.assert_array_equal(cloud["label"], expected.labels)
+    published = frame_objects(points, first, expected.proposal_class, expected.labels, expected.confidence)
+    np.testing.assert_array_equal(cloud["label"], published.labels)
     assert node.points_dropped == 1 and node.counters().failed == 0
     assert "x/y/z: dropping 1 points with non-finite or absurd coordinates" in capfd.readouterr().err
 

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from pass3d_ros.core import stage2
-from pass3d_ros.core.objects import labelled_objects
+from pass3d_ros.core.objects import frame_objects
 from pass3d_ros.core.stage1 import proposal_members, propose
 from pass3d_ros.core.stage2 import pointnet2
 from pass3d_ros.core.stage2.segmentation import Segmenter, make_checkpoint
@@ -28,8 +28,11 @@ FIGURE_HEIGHT = bev.TITLE_PX + bev.PANEL_PX + bev.LEGEND_PX
 
 
 def offline(points: np.ndarray, ring: np.ndarray | None, classifier) -> np.ndarray:
+    """The labels the nodes publish for a scan (stage 2's, settled by core.objects.frame_objects)."""
     result = propose(points, ring)
-    return classifier.segment(points, proposal_members(result.cluster_id, result.cluster_id2)).labels
+    segmented = classifier.segment(points, proposal_members(result.cluster_id, result.cluster_id2))
+    return frame_objects(points, result.cluster_id, segmented.proposal_class, segmented.labels,
+                         segmented.confidence).labels
 
 
 def read_label(path: Path) -> np.ndarray:
@@ -67,14 +70,14 @@ def test_size_rules_labels_pngs_and_summary(
         objects = json.loads((out / "objects" / f"{frame.name}.json").read_text())
         assert objects["frame"] == frame.name and objects["objects"], "the synthetic street has objects"
         for obj in objects["objects"]:
-            assert set(obj) == {"id", "class_id", "score", "center", "size", "yaw"}
+            assert set(obj) == {"id", "class_id", "score", "center", "size", "yaw", "plausible"}
             assert obj["class_id"] in {"car", "pedestrian", "cyclist"} and 0 < obj["score"] <= 1
             assert int(obj["id"]) >= 0 and all(v > 0 for v in obj["size"]) and len(obj["center"]) == 3
         stage1 = propose(frame.points, frame.ring)
         members = proposal_members(stage1.cluster_id, stage1.cluster_id2)
         segmented = SizeRuleClassifier().segment(frame.points, members)
-        expected = labelled_objects(frame.points, members, segmented.proposal_class, segmented.labels,
-                                    segmented.confidence)
+        expected = frame_objects(frame.points, stage1.cluster_id, segmented.proposal_class, segmented.labels,
+                                 segmented.confidence).objects
         assert [(o["id"], o["class_id"]) for o in objects["objects"]] == [
             (str(o.cluster_id), o.class_id) for o in expected], "one entry per object, as the node publishes them"
     assert not list(out.rglob(".*.partial-*")), "each file written beside its destination, then renamed"
