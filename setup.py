@@ -18,6 +18,7 @@ INSTALL_REQUIRES = [
     "rosbags>=0.10",  # bags without a ROS install
     "tqdm",  # progress bars
     "pyyaml",  # the live harness's parameter files
+    "scipy",  # the tracker's assignment (linear_sum_assignment: the Hungarian method in C)
 ]
 # ROS 2 Jazzy as PyPI wheels, for a machine without a ROS install (`make setup`); without the fastrtps extra rclpy has
 # no RMW and fails to import. A Jazzy install brings them through rosdep (package.xml).

@@ -21,6 +21,7 @@ IMPORTS = {
     "tqdm": ("tqdm", "python3-tqdm"),
     "yaml": ("pyyaml", "python3-yaml"),
     "rosbags": ("rosbags", "python3-rosbags-pip"),
+    "scipy": ("scipy", "python3-scipy"),
     "rclpy": ("ros-jazzy-rclpy", "rclpy"),
     "rcl_interfaces": ("ros-jazzy-rclpy", "rcl_interfaces"),
     "ament_index_python": ("ros-jazzy-rclpy", "ament_index_python"),

@@ -253,21 +253,10 @@ def select_with_split(
         if n_made:
             part_boxes, part_ids = _gate_parts(points, cut, n_total, n_parts - n_total, planes, segment_edges,
                                                config)
-            person_sized = [k for k, box in enumerate(part_boxes) if _person_sized(box.size)]
-            boxes += [part_boxes[k] for k in person_sized]
-            kept = np.concatenate([kept, np.asarray(part_ids)[person_sized].astype(kept.dtype)])
+            boxes += part_boxes
+            kept = np.concatenate([kept, part_ids])
             out, n_split = cut, n_split + n_made
     return boxes, kept, out, n_split
-
-
-PART_MAX_LENGTH_M = 2.0  # a part cut off a structure is kept only person- or rider-sized: longer side ...
-PART_MAX_WIDTH_M = 1.2  # ... and shorter side at most these (KITTI's mean cyclist 1.76 x 0.60, pedestrian 0.84 x 0.66)
-
-
-def _person_sized(size: np.ndarray) -> bool:
-    """Whether a protruding part's footprint (length, width) could be a person or a rider: a larger part is a piece
-    of the structure or a vehicle against it, and stays dropped with it (a vehicle is never cut off a wall)."""
-    return max(size[0], size[1]) <= PART_MAX_LENGTH_M and min(size[0], size[1]) <= PART_MAX_WIDTH_M
 
 
 def warm_up() -> None:
