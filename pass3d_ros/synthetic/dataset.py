@@ -400,6 +400,7 @@ def parse_synthetic_spec(text: str) -> dict[str, Any]:
                                    f"known: {', '.join(SENSOR_NAMES)}")
             continue
         if sep and key == "without":
+            given.add(key)
             without = frozenset(filter(None, (name.strip() for name in value.split("+"))))
             problem = unknown_changes(without)
             if problem:
