@@ -150,11 +150,15 @@ def _static_background(frame, plan) -> np.ndarray:
 
 
 def _nearest(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance from every point of b to its nearest point of a (brute force, in chunks)."""
+    """Distance from every point of b to its nearest point of a (brute force, in chunks, centred for precision)."""
+    mid = a.mean(axis=0)
+    a, b = a - mid, b - mid
+    a2 = (a**2).sum(axis=1)
     out = np.empty(len(b))
-    for start in range(0, len(b), 256):
-        d = ((b[start:start + 256, None, :] - a[None, :, :]) ** 2).sum(axis=2)
-        out[start:start + 256] = np.sqrt(d.min(axis=1))
+    for start in range(0, len(b), 512):
+        q = b[start:start + 512]
+        d2 = (q**2).sum(axis=1)[:, None] + a2[None, :] - 2.0 * q @ a.T
+        out[start:start + 512] = np.sqrt(np.maximum(d2.min(axis=1), 0.0))
     return out
 
 
