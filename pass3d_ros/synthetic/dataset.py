@@ -18,6 +18,10 @@ roll or pitch gives the same bytes as before they existed. Another sensor
 sensor.SENSOR_NAMES) scans the same scenes from the same mount height (unless its model says otherwise) and gives
 its points in its ROS 2 driver's order (ring 0 still the top laser, intensity still in [0, 1]).
 
+`synthetic:drive=N,seed=S[,sensor=NAME][,height=H][,roll=DEG][,pitch=DEG]` is a drive instead: one street seen over N
+scans 0.1 s apart while the ego car and the road users move, with persistent instance ids and Frame.pose
+(`synthetic.drive`, `synthetic.motion`).
+
 Mixed pixels (a return between the two surfaces of a depth edge) follow KITTI's box labels: one inside a car,
 pedestrian or cyclist box takes that class and instance, any other is background (SemanticKITTI would give it the
 nearer surface's class; the box rule is the one the paper's KITTI labels use). Intensity: see materials.py.
