@@ -48,6 +48,11 @@ class Frame:
     # (N,) bool: points of a vehicle that is no car (KITTI Van / Truck boxes, SemanticKITTI bus / truck /
     # other-vehicle), background under the SqueezeSeg rule; None when the source does not tell
     vehicle_other: np.ndarray | None = None
+    # 4 x 4 float64 world-from-sensor transform: a point p of this scan lies at pose[:3, :3] @ p + pose[:3, 3] in a
+    # world frame fixed for the whole sequence, so consecutive scans can be put side by side and ego motion measured
+    # (synthetic drives give it; None when the source does not know it). Boxes lie in the points' frame for a level
+    # mount; for a tilted one they stay level (see above): world = pose[:3, :3] @ R_mount^T @ box + pose[:3, 3].
+    pose: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.points = np.ascontiguousarray(self.points, dtype=np.float32)
@@ -58,6 +63,10 @@ class Frame:
             value = getattr(self, key)
             if value is not None and len(value) != n:
                 raise ValueError(f"frame {self.name}: {key} has {len(value)} entries for {n} points")
+        if self.pose is not None:
+            self.pose = np.asarray(self.pose, dtype=np.float64)
+            if self.pose.shape != (4, 4):
+                raise ValueError(f"frame {self.name}: pose must be 4 x 4, got shape {self.pose.shape}")
 
 
 def front_view_mask(points: np.ndarray, half_angle_deg: float) -> np.ndarray:
@@ -103,4 +112,5 @@ def crop_frame(frame: Frame, keep: np.ndarray) -> Frame:
         ground=None if frame.ground is None else frame.ground[keep],
         instance=instance, boxes=boxes,
         vehicle_other=None if frame.vehicle_other is None else frame.vehicle_other[keep],
+        pose=frame.pose,
     )

@@ -71,17 +71,32 @@ class Scene:
     road_rho: float
     walk_rho: float
     terrain_rho: float
+    u_offset: float = 0.0  # road u of the frame's origin (a drive's scan: where the sensor is along the road)
 
     def ground_at(self, xy: np.ndarray) -> np.ndarray:
         """Ground height under sensor-frame points (N x 2)."""
         return rc.ground_height_at(self.ground, self.bumps, self.waves, np.ascontiguousarray(xy, dtype=np.float64))
 
     def to_road(self, xy: np.ndarray) -> np.ndarray:
-        """Road coordinates (u along, v across) of sensor-frame points (N x 2)."""
+        """Road coordinates (u along, v across) of sensor-frame points (N x 2); u counts from the street's own
+        origin (`u_offset` added), so lane markings and patches stay put while a drive's sensor moves."""
         c, s = self.ground[rc.G_COS], self.ground[rc.G_SIN]
         u = c * xy[:, 0] + s * xy[:, 1]
+        if self.u_offset:
+            u = u + self.u_offset
         v = -s * xy[:, 0] + c * xy[:, 1] + self.ground[rc.G_VEGO]
         return np.stack([u, v], axis=1)
+
+    def primitive_extents(self) -> np.ndarray:
+        """Half extents (P x 3) of every primitive's world-axis-aligned bounding box, about its centre."""
+        rt = np.transpose(self.prot, (0, 2, 1))  # columns: primitive axes in world coordinates
+        half = self.psize[:, :3]
+        ext_box = np.einsum("pij,pj->pi", np.abs(rt), half)
+        ext_ell = np.sqrt(np.einsum("pij,pj->pi", rt**2, half**2))
+        axis = self.prot[:, 2, :]
+        ext_cyl = np.abs(axis) * half[:, 2:3] + half[:, 0:1] * np.sqrt(np.clip(1.0 - axis**2, 0.0, 1.0))
+        return np.where((self.ptype == rc.BOX)[:, None], ext_box,
+                        np.where((self.ptype == rc.ELLIPSOID)[:, None], ext_ell, ext_cyl))
 
 
 class _Footprints:

@@ -18,6 +18,10 @@ roll or pitch gives the same bytes as before they existed. Another sensor
 sensor.SENSOR_NAMES) scans the same scenes from the same mount height (unless its model says otherwise) and gives
 its points in its ROS 2 driver's order (ring 0 still the top laser, intensity still in [0, 1]).
 
+`synthetic:drive=N,seed=S[,sensor=NAME][,height=H][,roll=DEG][,pitch=DEG]` is a drive instead: one street seen over N
+scans 0.1 s apart while the ego car and the road users move, with persistent instance ids and Frame.pose
+(`synthetic.drive`, `synthetic.motion`).
+
 Mixed pixels (a return between the two surfaces of a depth edge) follow KITTI's box labels: one inside a car,
 pedestrian or cyclist box takes that class and instance, any other is background (SemanticKITTI would give it the
 nearer surface's class; the box rule is the one the paper's KITTI labels use). Intensity: see materials.py.
@@ -48,6 +52,7 @@ from pass3d_ros.synthetic.materials import (
     dark_cells,
     darken,
 )
+from pass3d_ros.synthetic.motion import MAX_DRIVE_SCANS
 from pass3d_ros.synthetic.scene import SCENE_CHANGES, generate_scene
 from pass3d_ros.synthetic.sensor import (
     HDL64E,
@@ -94,16 +99,21 @@ class Scan:
     column: np.ndarray | None = None  # firing (column) of every point in the revolution
 
 
+@dataclass
+class Surfaces:
+    """A drive's surfaces, the same in all its scans: the primitives' reflectivities (dark parts drawn once), the dark
+    cells' salt, and the world-from-scan rotation and translation the cells are keyed in (so a dark patch of road or
+    wall stays where it is while the sensor moves)."""
+
+    prho: np.ndarray
+    salt: int
+    rotation: np.ndarray
+    translation: np.ndarray
+
+
 def _object_spheres(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """Bounding sphere (centre, radius) of every object, from its primitives' world-axis extents."""
-    rt = np.transpose(scene.prot, (0, 2, 1))  # columns: primitive axes in world coordinates
-    half = scene.psize[:, :3]
-    ext_box = np.einsum("pij,pj->pi", np.abs(rt), half)
-    ext_ell = np.sqrt(np.einsum("pij,pj->pi", rt**2, half**2))
-    axis = scene.prot[:, 2, :]
-    ext_cyl = np.abs(axis) * half[:, 2:3] + half[:, 0:1] * np.sqrt(np.clip(1.0 - axis**2, 0.0, 1.0))
-    ext = np.where((scene.ptype == rc.BOX)[:, None], ext_box,
-                   np.where((scene.ptype == rc.ELLIPSOID)[:, None], ext_ell, ext_cyl))
+    ext = scene.primitive_extents()
     first = np.array([o.first for o in scene.objects], dtype=np.int64)
     lo = np.minimum.reduceat(scene.pcenter - ext, first, axis=0)
     hi = np.maximum.reduceat(scene.pcenter + ext, first, axis=0)
@@ -143,11 +153,14 @@ def _surface(scene: Scene, hit: np.ndarray, region: np.ndarray, xyz: np.ndarray,
 
 
 def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAULT_SENSOR,
-                  without: frozenset[str] = frozenset()) -> Scan:
+                  without: frozenset[str] = frozenset(), surfaces: Surfaces | None = None,
+                  ids: np.ndarray | None = None) -> Scan:
     """Cast one revolution into `scene` and turn the hits into noisy, labelled points in firing order.
 
     `without` leaves world changes out, for an ablation: "dark" (darkened parts and dark cells: every surface
-    reads its material's reflectivity), "mixed_pixels" (no return inside a depth edge).
+    reads its material's reflectivity), "mixed_pixels" (no return inside a depth edge). A drive passes its fixed
+    `surfaces` (else dark parts and cells are drawn from `rng`) and the instance id of every scene object (`ids`,
+    see `_label`).
     """
     origins, dirs, ring, column = ray_grid(sensor, rng)
     lift = sensor.mount_height_m - MOUNT_HEIGHT_M  # scenes are built for a sensor MOUNT_HEIGHT_M above the road
@@ -161,14 +174,19 @@ def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAU
     t_hit = np.where(has_hit, t, 0.0)
     xyz = origins + t_hit[:, None] * dirs
     dark = "dark" not in without
-    prho = darken(scene.prho, scene.pmaterial, scene.pobject, rng) if dark else scene.prho
+    if dark:
+        prho = darken(scene.prho, scene.pmaterial, scene.pobject, rng) if surfaces is None else surfaces.prho
+    else:
+        prho = scene.prho
     material, rho = _surface(scene, hit, region, xyz, prho)
     if dark:
         share = np.where(hit == rc.GROUND_HIT, GROUND_DARK_SHARE[region], DARK_CELL_SHARE[material])
         share[~has_hit] = 0.0
-        xyz_cell = np.where((hit == rc.GROUND_HIT)[:, None], xyz * [1.0, 1.0, 0.0], xyz)
+        xyz_world = xyz if surfaces is None else xyz @ surfaces.rotation.T + surfaces.translation
+        xyz_cell = np.where((hit == rc.GROUND_HIT)[:, None], xyz_world * [1.0, 1.0, 0.0], xyz_world)
         edge = np.where(hit == rc.GROUND_HIT, DARK_CELL_M, DARK_CELL_EDGE_M[material])
-        rho = np.where(dark_cells(xyz_cell, share, int(rng.integers(2**31)), edge), 0.5 * DARK_RHO, rho)
+        salt = int(rng.integers(2**31)) if surfaces is None else surfaces.salt
+        rho = np.where(dark_cells(xyz_cell, share, salt, edge), 0.5 * DARK_RHO, rho)
     cos_inc = np.abs(np.einsum("ij,ij->i", normal, dirs))
     foliage = np.isin(material, POROUS_MATERIALS)
     t_hit = np.where(foliage, t_hit + np.minimum(depth, np.maximum(t_exit - t_hit, 0.0)), t_hit)
@@ -195,7 +213,7 @@ def simulate_scan(scene: Scene, rng: np.random.Generator, sensor: HDL64E = DEFAU
                                       t_noisy)
     hit_kept = hit[idx]
     hit_kept[mixed] = rc.NO_HIT
-    scan = _label(scene, points, ring[idx], hit_kept)
+    scan = _label(scene, points, ring[idx], hit_kept, ids)
     scan.column = column[idx]
     return scan
 
@@ -229,9 +247,11 @@ def mixed_pixel_share(points: np.ndarray, ring: np.ndarray) -> float:
     return float(np.count_nonzero(edge & inside) / max(np.count_nonzero(edge), 1))
 
 
-def _label(scene: Scene, points: np.ndarray, ring: np.ndarray, hit: np.ndarray) -> Scan:
+def _label(scene: Scene, points: np.ndarray, ring: np.ndarray, hit: np.ndarray, ids: np.ndarray | None = None) -> Scan:
     """Exact labels, ground, instances and boxes for the kept points (hit: primitive index, GROUND_HIT, or NO_HIT
-    for a mixed pixel: not ground, background unless it lies in a foreground box, which it then belongs to)."""
+    for a mixed pixel: not ground, background unless it lies in a foreground box, which it then belongs to).
+    A box's instance id is its position in the list, or with `ids` its object's entry there (a drive's ids, the same
+    in every scan)."""
     ground = hit == rc.GROUND_HIT
     obj = np.where(hit < 0, -1, scene.pobject[np.maximum(hit, 0)])
     obj_label = np.array([o.label for o in scene.objects] + [BACKGROUND], dtype=np.uint8)
@@ -245,7 +265,7 @@ def _label(scene: Scene, points: np.ndarray, ring: np.ndarray, hit: np.ndarray) 
         if not o.boxed or counts[k] == 0:
             continue
         members = order[starts[k]:starts[k] + counts[k]]
-        box = _fit_box(o, points[members, :3], len(boxes))
+        box = _fit_box(o, points[members, :3], len(boxes) if ids is None else int(ids[k]))
         if o.label != BACKGROUND:
             instance[members] = box.instance
         boxes.append(box)
@@ -294,7 +314,7 @@ def _usable(scan: Scan, sensor: LidarModel) -> bool:
     return len(np.unique(scan.ring)) == sensor.n_lasers
 
 
-def _to_sensor_frame(scan: Scan, sensor: LidarModel) -> Scan:
+def to_sensor_frame(scan: Scan, sensor: LidarModel) -> Scan:
     """Points in the driver's order, lowered into the sensor's frame when it is not mounted MOUNT_HEIGHT_M up, and
     turned back by the mount's rotation (the rays were cast turned by it); boxes are lowered, not turned: they stay
     in the level frame at the sensor's origin."""
@@ -335,7 +355,7 @@ def generate_frame(seed: int, index: int, sensor: LidarModel | str = DEFAULT_SEN
         scan = simulate_scan(generate_scene(rng, without), rng, sensor, without)
         if _usable(scan, sensor):
             break
-    scan = _to_sensor_frame(scan, sensor)
+    scan = to_sensor_frame(scan, sensor)
     return Frame(name=f"{index:06d}", points=scan.points, stamp_ns=index * FRAME_PERIOD_NS, ring=scan.ring,
                  labels=scan.labels, ground=scan.ground, instance=scan.instance, boxes=scan.boxes)
 
@@ -357,8 +377,13 @@ def parse_synthetic_spec(text: str) -> dict[str, Any]:
     {'frames': N, 'seed': S, 'start': K, 'sensor': NAME, 'height': H or None, 'roll': DEG, 'pitch': DEG,
     'without': frozenset}; DatasetError on anything else (sensor defaults to hdl64e, KITTI's; height to the model's
     mount, HEIGHT_RANGE_M; roll and pitch to 0, each within MOUNT_ANGLE_RANGE_DEG; `without` names WORLD_CHANGES to
-    leave out, for an ablation)."""
+    leave out, for an ablation).
+
+    A drive, `drive=N,seed=S[,sensor=NAME][,height=H][,roll=DEG][,pitch=DEG]` (N scans of one street,
+    1..MAX_DRIVE_SCANS, see `synthetic.drive`), gives the same keys with 'frames': N and 'drive': N added; it takes
+    no frames, start or without."""
     values: dict[str, Any] = {"frames": 10, "seed": 0, "start": 0}
+    given: set[str] = set()
     sensor = "hdl64e"
     height: float | None = None
     angles = {"roll": 0.0, "pitch": 0.0}
@@ -379,24 +404,42 @@ def parse_synthetic_spec(text: str) -> dict[str, Any]:
                                    f"known: {', '.join(SENSOR_NAMES)}")
             continue
         if sep and key == "without":
+            given.add(key)
             without = frozenset(filter(None, (name.strip() for name in value.split("+"))))
             problem = unknown_changes(without)
             if problem:
                 raise DatasetError(f"synthetic spec {text!r}, without=: {problem}")
             continue
+        if sep and key == "drive":
+            key = "frames"
+            given.add("drive")
+        elif sep:
+            given.add(key)
         if not sep or key not in values:
             raise DatasetError(f"synthetic spec {text!r}: expected frames=N,seed=S[,start=K][,sensor=NAME]"
-                               f"[,height=H][,roll=DEG][,pitch=DEG][,without=CHANGE+CHANGE], got {item!r}")
+                               f"[,height=H][,roll=DEG][,pitch=DEG][,without=CHANGE+CHANGE] or drive=N,seed=S"
+                               f"[,sensor=NAME][,height=H][,roll=DEG][,pitch=DEG], got {item!r}")
         try:
             values[key] = int(value)
         except ValueError as exc:
-            raise DatasetError(f"synthetic spec {text!r}: {key} must be an integer, got {value.strip()!r}") from exc
+            name = "drive" if key == "frames" and "drive" in given else key
+            raise DatasetError(f"synthetic spec {text!r}: {name} must be an integer, got {value.strip()!r}") from exc
     if min(values.values()) < 0:
         raise DatasetError(f"synthetic spec {text!r}: frames, seed and start must not be negative")
+    if "drive" in given:
+        mixed = sorted(given & {"frames", "start", "without"})
+        if mixed:
+            raise DatasetError(f"synthetic spec {text!r}: a drive takes no {', '.join(mixed)} "
+                               f"(drive=N,seed=S[,sensor=NAME][,height=H][,roll=DEG][,pitch=DEG])")
+        if not 1 <= values["frames"] <= MAX_DRIVE_SCANS:
+            raise DatasetError(f"synthetic spec {text!r}: drive must be 1..{MAX_DRIVE_SCANS} scans, "
+                               f"got {values['frames']}")
     values["sensor"] = sensor
     values["height"] = height
     values.update(angles)
     values["without"] = without
+    if "drive" in given:
+        values["drive"] = values["frames"]
     return values
 
 
@@ -415,9 +458,12 @@ def _spec_sensor(spec: dict[str, Any]) -> LidarModel:
 
 def read_synthetic(path: str) -> Iterator[Frame]:
     """Frames of the spec `synthetic:frames=N,seed=S[,start=K][,sensor=NAME][,height=H][,roll=DEG][,pitch=DEG]
-    [,without=...]`, generated as they are read (boxes in the level frame, see the module's notes)."""
+    [,without=...]`, or the scans of `synthetic:drive=N,seed=S[,sensor=...]` (`synthetic.drive`), generated as they
+    are read (boxes in the level frame, see the module's notes)."""
     spec = parse_synthetic_spec(path)
     sensor = _spec_sensor(spec)
+    if "drive" in spec:
+        return _drive_scans(spec, sensor, None)  # type: ignore[return-value]
 
     def frames() -> Iterator[Frame]:
         for index in range(spec["start"], spec["start"] + spec["frames"]):
@@ -426,11 +472,24 @@ def read_synthetic(path: str) -> Iterator[Frame]:
     return frames()
 
 
+def _drive_scans(spec: dict[str, Any], sensor: LidarModel,
+                 keep: Callable[[int], bool] | None) -> Iterator[Frame | None]:
+    """A drive's scans (None where `keep` refuses one), the drive planned when the first is asked for."""
+    from pass3d_ros.synthetic.drive import drive_scan, plan_drive  # the drive builds on this module
+
+    drive = plan_drive(spec["seed"], spec["drive"], sensor)
+    for k in range(spec["drive"]):
+        yield drive_scan(drive, k) if keep is None or keep(k) else None
+
+
 def read_shard(path: str, keep: Callable[[int], bool]) -> Iterator[Frame | None]:
     """`read_synthetic`, but only the frames whose position k in the spec passes `keep` are generated; the
     others are None (see `pass3d_ros.data.spec.open_datasets_shard`)."""
     spec = parse_synthetic_spec(path)
     sensor = _spec_sensor(spec)
+    if "drive" in spec:
+        yield from _drive_scans(spec, sensor, keep)
+        return
     for k in range(spec["frames"]):
         yield generate_frame(spec["seed"], spec["start"] + k, sensor, spec["without"]) if keep(k) else None
 

@@ -10,7 +10,8 @@ Primitives are grouped into objects with a bounding sphere; objects are binned b
 sphere covers and sorted by nearest distance in each bin, so a ray tests only the few objects in its sector
 and stops once the next object is farther than its best hit.
 
-The ground is z = h(u, v) in road coordinates (u along the road, v across it), region by region (road,
+The ground is z = h(u, v) in road coordinates (u along the road, from the ray origin's foot; v across it, from the
+road's centre line), region by region (road,
 sidewalk, terrain) with curb steps between them. A ray is split at the region borders it crosses; inside a
 piece the smooth height is sphere-traced with a Lipschitz bound (never overshoots, so the first hit is
 found); at a border a ray below the next region's surface hits the vertical curb face.
@@ -30,7 +31,8 @@ ROAD, SIDEWALK, TERRAIN = 1, 2, 3
 # Indices into the ground parameter vector.
 G_COS, G_SIN, G_VEGO, G_W, G_S, G_CURB, G_CROSS, G_XC, G_WC = 0, 1, 2, 3, 4, 5, 6, 7, 8
 G_CROWN, G_KU, G_TV, G_Z0, G_TERR, G_L_ROAD, G_L_WALK, G_L_TERR, G_ZMIN, G_ZMAX = 9, 10, 11, 12, 13, 14, 15, 16, 17, 18
-N_GROUND_PARAMS = 19
+G_TU = 19  # slope along u: 0 in a scene's own frame; a drive's scan seen from farther along the road takes KU u there
+N_GROUND_PARAMS = 20
 
 _EPS_HIT = 2e-3  # sphere tracing stops this close to the surface (m), well below the range noise
 _MAX_STEPS = 96
@@ -53,7 +55,7 @@ def ground_region(gp: np.ndarray, u: float, v: float) -> int:
 @nb.njit(cache=True)
 def ground_height(gp: np.ndarray, bumps: np.ndarray, waves: np.ndarray, u: float, v: float, region: int) -> float:
     """Ground height at road coordinates (u, v) as the surface of `region` (smooth inside a region)."""
-    h = gp[G_Z0] + 0.5 * gp[G_KU] * u * u + gp[G_TV] * v
+    h = gp[G_Z0] + 0.5 * gp[G_KU] * u * u + gp[G_TV] * v + gp[G_TU] * u
     for k in range(bumps.shape[0]):
         du = u - bumps[k, 0]
         dv = v - bumps[k, 1]

@@ -71,19 +71,25 @@ def _ground_params(rng: np.random.Generator, lay: RoadLayout) -> tuple[np.ndarra
     # z0 puts the road under the sensor at -1.73 m.
     gp[rc.G_Z0] = 0.0
     gp[rc.G_Z0] = -MOUNT_HEIGHT_M - rc.ground_height(gp, bumps, waves, 0.0, lay.v_ego, rc.ROAD)
+    set_ground_bounds(gp, bumps, waves)
+    return gp, bumps, waves
+
+
+
+def set_ground_bounds(gp: np.ndarray, bumps: np.ndarray, waves: np.ndarray, u_max: float = U_MAX) -> None:
+    """The ray caster's Lipschitz bounds and height range of the ground `gp` (in place), for rays that reach it
+    within `u_max` of the origin along the road."""
     bump_slope = float(np.sum(1.54 * np.abs(bumps[:, 2]) / bumps[:, 3]))
-    base_l = abs(gp[rc.G_KU]) * U_MAX + abs(gp[rc.G_TV]) + bump_slope
-    gp[rc.G_L_ROAD] = base_l + 2.0 * gp[rc.G_CROWN] / lay.half_width
+    base_l = abs(gp[rc.G_KU]) * u_max + abs(gp[rc.G_TU]) + abs(gp[rc.G_TV]) + bump_slope
+    gp[rc.G_L_ROAD] = base_l + 2.0 * gp[rc.G_CROWN] / gp[rc.G_W]
     gp[rc.G_L_WALK] = base_l
     gp[rc.G_L_TERR] = base_l + float(np.sum(waves[:, 3] * np.hypot(waves[:, 0], waves[:, 1])))
-    slope_hi = max(0.0, 0.5 * gp[rc.G_KU] * U_MAX**2) + abs(gp[rc.G_TV]) * U_MAX
-    slope_lo = min(0.0, 0.5 * gp[rc.G_KU] * U_MAX**2) - abs(gp[rc.G_TV]) * U_MAX
+    slope_hi = max(0.0, 0.5 * gp[rc.G_KU] * u_max**2) + abs(gp[rc.G_TU]) * u_max + abs(gp[rc.G_TV]) * u_max
+    slope_lo = min(0.0, 0.5 * gp[rc.G_KU] * u_max**2) - abs(gp[rc.G_TU]) * u_max - abs(gp[rc.G_TV]) * u_max
     extra_hi = max(gp[rc.G_CROWN], gp[rc.G_CURB] + max(gp[rc.G_TERR], 0.0) + waves[:, 3].sum())
     extra_lo = min(0.0, gp[rc.G_CURB] + gp[rc.G_TERR] - waves[:, 3].sum())
     gp[rc.G_ZMAX] = gp[rc.G_Z0] + slope_hi + np.clip(bumps[:, 2], 0, None).sum() + extra_hi + 0.01
     gp[rc.G_ZMIN] = gp[rc.G_Z0] + slope_lo + np.clip(bumps[:, 2], None, 0).sum() + extra_lo - 0.01
-    return gp, bumps, waves
-
 
 
 def _add_roadside(b: SceneBuilder, rng: np.random.Generator, lay: RoadLayout, style: str, clutter: bool = True,
