@@ -40,7 +40,7 @@ def test_sensors_suite_refuses_unknown_names(argv: list[str], word: str, capsys:
 
 
 def test_every_mount_is_a_valid_synthetic_spec() -> None:
-    from pass3d_ros.synthetic.dataset import parse_synthetic_spec
+    from pass3d_ros.synthetic.specs import parse_synthetic_spec
 
     for items in MOUNTS.values():
         parse_synthetic_spec(",".join(filter(None, ("frames=1,seed=97", items))))

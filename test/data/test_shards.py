@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from pass3d_ros.data.spec import open_datasets_shard
-from pass3d_ros.synthetic import dataset
+from pass3d_ros.synthetic import dataset, specs
 
 SPECS = ["synthetic:frames=3,seed=4", "synthetic:frames=2,seed=5,start=7"]
 
@@ -19,7 +19,7 @@ def test_shards_partition_the_frames_and_skip_generation(monkeypatch: pytest.Mon
         made.append((seed, index))
         return real(seed, index, *args, **kwargs)
 
-    monkeypatch.setattr(dataset, "generate_frame", counting)
+    monkeypatch.setattr(specs, "generate_frame", counting)  # where the spec's reader calls it
     by_rank = {rank: list(open_datasets_shard(SPECS, rank, 2)) for rank in (0, 1)}
     assert [len(frames) for frames in by_rank.values()] == [5, 5]
     for position in range(5):

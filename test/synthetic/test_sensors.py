@@ -8,8 +8,9 @@ import pytest
 
 from pass3d_ros.core.stage1 import lasers, propose
 from pass3d_ros.data.spec import DatasetError, open_dataset
-from pass3d_ros.synthetic.dataset import generate_frame, parse_synthetic_spec
+from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES, driver_intensity, sensor_model
+from pass3d_ros.synthetic.specs import parse_synthetic_spec
 
 # Stage-1 foreground recall on VLP-16 frames 0-2 of seed 3 measured 0.66 (per frame 0.39 / 0.53 / 0.97: one car
 # behind another loses most of its few rings); the floor leaves room for scene tuning, not for a broken pipeline.

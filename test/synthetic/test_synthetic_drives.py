@@ -10,10 +10,10 @@ import pytest
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.data.spec import DatasetError, count_frames, open_dataset, resolve_dataset
-from pass3d_ros.synthetic.dataset import parse_synthetic_spec
 from pass3d_ros.synthetic.drive import drive_scan, plan_drive
 from pass3d_ros.synthetic.motion import MAX_DRIVE_SCANS, SCAN_PERIOD_S
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES, sensor_model
+from pass3d_ros.synthetic.specs import parse_synthetic_spec
 
 SEED = 10  # a street with walking and standing pedestrians, a rider and moving cars near the ego car's path
 SCANS = 4

@@ -9,8 +9,9 @@ import pytest
 
 import pass3d_ros.synthetic  # noqa: F401  (registers the synthetic: format)
 from pass3d_ros.data.spec import DatasetError, open_dataset
-from pass3d_ros.synthetic.dataset import generate_frame, parse_synthetic_spec
+from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.synthetic.sensor import sensor_model
+from pass3d_ros.synthetic.specs import parse_synthetic_spec
 
 
 def _frame(text: str):
