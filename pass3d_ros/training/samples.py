@@ -255,11 +255,14 @@ def source_closure(entries: list[str], root: Path = PACKAGE_ROOT) -> list[Path]:
 
 
 def _digest(paths: list[Path]) -> str:
-    """A short hash of the files' contents, in the order given."""
+    """A short hash of the files' contents, in the order given, each prefixed by its length (so an edit to an empty
+    file is not the same edit to the file after it)."""
     digest = hashlib.sha1()
     for path in paths:
         if path.is_file():
-            digest.update(path.read_bytes())
+            data = path.read_bytes()
+            digest.update(len(data).to_bytes(8, "little"))
+            digest.update(data)
     return digest.hexdigest()[:12]
 
 
