@@ -11,9 +11,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.duration import Duration
+
 from pass3d_ros.core.stage1.config import ConfigError
 from pass3d_ros.data.bag import BagError, iter_raw, select_topic
-from pass3d_ros.ros.qos import qos_profile
+from pass3d_ros.ros.diagnostics import DIAGNOSTICS_TOPIC
+from pass3d_ros.ros.qos import latched_profile, qos_profile
+
+REPLAY_STATUS = "pass3d_replay"  # the /diagnostics status a replay ends with: what it published (a recorder reads it)
+ACK_TIMEOUT_S = 5.0  # a reliable replay waits this long at most for its subscribers to acknowledge every message
 
 
 def ros_message_class(msgtype: str) -> type:
@@ -127,8 +134,28 @@ def replay(
                 stop.wait((last_ns - first_ns) / 1e9 / rate / (sent - 1))
         stats.seconds = time.monotonic() - start
         if publisher is not None:
+            if qos == "reliable" and not stop.is_set():  # exiting earlier would lose what is still in flight
+                publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
             stop.wait(linger)
     finally:
         if publisher is not None:
             node.destroy_publisher(publisher)
     return stats
+
+
+def announce(node: Any, stats: ReplayStats, loop: bool, timeout: float = 1.0) -> None:
+    """Say on /diagnostics (reliable, latched) what the replay published, so a recorder can tell how many of those it
+    got; waits up to `timeout` s for the subscribers' acknowledgement."""
+    values = {"topic": stats.topic, "published": stats.published, "passes": stats.passes, "loop": int(loop)}
+    status = DiagnosticStatus(level=DiagnosticStatus.OK, name=REPLAY_STATUS, hardware_id="pass3d",
+                              message=f"published {stats.published} messages on {stats.topic}",
+                              values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+    msg = DiagnosticArray()
+    msg.header.stamp = node.get_clock().now().to_msg()
+    msg.status = [status]
+    publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, latched_profile())
+    try:
+        publisher.publish(msg)
+        publisher.wait_for_all_acked(Duration(seconds=timeout))
+    finally:
+        node.destroy_publisher(publisher)

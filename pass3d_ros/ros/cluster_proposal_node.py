@@ -280,7 +280,8 @@ class ClusterProposalNode(PointCloudNode):
         steps = " ".join(f"{k}={v:.1f}" for k, v in result.timings_ms.items())
         self.get_logger().info(
             f"{len(points)} points, {len(result.boxes)} proposals, stage1 ms: {steps}, "
-            f"node {1e3 * (time.perf_counter() - received):.1f} ms, dropped {self.worker.counters.dropped}",
+            f"node {1e3 * (time.perf_counter() - received):.1f} ms, dropped {self.worker.counters.dropped}"
+            f"{self.missed_note()}",
             throttle_duration_sec=LOG_PERIOD_S,
         )
 

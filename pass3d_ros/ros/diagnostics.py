@@ -32,7 +32,7 @@ class NodeStats:
 
     def __init__(self, history: int = HISTORY, count_gaps: bool = True) -> None:
         self._lock = threading.Lock()
-        self.count_gaps = count_gaps  # False where the input is another node's output, whose drops are its own
+        self.count_gaps = count_gaps  # False: no gap counting (each node's input counts its own)
         self._cadence = Cadence()  # the sensor's period, learnt (a rate change is no loss); input_gaps and
         # frames_missed are its confirmed losses
         self._last_stamp: int | None = None
@@ -50,6 +50,12 @@ class NodeStats:
     def frames_missed(self) -> int:
         """Frames those gaps stand for (interval / learned period - 1, rounded)."""
         return self._cadence.missed
+
+    @property
+    def frames_pending(self) -> int:
+        """Frames that stamp gaps not yet confirmed as loss stand for (loss, or the first intervals of a slower
+        rate)."""
+        return self._cadence.pending()
 
     def input(self, stamp_ns: int) -> None:
         """A frame arrived with this header stamp: count the frames missing since the previous one (once the
@@ -86,6 +92,7 @@ class NodeStats:
                 out.update({
                     "input_gaps": self.input_gaps,
                     "frames_missed_upstream": self.frames_missed,
+                    "frames_missed_pending": self.frames_pending,
                     "stream_pauses": self.stream_pauses,
                     "stamps_out_of_order": self.stamps_out_of_order,
                     "input_rate_changes": self._cadence.rate_changes,

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections import Counter, deque
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -110,6 +111,39 @@ def _base_period(intervals: Sequence[int]) -> float:
     """The period a few intervals are whole multiples of: each divided by its multiple of the shortest, median."""
     values = np.asarray(intervals, dtype=np.float64)
     return float(np.median(values / np.maximum(1.0, np.round(values / values.min()))))
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """How many messages of a stream arrived of how many its header stamps imply (first..last at the stream's
+    period), and of how many its publisher said it sent (`published`, when known)."""
+
+    got: int
+    implied: int
+    period_s: float
+    published: int | None = None
+
+    @property
+    def expected(self) -> int:
+        """What should have arrived: the larger of the stamps' implication and the publisher's count."""
+        return max(self.implied, self.published or 0)
+
+    @property
+    def missing(self) -> int:
+        return max(0, self.expected - self.got)
+
+
+def coverage(stamps: Sequence[int], published: int | None = None) -> Coverage:
+    """The `Coverage` of a stream from its received header stamps: the period is the median of the intervals within
+    ON_PERIOD of the shortest (loss only lengthens intervals), the implied count (last - first) / period + 1."""
+    unique = np.unique(np.asarray(stamps, dtype=np.int64))
+    intervals = np.diff(unique)
+    intervals = intervals[intervals >= MIN_PERIOD_NS]
+    if len(intervals) == 0:
+        return Coverage(len(unique), len(unique), 0.0, published)
+    period = float(np.median(intervals[intervals <= ON_PERIOD * intervals.min()]))
+    implied = round(float(unique[-1] - unique[0]) / period) + 1
+    return Coverage(len(unique), max(implied, len(unique)), period / 1e9, published)
 
 
 class InputWatch:

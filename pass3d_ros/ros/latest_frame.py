@@ -1,10 +1,12 @@
-"""A one-slot mailbox with a worker thread: a slow stage drops stale frames and counts them, never queues."""
+"""A small mailbox with a worker thread: a slow stage drops stale frames and counts them, never queues without bound
+(`backlog` frames wait at most; 1: only the newest)."""
 
 from __future__ import annotations
 
 import enum
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
@@ -34,35 +36,39 @@ class FrameCounters:
 
 
 class LatestFrameWorker(Generic[T]):
-    """Runs `process` on the newest submitted item in a background thread.
+    """Runs `process` on the oldest waiting item in a background thread, in order.
 
-    `submit` never blocks: an item still waiting when a newer one arrives is replaced and counted as dropped,
-    so memory stays bounded however slow `process` is. Exceptions from `process` go to `on_error`; a frame for
-    which it returns SKIPPED or DROPPED is counted so, not as processed.
+    `submit` never blocks: at most `backlog` items wait; when a newer one arrives the oldest waiting one is dropped
+    and counted, so memory stays bounded however slow `process` is. A backlog of 2 lets a stage that keeps up on
+    average ride out one slow frame (a stream's first scans, a busy CPU's hiccup) without losing the next.
+    Exceptions from `process` go to `on_error`; a frame for which it returns SKIPPED or DROPPED is counted so, not as
+    processed.
     """
 
-    def __init__(self, process: Callable[[T], object], on_error: Callable[[BaseException], None], name: str) -> None:
+    def __init__(self, process: Callable[[T], object], on_error: Callable[[BaseException], None], name: str,
+                 backlog: int = 1) -> None:
+        if backlog < 1:
+            raise ValueError(f"backlog must be >= 1, got {backlog}")
         self._process = process
         self._on_error = on_error
-        self._pending: T | None = None
-        self._has_pending = False
+        self._pending: deque[tuple[T, float]] = deque()  # (item, when submitted), oldest first
+        self._backlog = backlog
         self._cond = threading.Condition()
         self._stopping = False
         self._busy = False
-        self._submitted = 0.0
         self.last_wait_s = 0.0  # how long the item in hand waited in the slot (read by `process`)
         self.counters = FrameCounters()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
     def submit(self, item: T) -> None:
-        """Hand over the newest item; a still-pending older one is dropped."""
+        """Hand over the newest item; the oldest pending one is dropped when `backlog` already wait."""
         with self._cond:
             self.counters.received += 1
-            if self._has_pending:
+            if len(self._pending) >= self._backlog:
+                self._pending.popleft()
                 self.counters.dropped += 1
-            self._pending, self._has_pending = item, True
-            self._submitted = time.perf_counter()
+            self._pending.append((item, time.perf_counter()))
             self._cond.notify()
 
     def run_inline(self, item: T) -> None:
@@ -76,7 +82,7 @@ class LatestFrameWorker(Generic[T]):
     def idle(self) -> bool:
         """True when nothing is pending or being processed."""
         with self._cond:
-            return not self._has_pending and not self._busy
+            return not self._pending and not self._busy
 
     def stop(self, timeout: float = 5.0) -> None:
         """Finish the item in hand, drop what is pending, and join the thread (unless called from it)."""
@@ -89,12 +95,12 @@ class LatestFrameWorker(Generic[T]):
     def _run(self) -> None:
         while True:
             with self._cond:
-                while not self._has_pending and not self._stopping:
+                while not self._pending and not self._stopping:
                     self._cond.wait()
                 if self._stopping:
                     return
-                item, self._pending, self._has_pending = self._pending, None, False
-                self.last_wait_s = time.perf_counter() - self._submitted
+                item, submitted = self._pending.popleft()
+                self.last_wait_s = time.perf_counter() - submitted
                 self._busy = True
             try:
                 self._call(item)  # type: ignore[arg-type]

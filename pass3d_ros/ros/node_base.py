@@ -47,6 +47,8 @@ QOS_PARAMETERS = {"input_qos": INPUT_QOS_NAMES, "output_qos": QOS_NAMES}
 INPUT_CHECK_PERIOD_S = 1.0  # auto QoS and the silent-input watch look at the input's publishers this often
 INPUT_WARNING_PERIOD_S = 30.0  # the input warning repeats at most this often
 RESUBSCRIBE_OVERLAP_S = 2.0  # an auto resubscription keeps the old subscription this long (duplicates dropped)
+FRAME_BACKLOG = 2  # frames that may wait for a busy worker: one slow frame (a stream's first scans, a CPU hiccup)
+# costs no frame when the stage keeps up on average; a stage that does not still drops (and counts) stale frames
 
 
 class PointCloudNode(Node):
@@ -56,7 +58,8 @@ class PointCloudNode(Node):
     not allow ends start-up with a ValueError.
     """
 
-    # Stamp gaps are counted where the input is the sensor; a node fed by another node leaves them to that one.
+    # Each hop counts the scans missing between consecutive header stamps of its input (the sensor's, or the node
+    # before it: there they are the frames lost on the way or dropped upstream).
     COUNTS_INPUT_GAPS = True
 
     def __init__(self, parameters: NodeParameters, **kwargs: Any) -> None:
@@ -87,7 +90,8 @@ class PointCloudNode(Node):
         """Hand the newest input to `process` on a thread; inputs come from `input_topic` (with `input_qos`),
         or only through `submit` when `subscribe` is False (an in-memory hand-off in one process). `process`
         returns `self.skipped(reason)` for a frame it skips, DROPPED for one it gives up."""
-        self.worker: LatestFrameWorker[Any] = LatestFrameWorker(process, self._on_error, name)
+        self.worker: LatestFrameWorker[Any] = LatestFrameWorker(process, self._on_error, name,
+                                                                         backlog=FRAME_BACKLOG)
         self.subscription = None
         self.input_watch: InputWatch | None = None
         self._retiring: tuple[Any, float] | None = None  # the subscription an auto switch replaced, and until when
@@ -171,6 +175,14 @@ class PointCloudNode(Node):
         """What `process` returns for a frame it skips (malformed, empty): counted as skipped, by `reason`."""
         self.skip_reasons[reason] += 1
         return SKIPPED
+
+    def missed_note(self) -> str:
+        """For the throttled frame log: the scans missing between input stamps so far (counted, and pending until the
+        stream says whether they are loss or a slower rate), "" while none."""
+        missed, pending = self.stats.frames_missed, self.stats.frames_pending
+        if not (missed or pending):
+            return ""
+        return f", input missed {missed} scan(s) by stamps" + (f" (+{pending} pending)" if pending else "")
 
     def idle(self) -> bool:
         """True when no frame is pending or in hand."""

@@ -13,12 +13,15 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import ReliabilityPolicy
 
 from pass3d_ros.data.bag import TYPESTORE, BagError, BagWriter, message_stamp_ns
 from pass3d_ros.data.outputs import error_text
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE
-from pass3d_ros.ros.bag_replay import ros_message_class
+from pass3d_ros.ros.bag_replay import REPLAY_STATUS, ros_message_class
+from pass3d_ros.ros.diagnostics import DIAGNOSTICS_TOPIC, status_values
+from pass3d_ros.ros.input_watch import Coverage, coverage
 from pass3d_ros.ros.qos import offered_qos, qos_profile
 
 DISCOVERY_TIMEOUT_S = 10.0  # how long `discover_types` waits for a topic to appear in the ROS graph
@@ -69,6 +72,9 @@ class Recorder:
         profiles = {topic: qos_profile(name, depth) for topic, name in self.qos.items()}
         self.empty = False
         self.counts: dict[str, int] = dict.fromkeys(self.topics, 0)
+        self.stamps: dict[str, list[int]] = {topic: [] for topic in self.topics}  # header stamps received
+        self.first_at: float | None = None  # monotonic time of the first message
+        self.replay: dict[str, float | str | None] | None = None  # pass3d_replay's last status, when one was seen
         self._accepted = 0
         self.dropped = 0
         self.error: BaseException | None = None
@@ -85,6 +91,25 @@ class Recorder:
             node.create_subscription(cls, topic, partial(self._on_message, topic), profiles[topic], raw=True)
             for topic, cls in classes.items()
         ]
+        if DIAGNOSTICS_TOPIC not in self.topics:  # pass3d_replay says there how many it published
+            self._subscriptions.append(node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC,
+                                                                self._on_diagnostics, 10))
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name == REPLAY_STATUS:
+                self.replay = status_values(status)
+
+    def coverage(self, topic: str | None = None) -> Coverage:
+        """How many messages of `topic` (default: the first) arrived of how many its stamps imply (first..last at
+        its period) and, for the first topic, of how many a pass3d_replay on this domain published (one pass,
+        seen on /diagnostics)."""
+        topic = topic or next(iter(self.topics))
+        published = None
+        replay = self.replay
+        if replay is not None and topic == next(iter(self.topics)) and replay.get("passes") == 1:
+            published = int(replay["published"] or 0) or None
+        return coverage(self.stamps[topic], published)
 
     @property
     def out(self) -> Path:
@@ -144,8 +169,13 @@ class Recorder:
                 return
             self._accepted += 1
         try:
-            stamp = message_stamp_ns(self.topics[topic], raw) or self.node.get_clock().now().nanoseconds
+            stamped = message_stamp_ns(self.topics[topic], raw)
+            stamp = stamped or self.node.get_clock().now().nanoseconds
             self._queue.put_nowait((topic, stamp, raw))
+            if stamped:
+                self.stamps[topic].append(stamped)
+            if self.first_at is None:
+                self.first_at = time.monotonic()
         except queue.Full:
             self.dropped += 1
         except Exception as exc:  # an executor must not die of a bad message; wait()/close() re-raise it
@@ -169,13 +199,15 @@ class Recorder:
 
     def record_until(self, executor: Any, *, duration: float | None = None, count: int | None = None,
                      poll: float = 0.05) -> None:
-        """Spin `executor` (it holds the node) until `duration` s pass or the first topic has `count` messages
-        written (neither given: until interrupted), raising a failed write. Ctrl-C propagates with what was recorded
-        kept for `close()`; any other exception aborts the recording first."""
+        """Spin `executor` (it holds the node) until `duration` s pass after the first message (or after the start,
+        when none came by then) or the first topic has `count` messages written (neither given: until interrupted),
+        raising a failed write. Counting from the first message, a recorder started well before the publisher
+        (another shell, a busy machine) keeps the whole stream. Ctrl-C propagates with what was recorded kept for
+        `close()`; any other exception aborts the recording first."""
         first = next(iter(self.topics))
         start = time.monotonic()
         try:
-            while not ((duration is not None and time.monotonic() - start >= duration)
+            while not ((duration is not None and time.monotonic() - (self.first_at or start) >= duration)
                        or (count is not None and self.counts[first] >= count)):
                 executor.spin_once(timeout_sec=poll)
                 if self.error is not None:

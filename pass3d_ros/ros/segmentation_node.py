@@ -139,7 +139,6 @@ class SegmentationNode(PointCloudNode):
     `submit_proposals`.
     """
 
-    COUNTS_INPUT_GAPS = False  # its input is the cluster node's output: those drops are counted there
     publisher: LatestFrameWorker[Labeled] | None = None  # the publishing thread (overlap and process); a class
     # default, because diagnostics may ask for the counters before __init__ has decided
     detections: DetectionOutputs | None = None  # the vision_msgs publishers; None without vision_msgs
@@ -409,7 +408,7 @@ class SegmentationNode(PointCloudNode):
         counts = [int(np.count_nonzero(labels == k)) for k in (CAR, PEDESTRIAN, CYCLIST)]
         self.get_logger().info(
             f"{len(frame.points)} points, {len(proposals.members)} proposals, labeled car/ped/cyc points {counts}, "
-            f"stage2 {sum(clock.steps_ms.values()):.1f} ms, dropped {self.counters().dropped}",
+            f"stage2 {sum(clock.steps_ms.values()):.1f} ms, dropped {self.counters().dropped}{self.missed_note()}",
             throttle_duration_sec=LOG_PERIOD_S,
         )
 

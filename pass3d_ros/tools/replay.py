@@ -7,9 +7,13 @@
 
 Replay publishes the stored CDR bytes unchanged (headers and stamps as recorded), paced by the bag's
 times divided by R (R = 0: as fast as possible), once N subscribers (default 1) match or S s (default 10)
-passed. Both modes start DDS with the shipped Fast DDS large-cloud profile unless FASTRTPS_DEFAULT_PROFILES_FILE
-is set (see `pass3d_ros.ros.dds_profile`). Recording writes each message at its header stamp; with
---count it stops after N messages on the first topic. A topic's type comes from the ROS graph (waiting up to
+passed; a reliable replay waits for its subscribers' acknowledgements before it exits, and every replay ends with a
+`pass3d_replay` status on /diagnostics saying how many it published. Both modes
+start DDS with the shipped Fast DDS large-cloud profile unless FASTRTPS_DEFAULT_PROFILES_FILE is set (see
+`pass3d_ros.ros.dds_profile`). Recording writes each message at its header stamp; with --count it stops after N
+messages on the first topic, with --duration S s after the first message (or after the start when none came), and
+says how many of the first topic's messages it got of how many their stamps imply (and of how many a replay on the
+domain published), with a warning when some are missing. A topic's type comes from the ROS graph (waiting up to
 --discovery-timeout s for it; a topic never seen is an error unless TOPIC:TYPE names the type). Like
 `ros2 bag record`, each topic is subscribed with the QoS its publishers offer: best effort if any publisher is
 best effort (or none is known yet), else reliable; --qos overrides. A recording that received nothing leaves
@@ -35,7 +39,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from pass3d_ros.data.bag import STORAGES, VERSIONS
 from pass3d_ros.data.outputs import out_path
-from pass3d_ros.ros.bag_replay import replay
+from pass3d_ros.ros.bag_replay import announce, replay
 from pass3d_ros.ros.dds_profile import apply_shipped_profile
 from pass3d_ros.ros.qos import QOS_NAMES
 from pass3d_ros.ros.recorder import (
@@ -77,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", help="bag to write when recording")
     stop = parser.add_mutually_exclusive_group()
     stop.add_argument("--duration", type=number(float, 0.0, low_open=True),
-                      help="record for S seconds (default: until Ctrl-C)")
+                      help="record for S seconds from the first message (default: until Ctrl-C)")
     stop.add_argument("--count", type=int, help="record N messages of the first topic (default: until Ctrl-C)")
     parser.add_argument("--storage", choices=sorted(STORAGES), default="mcap", help="storage plugin (default mcap)")
     parser.add_argument("--rosbag-version", type=int, choices=VERSIONS, default=9, help="rosbag2 version (9 or 8)")
@@ -110,6 +114,15 @@ def _record(args: argparse.Namespace, node: Any, executor: Any) -> int:
     counts = ", ".join(f"{topic}: {n}" for topic, n in recorder.counts.items())
     stopped = ", interrupted before the stop condition" if status else ""
     print(f"recorded {sum(recorder.counts.values())} messages in {seconds:.1f} s to {path} ({counts}){stopped}")
+    report = recorder.coverage()
+    if report.got:
+        first = next(iter(recorder.topics))
+        known = f"; pass3d_replay published {report.published}" if report.published is not None else ""
+        every = f"stamps every {1e3 * report.period_s:.0f} ms" if report.period_s else "one stamp"
+        print(f"{first}: got {report.got} of {report.expected} messages the stream implies ({every}{known})")
+        if report.missing:
+            print(f"pass3d_replay: warning: {report.missing} of {report.expected} messages on {first} never arrived "
+                  "(missing stamps; the nodes' /diagnostics count their drops and input gaps)", file=sys.stderr)
     silent = [topic for topic, n in recorder.counts.items() if n == 0]
     if silent:
         print(f"pass3d_replay: warning: no message on {', '.join(silent)}", file=sys.stderr)
@@ -123,6 +136,7 @@ def _replay(args: argparse.Namespace, node: Any) -> int:
         stats = replay(args.bag, node, topic=args.topic, publish_topic=args.publish_topic, rate=args.rate,
                        loop=args.loop, qos=args.qos or "sensor", min_subscribers=args.wait_subscribers,
                        wait_timeout=args.wait_timeout, stop=stop)
+        announce(node, stats, args.loop)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
@@ -131,7 +132,8 @@ def test_diagnostics_carry_counters_and_input_gaps(pair: tuple, scan: np.ndarray
     assert 0 < values["latency_p50_ms"] <= values["latency_p95_ms"] <= values["latency_max_ms"]
     assert values["compute_p50_ms"] > 0
     assert latest["segmentation_node"]["processed"] == expected
-    assert "input_gaps" not in latest["segmentation_node"], "the cluster node's input counts the gaps, once"
+    segmentation = latest["segmentation_node"]
+    assert segmentation["input_gaps"] == 1 and segmentation["frames_missed_upstream"] == 2, "each hop counts its input"
 
 
 def test_input_gaps_counted_from_stamps() -> None:
@@ -191,3 +193,31 @@ def test_a_long_silence_is_a_pause_not_lost_frames() -> None:
     stats.input(STAMP0 + 3600 * 10**9)  # the bag restarted an hour later
     snapshot = stats.snapshot()
     assert snapshot["stream_pauses"] == 1 and snapshot["frames_missed_upstream"] == 0
+
+
+def test_a_backlog_of_two_rides_out_one_slow_frame() -> None:
+    """While one frame is in hand, two more wait and are processed in order; a third newer one drops the oldest
+    waiting (counted)."""
+    import threading
+
+    from pass3d_ros.ros.latest_frame import LatestFrameWorker
+
+    release, done = threading.Event(), []
+    worker = LatestFrameWorker(lambda item: (release.wait(5), done.append(item)), lambda exc: None, "t", backlog=2)
+    worker.submit(0)
+    assert wait_until(lambda: not worker.idle() and worker.counters.received == 1)
+    time.sleep(0.05)  # frame 0 in hand
+    worker.submit(1)
+    worker.submit(2)
+    release.set()
+    assert wait_until(worker.idle)
+    assert done == [0, 1, 2] and worker.counters.dropped == 0
+    release.clear()
+    worker.submit(3)
+    time.sleep(0.05)
+    for item in (4, 5, 6):
+        worker.submit(item)
+    release.set()
+    assert wait_until(worker.idle)
+    worker.stop()
+    assert done == [0, 1, 2, 3, 5, 6] and worker.counters.dropped == 1

@@ -215,3 +215,36 @@ def test_help_after_ros_args_is_not_ours() -> None:
 
     assert wants_help(["pass3d_pipeline", "-h"]) and wants_help(["pass3d_pipeline", "--help", "--ros-args"])
     assert not wants_help(["pass3d_pipeline", "--ros-args", "--help"]) and not wants_help(["pass3d_pipeline"])
+
+
+def test_coverage_counts_what_the_stamps_imply() -> None:
+    from pass3d_ros.ros.input_watch import coverage
+
+    stamps = [1_000_000_000 + k * 100_000_000 + (k % 3) * 1_000_000 for k in (0, 1, 2, 4, 5, 6, 9)]  # +-ms jitter
+    report = coverage(stamps)
+    assert (report.got, report.implied, report.missing) == (7, 10, 3)
+    assert report.period_s == pytest.approx(0.1, abs=0.002)
+    assert coverage(stamps, published=12).missing == 5, "the publisher's count shows the ends lost too"
+    assert coverage([5]).missing == 0 and coverage([]).got == 0
+
+
+def test_recorder_says_how_many_it_got_of_what_the_replay_published(ros, tmp_path: Path) -> None:
+    """Stamps with frames 3, 7 and 8 missing and a replay status on /diagnostics that says 12 were published: the
+    recorder's coverage is 7 of 12."""
+    from pass3d_ros.ros.bag_replay import ReplayStats, announce
+    from pass3d_ros.ros.recorder import Recorder
+
+    topic = f"/coverage_{os.getpid()}"
+    recorder = Recorder(ros.make_node("cov_rec"), [topic], tmp_path / "cov", qos="reliable")
+    node = ros.make_node("cov_pub")
+    publisher = cloud_publisher(node, topic, "reliable")
+    assert wait_until(lambda: publisher.get_subscription_count() >= 1, 30)
+    stamps = [2_000_000_000 + k * 100_000_000 for k in (0, 1, 2, 4, 5, 6, 9)]
+    for stamp in stamps:
+        publisher.publish(cloud(stamp))
+    announce(node, ReplayStats(topic, published=12, passes=1), loop=False)
+    assert wait_until(lambda: recorder.counts[topic] == len(stamps) and recorder.replay is not None, 30)
+    report = recorder.coverage()
+    assert (report.got, report.implied, report.published, report.expected, report.missing) == (7, 10, 12, 12, 5)
+    assert sorted(recorder.stamps[topic]) == stamps
+    recorder.close()
