@@ -20,6 +20,7 @@ SUITES: dict[str, str] = {
     "simulate": "pass3d_ros.bench.simulate",
     "live": "pass3d_ros.bench.live",
     "sensors": "pass3d_ros.bench.sensors",
+    "tracks": "pass3d_ros.bench.tracks",
 }
 
 

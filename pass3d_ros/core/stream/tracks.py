@@ -61,21 +61,35 @@ class Track:
     hits: int = 1
     misses: int = 0
     stamp_s: float = 0.0
+    _label: int = -1  # the vote's result and its share, made again when a sighting is added
+    _score: float = 0.0
+
+    def sighting(self, label: int, confidence: float) -> None:
+        """Add a sighting to the vote."""
+        self.votes.append((label, confidence))
+        self._label = -1
 
     def label(self) -> int:
         """The confidence-weighted vote of the recent sightings (the first sighting's class wins a tie)."""
-        weight = np.zeros(NUM_CLASSES)
-        for label, confidence in self.votes:
-            weight[label] += max(confidence, 1e-3)
-        first = self.votes[0][0]
-        best = int(np.argmax(weight))
-        return first if weight[first] >= weight[best] else best
+        if self._label < 0:
+            self._vote()
+        return self._label
 
     def score(self) -> float:
         """The voted class's share of the vote weight."""
-        label = self.label()
-        total = sum(max(c, 1e-3) for _, c in self.votes)
-        return float(sum(max(c, 1e-3) for k, c in self.votes if k == label) / total) if total else 0.0
+        if self._label < 0:
+            self._vote()
+        return self._score
+
+    def _vote(self) -> None:
+        weight = [0.0] * NUM_CLASSES
+        for label, confidence in self.votes:
+            weight[label] += max(confidence, 1e-3)
+        first = self.votes[0][0]
+        best = max(range(NUM_CLASSES), key=weight.__getitem__)
+        self._label = first if weight[first] >= weight[best] else best
+        total = sum(weight)
+        self._score = weight[self._label] / total if total else 0.0
 
 
 @dataclass(frozen=True)
@@ -117,16 +131,16 @@ class Tracker:
         if pose is not None:
             pose = np.asarray(pose, dtype=np.float64)
             centers = centers @ pose[:3, :3].T + pose[:3, 3]
-        for track in self.tracks:
-            self._predict(track, stamp_s)
+        self._predict_all(stamp_s)
         pairs = self._associate(centers, labels)
         matched = {d: t for t, d in pairs}
+        self._correct_all([self.tracks[t] for t, _ in pairs], centers[[d for _, d in pairs]])
         out: list[Tracked] = []
         seen: set[int] = set()
         for d in range(len(centers)):
             if d in matched:
                 track = self.tracks[matched[d]]
-                self._correct(track, centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
+                self._sighted(track, centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
             else:
                 track = self._birth(centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
             seen.add(track.track_id)
@@ -164,27 +178,43 @@ class Tracker:
             self.born += 1
         return track
 
-    def _predict(self, track: Track, stamp_s: float) -> None:
-        dt = min(max(stamp_s - track.stamp_s, 0.0), self.config.max_dt_s)
-        f = np.eye(4)
-        f[0, 2] = f[1, 3] = dt
-        q = self.config.process_accel ** 2 * np.array(
-            [[dt ** 4 / 4, 0, dt ** 3 / 2, 0], [0, dt ** 4 / 4, 0, dt ** 3 / 2],
-             [dt ** 3 / 2, 0, dt ** 2, 0], [0, dt ** 3 / 2, 0, dt ** 2]])
-        track.state = f @ track.state
-        track.cov = f @ track.cov @ f.T + q
-        track.stamp_s = stamp_s
+    def _predict_all(self, stamp_s: float) -> None:
+        """Every track's state and covariance carried to `stamp_s` (constant velocity; at most max_dt_s ahead)."""
+        if not self.tracks:
+            return
+        dt = np.clip(stamp_s - np.array([t.stamp_s for t in self.tracks]), 0.0, self.config.max_dt_s)
+        f = np.broadcast_to(np.eye(4), (len(dt), 4, 4)).copy()
+        f[:, 0, 2] = f[:, 1, 3] = dt
+        a2 = self.config.process_accel ** 2
+        q = np.zeros((len(dt), 4, 4))
+        q[:, 0, 0] = q[:, 1, 1] = a2 * dt ** 4 / 4
+        q[:, 0, 2] = q[:, 2, 0] = q[:, 1, 3] = q[:, 3, 1] = a2 * dt ** 3 / 2
+        q[:, 2, 2] = q[:, 3, 3] = a2 * dt ** 2
+        states = np.einsum("tij,tj->ti", f, np.array([t.state for t in self.tracks]))
+        covs = f @ np.array([t.cov for t in self.tracks]) @ f.transpose(0, 2, 1) + q
+        for track, state, cov in zip(self.tracks, states, covs, strict=True):
+            track.state, track.cov, track.stamp_s = state, cov, stamp_s
 
-    def _correct(self, track: Track, center: np.ndarray, size: tuple, label: int, score: float,
+    def _correct_all(self, tracks: list[Track], centers: np.ndarray) -> None:
+        """The Kalman correction of each matched track by its detection's centre (x, y measured), all at once."""
+        if not tracks:
+            return
+        states = np.array([t.state for t in tracks])
+        covs = np.array([t.cov for t in tracks])
+        s = covs[:, :2, :2] + np.eye(2) * self.config.measurement_m ** 2
+        det = s[:, 0, 0] * s[:, 1, 1] - s[:, 0, 1] * s[:, 1, 0]
+        inv = np.stack([np.stack([s[:, 1, 1], -s[:, 0, 1]], -1), np.stack([-s[:, 1, 0], s[:, 0, 0]], -1)], 1)
+        gain = covs[:, :, :2] @ (inv / det[:, None, None])  # (T, 4, 2)
+        states = states + np.einsum("tij,tj->ti", gain, centers[:, :2] - states[:, :2])
+        covs = covs - gain @ covs[:, :2, :]
+        for track, state, cov in zip(tracks, states, covs, strict=True):
+            track.state, track.cov = state, cov
+
+    def _sighted(self, track: Track, center: np.ndarray, size: tuple, label: int, score: float,
                  stamp_s: float) -> None:
-        h = np.zeros((2, 4))
-        h[0, 0] = h[1, 1] = 1.0
-        s = h @ track.cov @ h.T + np.eye(2) * self.config.measurement_m ** 2
-        gain = track.cov @ h.T @ np.linalg.inv(s)
-        track.state = track.state + gain @ (center[:2] - h @ track.state)
-        track.cov = (np.eye(4) - gain @ h) @ track.cov
+        """A corrected track's sighting: its height, extent, vote and counts."""
         track.z, track.size, track.stamp_s = float(center[2]), size, stamp_s
-        track.votes.append((label, score))
+        track.sighting(label, score)
         track.hits += 1
         track.misses = 0
         if track.hits == self.config.min_hits:
