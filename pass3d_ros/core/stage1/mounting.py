@@ -14,7 +14,7 @@ stream holds the median of its first MOUNTING_SCANS readings (pass3d_ros.core.st
 instead, as a URDF states it (`parse_mount`).
 
 A numeric sensor_height is used as it is, and the estimate is still made: `problems` says when the two differ by more
-than HEIGHT_DISAGREE_M, or the sensor is tilted more than TILT_WARN_DEG (levelled: said, not a problem), or upside down.
+than HEIGHT_DISAGREE_M, or the sensor reads upside down; a steady tilt is levelled (said, not a problem).
 """
 
 from __future__ import annotations
