@@ -29,13 +29,15 @@ else:
     MISSING = None
 
 
-def detections_message(objects: Sequence[LabelledObject], header: Any, level: np.ndarray | None = None) -> Any:
+def detections_message(objects: Sequence[LabelledObject], header: Any, level: np.ndarray | None = None,
+                       ids: Sequence[str] | None = None) -> Any:
     """A Detection3DArray: `header` (the labelled cloud's), one Detection3D per object with its oriented box, one
     hypothesis (class name, mean confidence, the box's pose) and the cluster id as `id`. `level`: the rotation from
-    the sensor's frame to the level frame the objects' boxes are in; the poses are given in the sensor's frame."""
+    the sensor's frame to the level frame the objects' boxes are in; the poses are given in the sensor's frame.
+    `ids`: each object's id instead of its cluster id (the track ids, with tracking on)."""
     detections = []
-    for obj in objects:
-        detection = vision.Detection3D(header=header, id=str(obj.cluster_id))
+    for k, obj in enumerate(objects):
+        detection = vision.Detection3D(header=header, id=str(obj.cluster_id) if ids is None else ids[k])
         _set_pose(detection.bbox.center, obj, level)
         detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z = obj.size
         result = vision.ObjectHypothesisWithPose()
@@ -112,9 +114,10 @@ class DetectionOutputs:
         return self.detections_pub.get_subscription_count() > 0
 
     @staticmethod
-    def message(objects: Sequence[LabelledObject], header: Any, level: np.ndarray | None = None) -> Any:
+    def message(objects: Sequence[LabelledObject], header: Any, level: np.ndarray | None = None,
+                ids: Sequence[str] | None = None) -> Any:
         """One frame's Detection3DArray (`detections_message`)."""
-        return detections_message(objects, header, level)
+        return detections_message(objects, header, level, ids)
 
     def publish(self, message: Any) -> None:
         """Publish one frame's Detection3DArray."""

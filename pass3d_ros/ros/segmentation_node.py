@@ -31,6 +31,7 @@ from pass3d_ros.core.stage2.classifier_process import (
 )
 from pass3d_ros.core.stage2.config import Stage2Config, parameter_table
 from pass3d_ros.core.stage2.segmentation import SegmentResult, proposals_cut
+from pass3d_ros.core.stream.tracks import Tracker
 from pass3d_ros.core.threads import limit_threads
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, header_stamp_ns
 from pass3d_ros.ros import params
@@ -145,7 +146,7 @@ class SegmentationNode(PointCloudNode):
 
     def __init__(self, in_memory: bool = False, **kwargs: Any) -> None:
         super().__init__(PARAMETERS, **kwargs)
-        self.stage2 = params.read_config(self, Stage2Config)  # stage 2's settings, read at start-up
+        self.settings = params.read_config(self, Stage2Config)  # stage 2's settings, read at start-up
         self.output_layout = check_layout(self.get_parameter("output_layout").value)
         self.points_dropped = 0  # input points with implausible coordinates, left out
         self.proposals_cut = 0  # input proposals beyond max_proposals, labeled background
@@ -156,7 +157,8 @@ class SegmentationNode(PointCloudNode):
         scan_checks.warm_up()
         self.classifier = self._load_classifier()
         # stage 2's share of the one door: the stream's intensity map onto the training scale, then the classifier
-        self.stage2 = ProposalSegmenter(self.classifier, self.get_parameter("intensity_match").value)
+        self.stage2 = ProposalSegmenter(self.classifier, self.settings.intensity_match)
+        self.tracker = Tracker() if self.settings.tracking else None  # objects over time (pass3d_ros.core.stream)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.labeled_pub = self.output_publisher(PointCloud2, "labeled_topic")
@@ -192,7 +194,7 @@ class SegmentationNode(PointCloudNode):
 
     def _load_classifier(self) -> Classifier:
         """Load and warm up the classifier; missing or incompatible weights end start-up with the reason."""
-        config = self.stage2
+        config = self.settings
         threads = config.threads
         if threads > 0:
             self.get_logger().info(limit_threads(threads).describe())
@@ -246,6 +248,9 @@ class SegmentationNode(PointCloudNode):
         if held is not None:
             values["intensity_median"] = held.median
             values["intensity_matched"] = int(held.kind == "matched")
+        if self.tracker is not None:
+            values.update({"tracks_alive": self.tracker.alive, "tracks_born": self.tracker.born,
+                           "tracks_lost": self.tracker.lost})
         warnings = []
         if isinstance(self.classifier, ProcessClassifier):
             values["stage2_restarts"] = self.classifier.restarts
@@ -402,7 +407,7 @@ class SegmentationNode(PointCloudNode):
         clock.mark("publish")
         labels = columns["label"]
         self._publish_background(frame, columns, clock)
-        self._publish_objects(frame, out.objects, clock)
+        self._publish_objects(frame, *self._tracked(frame, out.objects), clock)
         self.stats.frame(clock.steps_ms)
         # counted class by class: np.bincount of 120k uint8 labels took 1.3-3 ms
         counts = [int(np.count_nonzero(labels == k)) for k in (CAR, PEDESTRIAN, CYCLIST)]
@@ -428,8 +433,24 @@ class SegmentationNode(PointCloudNode):
         self.background_pub.publish(cloud)
         clock.mark("publish")
 
-    def _publish_objects(self, frame: ProposalFrame, objects: list[LabelledObject], clock: StepClock) -> None:
-        """The frame's objects (`published`) as markers and as detections, each only while something subscribes."""
+    def _tracked(self, frame: ProposalFrame, objects: list[LabelledObject]
+                 ) -> tuple[list[LabelledObject], list[str] | None]:
+        """With tracking: the tracker updated with the frame's objects (every frame, whoever listens), each object
+        with its track's voted class and score, and the track ids; without: the objects as they are and no ids."""
+        if self.tracker is None:
+            return objects, None
+        centers = np.array([obj.center for obj in objects], dtype=np.float64).reshape(-1, 3)
+        sizes = np.array([obj.size for obj in objects], dtype=np.float64).reshape(-1, 3)
+        tracked = self.tracker.update(centers, sizes, [obj.label for obj in objects], [obj.score for obj in objects],
+                                      header_stamp_ns(frame) * 1e-9)
+        voted = [dataclasses.replace(obj, label=track.label, score=track.score)
+                 for obj, track in zip(objects, tracked, strict=True)]
+        return voted, [str(track.track_id) for track in tracked]
+
+    def _publish_objects(self, frame: ProposalFrame, objects: list[LabelledObject], ids: list[str] | None,
+                         clock: StepClock) -> None:
+        """The frame's objects (`published`) as markers and as detections, each only while something subscribes;
+        `ids`: the detections' ids (track ids), else the objects' cluster ids."""
         markers = self.objects_pub.get_subscription_count() > 0
         detections = self.detections is not None and self.detections.wanted()
         if not (markers or detections):
@@ -442,7 +463,7 @@ class SegmentationNode(PointCloudNode):
             self.objects_pub.publish(array)
             clock.mark("publish")
         if detections:
-            message = self.detections.message(objects, frame.header, frame.level)
+            message = self.detections.message(objects, frame.header, frame.level, ids)
             clock.mark("encode")
             self.detections.publish(message)
             clock.mark("publish")

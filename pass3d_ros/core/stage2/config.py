@@ -57,6 +57,11 @@ class Stage2Config:
         False, "run the classifier in a child process (with overlap: stage 2 beside stage 1 without sharing the GIL, "
         "and a third thread encodes and publishes; each frame's arrays cross a pipe, a few ms)",
     )
+    tracking: bool = _setting(
+        False, "objects over time: the stream's tracker (pass3d_ros.core.stream.tracks) gives each object a track id "
+        "that persists and a class voted over its recent sightings; /pass3d/detections then carry the track id, class "
+        "and score, /diagnostics tracks alive, born and lost (the labelled cloud keeps each scan's own labels)",
+    )
     stage2_timeout: float = _setting(
         5.0, "seconds a frame may take in stage 2: a child process (process) that answers nothing this long is killed "
         "and restarted, ERROR on /diagnostics; a later result is dropped, never published late (raise it for a "
