@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 
 DEFAULT_SHARE = 0.25  # of the scans held out for the check
 DEFAULT_STRETCHES = 2  # held-out stretches, spread over the recording

@@ -33,8 +33,8 @@ from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_chec
 from pass3d_ros.data.bag import parse_bag_spec, select_topic
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_dataset, resolve_dataset
-from pass3d_ros.errors import UserError
 from pass3d_ros.evaluation.offline import evaluate_draws, proposed_frame
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.synthetic.dataset import HEIGHT_RANGE_M
 from pass3d_ros.training import launcher
 from pass3d_ros.training.consistency import unlabelled_samples_of

@@ -18,8 +18,8 @@ from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage1.lasers import LASER_TABLES
 from pass3d_ros.core.stage1.ring import FIRING_ORDER_SOURCES, RING_SOURCES
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.errors import UserError
 from pass3d_ros.evaluation.offline import INTENSITY_MATCH, proposed_frame
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES, sensor_model
 
 ELEVATION_PERCENTILES = (0.5, 99.5)  # the span of a scan's returns, robust to a few stray points

@@ -16,7 +16,7 @@ import time
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.msgs.pointcloud2 import DATATYPES, PointCloud2Error, decode
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)

@@ -49,7 +49,7 @@ import numpy as np
 
 from pass3d_ros.core.threads import limit_threads
 from pass3d_ros.data.outputs import write_text_atomic
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.tools.cli import add_threads, add_weights, number
 
 if TYPE_CHECKING:

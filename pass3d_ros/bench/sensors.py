@@ -17,7 +17,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.tools.cli import add_weights
 
 # Mount name -> the spec's mount items: level at the model's 1.73 m, pitched down 5 and 10 degrees, rolled 10

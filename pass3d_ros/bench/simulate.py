@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 
 TARGET_S_PER_FRAME = 0.5
 

@@ -24,7 +24,7 @@ from pass3d_ros.core.stream.lines import LineHolder
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.tools.cli import add_data
 
 PATCHWORK_HINT = "pip install pypatchworkpp"

@@ -39,7 +39,7 @@ from rosbags.typesys import Stores, get_typestore
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import check_force, refuse_protected, writing
 from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
-from pass3d_ros.errors import DatasetError, UserError
+from pass3d_ros.msgs.errors import DatasetError, UserError
 from pass3d_ros.msgs.pointcloud2 import (
     POINTCLOUD2_TYPE,
     PointCloud2Error,

@@ -11,7 +11,7 @@ import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, IGNORE
 from pass3d_ros.data.frame import Box3D
-from pass3d_ros.errors import DatasetError
+from pass3d_ros.msgs.errors import DatasetError
 
 # KITTI annotates objects only where the front camera sees; SqueezeSeg and PASS3D score the front 90 degrees.
 FRONT_VIEW_HALF_ANGLE_DEG = 45.0

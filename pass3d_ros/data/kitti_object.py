@@ -36,7 +36,7 @@ from pass3d_ros.data.kitti_io import (
     sorted_files,
     write_bin,
 )
-from pass3d_ros.errors import DatasetError
+from pass3d_ros.msgs.errors import DatasetError
 
 KITTI_TYPE_TO_LABEL: dict[str, int] = {"Car": CAR, "Pedestrian": PEDESTRIAN, "Cyclist": CYCLIST}
 LABEL_TO_KITTI_TYPE: dict[int, str] = {CAR: "Car", PEDESTRIAN: "Pedestrian", CYCLIST: "Cyclist", BACKGROUND: "Misc"}

@@ -41,7 +41,7 @@ from pass3d_ros.data.kitti_io import (
     require_dir,
     sorted_files,
 )
-from pass3d_ros.errors import DatasetError
+from pass3d_ros.msgs.errors import DatasetError
 
 TRACKLET_TYPE_TO_LABEL: dict[str, int] = {"Car": CAR, "Pedestrian": PEDESTRIAN, "Cyclist": CYCLIST}
 _DRIVE_NAME = re.compile(r"^(\d{4}_\d{2}_\d{2})_drive_(\d{4})")

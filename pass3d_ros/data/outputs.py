@@ -20,7 +20,7 @@ import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 
 MARKER = ".pass3d_output"  # in a folder this package wrote: the tool that wrote it
 DISK_FULL: frozenset[int] = frozenset({errno.ENOSPC, errno.EDQUOT})

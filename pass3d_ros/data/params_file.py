@@ -14,7 +14,7 @@ from pathlib import Path
 
 import yaml
 
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 
 STAGE1_NODE = "cluster_proposal_node"
 STAGE2_NODE = "segmentation_node"

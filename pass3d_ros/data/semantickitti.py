@@ -38,7 +38,7 @@ from pass3d_ros.data.kitti_io import (
     sorted_files,
     write_bin,
 )
-from pass3d_ros.errors import DatasetError
+from pass3d_ros.msgs.errors import DatasetError
 
 SEMANTIC_TO_LABEL: dict[int, int] = {10: CAR, 252: CAR, 30: PEDESTRIAN, 254: PEDESTRIAN, 31: CYCLIST, 253: CYCLIST}
 GROUND_CLASSES: tuple[int, ...] = (40, 44, 48, 49, 60, 72)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 from pass3d_ros.data.frame import Frame, crop_frame, front_view_mask
 from pass3d_ros.data.kitti_io import FRONT_VIEW_HALF_ANGLE_DEG
-from pass3d_ros.errors import DatasetError
+from pass3d_ros.msgs.errors import DatasetError
 
 Keep = Callable[[int], bool]  # a frame's position in its spec -> whether this shard makes it
 # crop name -> the half angle (degrees) of the azimuth sector ahead of the sensor it keeps

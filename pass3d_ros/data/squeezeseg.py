@@ -26,7 +26,7 @@ import numpy as np
 from pass3d_ros.classes import NUM_CLASSES
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.kitti_io import FRAME_PERIOD_NS, frame_index, require_dir, sorted_files
-from pass3d_ros.errors import DatasetError
+from pass3d_ros.msgs.errors import DatasetError
 
 CHANNELS = 6  # x, y, z, intensity, range, label
 

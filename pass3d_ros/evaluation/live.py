@@ -49,7 +49,7 @@ from pass3d_ros.data.bag import (
     parse_bag_spec,
     truth_field,
 )
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Error, decode, finite_mask, header_stamp_ns
 
 NODE_NAMES: tuple[str, ...] = ("cluster_proposal_node", "segmentation_node")

@@ -22,7 +22,7 @@ from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 
 
 def iter_frames(specs: Sequence[str | Dataset], limit: int | None, progress: bool) -> Iterator[tuple[str, Frame]]:

@@ -11,7 +11,7 @@ import numpy as np
 
 from pass3d_ros.classes import CLASS_NAMES, FOREGROUND
 from pass3d_ros.core.metrics import interval_text, paired_iou_difference
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 
 
 def read_baseline(path: Path) -> dict:

@@ -27,7 +27,7 @@ from typing import Any, NamedTuple
 import numba as nb
 import numpy as np
 
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 
 POINTCLOUD2_TYPE = "sensor_msgs/msg/PointCloud2"
 

@@ -27,7 +27,7 @@ from rosbags.rosbag2 import ReaderError, WriterError
 
 from pass3d_ros.core.threads import DEFAULT_THREADS
 from pass3d_ros.data.outputs import OutputError, error_text, is_disk_full
-from pass3d_ros.errors import Pass3dError
+from pass3d_ros.msgs.errors import Pass3dError
 from pass3d_ros.training import distributed, worker
 
 EXIT_USAGE = 2

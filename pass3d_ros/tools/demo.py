@@ -34,7 +34,7 @@ from pass3d_ros.data.bag import read_bag
 from pass3d_ros.data.bag_convert import convert
 from pass3d_ros.data.outputs import out_path, refuse_protected, write_text_atomic
 from pass3d_ros.drawing.bev import frame_picture, output_cluster_ids, write_png
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 from pass3d_ros.tools.cli import add_weights, run_tool
 from pass3d_ros.weights import DEFAULT_WEIGHTS

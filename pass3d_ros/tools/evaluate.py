@@ -80,13 +80,13 @@ from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.params_file import NodeSettings, read_params_file
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
-from pass3d_ros.errors import UserError
 from pass3d_ros.evaluation.agreement import evaluate_agreement, evaluate_agreement_draws
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
 from pass3d_ros.evaluation.offline import evaluate_draws, evaluate_full, evaluate_stage1, iter_frames
 from pass3d_ros.evaluation.paired import format_paired, paired, read_baseline
 from pass3d_ros.evaluation.report import PRINTERS
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.tools.cli import add_data, add_param, add_threads, add_weights, check_writable, number, run_tool
 
 

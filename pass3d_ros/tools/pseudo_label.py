@@ -35,8 +35,8 @@ from pass3d_ros.data.outputs import marked_folder_out, swap_into_place, write_ma
 from pass3d_ros.data.partials import partial_path, remove_stale_partials
 from pass3d_ros.data.semantickitti import write_semantickitti_frame
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
-from pass3d_ros.errors import UserError
 from pass3d_ros.evaluation.offline import iter_frames
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.tools.cli import add_data, add_param, add_threads, add_weights, check_writable, number, run_tool
 from pass3d_ros.training.pseudo_labels import DEFAULT_MIN_CONFIDENCE, PseudoLabelStats, pseudo_label_frames
 

@@ -83,8 +83,8 @@ with worker.starting(PROG):
     from pass3d_ros.data.outputs import dataset_paths, out_path
     from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
     from pass3d_ros.data.spec import resolve_datasets
-    from pass3d_ros.errors import UserError
     from pass3d_ros.evaluation.segmenting import SUMMARY, Ranks, build_folder, check_out_dir, segment, summary
+    from pass3d_ros.msgs.errors import UserError
     from pass3d_ros.training import distributed, launcher
 
 

@@ -24,7 +24,7 @@ from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import OutputError, check_force, dataset_paths, out_path, refuse_protected, writing
 from pass3d_ros.data.partials import partial_path, remove_stale_partials
 from pass3d_ros.data.spec import Dataset, DatasetError, resolve_datasets
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.msgs.pointcloud2 import decode
 from pass3d_ros.tools.cli import add_data, check_writable, run_tool
 

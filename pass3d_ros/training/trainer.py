@@ -49,7 +49,7 @@ from pass3d_ros.core.stage2.segmentation import (
 )
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_datasets, open_datasets_shard, resolve_datasets
-from pass3d_ros.errors import Pass3dError, UserError
+from pass3d_ros.msgs.errors import Pass3dError, UserError
 from pass3d_ros.training import consistency as view_consistency  # `consistency` is a TrainOptions field
 from pass3d_ros.training import distributed
 from pass3d_ros.training.losses import make_loss

@@ -18,8 +18,8 @@ from pass3d_ros.classes import CLASS_NAMES
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage2.segmentation import Segmenter
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.errors import UserError
 from pass3d_ros.evaluation.agreement import evaluate_agreement, majority
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.synthetic.dataset import generate_frame
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 from pass3d_ros.tools import params_yaml

@@ -30,7 +30,7 @@ import pass3d_ros.data
 for info in pkgutil.iter_modules(pass3d_ros.data.__path__):
     importlib.import_module(f"pass3d_ros.data.{info.name}")
 from pass3d_ros.data.spec import DatasetError, resolve_dataset
-below = ("pass3d_ros.data", "pass3d_ros.msgs", "pass3d_ros.classes", "pass3d_ros.errors")
+below = ("pass3d_ros.data", "pass3d_ros.msgs", "pass3d_ros.classes", "pass3d_ros.msgs.errors")
 print("above:", sorted(m for m in sys.modules if m.startswith("pass3d_ros.") and not m.startswith(below)))
 try:
     resolve_dataset("synthetic:frames=2")

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from pass3d_ros.core.stage1.lasers import SENSORS
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 
 
 class ConfigError(UserError):

@@ -17,7 +17,7 @@ import numba as nb
 import numpy as np
 
 from pass3d_ros.core.stage1.scanline import nearer_of_two
-from pass3d_ros.errors import Pass3dError
+from pass3d_ros.msgs.errors import Pass3dError
 
 RING_CONVENTIONS: tuple[str, ...] = ("top_down", "bottom_up", "driver_order", "unfit")
 MIN_RANGE_M = 2.0  # nearer returns (the vehicle, the mount) are left out of a ring's elevation

@@ -15,7 +15,7 @@ import torch
 from pass3d_ros.core.stage2.config import CLASSIFIERS, DEFAULT_CLASSIFIER
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, SegmentResult
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 __all__ = ["CLASSIFIERS", "DEFAULT_CLASSIFIER", "Classifier", "ClassifierError", "open_classifier"]  # names defined

@@ -23,7 +23,7 @@ import torch
 from pass3d_ros.classes import BACKGROUND, CLASS_NAMES
 from pass3d_ros.core.stage2 import canonical, pointnet2_cpu
 from pass3d_ros.core.stage2.pointnet2 import ModelConfig, PointNet2Seg, flush_subnormals, fuse_batchnorm
-from pass3d_ros.errors import UserError
+from pass3d_ros.msgs.errors import UserError
 
 CHECKPOINT_FORMAT = "pass3d_stage2"
 CHECKPOINT_VERSION = 1

@@ -14,9 +14,9 @@ from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
 from pass3d_ros.core.stage2 import canonical, open_classifier
 from pass3d_ros.core.stage2.segmentation import Segmenter, predict_probabilities, prepare_proposals
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.errors import UserError
 from pass3d_ros.evaluation.agreement import evaluate_agreement
 from pass3d_ros.evaluation.offline import evaluate_draws, iter_frames, spread
+from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.tools import evaluate
 from pass3d_ros.weights import DEFAULT_WEIGHTS
 

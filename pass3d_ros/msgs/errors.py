@@ -1,4 +1,5 @@
-"""The project's error classes at the package root, below every layer so each can raise them: `Pass3dError` is
+"""The project's error classes, in the lowest package (the codec's, which imports nothing of the project's) so every
+layer can raise them: `Pass3dError` is
 the base of every error this package raises on purpose, `UserError` the bad input, argument, file or output that the
 tools print as one line (exit 2), and `DatasetError` the data layer's own (every reader raises it)."""
 
