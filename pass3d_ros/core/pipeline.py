@@ -130,10 +130,7 @@ class ProposalSegmenter:
     def on_training_scale(self, points: np.ndarray) -> tuple[np.ndarray, IntensityMap | None]:
         """`points` with intensities on the training scale (the same array when matching is off or changes nothing),
         and the map when this scan's made it held (for a caller to report once)."""
-        if not self.intensity_match:
-            return points, None
-        held = self.match.update(points[:, 3])
-        return self.match.on_training_scale(points), held
+        return self.match.fold(points) if self.intensity_match else (points, None)
 
     def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult:
         """The classifier on points already on the training scale (`on_training_scale`)."""

@@ -114,6 +114,12 @@ class StreamIntensityMatch:
         """This scan's intensities on the training scale (unchanged before the first fit)."""
         return intensity if self.map is None else self.map.apply(intensity)
 
+    def fold(self, points: np.ndarray) -> tuple[np.ndarray, IntensityMap | None]:
+        """One scan of the stream: its intensities folded into the fit (`update`), and the points on the training
+        scale (`on_training_scale`); the map when this scan made it held."""
+        held = self.update(points[:, 3])
+        return self.on_training_scale(points), held
+
     def on_training_scale(self, points: np.ndarray) -> np.ndarray:
         """Points (N, 4) with column 3 mapped: a copy when the map changes anything, else `points` itself."""
         if self.map is None or self.map.kind != "matched":

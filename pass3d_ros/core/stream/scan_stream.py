@@ -180,10 +180,10 @@ class ScanStream:
         scans, then held); the same array when matching is off or changes nothing."""
         if not self.intensity_match:
             return points
-        self.match.update(points[:, 3])
+        mapped, _ = self.match.fold(points)
         if self.match.map is not None:
             self.maps[str(self._key)] = str(self.match.map)
-        return self.match.on_training_scale(points)
+        return mapped
 
     def first_notes(self, notes: list[Note]) -> list[Note]:
         """The notes on topics this stream has not noted yet: what an offline tool prints once a stream."""
