@@ -41,8 +41,14 @@ class ProposedScan:
 
     scan: PreparedScan
     result: Stage1Result
-    points: np.ndarray
+    training: np.ndarray  # scan.points with intensities on stage 2's training scale (the stream's map, folded eagerly)
     stage1_ms: float = 0.0
+
+    @cached_property
+    def points(self) -> np.ndarray:
+        """The points stage 2 reads: `training` in the level frame (made on first use: the cluster node never needs
+        them)."""
+        return level_points(self.training, self.result.level)
 
     @cached_property
     def members(self) -> list[np.ndarray]:
@@ -170,8 +176,7 @@ class ScanPipeline:
         started = time.perf_counter()
         result = self.stream.propose(scan, self.config)
         stage1_ms = 1e3 * (time.perf_counter() - started)
-        return ProposedScan(scan, result, level_points(self.stream.on_training_scale(scan.points), result.level),
-                            stage1_ms)
+        return ProposedScan(scan, result, self.stream.on_training_scale(scan.points), stage1_ms)
 
     def propose(self, points: np.ndarray, ring: np.ndarray | None = None, **checks: float | bool) -> ProposedScan:
         """`prepare` then `stage1`; `checks`: intensity_scale, use_ring."""

@@ -15,7 +15,7 @@ from pass3d_ros.data.frame import Frame
 
 
 @dataclass
-class ProposedScan:
+class ProposedRealScan:
     """One scan after stage 1: its finite points (intensity on the training scale when matched), where they sit in
     the frame, their rings, and the non-empty proposals as indices into them."""
 
@@ -27,7 +27,7 @@ class ProposedScan:
 
 
 def proposed_scans(frames: Iterable[tuple[str, Frame]], config: Stage1Config | None = None,
-                   intensity_match: bool = True) -> Iterator[ProposedScan]:
+                   intensity_match: bool = True) -> Iterator[ProposedRealScan]:
     """Stage 1 on each (spec, frame); a new spec starts a new stream (laser lines and intensity map)."""
     pipeline = ScanPipeline(config, intensity_match=intensity_match)
     for spec, frame in frames:
@@ -35,4 +35,4 @@ def proposed_scans(frames: Iterable[tuple[str, Frame]], config: Stage1Config | N
         proposed = pipeline.propose(frame.points, frame.ring)
         scan = proposed.scan
         kept = np.arange(len(frame.points)) if scan.kept is None else scan.kept
-        yield ProposedScan(frame, kept, proposed.points, scan.ring, proposed.nonempty_members())
+        yield ProposedRealScan(frame, kept, proposed.points, scan.ring, proposed.nonempty_members())

@@ -89,10 +89,10 @@ class MountingHolder:
         MAX_HEIGHT_M, the sensor sees no road, or sits indoors)."""
         with self._lock:
             readings, held, observed = list(self._readings), self.held, self._observed
-        if held is not None and spread_deg(readings, held) > SPREAD_WARN_DEG:
-            return [f"mounting readings of the first {len(readings)} scans disagree by up to "
-                    f"{spread_deg(readings, held):.1f} deg (a changing road or a loose mount): the median is held; "
-                    "set stage1.mount if it is known"]
+        spread = 0.0 if held is None else spread_deg(readings, held)
+        if spread > SPREAD_WARN_DEG:
+            return [f"mounting readings of the first {len(readings)} scans disagree by up to {spread:.1f} deg (a "
+                    "changing road or a loose mount): the median is held; set stage1.mount if it is known"]
         if not readings and observed >= NO_GROUND_SCANS:
             return [f"no ground read in {observed} scans (a mount over {MAX_HEIGHT_M:g} m, a sensor that sees no "
                     "road, or indoors): the scans run as they come; set stage1.mount"]
