@@ -203,6 +203,14 @@ class Stage1Config:
     rerun_scale: float = _param(
         0.5, "refinement: split_rerun's th_ring and th_prop are the clustering's times this", 0.05, 1.0,
     )
+    rerun_dropped: bool = _param(
+        False, "refinement: split_rerun also clusters again every other dropped cluster of 2 x th_num to "
+        "rerun_max_points points within max_range (people in a crowd, beside parked motorbikes, against a hedge), "
+        "and gates each part again", 0, 1,
+    )
+    rerun_max_points: int = _param(
+        3000, "refinement: rerun_dropped leaves larger clusters (buildings, long walls) dropped whole", 1, 10_000_000,
+    )
     split_protruding: bool = _param(
         False, "refinement: cut what protrudes below max_top from a dropped thin taller structure (a person against a "
         "mast or a wall) out of it as clusters of their own, and gate each again; off by default: on real KITTI scans "

@@ -211,6 +211,22 @@ def _protrusion_candidates(n_total: int, kept: np.ndarray, z_lo: np.ndarray, z_h
     return chosen
 
 
+def _dropped_to_rerun(points: np.ndarray, label: np.ndarray, n_total: int, kept: np.ndarray,
+                      config: Stage1Config) -> np.ndarray:
+    """Cluster ids `rerun_dropped` clusters again: not kept, within max_range, with at least twice the few-points
+    gate's count (a smaller cluster holds no two parts the gate keeps) and at most `rerun_max_points` points."""
+    inside = label >= 0
+    which = label[inside]
+    count = np.bincount(which, minlength=n_total)
+    centre = np.stack([np.bincount(which, weights=points[inside, k], minlength=n_total) for k in (0, 1)], axis=1)
+    rng = np.hypot(centre[:, 0], centre[:, 1]) / np.maximum(count, 1)
+    need = np.maximum(config.th_num_floor,
+                      config.th_num_near * config.th_num_range / np.maximum(rng, config.th_num_range))
+    chosen = (count >= 2 * need) & (count <= config.rerun_max_points) & (rng <= config.max_range)
+    chosen[kept] = False
+    return np.flatnonzero(chosen)
+
+
 def select_with_split(
     points: np.ndarray, label: np.ndarray, n_clusters: int, planes: np.ndarray | LocalGround,
     segment_edges: np.ndarray, config: Stage1Config, ring: np.ndarray | None = None,
@@ -236,6 +252,8 @@ def select_with_split(
             kept = np.concatenate([kept, part_ids])
     if config.split_rerun and ring is not None:
         wide = fitted[~footprint & (rects[:, 2] <= config.max_length)]  # too wide, not too long
+        if config.rerun_dropped:
+            wide = np.union1d(wide, _dropped_to_rerun(points, out, n_total, kept, config))
         if n_split:  # only the clusters the gap cut left whole
             wide = wide[np.bincount(out[out >= 0], minlength=n_total)[wide] > 0]
         first = n_total
