@@ -126,3 +126,35 @@ def test_old_proposals_stay_first_and_unchanged(kind: str) -> None:
         assert a.yaw == b.yaw
     old = before.cluster_id >= 0
     np.testing.assert_array_equal(after.cluster_id[old], before.cluster_id[old])
+
+
+def person_before_wall(gap: float) -> list[Solid]:
+    """A person (0.3 x 0.6 x 1.75 m) standing `gap` metres in front of a 7.5 m long, 1.2 m high wall, 8 m ahead: one
+    cluster (their faces 0.3 + gap apart: beyond th_ring, within th_prop) longer than any road user and without a gap
+    to cut at."""
+    person = Solid((8.0, 0.0, -SENSOR_HEIGHT + 1.75 / 2), (0.3, 0.6, 1.75))
+    wall = Solid((8.15 + gap + 0.15, 0.0, -SENSOR_HEIGHT + 0.6), (0.3, 7.5, 1.2))
+    return [person, wall]
+
+
+@pytest.mark.parametrize("gap", [0.25, 0.35])
+def test_rerun_dropped_cuts_a_person_off_a_long_wall(gap: float) -> None:
+    points, ring, hit = raycast(person_before_wall(gap), n_az=1000)
+    before = propose(points, ring, Stage1Config())
+    after = propose(points, ring, Stage1Config(rerun_dropped=True))
+    person = hit == 0
+    assert (before.cluster_id[person] >= 0).mean() < 0.1  # dropped with the wall
+    assert (after.cluster_id[person] >= 0).mean() > 0.9
+    ids, counts = np.unique(after.cluster_id[person], return_counts=True)
+    box = after.boxes[ids[np.argmax(counts)]]
+    assert max(box.size[:2]) < 1.0 and box.size[2] < 2.0  # the person alone, not the wall
+    # What was kept without the option is kept alike: the parts only add proposals.
+    assert after.boxes[:before.n_proposals] == before.boxes or before.n_proposals == 0
+
+
+def test_rerun_dropped_leaves_large_clusters_whole() -> None:
+    """A cluster above rerun_max_points is not clustered again: the person stays dropped with the wall."""
+    points, ring, hit = raycast(person_before_wall(0.25), n_az=1000)
+    n_cluster = int(np.count_nonzero(hit >= 0))
+    after = propose(points, ring, Stage1Config(rerun_dropped=True, rerun_max_points=n_cluster // 2))
+    assert (after.cluster_id[hit == 0] >= 0).mean() < 0.1
