@@ -171,7 +171,7 @@ def _gate_parts(points: np.ndarray, label: np.ndarray, first: int, count: int, s
     part_points = np.flatnonzero(label >= first)
     sub = np.ascontiguousarray(points[part_points])
     sub_label = (label[part_points] - first).astype(np.int32)
-    z_lo, z_hi, fitted, rects, keep, _ = _refinement.gate_clusters(sub, sub_label, count, surface, segment_edges,
+    z_lo, z_hi, fitted, rects, keep, *_ = _refinement.gate_clusters(sub, sub_label, count, surface, segment_edges,
                                                                    config)
     parts = fitted[keep]
     return _refinement.boxes_of(rects[keep], z_lo[parts], z_hi[parts]), first + parts
@@ -211,18 +211,25 @@ def _protrusion_candidates(n_total: int, kept: np.ndarray, z_lo: np.ndarray, z_h
     return chosen
 
 
-def _dropped_to_rerun(points: np.ndarray, label: np.ndarray, n_total: int, kept: np.ndarray,
-                      config: Stage1Config) -> np.ndarray:
-    """Cluster ids `rerun_dropped` clusters again: not kept, within max_range, with at least twice the few-points
-    gate's count (a smaller cluster holds no two parts the gate keeps) and at most `rerun_max_points` points."""
-    inside = label >= 0
-    which = label[inside]
-    count = np.bincount(which, minlength=n_total)
-    centre = np.stack([np.bincount(which, weights=points[inside, k], minlength=n_total) for k in (0, 1)], axis=1)
-    rng = np.hypot(centre[:, 0], centre[:, 1]) / np.maximum(count, 1)
-    need = np.maximum(config.th_num_floor,
-                      config.th_num_near * config.th_num_range / np.maximum(rng, config.th_num_range))
-    chosen = (count >= 2 * need) & (count <= config.rerun_max_points) & (rng <= config.max_range)
+def _dropped_to_rerun(points: np.ndarray, label: np.ndarray, n_clusters: int, n_total: int, kept: np.ndarray,
+                      count: np.ndarray, may_part: np.ndarray, config: Stage1Config) -> np.ndarray:
+    """Cluster ids `rerun_dropped` clusters again: not kept, with at most `rerun_max_points` points, and such that a
+    part of them could pass the gates no split changes (`may_part` of the `n_clusters` clusters clustering made: at
+    least twice the few-points gate's count, within max_range, near enough the ground and tall enough), or, for the
+    parts of a gap cut (ids n_clusters .. n_total - 1), at least twice the few-points gate's count within max_range."""
+    chosen = np.zeros(n_total, dtype=bool)
+    chosen[:n_clusters] = may_part & (count <= config.rerun_max_points)
+    if n_total > n_clusters:
+        inside = label >= n_clusters
+        which = label[inside] - n_clusters
+        n_parts = n_total - n_clusters
+        part_count = np.bincount(which, minlength=n_parts)
+        centre = np.stack([np.bincount(which, weights=points[inside, k], minlength=n_parts) for k in (0, 1)], axis=1)
+        rng = np.hypot(centre[:, 0], centre[:, 1]) / np.maximum(part_count, 1)
+        need = np.maximum(config.th_num_floor,
+                          config.th_num_near * config.th_num_range / np.maximum(rng, config.th_num_range))
+        chosen[n_clusters:] = ((part_count >= 2 * need) & (part_count <= config.rerun_max_points)
+                               & (rng <= config.max_range))
     chosen[kept] = False
     return np.flatnonzero(chosen)
 
@@ -238,7 +245,7 @@ def select_with_split(
     pass3d_ros.core.stage1.protrusion). `planes`: the segment planes or the local ground, as the gates take them."""
     if n_clusters == 0:
         return [], np.zeros(0, dtype=np.int64), label, 0
-    z_lo, z_hi, fitted, rects, keep, footprint = _refinement.gate_clusters(
+    z_lo, z_hi, fitted, rects, keep, footprint, count, may_part = _refinement.gate_clusters(
         points, label, n_clusters, planes, segment_edges, config, fit_all=True)
     kept = fitted[keep]
     boxes = _refinement.boxes_of(rects[keep], z_lo[kept], z_hi[kept])
@@ -253,7 +260,7 @@ def select_with_split(
     if config.split_rerun and ring is not None:
         wide = fitted[~footprint & (rects[:, 2] <= config.max_length)]  # too wide, not too long
         if config.rerun_dropped:
-            wide = np.union1d(wide, _dropped_to_rerun(points, out, n_total, kept, config))
+            wide = np.union1d(wide, _dropped_to_rerun(points, out, n_clusters, n_total, kept, count, may_part, config))
         if n_split:  # only the clusters the gap cut left whole
             wide = wide[np.bincount(out[out >= 0], minlength=n_total)[wide] > 0]
         first = n_total
