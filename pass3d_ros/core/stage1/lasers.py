@@ -85,7 +85,9 @@ LASER_TABLES: dict[str, tuple[float, ...]] = {
     "pandarxt32": _PANDARXT32,
 }
 SENSORS: tuple[str, ...] = ("auto", *LASER_TABLES)
-STANDARD_RING_COUNTS: tuple[int, ...] = (16, 32, 64, 128)
+# Laser counts a line search may end at: Velodyne and Ouster make 16, 32, 64 and 128; Hesai's Pandar40 / 40P / 40M
+# have 40 (the tables above), and without 40 here their scans fell back to elevation bins.
+STANDARD_RING_COUNTS: tuple[int, ...] = (16, 32, 40, 64, 128)
 
 
 def ring_limit(sensor: str, n_rings: int) -> int:

@@ -28,7 +28,7 @@ chosen by a hash of their coordinates, so it finds the same lines whatever the p
    ring on flat ground) or whose slope is no laser height takes its neighbours' slope.
 3. A gap that holds a laser's worth of far points gets a line of its own; steps 2-3 repeat until the count
    settles.
-4. The lines are kept when their count is near 16, 32, 64 or 128 and nearly all far points lie within a quarter
+4. The lines are kept when their count is near 16, 32, 40, 64 or 128 and nearly all far points lie within a quarter
    gap of their line (`line_quality`); ring 0 is the line with the highest elevation.
 
 Motion-corrected scans (``elevation_lines_moving``). KITTI's odometry / SemanticKITTI scans are corrected for the
@@ -721,8 +721,8 @@ def line_quality(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, a: np.nda
 
 
 def standard_ring_count(n_found: int) -> int | None:
-    """The standard laser count (16, 32, 64, 128) that `n_found` lines can be: at most it, and at most an eighth
-    (at least two) below it; None if none fits."""
+    """The standard laser count (lasers.STANDARD_RING_COUNTS) that `n_found` lines can be: at most it, and at most an
+    eighth (at least two) below it; None if none fits."""
     for count in STANDARD_RING_COUNTS:
         if count - max(2, count // 8) <= n_found <= count:
             return count
@@ -786,26 +786,47 @@ def _rings_under(pts: np.ndarray, lines: LaserLines, motion: tuple[float, float]
 def rings_from_lines(points: np.ndarray, sensor: str = "auto") -> Rings | None:
     """Rings of a scan in any point order, from its laser lines (module docstring): seeded by `sensor`'s laser
     table, or found in the scan (`sensor` "auto"; None when no line set near a standard count fits the scan). The
-    lines are searched and fitted on a sample of the points that does not depend on their order."""
+    lines are searched and fitted on a sample of the points that does not depend on their order. Where an origin
+    motion sharpens the lines, the lines seen from the still origin are searched too and the better fitting set
+    wins: a tilted sensor's uneven scene can read as motion (a scan pitched 10 degrees found no lines from its
+    estimated motion and every laser from the still origin)."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
     sample = search_sample(pts)
     vx, vy = estimate_motion(sample)
     moving = vx != 0.0 or vy != 0.0
-    seen = _moved_origin(sample, vx, vy) if moving else sample
-    acc = _accumulate(seen)
-    seen = search_sample(seen, _FIT_POINTS) if not moving else _moved_origin(search_sample(sample, _FIT_POINTS), vx, vy)
-    suffix = "_moving" if moving else ""
     if sensor != "auto":
+        seen, acc = _search_view(sample, vx, vy)
         a, b = _lines_from_table(acc, laser_elevations(sensor))
         _, _, a, b = fit_laser_lines(seen, a, b)
         ring, _, a, b = fit_laser_lines(_moved_origin(pts, vx, vy) if moving else pts, a, b, 0)
-        return Rings(ring, "laser_table" + suffix, len(a), LaserLines(a, b, (vx, vy)))
-    for half_band in (_HALF_BAND, _N_BINS):
-        lines = _search_lines(seen, acc, half_band)
-        if lines is not None:
-            ring, _, a, b = fit_laser_lines(_moved_origin(pts, vx, vy) if moving else pts, *lines, 0)
-            return Rings(ring, "elevation_lines" + suffix, len(a), LaserLines(a, b, (vx, vy)))
-    return None
+        return Rings(ring, "laser_table" + ("_moving" if moving else ""), len(a), LaserLines(a, b, (vx, vy)))
+    best: tuple[float, np.ndarray, np.ndarray, float, float] | None = None
+    for motion in ((vx, vy), (0.0, 0.0)) if moving else ((0.0, 0.0),):
+        seen, acc = _search_view(sample, *motion)
+        for half_band in (_HALF_BAND, _N_BINS):
+            lines = _search_lines(seen, acc, half_band)
+            if lines is not None:
+                ring, resid, a, b = fit_laser_lines(seen, *lines, 0)
+                quality = line_quality(seen, ring, resid, a)
+                if best is None or quality > best[0]:
+                    best = (quality, *lines, *motion)
+                break
+    if best is None:
+        return None
+    _, a, b, mx, my = best
+    still = mx == 0.0 and my == 0.0
+    ring, _, a, b = fit_laser_lines(pts if still else _moved_origin(pts, mx, my), a, b, 0)
+    return Rings(ring, "elevation_lines" + ("" if still else "_moving"), len(a), LaserLines(a, b, (mx, my)))
+
+
+def _search_view(sample: np.ndarray, vx: float, vy: float) -> tuple[np.ndarray, np.ndarray]:
+    """The fit sample seen from the origin moving by (vx, vy) over the revolution (the still one at 0, 0), and the
+    line accumulator of the search sample seen so."""
+    moving = vx != 0.0 or vy != 0.0
+    seen = _moved_origin(sample, vx, vy) if moving else sample
+    acc = _accumulate(seen)
+    fit = search_sample(seen, _FIT_POINTS) if not moving else _moved_origin(search_sample(sample, _FIT_POINTS), vx, vy)
+    return fit, acc
 
 
 def recover_rings(
