@@ -134,7 +134,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     pool = _ground_pool() if cfg.ground_thread else None
     split = pool is not None and ring is None and lines is not None and not lines.empty
     beside = pool.submit(_ground.fit_ground, flat, cfg) if pool is not None and not split else None
-    rings = _ring.rings_for(pts, ring, cfg, lines, pool if split else None)
+    rings = _ring.rings_for(pts, ring, cfg, lines, pool if split else None, tilted=level is not None)
     if split:  # held lines: a stream whose points come in no firing order
         beside = pool.submit(_ground.fit_ground, flat, cfg, in_scan_order=False)
     order, work, work_ring = None, pts, rings.ring

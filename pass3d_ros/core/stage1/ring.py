@@ -783,13 +783,15 @@ def _rings_under(pts: np.ndarray, lines: LaserLines, motion: tuple[float, float]
     return Rings(ring, source + ("_moving" if moving else ""), len(lines.a), lines._replace(motion=motion))
 
 
-def rings_from_lines(points: np.ndarray, sensor: str = "auto") -> Rings | None:
+def rings_from_lines(points: np.ndarray, sensor: str = "auto", tilted: bool = False) -> Rings | None:
     """Rings of a scan in any point order, from its laser lines (module docstring): seeded by `sensor`'s laser
     table, or found in the scan (`sensor` "auto"; None when no line set near a standard count fits the scan). The
-    lines are searched and fitted on a sample of the points that does not depend on their order. Where an origin
-    motion sharpens the lines, the lines seen from the still origin are searched too and the better fitting set
-    wins: a tilted sensor's uneven scene can read as motion (a scan pitched 10 degrees found no lines from its
-    estimated motion and every laser from the still origin)."""
+    lines are searched and fitted on a sample of the points that does not depend on their order. On a `tilted` scan
+    (one stage 1 levels), where an origin motion sharpens the lines, the lines seen from the still origin are searched
+    too and the better fitting set wins: a tilted sensor's uneven scene reads as motion (a scan pitched 10 degrees
+    found no lines from its estimated motion and every laser from the still origin). Level scans keep the motion's
+    lines alone: on the level HDL-32E of the parking lot the still origin's lines lost crowds that elevation bins
+    kept apart (docs/experiments/sensors.md, rule Z)."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
     sample = search_sample(pts)
     vx, vy = estimate_motion(sample)
@@ -801,7 +803,7 @@ def rings_from_lines(points: np.ndarray, sensor: str = "auto") -> Rings | None:
         ring, _, a, b = fit_laser_lines(_moved_origin(pts, vx, vy) if moving else pts, a, b, 0)
         return Rings(ring, "laser_table" + ("_moving" if moving else ""), len(a), LaserLines(a, b, (vx, vy)))
     best: tuple[float, np.ndarray, np.ndarray, float, float] | None = None
-    for motion in ((vx, vy), (0.0, 0.0)) if moving else ((0.0, 0.0),):
+    for motion in ((vx, vy), (0.0, 0.0)) if moving and tilted else ((vx, vy),):
         seen, acc = _search_view(sample, *motion)
         for half_band in (_HALF_BAND, _N_BINS):
             lines = _search_lines(seen, acc, half_band)
@@ -839,6 +841,7 @@ def recover_rings(
     min_range: float = 4.0,
     lines: LaserLines | None = None,
     helper: Executor | None = None,
+    tilted: bool = False,
 ) -> Rings:
     """Ring index per point of a scan without a ring field (see the module docstring for the rules): the firing
     order (expecting `config.n_rings` rings, or a named `config.sensor`'s laser count), else a named sensor's table,
@@ -849,7 +852,8 @@ def recover_rings(
     comes after the firing order because the order gives exact rings (on KITTI's HDL-64E the table's lines lost a
     third of the cars' points at stage 1: docs/adapt.md).
 
-    `helper`: a one-thread executor that assigns half of the points under held `lines`.
+    `helper`: a one-thread executor that assigns half of the points under held `lines`; `tilted`: the scan is one
+    stage 1 levels (`rings_from_lines`).
 
     `min_jump_deg`: backward azimuth step that starts a ring in the ``azimuth_jump`` rule;
     `min_ring_points`: boundaries closer than this many points are noise; `missing_tolerance`: how many
@@ -878,7 +882,7 @@ def recover_rings(
     if ordered is not None:
         return ordered
     searched = lines is not None and lines.empty  # a search of this stream found none: not again
-    found = rings_from_lines(pts) if len(pts) >= 64 and not searched else None
+    found = rings_from_lines(pts, tilted=tilted) if len(pts) >= 64 and not searched else None
     if found is not None:
         return found
     elev = np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1]))
@@ -909,15 +913,16 @@ def _from_known(pts: np.ndarray, lines: LaserLines | None, source: str, helper: 
 
 
 def rings_for(points: np.ndarray, ring: np.ndarray | None, config: Stage1Config,
-              lines: LaserLines | None = None, helper: Executor | None = None) -> Rings:
+              lines: LaserLines | None = None, helper: Executor | None = None, tilted: bool = False) -> Rings:
     """The given ring field when there is one (checked for length), else the rings recovered under `config`
-    (trying an earlier scan's laser `lines` before a line search, half of them assigned on `helper`)."""
+    (trying an earlier scan's laser `lines` before a line search, half of them assigned on `helper`; `tilted`: a
+    scan stage 1 levels)."""
     if ring is not None:
         ring = np.asarray(ring)
         if len(ring) != len(points):
             raise ValueError(f"ring field has {len(ring)} entries for {len(points)} points")
         return Rings(ring.astype(np.uint16, copy=False), "field", int(ring.max()) + 1 if len(ring) else 0)
-    return recover_rings(points, config, lines=lines, helper=helper)
+    return recover_rings(points, config, lines=lines, helper=helper, tilted=tilted)
 
 
 def warm_up() -> None:

@@ -104,12 +104,13 @@ def test_real_32_beam_ouster_scans_are_read_exactly_by_auto(folder: str) -> None
                                              ("vlp16", 10.0), ("pandar40p", 10.0)])
 def test_auto_finds_every_laser_of_40_laser_and_pitched_scans(name: str, pitch: float) -> None:
     """Without a ring field and in no firing order, "auto" finds the lasers of a 40-laser Hesai (40 is a standard
-    count) and of a scan pitched 10 degrees (read from the still origin: the tilted scene looked like motion)."""
+    count) and of a scan pitched 10 degrees that stage 1 levels (read from the still origin as well: the tilted scene
+    looked like motion)."""
     model = sensor_model(name, mount_pitch_deg=pitch)
     frame = generate_frame(97, 0, model)
     order = np.random.default_rng(0).permutation(len(frame.points))
     points, truth = frame.points[order], frame.ring[order].astype(int)
-    rings = ring.recover_rings(points, Stage1Config())
+    rings = ring.recover_rings(points, Stage1Config(), tilted=pitch != 0.0)
     assert rings.source == "elevation_lines" and rings.n_rings == int(truth.max()) + 1
     far = np.linalg.norm(points[:, :2], axis=1) > 4.0
     assert np.mean(rings.ring[far].astype(int) == truth[far]) >= 0.99
