@@ -38,6 +38,8 @@ from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage1.ground import LocalGround
 from pass3d_ros.data.frame import Box3D
 
+PART_MAX_LENGTH_M = 2.0  # `rerun_dropped` keeps a part of a cluster it chose only when this short (KITTI's mean
+PART_MAX_WIDTH_M = 1.2  # cyclist 1.76 x 0.60 m, pedestrian 0.84 x 0.66 m) and this narrow: people, not pieces of walls
 SIDE_WINDOW = 1.0  # metres of axis on each side of a gap whose coverage is checked
 SIDE_COVER = 0.5  # share of that window's bins that must hold a point
 BINS_PER_GAP = 4  # bin width = split_gap / BINS_PER_GAP
@@ -166,13 +168,17 @@ def rerun_runs(points: np.ndarray, ring: np.ndarray, label: np.ndarray, n_cluste
 
 
 def _gate_parts(points: np.ndarray, label: np.ndarray, first: int, count: int, surface: np.ndarray | LocalGround,
-                segment_edges: np.ndarray, config: Stage1Config) -> tuple[list[Box3D], np.ndarray]:
-    """Boxes and ids of the clusters `first` .. `first + count - 1` of `label` that pass every gate on their own."""
+                segment_edges: np.ndarray, config: Stage1Config, small_only: np.ndarray | None = None
+                ) -> tuple[list[Box3D], np.ndarray]:
+    """Boxes and ids of the clusters `first` .. `first + count - 1` of `label` that pass every gate on their own;
+    those flagged in `small_only` (one bool per part) only with a person- or rider-sized footprint."""
     part_points = np.flatnonzero(label >= first)
     sub = np.ascontiguousarray(points[part_points])
     sub_label = (label[part_points] - first).astype(np.int32)
     z_lo, z_hi, fitted, rects, keep, *_ = _refinement.gate_clusters(sub, sub_label, count, surface, segment_edges,
                                                                    config)
+    if small_only is not None:
+        keep &= ~small_only[fitted] | ((rects[:, 2] <= PART_MAX_LENGTH_M) & (rects[:, 3] <= PART_MAX_WIDTH_M))
     parts = fitted[keep]
     return _refinement.boxes_of(rects[keep], z_lo[parts], z_hi[parts]), first + parts
 
@@ -259,14 +265,23 @@ def select_with_split(
             kept = np.concatenate([kept, part_ids])
     if config.split_rerun and ring is not None:
         wide = fitted[~footprint & (rects[:, 2] <= config.max_length)]  # too wide, not too long
+        chosen = wide
         if config.rerun_dropped:
-            wide = np.union1d(wide, _dropped_to_rerun(points, out, n_clusters, n_total, kept, count, may_part, config))
+            chosen = np.union1d(wide, _dropped_to_rerun(points, out, n_clusters, n_total, kept, count, may_part,
+                                                        config))
         if n_split:  # only the clusters the gap cut left whole
-            wide = wide[np.bincount(out[out >= 0], minlength=n_total)[wide] > 0]
-        first = n_total
-        out, n_total, n_rerun = rerun_runs(points, ring, out, n_total, wide, config)
+            chosen = chosen[np.bincount(out[out >= 0], minlength=n_total)[chosen] > 0]
+        first, before = n_total, out
+        out, n_total, n_rerun = rerun_runs(points, ring, out, n_total, chosen, config)
         if n_rerun:
-            part_boxes, part_ids = _gate_parts(points, out, first, n_total - first, planes, segment_edges, config)
+            small_only = None
+            if config.rerun_dropped:  # parts of the clusters only rerun_dropped chose: people-sized ones only
+                origin = np.full(n_total - first, -1, dtype=np.int64)
+                moved = out >= first
+                origin[out[moved] - first] = before[moved]
+                small_only = ~np.isin(origin, wide)
+            part_boxes, part_ids = _gate_parts(points, out, first, n_total - first, planes, segment_edges, config,
+                                               small_only)
             boxes += part_boxes
             kept = np.concatenate([kept, part_ids])
             n_split += n_rerun
