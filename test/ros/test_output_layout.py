@@ -305,6 +305,10 @@ def test_labeled_as_input_maps_each_point_to_its_row() -> None:
     out = columns(encode(labeled_as_input(source, compact), height=2))
     assert out.dtype.names == ("x", "y", "z", "cluster_id", "confidence", "rgb", "label")
     np.testing.assert_array_equal(out["label"], [0, 1, 0, 0, 0, 1])
+    tracked = columns(encode(labeled_as_input(source, {**compact, "track_id": np.array([7, -1, 7], np.int32)}),
+                             height=2))  # with tracking on: each point's track id, -1 at the rows not read
+    assert tracked.dtype.names == ("x", "y", "z", "cluster_id", "track_id", "confidence", "rgb", "label")
+    np.testing.assert_array_equal(tracked["track_id"], [-1, 7, -1, -1, -1, 7])
     np.testing.assert_array_equal(out["cluster_id"], [-1, 0, -1, -1, -1, 0])
     assert same_bytes(out["x"], cloud["x"])
     trimmed = extend_cloud(cloud, rows=out["label"] == 0, drop=("label",))

@@ -59,8 +59,9 @@ class Stage2Config:
     )
     tracking: bool = _setting(
         False, "objects over time: the stream's tracker (pass3d_ros.core.stream.tracks) gives each object a track id "
-        "that persists and a class voted over its recent sightings; /pass3d/detections then carry the track id, class "
-        "and score, /diagnostics tracks alive, born and lost (the labelled cloud keeps each scan's own labels)",
+        "that persists and a class voted over its recent sightings; the object's points take the voted class in "
+        "/pass3d/labeled, which gains an int32 track_id field (-1: no confirmed track); /pass3d/detections carry the "
+        "track id, class and score, the markers the id; /diagnostics tracks alive, born and lost",
     )
     stage2_timeout: float = _setting(
         5.0, "seconds a frame may take in stage 2: a child process (process) that answers nothing this long is killed "

@@ -1,0 +1,88 @@
+"""A scan's published objects through the stream's tracker (core/stream/tracked_scan.py, ScanPipeline with tracking):
+track ids published once confirmed, the vote applied to exactly the object's points, the levelled frame turned back,
+and the pipeline holding one tracker per stream."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
+from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
+from pass3d_ros.core.objects import SPLIT_ID_STRIDE, FrameObjects, LabelledObject
+from pass3d_ros.core.pipeline import ScanPipeline
+from pass3d_ros.core.stage2 import open_classifier
+from pass3d_ros.core.stream.tracked_scan import NO_TRACK, object_index, track_scan
+from pass3d_ros.core.stream.tracks import Tracker
+from pass3d_ros.data.spec import open_dataset
+
+
+def one_scan(person_label: int, person_score: float, x: float) -> FrameObjects:
+    """Ten points: 0-3 a person (cluster 5), 4-5 background in proposal 5, 6-8 a car split off proposal 5
+    (cluster 5 + SPLIT_ID_STRIDE), 9 in no proposal."""
+    labels = np.array([person_label] * 4 + [BACKGROUND] * 2 + [CAR] * 3 + [BACKGROUND], np.uint8)
+    cluster = np.array([5] * 6 + [5 + SPLIT_ID_STRIDE] * 3 + [-1], np.int32)
+    objects = [LabelledObject((x, 2.0, -1.0), (0.6, 0.5, 1.7), 0.0, person_label, person_score, 5),
+               LabelledObject((20.0, -3.0, -1.0), (4.0, 1.7, 1.5), 0.0, CAR, 0.9, 5 + SPLIT_ID_STRIDE)]
+    return FrameObjects(labels, cluster, objects)
+
+
+def test_object_index_finds_each_object_s_points_split_ids_too() -> None:
+    index = object_index(one_scan(PEDESTRIAN, 0.8, 10.0))
+    assert index.tolist() == [0, 0, 0, 0, -1, -1, 1, 1, 1, -1]
+
+
+def test_the_vote_goes_onto_exactly_the_object_s_points_and_ids_wait_for_confirmation() -> None:
+    tracker = Tracker()
+    first = track_scan(tracker, one_scan(PEDESTRIAN, 0.9, 10.0), 0.0)
+    assert first.track_id.tolist() == [NO_TRACK] * 10, "tentative tracks publish no id"
+    assert [obj.track_id for obj in first.voted.objects] == [NO_TRACK, NO_TRACK]
+    for k in range(1, 5):
+        out = track_scan(tracker, one_scan(PEDESTRIAN, 0.9, 10.0 + 0.1 * k), 0.1 * k)
+    weak = track_scan(tracker, one_scan(CAR, 0.5, 10.5), 0.5)  # one weak car sighting of the person
+    assert weak.voted.labels.tolist() == [PEDESTRIAN] * 4 + [BACKGROUND] * 2 + [CAR] * 3 + [BACKGROUND]
+    person, car = weak.voted.objects
+    assert person.label == PEDESTRIAN and car.label == CAR
+    assert person.track_id == out.voted.objects[0].track_id >= 0 and car.track_id >= 0
+    assert person.track_id != car.track_id
+    assert weak.track_id.tolist() == [person.track_id] * 4 + [NO_TRACK] * 2 + [car.track_id] * 3 + [NO_TRACK]
+    assert weak.voted.cluster_id.tolist() == one_scan(CAR, 0.5, 10.5).cluster_id.tolist()
+    assert 0.5 < person.score < 1.0, "the voted class's share of the vote"
+
+
+def test_a_levelled_scan_s_boxes_are_tracked_in_the_sensor_frame() -> None:
+    tracker = Tracker()
+    upside_down = np.diag([1.0, -1.0, -1.0])  # sensor -> level: a roll of 180 degrees
+    track_scan(tracker, one_scan(PEDESTRIAN, 0.9, 10.0), 0.0, level=upside_down)
+    assert np.allclose(tracker.tracks[0].state[:2], [10.0, -2.0])
+    assert tracker.tracks[0].z == pytest.approx(1.0)
+
+
+@pytest.fixture(scope="module")
+def drive() -> list:
+    return list(open_dataset("synthetic:drive=4,seed=5,sensor=hdl32e"))
+
+
+def test_the_pipeline_holds_one_tracker_per_stream(drive: list) -> None:
+    classifier = open_classifier(None, "size_rules")
+    tracking = ScanPipeline(classifier=classifier, tracking=True)
+    plain = ScanPipeline(classifier=classifier)
+    ids = []
+    for frame in drive:
+        tracking.follow("a")
+        out = tracking.run(frame.points, frame.ring, stamp_s=frame.stamp_ns * 1e-9, pose=frame.pose)
+        alone = plain.run(frame.points, frame.ring)
+        assert alone.tracked is None and alone.output is alone.published
+        assert out.tracked is not None and out.output is out.tracked.voted
+        # the same scan-by-scan objects; the vote changes only road-user points, into road-user classes
+        assert np.array_equal(out.published.labels, alone.published.labels)
+        changed = out.output.labels != out.published.labels
+        assert np.all(out.published.labels[changed] != BACKGROUND) and np.all(out.output.labels[changed] != BACKGROUND)
+        assert np.all(out.output.labels[out.tracked.track_id >= 0] != BACKGROUND)
+        ids.append({obj.track_id for obj in out.output.objects} - {NO_TRACK})
+    assert ids[0] == set() and len(ids[-1]) >= 3, ids
+    assert len(ids[-1] & (ids[1] | ids[2])) >= 0.7 * len(ids[-1]), "most tracks of the last scan were seen before"
+    tracking.follow("b")  # another stream: its tracks start over
+    again = tracking.run(drive[0].points, drive[0].ring, stamp_s=0.0, pose=drive[0].pose)
+    assert {obj.track_id for obj in again.output.objects} == {NO_TRACK}
+    assert tracking.segmenter.tracker.born == 0
