@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -45,7 +46,13 @@ class TrackerConfig:
 
     def gate(self, label: int) -> float:
         """The gate of a detection of class `label` (the widest for a class without one)."""
-        return dict(self.gate_m).get(label, max(g for _, g in self.gate_m))
+        return float(self.gates[label])
+
+    @cached_property
+    def gates(self) -> np.ndarray:
+        """The gate of each class id, as `gate` says (one array: a scan looks up every detection's at once)."""
+        widest = max(g for _, g in self.gate_m)
+        return np.array([dict(self.gate_m).get(label, widest) for label in range(NUM_CLASSES)])
 
 
 @dataclass
@@ -162,7 +169,7 @@ class Tracker:
         track_labels = np.array([t.label() for t in self.tracks])
         det_labels = np.asarray(labels)
         cost = cost + self.config.class_penalty_m * (track_labels[:, None] != det_labels[None, :])
-        gates = np.array([self.config.gate(int(k)) for k in det_labels])
+        gates = self.config.gates[det_labels]
         cost = np.where(cost <= gates[None, :], cost, NO_MATCH)
         rows, cols = linear_sum_assignment(cost)
         return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if cost[r, c] < NO_MATCH]

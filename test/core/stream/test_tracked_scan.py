@@ -4,6 +4,8 @@ and the pipeline holding one tracker per stream."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -12,7 +14,7 @@ from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
 from pass3d_ros.core.objects import SPLIT_ID_STRIDE, FrameObjects, LabelledObject
 from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage2 import open_classifier
-from pass3d_ros.core.stream.tracked_scan import NO_TRACK, object_index, track_scan
+from pass3d_ros.core.stream.tracked_scan import NO_TRACK, object_points, track_scan
 from pass3d_ros.core.stream.tracks import Tracker
 from pass3d_ros.data.spec import open_dataset
 
@@ -27,9 +29,15 @@ def one_scan(person_label: int, person_score: float, x: float) -> FrameObjects:
     return FrameObjects(labels, cluster, objects)
 
 
-def test_object_index_finds_each_object_s_points_split_ids_too() -> None:
-    index = object_index(one_scan(PEDESTRIAN, 0.8, 10.0))
-    assert index.tolist() == [0, 0, 0, 0, -1, -1, 1, 1, 1, -1]
+def test_object_points_are_each_object_s_points_split_ids_too() -> None:
+    points, owner = object_points(one_scan(PEDESTRIAN, 0.8, 10.0))
+    assert points.tolist() == [0, 1, 2, 3, 6, 7, 8] and owner.tolist() == [0, 0, 0, 0, 1, 1, 1]
+    huge = one_scan(PEDESTRIAN, 0.8, 10.0)  # ids too far apart for the table: the binary search finds the same
+    far = 3 * SPLIT_ID_STRIDE + 999_999
+    huge.cluster_id[:6] = far
+    huge.objects[0] = dataclasses.replace(huge.objects[0], cluster_id=far)
+    points, owner = object_points(huge)
+    assert points.tolist() == [0, 1, 2, 3, 6, 7, 8] and owner.tolist() == [0, 0, 0, 0, 1, 1, 1]
 
 
 def test_the_vote_goes_onto_exactly_the_object_s_points_and_ids_wait_for_confirmation() -> None:
