@@ -157,7 +157,7 @@ def frame_objects(
     for cls, object_id, members in parts:
         out_labels[members] = cls
         out_ids[members] = object_id
-    return FrameObjects(out_labels, out_ids, _boxed(points, parts, confidence), groups_split)
+    return FrameObjects(out_labels, out_ids, boxed_objects(points, parts, confidence), groups_split)
 
 
 def _proposal_parts(proposal: int, labels: np.ndarray, members: np.ndarray, splittable: bool
@@ -241,7 +241,7 @@ def _components_2d(xy: np.ndarray, gap: float) -> np.ndarray:
     return label
 
 
-def _boxed(points: np.ndarray, parts: list[tuple[int, int, np.ndarray]], confidence: np.ndarray
+def boxed_objects(points: np.ndarray, parts: list[tuple[int, int, np.ndarray]], confidence: np.ndarray
            ) -> list[LabelledObject]:
     """One LabelledObject per (class, id, points) part: the minimal box of its points, the plausibility flag."""
     if not parts:

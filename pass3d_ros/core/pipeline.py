@@ -150,16 +150,18 @@ class ProposalSegmenter:
         self._last_stamp_s: float | None = None
 
     def track(self, objects: FrameObjects, stamp_s: float | None = None, pose: np.ndarray | None = None,
-              level: np.ndarray | None = None) -> TrackedScan | None:
+              level: np.ndarray | None = None, points: np.ndarray | None = None,
+              ground: np.ndarray | None = None) -> TrackedScan | None:
         """One scan's published objects through the stream's tracker (None with tracking off): `stamp_s` seconds
         (None: NOMINAL_SCAN_PERIOD_S after the last scan), the sensor's pose (world from sensor) when known, `level`
-        the scan's levelling rotation (core.stream.tracked_scan.track_scan)."""
+        the scan's levelling rotation, `points` the scan in the level frame and `ground` stage 1's ground mask
+        (footprints and held proposals: core.stream.tracked_scan.track_scan)."""
         if self.tracker is None:
             return None
         if stamp_s is None:
             stamp_s = 0.0 if self._last_stamp_s is None else self._last_stamp_s + NOMINAL_SCAN_PERIOD_S
         self._last_stamp_s = stamp_s
-        return track_scan(self.tracker, objects, stamp_s, pose, level)
+        return track_scan(self.tracker, objects, stamp_s, pose, level, points, ground)
 
     def reset_tracks(self) -> None:
         """Forget the tracks (a new stream)."""
@@ -235,7 +237,8 @@ class ScanPipeline:
         segmented = self.segmenter.segment(proposed.points, chosen)
         labelled = LabelledScan(proposed, segmented, 1e3 * (time.perf_counter() - started), members is None)
         if members is None:
-            labelled.tracked = self.segmenter.track(labelled.published, stamp_s, pose, proposed.result.level)
+            labelled.tracked = self.segmenter.track(labelled.published, stamp_s, pose, proposed.result.level,
+                                                    proposed.points, proposed.result.ground)
         return labelled
 
     def run(self, points: np.ndarray, ring: np.ndarray | None = None, *, stamp_s: float | None = None,

@@ -103,7 +103,8 @@ class StreamHistory:
 def instance_sightings(truth: np.ndarray, instance: np.ndarray, scan: np.ndarray, voted: np.ndarray,
                        cluster_id: np.ndarray, track_id: np.ndarray, stamp_s: float) -> dict[int, Sighting]:
     """Each ground-truth road user of a scan with at least MIN_INSTANCE_POINTS labelled points: its majority
-    published class scan-by-scan and voted, and its sighting (the published object holding most of its points)."""
+    published class scan-by-scan and voted, and its sighting: the object published with tracking on (`voted` labels,
+    `cluster_id` its ids: held objects too) holding most of its points."""
     mine = np.isin(truth, FOREGROUND) & (instance >= 0)
     out: dict[int, Sighting] = {}
     ids, counts = np.unique(instance[mine], return_counts=True)
@@ -115,7 +116,7 @@ def instance_sightings(truth: np.ndarray, instance: np.ndarray, scan: np.ndarray
             continue
         scan_class = int(np.bincount(scan[points], minlength=NUM_CLASSES).argmax())
         voted_class = int(np.bincount(voted[points], minlength=NUM_CLASSES).argmax())
-        road = points[scan[points] != BACKGROUND]
+        road = points[voted[points] != BACKGROUND]
         track, object_scan, object_voted = NO_TRACK, BACKGROUND, BACKGROUND
         if len(road):
             objects, held = np.unique(cluster_id[road], return_counts=True)

@@ -371,7 +371,8 @@ class SegmentationNode(PointCloudNode):
             positions = np.arange(len(frame.points)) if source.positions is None else source.positions
             source = dataclasses.replace(source, positions=positions[keep])
         return ProposalFrame(frame.header, frame.points[keep], None if frame.ring is None else frame.ring[keep],
-                             frame.cluster_id[keep], frame.cluster_id2[keep], source, frame.level)
+                             frame.cluster_id[keep], frame.cluster_id2[keep], source, frame.level,
+                             None if frame.ground is None else frame.ground[keep])
 
     def _budget(self, frame: ProposalFrame) -> Budgeted:
         """Member points and cluster ids of the frame's proposals, at most max_proposals of them (the nearest): the
@@ -395,7 +396,8 @@ class SegmentationNode(PointCloudNode):
         if self.publisher is not None:
             clock.mark("handoff")  # the wait in the publishing thread's slot
         out = published(frame, proposals, result, self.get_parameter("min_confidence").value)
-        tracked = self.stage2.track(out, header_stamp_ns(frame) * 1e-9, level=frame.level)
+        tracked = self.stage2.track(out, header_stamp_ns(frame) * 1e-9, level=frame.level,
+                                    points=frame.level_points(), ground=frame.ground)
         out = out if tracked is None else tracked.voted
         clock.mark("compute")  # the objects, the labels and ids they settle, and with tracking on the vote
         columns = labeled_cloud(frame, out.labels, out.cluster_id, result.confidence,

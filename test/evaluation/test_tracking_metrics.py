@@ -56,6 +56,10 @@ def test_an_instance_s_sighting_is_the_object_holding_most_of_its_points() -> No
     assert car.scan_class == PEDESTRIAN and car.voted_class == CAR
     person = out[2]  # 7 of its 12 points background: its class flickers to background; its object is tentative
     assert person.scan_class == BACKGROUND and person.track == NO_TRACK and person.object_class_scan == PEDESTRIAN
+    voted[14:21] = PEDESTRIAN  # a track held its background points: an object with tracking on, of no class before
+    track[14:21] = 13
+    held = instance_sightings(truth, instance, scan, voted, cluster, track, 0.5)[2]
+    assert held.track == 13 and held.object_class_scan == BACKGROUND and held.object_class_voted == PEDESTRIAN
 
 
 def test_scan_period_is_the_stamps_median_step() -> None:

@@ -82,10 +82,13 @@ def test_the_pipeline_holds_one_tracker_per_stream(drive: list) -> None:
         alone = plain.run(frame.points, frame.ring)
         assert alone.tracked is None and alone.output is alone.published
         assert out.tracked is not None and out.output is out.tracked.voted
-        # the same scan-by-scan objects; the vote changes only road-user points, into road-user classes
+        # the same scan-by-scan objects; the vote changes points only into road-user classes: an object's points,
+        # or background points a confirmed track held (with its id)
         assert np.array_equal(out.published.labels, alone.published.labels)
         changed = out.output.labels != out.published.labels
-        assert np.all(out.published.labels[changed] != BACKGROUND) and np.all(out.output.labels[changed] != BACKGROUND)
+        assert np.all(out.output.labels[changed] != BACKGROUND)
+        held = changed & (out.published.labels == BACKGROUND)
+        assert np.all(out.tracked.track_id[held] >= 0)
         assert np.all(out.output.labels[out.tracked.track_id >= 0] != BACKGROUND)
         ids.append({obj.track_id for obj in out.output.objects} - {NO_TRACK})
     assert ids[0] == set() and len(ids[-1]) >= 3, ids
@@ -94,3 +97,58 @@ def test_the_pipeline_holds_one_tracker_per_stream(drive: list) -> None:
     again = tracking.run(drive[0].points, drive[0].ring, stamp_s=0.0, pose=drive[0].pose)
     assert {obj.track_id for obj in again.output.objects} == {NO_TRACK}
     assert tracking.segmenter.tracker.born == 0
+
+
+def person_scan(x: float, label: int, background: bool = False) -> tuple[FrameObjects, np.ndarray]:
+    """A person of 40 points at (x, 2) standing on 30 ground points, as an object of class `label`, or (`background`)
+    as points stage 2 called background in proposal 3; and the scan's points (level frame)."""
+    rng = np.random.default_rng(int(x * 100))
+    body = np.column_stack([rng.uniform(-0.25, 0.25, 40) + x, rng.uniform(-0.2, 0.2, 40) + 2.0,
+                            rng.uniform(-1.7, 0.0, 40), np.full(40, 0.5)])
+    floor = np.column_stack([rng.uniform(-3, 3, 30) + x, rng.uniform(-3, 3, 30) + 2.0, np.full(30, -1.75),
+                             np.full(30, 0.5)])
+    points = np.concatenate([body, floor]).astype(np.float32)
+    labels = np.array([BACKGROUND if background else label] * 40 + [BACKGROUND] * 30, np.uint8)
+    cluster = np.array([3] * 40 + [-1] * 30, np.int32)
+    objects = [] if background else [LabelledObject((x, 2.0, -0.85), (0.5, 0.4, 1.7), 0.0, label, 0.9, 3)]
+    return FrameObjects(labels, cluster, objects), points
+
+
+def test_a_track_holds_the_background_points_stage_2_missed_on_its_footprint() -> None:
+    tracker = Tracker()
+    ground = np.array([False] * 40 + [True] * 30)
+    for k in range(4):
+        objects, points = person_scan(10.0 + 0.1 * k, PEDESTRIAN)
+        seen = track_scan(tracker, objects, 0.1 * k, points=points, ground=ground)
+    person = seen.voted.objects[0].track_id
+    objects, points = person_scan(10.4, PEDESTRIAN, background=True)  # stage 2 missed the person
+    held = track_scan(tracker, objects, 0.4, points=points, ground=ground)
+    (obj,) = held.voted.objects
+    assert obj.track_id == person and obj.label == PEDESTRIAN and obj.cluster_id == 3
+    assert held.voted.labels.tolist() == [PEDESTRIAN] * 40 + [BACKGROUND] * 30, "the ground stays background"
+    assert held.track_id.tolist() == [person] * 40 + [NO_TRACK] * 30
+    assert tracker.tracks[0].misses == 0 and tracker.tracks[0].held == 1
+    objects, points = person_scan(10.5, PEDESTRIAN, background=True)
+    objects.cluster_id[:40] = -1  # stage 1 proposed none of it: the held object gets an id no point carries
+    again = track_scan(tracker, objects, 0.5, points=points, ground=ground)
+    assert [obj.cluster_id for obj in again.voted.objects] == [0] and again.voted.cluster_id[:40].tolist() == [0] * 40
+
+
+def test_a_track_of_unsure_sightings_is_not_held_and_a_held_track_runs_out() -> None:
+    unsure = Tracker()
+    for k in range(4):
+        objects, points = person_scan(10.0, PEDESTRIAN)
+        objects = FrameObjects(objects.labels, objects.cluster_id,
+                               [dataclasses.replace(objects.objects[0], score=0.6)])
+        track_scan(unsure, objects, 0.1 * k, points=points)
+    objects, points = person_scan(10.0, PEDESTRIAN, background=True)
+    assert track_scan(unsure, objects, 0.4, points=points).voted.objects == [], "mean confidence 0.6 < 0.8"
+    sure = Tracker()
+    for k in range(2):  # seen twice: held twice at most
+        objects, points = person_scan(10.0, PEDESTRIAN)
+        track_scan(sure, objects, 0.1 * k, points=points)
+    held = []
+    for k in range(2, 6):
+        objects, points = person_scan(10.0, PEDESTRIAN, background=True)
+        held.append(len(track_scan(sure, objects, 0.1 * k, points=points).voted.objects))
+    assert held == [1, 1, 0, 0]
