@@ -19,8 +19,8 @@ import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
 from pass3d_ros.core.objects import FrameObjects, LabelledObject
-from pass3d_ros.core.stream.tracked_scan import track_scan
 from pass3d_ros.core.stream.tracks import Tracker
+from pass3d_ros.core.tracked_scan import track_scan
 from pass3d_ros.msgs.errors import UserError
 
 POINTS_PER_OBJECT = 300

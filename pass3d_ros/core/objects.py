@@ -69,7 +69,7 @@ class LabelledObject:
     score: float  # mean confidence of the object's points (times IMPLAUSIBLE_SCORE when not plausible)
     cluster_id: int  # the labelled cloud's cluster_id of exactly this object's points (the proposal's, or split)
     plausible: bool = True  # the box's size fits its class (PLAUSIBLE_SIZE)
-    track_id: int = -1  # with tracking on, the object's confirmed track (pass3d_ros.core.stream.tracked_scan); -1 none
+    track_id: int = -1  # with tracking on, the object's confirmed track (pass3d_ros.core.tracked_scan); -1 none
 
     @property
     def class_id(self) -> str:

@@ -24,8 +24,8 @@ from pass3d_ros.core.stage2.segmentation import SegmentResult
 from pass3d_ros.core.stream import PreparedScan, ScanStream
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stream.intensity_match import IntensityMap, StreamIntensityMatch
-from pass3d_ros.core.stream.tracked_scan import TrackedScan, track_scan
 from pass3d_ros.core.stream.tracks import Tracker
+from pass3d_ros.core.tracked_scan import TrackedScan, track_scan
 
 NOMINAL_SCAN_PERIOD_S = 0.1  # a scan without a stamp comes this long after the last (a 10 Hz LiDAR's revolution)
 
@@ -155,7 +155,7 @@ class ProposalSegmenter:
         """One scan's published objects through the stream's tracker (None with tracking off): `stamp_s` seconds
         (None: NOMINAL_SCAN_PERIOD_S after the last scan), the sensor's pose (world from sensor) when known, `level`
         the scan's levelling rotation, `points` the scan in the level frame and `ground` stage 1's ground mask
-        (footprints and held proposals: core.stream.tracked_scan.track_scan)."""
+        (footprints and held objects: core.tracked_scan.track_scan)."""
         if self.tracker is None:
             return None
         if stamp_s is None:

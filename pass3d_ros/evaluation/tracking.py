@@ -36,7 +36,7 @@ from pass3d_ros.core.pipeline import LabelledScan, ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config, warm_up
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
-from pass3d_ros.core.stream.tracked_scan import NO_TRACK
+from pass3d_ros.core.tracked_scan import NO_TRACK
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import DatasetError
 from pass3d_ros.evaluation.offline import proposed_frame

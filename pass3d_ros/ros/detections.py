@@ -42,7 +42,7 @@ def detections_message(objects: Sequence[LabelledObject], header: Any, level: np
     """A Detection3DArray: `header` (the labelled cloud's), one Detection3D per object with its oriented box, one
     hypothesis (class name, score, the box's pose) and `detection_id` as `id`. `level`: the rotation from the
     sensor's frame to the level frame the objects' boxes are in; the poses are given in the sensor's frame.
-    `tracking`: the objects carry their tracks' ids, voted classes and scores (core.stream.tracked_scan)."""
+    `tracking`: the objects carry their tracks' ids, voted classes and scores (core.tracked_scan)."""
     detections = []
     for obj in objects:
         detection = vision.Detection3D(header=header, id=detection_id(obj, tracking))

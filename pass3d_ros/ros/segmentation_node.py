@@ -164,7 +164,7 @@ class SegmentationNode(PointCloudNode):
         scan_checks.warm_up()
         self.classifier = self._load_classifier()
         # stage 2's share of the one door: the stream's intensity map onto the training scale, then the classifier
-        # and, with tracking on, the stream's tracker (objects over time: pass3d_ros.core.stream.tracked_scan)
+        # and, with tracking on, the stream's tracker (objects over time: pass3d_ros.core.tracked_scan)
         self.stage2 = ProposalSegmenter(self.classifier, self.settings.intensity_match,
                                         tracking=self.settings.tracking)
         self.add_on_set_parameters_callback(self._on_set_parameters)

@@ -12,7 +12,7 @@ import pytest
 
 import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
 from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
-from pass3d_ros.core.stream.tracked_scan import NO_TRACK
+from pass3d_ros.core.tracked_scan import NO_TRACK
 from pass3d_ros.evaluation.tracking import Flicker, Mot, Sighting, instance_sightings, scan_period
 from pass3d_ros.tools import evaluate
 

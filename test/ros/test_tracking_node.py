@@ -14,7 +14,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
 from pass3d_ros.classes import BACKGROUND, CAR
-from pass3d_ros.core.stream.tracked_scan import NO_TRACK
+from pass3d_ros.core.tracked_scan import NO_TRACK
 from pass3d_ros.data.spec import open_dataset
 from pass3d_ros.ros.inprocess import in_memory_factories
 from pass3d_ros.ros.qos import qos_profile

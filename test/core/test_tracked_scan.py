@@ -1,4 +1,4 @@
-"""A scan's published objects through the stream's tracker (core/stream/tracked_scan.py, ScanPipeline with tracking):
+"""A scan's published objects through the stream's tracker (core/tracked_scan.py, ScanPipeline with tracking):
 track ids published once confirmed, the vote applied to exactly the object's points, the levelled frame turned back,
 and the pipeline holding one tracker per stream."""
 
@@ -14,8 +14,8 @@ from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
 from pass3d_ros.core.objects import SPLIT_ID_STRIDE, FrameObjects, LabelledObject
 from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage2 import open_classifier
-from pass3d_ros.core.stream.tracked_scan import NO_TRACK, object_points, track_scan
 from pass3d_ros.core.stream.tracks import Tracker
+from pass3d_ros.core.tracked_scan import NO_TRACK, object_points, track_scan
 from pass3d_ros.data.spec import open_dataset
 
 

@@ -83,7 +83,7 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
     4 x 4) when known; return the objects, labels and per-point track ids with the vote applied. With the scan's
     `points` (level frame, as the objects were fitted; `ground`: stage 1's ground mask, when known) the tracker also
     matches by footprints, takes parts of a tracked object as that object, and lets a confirmed track no object
-    matched hold a proposal stage 2 called background (module docstring)."""
+    matched be held by the points stage 2 called background on its footprint (module docstring)."""
     started = time.perf_counter()
     centers = np.array([obj.center for obj in objects.objects], dtype=np.float64).reshape(-1, 3)
     sizes = np.array([obj.size for obj in objects.objects], dtype=np.float64).reshape(-1, 3)
