@@ -69,6 +69,7 @@ class LabelledObject:
     score: float  # mean confidence of the object's points (times IMPLAUSIBLE_SCORE when not plausible)
     cluster_id: int  # the labelled cloud's cluster_id of exactly this object's points (the proposal's, or split)
     plausible: bool = True  # the box's size fits its class (PLAUSIBLE_SIZE)
+    track_id: int = -1  # with tracking on, the object's confirmed track (pass3d_ros.core.tracked_scan); -1 none
 
     @property
     def class_id(self) -> str:
@@ -156,7 +157,7 @@ def frame_objects(
     for cls, object_id, members in parts:
         out_labels[members] = cls
         out_ids[members] = object_id
-    return FrameObjects(out_labels, out_ids, _boxed(points, parts, confidence), groups_split)
+    return FrameObjects(out_labels, out_ids, boxed_objects(points, parts, confidence), groups_split)
 
 
 def _proposal_parts(proposal: int, labels: np.ndarray, members: np.ndarray, splittable: bool
@@ -240,7 +241,7 @@ def _components_2d(xy: np.ndarray, gap: float) -> np.ndarray:
     return label
 
 
-def _boxed(points: np.ndarray, parts: list[tuple[int, int, np.ndarray]], confidence: np.ndarray
+def boxed_objects(points: np.ndarray, parts: list[tuple[int, int, np.ndarray]], confidence: np.ndarray
            ) -> list[LabelledObject]:
     """One LabelledObject per (class, id, points) part: the minimal box of its points, the plausibility flag."""
     if not parts:

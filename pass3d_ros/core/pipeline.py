@@ -3,7 +3,8 @@ the stream holds (pass3d_ros.core.stream). Both nodes, every offline tool, train
 and the realism scorecard run a scan through a `ScanPipeline`, so a scan is treated the same wherever it comes from.
 
 `propose` is stage 1's half (the cluster node's share, and all a stage-1 evaluation needs); `segment` is stage 2's
-(the segmentation node's share, through a `ProposalSegmenter`, which holds the intensity map); `run` is both.
+(the segmentation node's share, through a `ProposalSegmenter`, which holds the intensity map and, with tracking on,
+the stream's tracker); `run` is both.
 """
 
 from __future__ import annotations
@@ -23,6 +24,10 @@ from pass3d_ros.core.stage2.segmentation import SegmentResult
 from pass3d_ros.core.stream import PreparedScan, ScanStream
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stream.intensity_match import IntensityMap, StreamIntensityMatch
+from pass3d_ros.core.stream.tracks import Tracker
+from pass3d_ros.core.tracked_scan import TrackedScan, track_scan
+
+NOMINAL_SCAN_PERIOD_S = 0.1  # a scan without a stamp comes this long after the last (a 10 Hz LiDAR's revolution)
 
 
 def matches_intensity(wanted: bool, classifier: Classifier | None) -> bool:
@@ -93,6 +98,7 @@ class LabelledScan:
     segmented: SegmentResult
     stage2_ms: float = 0.0
     all_proposals: bool = True  # segmented with every proposal of `proposed`, in order (see `published`)
+    tracked: TrackedScan | None = None  # with tracking on: `published` through the stream's tracker, the vote applied
 
     def labels_in_input(self, size: int) -> np.ndarray:
         """Stage 2's labels at the input's positions; points the checks left out are background (0). What the nodes
@@ -101,18 +107,25 @@ class LabelledScan:
 
     @cached_property
     def published(self) -> FrameObjects:
-        """The labels, cluster ids and objects the nodes publish for this scan (core.objects.frame_objects: each point
-        owned by its primary proposal; boxes in the level frame). Only for a scan segmented with all its proposals."""
+        """The scan-by-scan labels, cluster ids and objects (core.objects.frame_objects: each point owned by its primary
+        proposal; boxes in the level frame): what the nodes publish with tracking off; with it on they publish `output`.
+        Only for a scan segmented with all its proposals."""
         if not self.all_proposals:
             raise ValueError("published: the scan was segmented with a chosen subset of its proposals")
         segmented = self.segmented
         return frame_objects(self.proposed.points, self.proposed.result.cluster_id, segmented.proposal_class,
                              segmented.labels, segmented.confidence)
 
+    @property
+    def output(self) -> FrameObjects:
+        """What the nodes publish: with tracking on the objects and labels with the track's vote applied (`tracked`),
+        else `published`."""
+        return self.published if self.tracked is None else self.tracked.voted
+
     def published_in_input(self, size: int) -> tuple[np.ndarray, np.ndarray]:
-        """The published labels and cluster ids at the input's positions; points the checks left out are background
-        in no proposal (0, -1)."""
-        out = self.published
+        """The published labels (`output`) and cluster ids at the input's positions; points the checks left out are
+        background in no proposal (0, -1)."""
+        out = self.output
         return self.proposed.in_input(out.labels, size, 0), self.proposed.in_input(out.cluster_id, size, -1)
 
 
@@ -125,13 +138,36 @@ def _nothing_proposed() -> Stage1Result:
 
 class ProposalSegmenter:
     """Stage 2 on one stream's proposals: intensities onto the training scale through the map the stream holds (fitted
-    on its first scans), then the classifier. The segmentation node holds one; a `ScanPipeline` holds one."""
+    on its first scans), then the classifier; with `tracking`, the published objects through the stream's tracker
+    (`track`). The segmentation node holds one; a `ScanPipeline` holds one."""
 
     def __init__(self, classifier: Classifier, intensity_match: bool = INTENSITY_MATCH,
-                 match: StreamIntensityMatch | None = None) -> None:
+                 match: StreamIntensityMatch | None = None, tracking: bool = False) -> None:
         self.classifier = classifier
         self.intensity_match = matches_intensity(intensity_match, classifier)
         self.match = match if match is not None else StreamIntensityMatch()
+        self.tracker = Tracker() if tracking else None
+        self._last_stamp_s: float | None = None
+
+    def track(self, objects: FrameObjects, stamp_s: float | None = None, pose: np.ndarray | None = None,
+              level: np.ndarray | None = None, points: np.ndarray | None = None,
+              ground: np.ndarray | None = None) -> TrackedScan | None:
+        """One scan's published objects through the stream's tracker (None with tracking off): `stamp_s` seconds
+        (None: NOMINAL_SCAN_PERIOD_S after the last scan), the sensor's pose (world from sensor) when known, `level`
+        the scan's levelling rotation, `points` the scan in the level frame and `ground` stage 1's ground mask
+        (footprints and held objects: core.tracked_scan.track_scan)."""
+        if self.tracker is None:
+            return None
+        if stamp_s is None:
+            stamp_s = 0.0 if self._last_stamp_s is None else self._last_stamp_s + NOMINAL_SCAN_PERIOD_S
+        self._last_stamp_s = stamp_s
+        return track_scan(self.tracker, objects, stamp_s, pose, level, points, ground)
+
+    def reset_tracks(self) -> None:
+        """Forget the tracks (a new stream)."""
+        if self.tracker is not None:
+            self.tracker.reset()
+        self._last_stamp_s = None
 
     def on_training_scale(self, points: np.ndarray) -> tuple[np.ndarray, IntensityMap | None]:
         """`points` with intensities on the training scale (the same array when matching is off or changes nothing),
@@ -146,21 +182,27 @@ class ProposalSegmenter:
 class ScanPipeline:
     """One sensor stream's scans through the checks, stage 1 and (with a classifier) stage 2. `clock`: seconds for
     what the stream learns over time (`time.monotonic` live; None offline, each scan one revolution);
-    `intensity_match`: map intensities onto stage 2's training scale (never for size rules)."""
+    `intensity_match`: map intensities onto stage 2's training scale (never for size rules); `tracking`: the published
+    objects through the stream's tracker (Stage2Config.tracking), each segmented scan's `tracked` and `output`."""
 
     def __init__(self, config: Stage1Config | None = None, classifier: Classifier | None = None, *,
-                 clock: Callable[[], float] | None = None, intensity_match: bool = INTENSITY_MATCH) -> None:
+                 clock: Callable[[], float] | None = None, intensity_match: bool = INTENSITY_MATCH,
+                 tracking: bool = False) -> None:
         self.config = config or Stage1Config()  # a node replaces it when its parameters change
         self.stream = ScanStream(clock, intensity_match=matches_intensity(intensity_match, classifier))
         self.segmenter = None if classifier is None else ProposalSegmenter(classifier, intensity_match,
-                                                                           self.stream.match)
+                                                                           self.stream.match, tracking)
+        self._followed: Hashable | None = None
 
     @property
     def classifier(self) -> Classifier | None:
         return None if self.segmenter is None else self.segmenter.classifier
 
     def follow(self, key: Hashable) -> None:
-        """The next scan belongs to stream `key` (a dataset spec): a new key starts over."""
+        """The next scan belongs to stream `key` (a dataset spec): a new key starts over (its tracks too)."""
+        if key != self._followed and self.segmenter is not None:
+            self.segmenter.reset_tracks()
+        self._followed = key
         self.stream.follow(key)
 
     def prepare(self, points: np.ndarray, ring: np.ndarray | None = None, *, intensity_scale: float = 1.0,
@@ -182,20 +224,33 @@ class ScanPipeline:
         """`prepare` then `stage1`; `checks`: intensity_scale, use_ring."""
         return self.stage1(self.prepare(points, ring, **checks))
 
-    def segment(self, proposed: ProposedScan, members: list[np.ndarray] | None = None) -> LabelledScan:
-        """Stage 2 on a proposed scan's proposals (`members`: a chosen subset or order; default all of them)."""
+    def segment(self, proposed: ProposedScan, members: list[np.ndarray] | None = None, *,
+                stamp_s: float | None = None, pose: np.ndarray | None = None) -> LabelledScan:
+        """Stage 2 on a proposed scan's proposals (`members`: a chosen subset or order; default all of them); with
+        tracking on (all proposals only: a subset is no scan of the stream), its published objects through the
+        stream's tracker at `stamp_s` seconds (None: the nominal period after the last) and the sensor's `pose`
+        (world from sensor) when known."""
         if self.segmenter is None:
             raise ValueError("this pipeline has no classifier: stage 1 only")
         started = time.perf_counter()
         chosen = proposed.members if members is None else members
         segmented = self.segmenter.segment(proposed.points, chosen)
-        return LabelledScan(proposed, segmented, 1e3 * (time.perf_counter() - started), members is None)
+        labelled = LabelledScan(proposed, segmented, 1e3 * (time.perf_counter() - started), members is None)
+        if members is None:
+            labelled.tracked = self.segmenter.track(labelled.published, stamp_s, pose, proposed.result.level,
+                                                    proposed.points, proposed.result.ground)
+        return labelled
 
-    def run(self, points: np.ndarray, ring: np.ndarray | None = None, **checks: float | bool) -> LabelledScan:
-        """Both stages on one scan (`propose`, then `segment`); a scan the checks empty is all background."""
+    def run(self, points: np.ndarray, ring: np.ndarray | None = None, *, stamp_s: float | None = None,
+            pose: np.ndarray | None = None, **checks: float | bool) -> LabelledScan:
+        """Both stages on one scan (`propose`, then `segment`, tracked at `stamp_s` and `pose` with tracking on); a
+        scan the checks empty is all background (and its tracks go unseen)."""
         proposed = self.propose(points, ring, **checks)
         if proposed.empty:
             n = len(proposed.scan.points)
             empty = SegmentResult(np.zeros(n, np.uint8), np.zeros(n, np.float32), np.zeros(0, np.int16))
-            return LabelledScan(proposed, empty)
-        return self.segment(proposed)
+            labelled = LabelledScan(proposed, empty)
+            if self.segmenter is not None:
+                labelled.tracked = self.segmenter.track(labelled.published, stamp_s, pose, None)
+            return labelled
+        return self.segment(proposed, stamp_s=stamp_s, pose=pose)

@@ -205,6 +205,49 @@ def format_live(summary: dict, per_frame: bool = False) -> str:
     return "\n".join(lines)
 
 
+def _per_10s(row: dict, what: str) -> str:
+    """One flicker row: class changes per object per 10 s, scan-by-scan and voted, and how much the vote removed."""
+    if row["per_10s_scan"] is None:
+        return f"  {what}: none seen twice"
+    cut = "" if row["reduction"] is None else f", {100.0 * row['reduction']:.0f} % fewer"
+    return (f"  {what}: {row['per_10s_scan']:.2f} scan-by-scan -> {row['per_10s_voted']:.2f} voted class changes per "
+            f"object per 10 s ({row['changes_scan']} -> {row['changes_voted']} changes, {row['objects']} objects, "
+            f"{row['life_s']:.1f} s of life{cut})")
+
+
+def format_tracking(summary: dict, per_frame: bool = False) -> str:
+    """Human-readable `--tracking` run: IoU scan-by-scan and voted with the paired difference, flicker, id switches
+    and fragmentations, the tracks' own flicker."""
+    lines = [f"objects over time: {summary['frames']} frame(s), tracker on", _classifier_line(summary)]
+    for spec, row in summary["streams"].items():
+        lines.append(f"  {spec}: {row['frames']} scans, period {row['scan_period_s']:.3f} s (from "
+                     f"{row['period_from']}), {row['frames_with_pose']} with a pose")
+    if summary.get("iou"):
+        lines.append("IoU %: scan-by-scan, voted, voted minus scan-by-scan [paired 90 % frame bootstrap interval]")
+        for name, row in summary["iou"].items():
+            diff = "n/a" if row["difference"] is None else f"{100.0 * row['difference']:+.1f}"
+            lines.append(f"  {name:<11} {percent_text(row['scan']):>6} {percent_text(row['voted']):>6} {diff:>6}  "
+                         f"{interval_text(row)}")
+    if summary.get("flicker"):
+        lines.append(_per_10s(summary["flicker"], "ground-truth objects"))
+        mot = summary["mot"]
+        if mot["object_tracks"]:
+            lines.append(f"  id switches {mot['id_switches']} ({mot['id_switches_per_100']:.1f} per 100 object-tracks),"
+                         " "
+                         f"fragmentations {mot['fragmentations']} ({mot['fragmentations_per_100']:.1f} per 100), "
+                         f"{mot['object_tracks']} object-tracks, {mot['matched']} of {mot['sightings']} sightings in "
+                         "a confirmed track")
+    elif summary.get("instances"):
+        lines.append(f"  instances {summary['instances']}")
+    lines.append(_per_10s(summary["track_flicker"], "tracks (label-free)"))
+    ms = summary["track_ms"]
+    if ms["median"] is not None:
+        lines.append(f"tracker + vote: median {ms['median']:.2f} ms a scan, max {ms['max']:.2f} ms")
+    if per_frame:
+        lines += [f"  {row['frame'][-48:]}" for row in summary.get("per_frame", [])]
+    return "\n".join(lines)
+
+
 def format_agreement(summary: dict, per_frame: bool = False) -> str:
     """Human-readable view agreement: per class, the share of proposals all 8 views agree on."""
     lines = [f"view agreement over {summary['frames']} frame(s) (labels unused)", _classifier_line(summary)]
@@ -220,4 +263,4 @@ def format_agreement(summary: dict, per_frame: bool = False) -> str:
 
 
 PRINTERS: dict[str, Callable[..., str]] = {"stage1": format_stage1, "full": format_full, "live": format_live,
-                                           "view_agreement": format_agreement}
+                                           "view_agreement": format_agreement, "tracking": format_tracking}

@@ -252,7 +252,7 @@ class ClusterProposalNode(PointCloudNode):
             if self.sink is not None or self._full else None
         if self.sink is not None:
             self.sink(ProposalFrame(msg.header, points, out_ring, result.cluster_id, result.cluster_id2, source,
-                                    result.level))
+                                    result.level, result.ground))
             clock.mark("sink")
         if self.sink is None or self.proposals_pub.get_subscription_count() > 0:
             if self._full:

@@ -29,15 +29,23 @@ else:
     MISSING = None
 
 
+def detection_id(obj: LabelledObject, tracking: bool) -> str:
+    """A detection's `id`: its cluster id, or with tracking on its track id ("" while the track is tentative:
+    vision_msgs' id may be empty, and a tentative track's id may never be seen again)."""
+    if not tracking:
+        return str(obj.cluster_id)
+    return str(obj.track_id) if obj.track_id >= 0 else ""
+
+
 def detections_message(objects: Sequence[LabelledObject], header: Any, level: np.ndarray | None = None,
-                       ids: Sequence[str] | None = None) -> Any:
+                       tracking: bool = False) -> Any:
     """A Detection3DArray: `header` (the labelled cloud's), one Detection3D per object with its oriented box, one
-    hypothesis (class name, mean confidence, the box's pose) and the cluster id as `id`. `level`: the rotation from
-    the sensor's frame to the level frame the objects' boxes are in; the poses are given in the sensor's frame.
-    `ids`: each object's id instead of its cluster id (the track ids, with tracking on)."""
+    hypothesis (class name, score, the box's pose) and `detection_id` as `id`. `level`: the rotation from the
+    sensor's frame to the level frame the objects' boxes are in; the poses are given in the sensor's frame.
+    `tracking`: the objects carry their tracks' ids, voted classes and scores (core.tracked_scan)."""
     detections = []
-    for k, obj in enumerate(objects):
-        detection = vision.Detection3D(header=header, id=str(obj.cluster_id) if ids is None else ids[k])
+    for obj in objects:
+        detection = vision.Detection3D(header=header, id=detection_id(obj, tracking))
         _set_pose(detection.bbox.center, obj, level)
         detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z = obj.size
         result = vision.ObjectHypothesisWithPose()
@@ -115,9 +123,9 @@ class DetectionOutputs:
 
     @staticmethod
     def message(objects: Sequence[LabelledObject], header: Any, level: np.ndarray | None = None,
-                ids: Sequence[str] | None = None) -> Any:
+                tracking: bool = False) -> Any:
         """One frame's Detection3DArray (`detections_message`)."""
-        return detections_message(objects, header, level, ids)
+        return detections_message(objects, header, level, tracking)
 
     def publish(self, message: Any) -> None:
         """Publish one frame's Detection3DArray."""

@@ -144,15 +144,18 @@ def read_rows(cloud: np.ndarray) -> np.ndarray:
 
 def labeled_as_input(source: InputSource, columns: Mapping[str, np.ndarray]) -> Extended:
     """/pass3d/labeled in the input's layout, from the compact columns (`labeled_cloud`): the input's fields and
-    rows, with cluster_id, confidence, rgb and label (-1, 0, grey, 0 at points stage 1 did not read), to `encode`
-    with the input's height."""
+    rows, with cluster_id, (with tracking on) track_id, confidence, rgb and label (-1, -1, 0, grey, 0 at points stage
+    1 did not read), to `encode` with the input's height."""
     labels = source.scatter(columns["label"], BACKGROUND)
-    return Extended(source.cloud, {
-        "cluster_id": source.scatter(columns["cluster_id"], -1),
+    out = {"cluster_id": source.scatter(columns["cluster_id"], -1)}
+    if "track_id" in columns:
+        out["track_id"] = source.scatter(columns["track_id"], -1)
+    out.update({
         "confidence": source.scatter(columns["confidence"], 0.0),
         "rgb": packed_rgb(labels) if source.positions is not None else columns["rgb"],
         "label": labels,
     })
+    return Extended(source.cloud, out)
 
 
 def background_rows(source: InputSource, labels: np.ndarray) -> np.ndarray:

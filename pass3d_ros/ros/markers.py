@@ -36,8 +36,10 @@ def boxes_to_markers(
     labels: Sequence[int] | None = None,
     with_text: bool = False,
     level: np.ndarray | None = None,
+    texts: Sequence[str] | None = None,
 ) -> MarkerArray:
-    """MarkerArray for rviz2: DELETEALL, then a LINE_LIST per box coloured by class (or amber without labels).
+    """MarkerArray for rviz2: DELETEALL, then a LINE_LIST per box coloured by class (or amber without labels), and
+    with `with_text` a text above each labelled box: its class name, or `texts[k]` when given (class and track id).
     `level`: the rotation from the sensor's frame to the level frame the boxes are in (`Stage1Result.level`); the
     markers are drawn in the sensor's frame, the header's."""
     back = None if level is None else np.asarray(level, dtype=float)  # rows @ level = level^T applied: level -> sensor
@@ -62,6 +64,6 @@ def boxes_to_markers(
             text.pose.orientation.w = 1.0
             text.scale.z = 0.6
             text.color.r = text.color.g = text.color.b = text.color.a = 1.0
-            text.text = CLASS_NAMES[label]
+            text.text = CLASS_NAMES[label] if texts is None else texts[index]
             markers.append(text)
     return MarkerArray(markers=markers)

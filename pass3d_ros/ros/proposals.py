@@ -32,6 +32,7 @@ from pass3d_ros.ros.input_layout import (
     STAGE1_CLUSTER_ID,
     STAGE1_CLUSTER_ID2,
     STAGE1_COLUMNS,
+    STAGE1_GROUND,
     STAGE1_INTENSITY,
     STAGE1_RING,
     WIRE_COLUMNS,
@@ -55,6 +56,7 @@ class ProposalFrame:
     cluster_id2: np.ndarray  # (N,) secondary proposal id (overlapping enlarged boxes), -1 = none
     source: InputSource | None = None  # the input as it came (pipeline, or proposals in the input's layout)
     level: np.ndarray | None = None  # (3, 3) sensor -> level frame when stage 1 levelled the scan (Stage1Result.level)
+    ground: np.ndarray | None = None  # (N,) bool stage 1's ground plane when the proposals carry it (for tracking)
 
     def level_points(self) -> np.ndarray:
         """The points as stage 1 ran them: in the level frame (its canonical boxes stand on the ground)."""
@@ -133,8 +135,9 @@ def proposal_frame(msg: PointCloud2) -> ProposalFrame:
         raise PointCloud2Error(f"no {', '.join(missing)} field: is this a /pass3d/proposals cloud?")
     first, second = proposal_ids(cloud)
     points = to_xyzi(cloud, with_ring=False).points
+    ground = cloud["ground"].astype(bool) if "ground" in names else None
     return ProposalFrame(msg.header, points, cloud["ring"] if "ring" in names else None, first, second,
-                         level=_level(cloud, points, None))
+                         level=_level(cloud, points, None), ground=ground)
 
 
 def _full_frame(msg: PointCloud2, cloud: np.ndarray) -> ProposalFrame:
@@ -159,7 +162,8 @@ def _full_frame(msg: PointCloud2, cloud: np.ndarray) -> ProposalFrame:
     # the input's fields untouched, at their offsets (the __pass3d_ bytes stay as padding past them, never copied out)
     source = InputSource(cloud[[name for name in names if name not in WIRE_COLUMNS]], int(msg.height),
                          int(msg.width), bool(msg.is_dense), None if len(rows) == len(cloud) else rows)
-    return ProposalFrame(msg.header, points, ring, first, second, source, _level(cloud, points, rows))
+    ground = cloud[STAGE1_GROUND][rows].astype(bool)
+    return ProposalFrame(msg.header, points, ring, first, second, source, _level(cloud, points, rows), ground)
 
 
 LEVEL_FIT_POINTS = 2000  # points the level frame's rotation is read back from

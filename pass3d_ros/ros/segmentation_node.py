@@ -31,7 +31,6 @@ from pass3d_ros.core.stage2.classifier_process import (
 )
 from pass3d_ros.core.stage2.config import Stage2Config, parameter_table
 from pass3d_ros.core.stage2.segmentation import SegmentResult, proposals_cut
-from pass3d_ros.core.stream.tracks import Tracker
 from pass3d_ros.core.threads import limit_threads
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, header_stamp_ns
 from pass3d_ros.ros import params
@@ -95,9 +94,10 @@ def published(frame: ProposalFrame, proposals: Budgeted, result: SegmentResult, 
                          thresholded(result, min_confidence), result.confidence, frame.cluster_id)
 
 
-def labeled_cloud(frame: ProposalFrame, labels: np.ndarray, cluster_id: np.ndarray, confidence: np.ndarray) -> dict:
-    """The columns of /pass3d/labeled: input geometry, and the published cluster ids, labels (`published`) and
-    stage 2's confidences, and rgb."""
+def labeled_cloud(frame: ProposalFrame, labels: np.ndarray, cluster_id: np.ndarray, confidence: np.ndarray,
+                  track_id: np.ndarray | None = None) -> dict:
+    """The columns of /pass3d/labeled: input geometry, and the published cluster ids, labels (`published`, with
+    tracking on the vote applied) and stage 2's confidences, rgb, and with tracking on each point's `track_id`."""
     labels = np.asarray(labels, dtype=np.uint8)
     points = frame.points
     columns = {
@@ -112,7 +112,14 @@ def labeled_cloud(frame: ProposalFrame, labels: np.ndarray, cluster_id: np.ndarr
     columns["label"] = labels
     columns["confidence"] = np.asarray(confidence, dtype=np.float32)
     columns["rgb"] = packed_rgb(labels)
+    if track_id is not None:
+        columns["track_id"] = np.asarray(track_id, dtype=np.int32)
     return columns
+
+
+def marker_text(obj: LabelledObject) -> str:
+    """A tracked object's marker text: its class and its track id ("car 12"), the class alone while tentative."""
+    return obj.class_id if obj.track_id < 0 else f"{obj.class_id} {obj.track_id}"
 
 
 class Budgeted(NamedTuple):
@@ -157,8 +164,9 @@ class SegmentationNode(PointCloudNode):
         scan_checks.warm_up()
         self.classifier = self._load_classifier()
         # stage 2's share of the one door: the stream's intensity map onto the training scale, then the classifier
-        self.stage2 = ProposalSegmenter(self.classifier, self.settings.intensity_match)
-        self.tracker = Tracker() if self.settings.tracking else None  # objects over time (pass3d_ros.core.stream)
+        # and, with tracking on, the stream's tracker (objects over time: pass3d_ros.core.tracked_scan)
+        self.stage2 = ProposalSegmenter(self.classifier, self.settings.intensity_match,
+                                        tracking=self.settings.tracking)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.labeled_pub = self.output_publisher(PointCloud2, "labeled_topic")
@@ -248,9 +256,9 @@ class SegmentationNode(PointCloudNode):
         if held is not None:
             values["intensity_median"] = held.median
             values["intensity_matched"] = int(held.kind == "matched")
-        if self.tracker is not None:
-            values.update({"tracks_alive": self.tracker.alive, "tracks_born": self.tracker.born,
-                           "tracks_lost": self.tracker.lost})
+        tracker = self.stage2.tracker
+        if tracker is not None:
+            values.update({"tracks_alive": tracker.alive, "tracks_born": tracker.born, "tracks_lost": tracker.lost})
         warnings = []
         if isinstance(self.classifier, ProcessClassifier):
             values["stage2_restarts"] = self.classifier.restarts
@@ -363,7 +371,8 @@ class SegmentationNode(PointCloudNode):
             positions = np.arange(len(frame.points)) if source.positions is None else source.positions
             source = dataclasses.replace(source, positions=positions[keep])
         return ProposalFrame(frame.header, frame.points[keep], None if frame.ring is None else frame.ring[keep],
-                             frame.cluster_id[keep], frame.cluster_id2[keep], source, frame.level)
+                             frame.cluster_id[keep], frame.cluster_id2[keep], source, frame.level,
+                             None if frame.ground is None else frame.ground[keep])
 
     def _budget(self, frame: ProposalFrame) -> Budgeted:
         """Member points and cluster ids of the frame's proposals, at most max_proposals of them (the nearest): the
@@ -387,14 +396,18 @@ class SegmentationNode(PointCloudNode):
         if self.publisher is not None:
             clock.mark("handoff")  # the wait in the publishing thread's slot
         out = published(frame, proposals, result, self.get_parameter("min_confidence").value)
-        clock.mark("compute")  # the objects, and the labels and ids they settle
-        columns = labeled_cloud(frame, out.labels, out.cluster_id, result.confidence)
+        tracked = self.stage2.track(out, header_stamp_ns(frame) * 1e-9, level=frame.level,
+                                    points=frame.level_points(), ground=frame.ground)
+        out = out if tracked is None else tracked.voted
+        clock.mark("compute")  # the objects, the labels and ids they settle, and with tracking on the vote
+        columns = labeled_cloud(frame, out.labels, out.cluster_id, result.confidence,
+                                None if tracked is None else tracked.track_id)
         source = frame.source
         if self.output_layout == AS_INPUT and source is None:
             self.warn_once("as_input", "output_layout as_input, but the proposals carry only the points stage 1 read: "
                             "publishing compact; set output_layout as_input on cluster_proposal_node too")
         if self.output_layout == AS_INPUT and source is not None:
-            replaced = source.replaced(LABEL_COLUMNS)
+            replaced = source.replaced(LABEL_COLUMNS + (("track_id",) if tracked is not None else ()))
             if replaced:
                 self.warn_once("replaced", f"output_layout as_input: the input's field(s) {', '.join(replaced)} are "
                                 "replaced by this node's")
@@ -407,7 +420,7 @@ class SegmentationNode(PointCloudNode):
         clock.mark("publish")
         labels = columns["label"]
         self._publish_background(frame, columns, clock)
-        self._publish_objects(frame, *self._tracked(frame, out.objects), clock)
+        self._publish_objects(frame, out.objects, tracked is not None, clock)
         self.stats.frame(clock.steps_ms)
         # counted class by class: np.bincount of 120k uint8 labels took 1.3-3 ms
         counts = [int(np.count_nonzero(labels == k)) for k in (CAR, PEDESTRIAN, CYCLIST)]
@@ -433,41 +446,28 @@ class SegmentationNode(PointCloudNode):
         self.background_pub.publish(cloud)
         clock.mark("publish")
 
-    def _tracked(self, frame: ProposalFrame, objects: list[LabelledObject]
-                 ) -> tuple[list[LabelledObject], list[str] | None]:
-        """With tracking: the tracker updated with the frame's objects (every frame, whoever listens), each object
-        with its track's voted class and score, and the track ids; without: the objects as they are and no ids."""
-        if self.tracker is None:
-            return objects, None
-        centers = np.array([obj.center for obj in objects], dtype=np.float64).reshape(-1, 3)
-        sizes = np.array([obj.size for obj in objects], dtype=np.float64).reshape(-1, 3)
-        tracked = self.tracker.update(centers, sizes, [obj.label for obj in objects], [obj.score for obj in objects],
-                                      header_stamp_ns(frame) * 1e-9)
-        voted = [dataclasses.replace(obj, label=track.label, score=track.score)
-                 for obj, track in zip(objects, tracked, strict=True)]
-        return voted, [str(track.track_id) for track in tracked]
-
-    def _publish_objects(self, frame: ProposalFrame, objects: list[LabelledObject], ids: list[str] | None,
+    def _publish_objects(self, frame: ProposalFrame, objects: list[LabelledObject], tracking: bool,
                          clock: StepClock) -> None:
-        """The frame's objects (`published`) as markers and as detections, each only while something subscribes;
-        `ids`: the detections' ids (track ids), else the objects' cluster ids."""
+        """The frame's objects (`published`, or with `tracking` voted and carrying track ids) as markers and as
+        detections, each only while something subscribes; with tracking the markers' texts and the detections' ids
+        are the track ids."""
         markers = self.objects_pub.get_subscription_count() > 0
         detections = self.detections is not None and self.detections.wanted()
         if not (markers or detections):
             return
         if markers:
             boxes = [obj.box() for obj in objects]
+            texts = [marker_text(obj) for obj in objects] if tracking else None
             array = boxes_to_markers(boxes, frame.header, "objects", [obj.label for obj in objects], with_text=True,
-                                     level=frame.level)
+                                     level=frame.level, texts=texts)
             clock.mark("encode")
             self.objects_pub.publish(array)
             clock.mark("publish")
         if detections:
-            message = self.detections.message(objects, frame.header, frame.level, ids)
+            message = self.detections.message(objects, frame.header, frame.level, tracking)
             clock.mark("encode")
             self.detections.publish(message)
             clock.mark("publish")
-
 
 def main(argv: list[str] | None = None) -> int:
     """`ros2 run pass3d_ros segmentation_node [--ros-args ...]`."""

@@ -21,6 +21,13 @@ Modes (one per run):
                   of the 8 canonical views; per class (by the views' majority), the share of proposals all 8
                   views agree on, with a frame bootstrap interval. Synthetic scans read 97-99 % for cars; a
                   lower share says the network is not at home on that data (pass3d_ros.evaluation.agreement).
+  --tracking      objects over time, labels optional: the full pipeline with the stream's tracker on, the same run's
+                  scan-by-scan labels beside the labels with the tracks' class vote applied: per class IoU of both
+                  and their paired difference, flicker (class changes per object per 10 s), id switches and
+                  fragmentations per 100 object-tracks where instance ids persist (synthetic drives, SemanticKITTI;
+                  --per-frame-instances where they name boxes within one frame), and the tracks' own label-free
+                  flicker (pass3d_ros.evaluation.tracking). --scan-rate HZ where the stamps do not tell the rate
+                  (the nuScenes parking lot's key frames: 2).
   --live          the live path: the data through cluster_proposal_node and segmentation_node running in
                   this process (pass3d_ros.evaluation.live.run_live, private DDS domain), outputs matched to
                   inputs by header stamp and scored against the bag's `label_gt` field. One `bag:PATH[#/topic]`
@@ -86,6 +93,7 @@ from pass3d_ros.evaluation.live_data import evaluate_live
 from pass3d_ros.evaluation.offline import evaluate_draws, evaluate_full, evaluate_stage1, iter_frames
 from pass3d_ros.evaluation.paired import format_paired, paired, read_baseline
 from pass3d_ros.evaluation.report import PRINTERS
+from pass3d_ros.evaluation.tracking import evaluate_tracking
 from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.tools.cli import add_data, add_param, add_threads, add_weights, check_writable, number, run_tool
 
@@ -101,6 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
     modes.add_argument("--view-agreement", action="store_true",
                        help="label-free: how often the network's class of a proposal agrees across the 8 views")
     modes.add_argument("--live", action="store_true", help="evaluate the live ROS path (both nodes, in process)")
+    modes.add_argument("--tracking", action="store_true",
+                       help="objects over time: IoU with and without the tracks' class vote, flicker, id switches "
+                            "(labels optional)")
     parser.add_argument("--classifier", choices=CLASSIFIERS, help="stage-2 classifier (default network)")
     add_weights(parser)
     parser.add_argument("--device", default="cpu", help="torch device for the network: cpu (default) or cuda")
@@ -142,6 +153,12 @@ def build_parser() -> argparse.ArgumentParser:
                         help="full mode: another full run's --json on the same frames; print each class's IoU "
                              "difference (this run minus that one) with its paired frame-bootstrap interval "
                              "(JSON: \"paired\")")
+    parser.add_argument("--scan-rate", type=number(float, 0.0, low_open=True), metavar="HZ",
+                        help="--tracking: the scans' rate when their stamps do not tell it (default: the stamps' "
+                             "median step)")
+    parser.add_argument("--per-frame-instances", action="store_true",
+                        help="--tracking: the data's instance ids name boxes within one frame only, not objects over "
+                             "time (nuscenes_parking): no ground-truth flicker, id switches or fragmentations")
     parser.add_argument("--per-frame", action="store_true", help="print one row per frame too")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     live = parser.add_argument_group("live mode")
@@ -164,7 +181,9 @@ def _check_args(args: argparse.Namespace) -> str:
     if args.max_proposals < 1:
         raise UserError(f"--max-proposals must be >= 1, got {args.max_proposals}")
     mode = "live" if args.live else "stage1" if args.stage1_only else "view_agreement" if args.view_agreement \
-        else "full"
+        else "tracking" if args.tracking else "full"
+    if mode != "tracking" and (args.scan_rate is not None or args.per_frame_instances):
+        raise UserError("--scan-rate and --per-frame-instances apply with --tracking only")
     live_only = [name for name, given in (("--lockstep", args.lockstep), ("--record-out", args.record_out),
                                           ("--rate", args.rate != 1.0), ("--timeout", args.timeout != 30.0),
                                           ("--force", args.force)) if given]
@@ -181,7 +200,7 @@ def _check_args(args: argparse.Namespace) -> str:
     if mode != "full" and args.paired_with:
         raise UserError("--paired-with applies to the full evaluation only")
     if mode not in ("full", "view_agreement") and args.sample_draws != 1:
-        option = {"stage1": "--stage1-only", "live": "--live"}[mode]
+        option = {"stage1": "--stage1-only", "live": "--live", "tracking": "--tracking"}[mode]
         raise UserError(f"--sample-draws applies to the full and view-agreement evaluations, not with {option}")
     if args.sampling is not None and (mode not in ("full", "view_agreement") or args.classifier == "size_rules"):
         raise UserError("--sampling applies to the full and view-agreement evaluations with the network classifier")
@@ -225,6 +244,10 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
                                  max_proposals=args.max_proposals)  # --live: checked before the run
     kind, weights = classifier.kind, classifier.weights
     settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
+    if mode == "tracking":
+        frames = iter_frames(datasets, args.limit, not args.no_progress)
+        return {**evaluate_tracking(frames, config, classifier, args.intensity_match, args.scan_rate,
+                                    args.per_frame_instances), **settings}, 0
     if mode in ("full", "view_agreement"):
         coverage = isinstance(classifier, Segmenter) and classifier.sampling == "coverage"
         sampling = args.sampling or ("draw" if args.sample_draws > 1 and coverage else None)  # coverage: no draws

@@ -10,4 +10,11 @@ from pass3d_ros.bench import benchmark
 def test_the_tracks_suite_prints_its_cost_and_keeps_every_id(capsys: pytest.CaptureFixture[str]) -> None:
     assert benchmark.main(["tracks", "--objects", "12", "--scans", "30"]) == 0
     out = capsys.readouterr().out
-    assert "12 objects a scan, 30 scans" in out and "median" in out and "ids used 12 for 12 objects" in out
+    assert "12 objects a scan of 120000 points, 30 scans" in out and "ids used 12 for 12 objects" in out
+    assert "tracker + vote on points (track_scan): median" in out and "tracker update alone: median" in out
+
+
+def test_the_tracks_suite_refuses_a_scan_too_small_for_its_objects(capsys: pytest.CaptureFixture[str]) -> None:
+    assert benchmark.main(["tracks", "--objects", "12", "--points", "100"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--points >= 300 x --objects" in err[0]

@@ -7,6 +7,7 @@ or the package built from source and put on PYTHONPATH / LD_LIBRARY_PATH, as .ci
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -117,6 +118,13 @@ def test_without_vision_msgs_one_info_line_and_markers_only(ros: Ros, frame: Fra
     assert len(lines) == 1 and "INFO" in lines[0] and "No module named 'vision_msgs'" in lines[0], err
 
 
+def test_detection_ids_are_cluster_ids_or_with_tracking_confirmed_track_ids() -> None:
+    obj = LabelledObject(center=(1.0, 2.0, 0.5), size=(4.0, 1.7, 1.5), yaw=0.4, label=1, score=0.75, cluster_id=12)
+    assert detections.detection_id(obj, False) == "12"
+    assert detections.detection_id(obj, True) == ""
+    assert detections.detection_id(dataclasses.replace(obj, track_id=0), True) == "0"
+
+
 @needs_vision_msgs
 def test_detections_message_fields() -> None:
     obj = LabelledObject(center=(1.0, 2.0, 0.5), size=(4.0, 1.7, 1.5), yaw=0.4, label=1, score=0.75, cluster_id=12)
@@ -126,6 +134,8 @@ def test_detections_message_fields() -> None:
     assert message.header.frame_id == "lidar" and len(message.detections) == 1
     detection = message.detections[0]
     assert detection.id == "12" and detection.header.frame_id == "lidar"
+    tracked = detections.detections_message([obj, dataclasses.replace(obj, track_id=4)], header, tracking=True)
+    assert [d.id for d in tracked.detections] == ["", "4"], "a tentative track's detection has no id yet"
     center = detection.bbox.center
     assert (center.position.x, center.position.y, center.position.z) == (1.0, 2.0, 0.5)
     assert yaw_of(center.orientation) == pytest.approx(0.4)

@@ -20,6 +20,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from pass3d_ros.bench import benchmark
 from pass3d_ros.classes import BACKGROUND, FOREGROUND
 from pass3d_ros.core import scan_checks
+from pass3d_ros.core.stage1 import propose
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, extend_cloud
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
@@ -32,7 +33,7 @@ from pass3d_ros.ros.input_layout import (
     input_source,
     labeled_as_input,
 )
-from pass3d_ros.ros.proposals import proposal_frame
+from pass3d_ros.ros.proposals import proposal_frame, proposals_cloud
 from pass3d_ros.ros.qos import qos_profile
 from pass3d_ros.ros.segmentation_node import SegmentationNode
 from pass3d_ros.synthetic.dataset import generate_frame
@@ -305,6 +306,10 @@ def test_labeled_as_input_maps_each_point_to_its_row() -> None:
     out = columns(encode(labeled_as_input(source, compact), height=2))
     assert out.dtype.names == ("x", "y", "z", "cluster_id", "confidence", "rgb", "label")
     np.testing.assert_array_equal(out["label"], [0, 1, 0, 0, 0, 1])
+    tracked = columns(encode(labeled_as_input(source, {**compact, "track_id": np.array([7, -1, 7], np.int32)}),
+                             height=2))  # with tracking on: each point's track id, -1 at the rows not read
+    assert tracked.dtype.names == ("x", "y", "z", "cluster_id", "track_id", "confidence", "rgb", "label")
+    np.testing.assert_array_equal(tracked["track_id"], [-1, 7, -1, -1, -1, 7])
     np.testing.assert_array_equal(out["cluster_id"], [-1, 0, -1, -1, -1, 0])
     assert same_bytes(out["x"], cloud["x"])
     trimmed = extend_cloud(cloud, rows=out["label"] == 0, drop=("label",))
@@ -336,6 +341,7 @@ def test_full_proposals_carry_the_input_untouched_and_stage1_under_its_prefix() 
     np.testing.assert_array_equal(frame.ring, ring)
     np.testing.assert_array_equal(frame.cluster_id, [0, -1, 1])
     np.testing.assert_array_equal(frame.cluster_id2, [-1, 0, -1])
+    np.testing.assert_array_equal(frame.ground, [True, False, True])  # stage 1's, not the input's own ground field
     np.testing.assert_array_equal(frame.source.positions, [0, 2, 4])
     assert frame.source.cloud.dtype.names == names
     for name in names:
@@ -369,3 +375,11 @@ def test_layout_benchmark_runs(capsys: pytest.CaptureFixture[str]) -> None:
     assert benchmark.main(["layout", "--repeat", "1", "--width", "512"]) == 0
     out = capsys.readouterr().out
     assert out.count("labeled as_input") == 2 and "Ouster-like organized 64 x 512" in out
+
+
+def test_compact_proposals_carry_stage1_s_ground_for_tracking() -> None:
+    frame = generate_frame(seed=3, index=0)
+    result = propose(frame.points, frame.ring)
+    read = proposal_frame(encode(proposals_cloud(frame.points, result), stamp_ns=STAMP0))
+    assert read.ground is not None and read.ground.any()
+    np.testing.assert_array_equal(read.ground, result.ground)

@@ -59,8 +59,11 @@ class Stage2Config:
     )
     tracking: bool = _setting(
         False, "objects over time: the stream's tracker (pass3d_ros.core.stream.tracks) gives each object a track id "
-        "that persists and a class voted over its recent sightings; /pass3d/detections then carry the track id, class "
-        "and score, /diagnostics tracks alive, born and lost (the labelled cloud keeps each scan's own labels)",
+        "that persists and a class voted over its recent sightings; the object's points take the voted class in "
+        "/pass3d/labeled (and points stage 2 called background on a confirmed track's footprint, its class: "
+        "docs/outputs.md), which gains an int32 track_id field (-1: no confirmed track); /pass3d/detections carry the "
+        "track id, class and score, the markers the id; /diagnostics tracks alive, born and lost. Off by the rule of "
+        "docs/experiments/tracks.md",
     )
     stage2_timeout: float = _setting(
         5.0, "seconds a frame may take in stage 2: a child process (process) that answers nothing this long is killed "

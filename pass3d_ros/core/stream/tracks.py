@@ -2,29 +2,51 @@
 over its sightings instead of one scan's.
 
 A track holds a constant-velocity Kalman filter on its box centre in the ground plane (x, y, vx, vy; AB3DMOT's model
-reduced to the plane stage 1 levels the scan into), its box's height and extent, and its recent sightings' classes and
-confidences. Each scan: every track is predicted to the scan's stamp; detections and tracks are matched by the
-distance of each detection's centre from each track's predicted centre, gated per class (`TrackerConfig.gate_m`; a
-detection of another class than the track's costs `class_penalty_m` more), with the assignment that minimises the
-summed distance (scipy's `linear_sum_assignment`: the Hungarian method, a well-kept C implementation, not ours);
-matched tracks are corrected, unmatched detections start tentative tracks, confirmed after `min_hits` sightings, and
-tracks unseen for `max_misses` scans end. A track's class is the confidence-weighted vote of its last `vote_window`
-sightings: a new track takes its first sighting's class; a change needs the new class to lead the window's vote.
+reduced to the plane stage 1 levels the scan into), its box's height and extent, its last points' footprint (cells of
+the ground plane, `footprints`) and its recent sightings' classes and confidences. Each scan:
+1. Every track is predicted to the scan's stamp, its footprint moved with it.
+2. Detections and tracks are matched with the least summed cost (scipy's `linear_sum_assignment`: the Hungarian
+   method, a well-kept C implementation, not ours). A pair's cost is the distance of the detection's centre from the
+   track's predicted centre, plus `class_penalty_m` for another class and up to `youth_penalty_m` for a young track
+   (of two tracks on one object, the older wins it), times 1 - the share of footprint cells they share. A pair may
+   match within the detection's class gate (`gate_m`), or beyond it when their footprints share `match_overlap` of
+   the smaller one's cells (a partly seen car's box centre jumps by metres while its points stay put).
+3. An unmatched detection lying mostly (`part_overlap` of its cells) on the footprint of a confirmed track that
+   another detection matched is a part of that object (stage 1 cut it in two): it takes that track, and starts none.
+4. Matched tracks are corrected; other unmatched detections start tentative tracks, confirmed after `min_hits`
+   sightings.
+5. A confirmed track that no detection matched (waiting) may be held by the scan's points that stage 2 called
+   background on its predicted footprint (`_hold`): stage 2 missed the object this scan, the track did not.
+6. Tracks unseen (neither matched nor held) for `max_misses` scans end.
+A track's class is the confidence-weighted vote of its last `vote_window` sightings: a new track takes its first
+sighting's class; a change needs the new class to lead the window's vote. Parts and held points do not vote.
 
 With a pose per scan (world from sensor, 4 x 4: odometry), tracks live in the world frame and the ego's own motion is
 no object's; without one, in the sensor's frame, where the filter's velocity absorbs the ego's.
 """
-
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from pass3d_ros.classes import CAR, CYCLIST, NUM_CLASSES, PEDESTRIAN
+from pass3d_ros.core.stream.footprints import (
+    CELL_M,
+    MAX_POINTS,
+    Footprints,
+    cells,
+    grouped_cells,
+    overlap,
+    point_cells,
+    sample,
+    shared_cells,
+)
 
 NO_MATCH = 1e6  # the cost of a pair outside the gate
 
@@ -42,10 +64,31 @@ class TrackerConfig:
     process_accel: float = 3.0  # m/s^2: how fast a road user may change its velocity (the filter's process noise)
     measurement_m: float = 0.3  # a detection centre's error (the filter's measurement noise)
     max_dt_s: float = 1.0  # a gap longer than this predicts no further (a stalled stream)
+    match_overlap: float = 0.3  # a detection sharing this share of the smaller footprint's cells with a track may
+    # match it beyond the centre gate
+    part_overlap: float = 0.5  # an unmatched detection with this share of its cells on a matched track's footprint is
+    # a part of that object (no track of its own)
+    hold_cover: float = 0.3  # a waiting track holds the background points on its footprint when they cover this
+    # share of its cells (and are at least hold_points)
+    hold_points: int = 10  # the least background points that hold a track (MIN_OBJECT_POINTS alike)
+    hold_margin_m: float = 0.5  # the held points' extent may pass the track's remembered size by this much
+    max_held: int = 10  # scans in a row a confirmed track may be held without a detection of its own (and never
+    # more than its sightings: a track seen twice is held twice at most)
+    youth_penalty_m: float = 0.5  # extra cost of matching a new track, falling to 0 at mature_hits sightings: of two
+    # tracks on one object (a duplicate born of a split), the older one wins the object
+    mature_hits: int = 10
+    hold_min_confidence: float = 0.8  # the mean confidence of its voted class's sightings a held track needs (a
+    # track born of a few unsure sightings of clutter is not held on that clutter)
 
     def gate(self, label: int) -> float:
         """The gate of a detection of class `label` (the widest for a class without one)."""
-        return dict(self.gate_m).get(label, max(g for _, g in self.gate_m))
+        return float(self.gates[label])
+
+    @cached_property
+    def gates(self) -> np.ndarray:
+        """The gate of each class id, as `gate` says (one array: a scan looks up every detection's at once)."""
+        widest = max(g for _, g in self.gate_m)
+        return np.array([dict(self.gate_m).get(label, widest) for label in range(NUM_CLASSES)])
 
 
 @dataclass
@@ -60,6 +103,8 @@ class Track:
     votes: deque = field(default_factory=deque)  # (label, confidence) of the recent sightings
     hits: int = 1
     misses: int = 0
+    held: int = 0  # scans in a row the track was held by background points (no detection of its own)
+    offsets: np.ndarray | None = None  # (M, 2) its last points' x, y less its centre: the footprint it carries
     stamp_s: float = 0.0
     _label: int = -1  # the vote's result and its share, made again when a sighting is added
     _score: float = 0.0
@@ -80,6 +125,12 @@ class Track:
         if self._label < 0:
             self._vote()
         return self._score
+
+    def confidence(self) -> float:
+        """The mean confidence of the recent sightings of the voted class."""
+        label = self.label()
+        mine = [confidence for vote, confidence in self.votes if vote == label]
+        return sum(mine) / len(mine) if mine else 0.0
 
     def _vote(self) -> None:
         weight = [0.0] * NUM_CLASSES
@@ -103,6 +154,37 @@ class Tracked:
     confirmed: bool
 
 
+class ScanTracks(NamedTuple):
+    """What the tracker says of a scan: per detection its track; per held track, the background points that hold
+    it (indices into the `background` the scan was given)."""
+
+    detections: list[Tracked]
+    held: list[tuple[Tracked, np.ndarray]]
+
+
+class _Frame:
+    """Sensor frame -> tracking frame: the pose (world from sensor) when known, else none."""
+
+    def __init__(self, pose: np.ndarray | None) -> None:
+        self.pose = None if pose is None else np.asarray(pose, dtype=np.float64)
+
+    def points(self, xyz: np.ndarray) -> np.ndarray:
+        return xyz if self.pose is None else xyz @ self.pose[:3, :3].T + self.pose[:3, 3]
+
+    def to_sensor(self, xyz: np.ndarray) -> np.ndarray:
+        return xyz if self.pose is None else (xyz - self.pose[:3, 3]) @ self.pose[:3, :3]
+
+    def xy(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        return xy if self.pose is None else xy @ self.pose[:2, :2].T + self.pose[:2, 3]
+
+
+def _track_cells(tracks: Sequence[Track]) -> list[np.ndarray]:
+    """Each track's footprint cells where its points are predicted now (none without points), all at once."""
+    offsets = [np.zeros((0, 2)) if t.offsets is None else t.state[:2] + t.offsets for t in tracks]
+    return grouped_cells(np.concatenate(offsets) if offsets else np.zeros((0, 2)), [len(o) for o in offsets])
+
+
 class Tracker:
     """The tracks of one stream (module docstring). `update` takes a scan's detections (centre, size, class,
     confidence) and its stamp, and says each detection's track; `alive`, `born`, `lost` count for diagnostics."""
@@ -124,37 +206,68 @@ class Tracker:
         return sum(1 for t in self.tracks if t.hits >= self.config.min_hits)
 
     def update(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
-               stamp_s: float, pose: np.ndarray | None = None) -> list[Tracked]:
+               stamp_s: float, pose: np.ndarray | None = None,
+               footprints: Footprints | None = None) -> list[Tracked]:
         """One scan: `centers` (K, 3) and `sizes` (K, 3) of its detections in the sensor frame, their classes and
-        confidences, its stamp (s) and, when known, the sensor's pose (world from sensor, 4 x 4)."""
-        centers = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
-        if pose is not None:
-            pose = np.asarray(pose, dtype=np.float64)
-            centers = centers @ pose[:3, :3].T + pose[:3, 3]
+        confidences, its stamp (s), when known the sensor's pose (world from sensor, 4 x 4), and each detection's
+        footprint points (x, y in the sensor frame, `Footprints`). Says each detection's track (`scan` for more)."""
+        return self.scan(centers, sizes, labels, scores, stamp_s, pose, footprints).detections
+
+    def scan(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
+             stamp_s: float, pose: np.ndarray | None = None, footprints: Footprints | None = None,
+             background: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> ScanTracks:
+        """`update`, and with `background` each confirmed track no detection matched may be held by the scan's
+        points stage 2 called background on its predicted footprint (module docstring): `background(centers, reach)`
+        gives those points (B, 3; sensor frame) within `reach` (T,) metres in x and y of the waiting tracks'
+        `centers` (T, 3; sensor frame), and is called only when a track waits."""
+        to_world = _Frame(pose)
+        centers = to_world.points(np.asarray(centers, dtype=np.float64).reshape(-1, 3))
+        sizes = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
+        world = detections = None
+        if footprints is not None:
+            world = Footprints(to_world.xy(footprints.xy), footprints.counts)
+            detections = grouped_cells(world.xy, world.counts)
         self._predict_all(stamp_s)
-        pairs = self._associate(centers, labels)
+        tracks = self._footprints()
+        pairs = self._associate(centers, labels, tracks, detections)
         matched = {d: t for t, d in pairs}
         self._correct_all([self.tracks[t] for t, _ in pairs], centers[[d for _, d in pairs]])
+        parts = self._parts(matched, tracks, detections)
         out: list[Tracked] = []
         seen: set[int] = set()
         for d in range(len(centers)):
             if d in matched:
                 track = self.tracks[matched[d]]
                 self._sighted(track, centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
+            elif d in parts:
+                track = self.tracks[parts[d]]
             else:
                 track = self._birth(centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
             seen.add(track.track_id)
             out.append(Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits))
+        if footprints is not None:
+            self._keep_footprints(out, world)
+        held_out = self._hold(background, seen, stamp_s, to_world) if background is not None else []
         for track in self.tracks:
             if track.track_id not in seen:
                 track.misses += 1
         ended = [t for t in self.tracks if t.misses > self.config.max_misses]
         self.lost += sum(1 for t in ended if t.hits >= self.config.min_hits)
         self.tracks = [t for t in self.tracks if t.misses <= self.config.max_misses]
-        return out
+        return ScanTracks(out, held_out)
 
-    def _associate(self, centers: np.ndarray, labels: Sequence[int]) -> list[tuple[int, int]]:
-        """(track index, detection index) pairs: the least summed distance within each detection's gate."""
+    def _footprints(self) -> list[np.ndarray] | None:
+        """Each track's footprint cells where its points are predicted now (its last points moved with its filter);
+        an empty footprint for a track without points; None when no track has any."""
+        if not any(t.offsets is not None for t in self.tracks):
+            return None
+        return _track_cells(self.tracks)
+
+    def _associate(self, centers: np.ndarray, labels: Sequence[int], tracks: list[np.ndarray] | None = None,
+                   detections: list[np.ndarray] | None = None) -> list[tuple[int, int]]:
+        """(track index, detection index) pairs: the least summed cost, a pair's cost its centre distance (plus
+        class_penalty_m for another class) times 1 - the share of footprint cells it shares; a pair may match
+        within the detection's gate, or beyond it when its footprints share match_overlap of their cells."""
         if not self.tracks or len(centers) == 0:
             return []
         predicted = np.array([t.state[:2] for t in self.tracks])
@@ -162,10 +275,90 @@ class Tracker:
         track_labels = np.array([t.label() for t in self.tracks])
         det_labels = np.asarray(labels)
         cost = cost + self.config.class_penalty_m * (track_labels[:, None] != det_labels[None, :])
-        gates = np.array([self.config.gate(int(k)) for k in det_labels])
-        cost = np.where(cost <= gates[None, :], cost, NO_MATCH)
+        allowed = cost <= self.config.gates[det_labels][None, :]
+        if tracks is not None and detections is not None:
+            share = overlap(tracks, detections)
+            allowed |= share >= self.config.match_overlap
+            cost = cost * (1.0 - share)
+        hits = np.array([t.hits for t in self.tracks], dtype=np.float64)
+        cost = cost + self.config.youth_penalty_m * np.clip(1.0 - hits / self.config.mature_hits, 0.0, 1.0)[:, None]
+        cost = np.where(allowed, cost, NO_MATCH)
         rows, cols = linear_sum_assignment(cost)
         return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if cost[r, c] < NO_MATCH]
+
+    def _parts(self, matched: dict[int, int], tracks: list[np.ndarray] | None,
+               detections: list[np.ndarray] | None) -> dict[int, int]:
+        """Unmatched detections that are part of a confirmed track another detection matched this scan: most of
+        their cells (part_overlap) on the track's footprint (a car stage 1 cut in two). detection -> track index."""
+        if tracks is None or detections is None:
+            return {}
+        taken = sorted(set(matched.values()))
+        free = [d for d in range(len(detections)) if d not in matched]
+        confirmed = [t for t in taken if self.tracks[t].hits >= self.config.min_hits]
+        if not free or not confirmed:
+            return {}
+        shared = shared_cells([tracks[t] for t in confirmed], [detections[d] for d in free])
+        share = shared / np.maximum([len(detections[d]) for d in free], 1)[None, :]
+        best = np.argmax(share, axis=0)
+        return {d: confirmed[int(best[k])] for k, d in enumerate(free)
+                if share[best[k], k] >= self.config.part_overlap}
+
+    def _keep_footprints(self, out: list[Tracked], world: Footprints) -> None:
+        """Each seen track's footprint: its detections' points (parts included; tracking frame) as offsets from its
+        centre."""
+        owner = np.repeat(np.array([t.track_id for t in out], dtype=np.int64), world.counts)
+        if not len(owner):
+            return
+        order = np.argsort(owner, kind="stable")
+        ids, starts = np.unique(owner[order], return_index=True)
+        pieces = np.split(world.xy[order], starts[1:])
+        by_id = dict(zip(ids.tolist(), pieces, strict=True))
+        for track in self.tracks:
+            if track.track_id in by_id:
+                track.offsets = sample(by_id[track.track_id], 2 * MAX_POINTS) - track.state[:2]
+
+    def _hold(self, background: Callable[[np.ndarray, np.ndarray], np.ndarray], seen: set[int], stamp_s: float,
+              to_world: _Frame) -> list[tuple[Tracked, np.ndarray]]:
+        """The confirmed tracks no detection matched (waiting), oldest first: each is held
+        by the background points in the cells of its predicted footprint when there are at least hold_points of them,
+        they cover hold_cover of its cells and their extent is within hold_margin_m of its remembered size. A held
+        track is corrected by their centre, keeps its class, counts no sighting and no miss, and keeps the footprint
+        of its last detection (held points never grow it: a track beside a wall would creep along the wall); it may
+        be held at most max_held scans in a row. A point holds one track at most."""
+        waiting = [t for t in self.tracks if t.track_id not in seen and t.offsets is not None
+                   and t.hits >= self.config.min_hits
+                   and t.held < min(self.config.max_held, t.hits) and t.confidence() >= self.config.hold_min_confidence]
+        if not waiting:
+            return []
+        reach = np.array([np.abs(t.offsets).max() + CELL_M for t in waiting])
+        centers = to_world.to_sensor(np.array([[*t.state[:2], t.z] for t in waiting]))
+        xyz = to_world.points(np.asarray(background(centers, reach), dtype=np.float64).reshape(-1, 3))
+        out: list[tuple[Tracked, np.ndarray]] = []
+        free = np.ones(len(xyz), bool)
+        for track, footprint in zip(waiting, _track_cells(waiting), strict=True):
+            reach = np.abs(track.offsets).max(axis=0) + CELL_M
+            near = np.flatnonzero(free & np.all(np.abs(xyz[:, :2] - track.state[:2]) <= reach, axis=1))
+            if len(near) < self.config.hold_points:
+                continue
+            keys = point_cells(xyz[near, :2])
+            mine = near[np.isin(keys, footprint)]
+            if len(mine) < self.config.hold_points:
+                continue
+            if len(np.intersect1d(cells(xyz[mine, :2]), footprint)) < self.config.hold_cover * len(footprint):
+                continue
+            extent = np.ptp(xyz[mine], axis=0)
+            length = max(track.size[0], track.size[1]) + self.config.hold_margin_m
+            if np.hypot(extent[0], extent[1]) > np.hypot(length, length) or extent[2] > track.size[2] + 0.5:
+                continue
+            free[mine] = False
+            center = (xyz[mine].min(axis=0) + xyz[mine].max(axis=0)) / 2
+            self._correct_all([track], center[None, :])
+            track.held += 1
+            track.misses = 0
+            track.z, track.stamp_s = float(center[2]), stamp_s
+            seen.add(track.track_id)
+            out.append((Tracked(track.track_id, track.label(), track.score(), True), mine))
+        return out
 
     def _birth(self, center: np.ndarray, size: tuple, label: int, score: float, stamp_s: float) -> Track:
         r = self.config.measurement_m ** 2
@@ -217,5 +410,6 @@ class Tracker:
         track.sighting(label, score)
         track.hits += 1
         track.misses = 0
+        track.held = 0
         if track.hits == self.config.min_hits:
             self.born += 1

@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from pass3d_ros.classes import CAR, PEDESTRIAN
+from pass3d_ros.core.stream.footprints import Footprints
 from pass3d_ros.core.stream.tracks import Tracker, TrackerConfig
 
 SIZE = {CAR: (4.0, 1.7, 1.5), PEDESTRIAN: (0.6, 0.6, 1.7)}
@@ -84,3 +85,32 @@ def test_sixty_objects_a_scan_cost_well_under_ten_milliseconds() -> None:
         took.append(time.perf_counter() - began)
     assert len({o.track_id for o in out}) == 60
     assert np.median(took) < 0.01
+
+
+def car_points(x: float, y: float, rng: np.random.Generator, n: int = 60) -> np.ndarray:
+    """x, y of `n` points on a 4 x 1.7 m car centred at (x, y)."""
+    return np.column_stack([rng.uniform(-2.0, 2.0, n) + x, rng.uniform(-0.85, 0.85, n) + y])
+
+
+def test_a_car_cut_in_two_stays_one_track_and_a_jumping_box_keeps_its_id() -> None:
+    rng = np.random.default_rng(1)
+    tracker = Tracker()
+    for k in range(3):
+        whole = car_points(20.0, 4.0, rng)
+        out = tracker.update([[20.0, 4.0, -1.0]], [SIZE[CAR]], [CAR], [0.9], 0.1 * k, footprints=Footprints.of([whole]))
+    car = out[0].track_id
+    front, back = car_points(21.0, 4.0, rng, 30), car_points(19.0, 4.0, rng, 30)
+    front, back = front[front[:, 0] > 20.0], back[back[:, 0] <= 20.0]
+    cut = tracker.update([[21.0, 4.0, -1.0], [19.0, 4.0, -1.0]], [(2.0, 1.7, 1.5)] * 2, [CAR, PEDESTRIAN],
+                         [0.9, 0.6], 0.3, footprints=Footprints.of([front, back]))
+    assert [t.track_id for t in cut] == [car, car] and [t.label for t in cut] == [CAR, CAR]
+    assert len(tracker.tracks) == 1, "a part starts no track of its own"
+    # only the car's rear seen, its box centre 3.5 m from the prediction (beyond the 3 m gate): its points match
+    rear = car_points(20.0, 4.0, rng)
+    rear = rear[rear[:, 0] < 18.5]
+    jumped = tracker.update([[16.5, 4.0, -1.0]], [(1.0, 1.7, 1.5)], [CAR], [0.9], 0.4, footprints=Footprints.of([rear]))
+    assert jumped[0].track_id == car
+    without = Tracker()  # without footprints the same jump is a new object
+    for k in range(3):
+        without.update([[20.0, 4.0, -1.0]], [SIZE[CAR]], [CAR], [0.9], 0.1 * k)
+    assert without.update([[16.5, 4.0, -1.0]], [(1.0, 1.7, 1.5)], [CAR], [0.9], 0.4)[0].track_id != car

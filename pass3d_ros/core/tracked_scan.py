@@ -1,0 +1,210 @@
+"""A scan's published objects through the stream's tracker: each object's track id, the track's voted class and score,
+and the vote applied to the object's points, so the labelled cloud, the markers and the detections tell one story.
+
+The vote on points (docs/outputs.md, "With tracking on"): every point of an object (its cluster id and scan-by-scan
+class, `core.objects.frame_objects`) takes the class its track voted (`Track.label`: a new track keeps its first
+sighting's class; a change needs the new class to lead the confidence-weighted vote of the last `vote_window`
+sightings). A part of a tracked object (stage 1 cut it in two) takes that object's track. With the scan's points, a
+confirmed track that no object matched may be held by the points stage 2 called background on its predicted
+footprint (core.stream.tracks): they become one object of the track's class and id, with a cluster id of its own (the
+proposal holding most of them, as its next split part). Cluster ids otherwise stay; an object stays one object. A
+track's id is published once it is confirmed (`min_hits` sightings); before, -1.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from pass3d_ros.classes import BACKGROUND
+from pass3d_ros.core.objects import (
+    IMPLAUSIBLE_SCORE,
+    SPLIT_ID_STRIDE,
+    FrameObjects,
+    LabelledObject,
+    boxed_objects,
+    plausible_size,
+)
+from pass3d_ros.core.stream.footprints import MAX_POINTS, Footprints, group_sample
+from pass3d_ros.core.stream.tracks import Tracked, Tracker
+
+NO_TRACK = -1  # the track id of a point or object in no confirmed track
+MAX_TABLE = 1 << 16  # object_points looks cluster ids below this up in a table
+GOLDEN = 0.6180339887498949  # index times this, modulo 1: a fixed, evenly spread pseudo-random number per point
+HELD_SCORE = 0.5  # a held object's score is its track's vote share times this (stage 2 did not see it)
+
+
+@dataclass(frozen=True)
+class TrackedScan:
+    """A scan's objects after the tracker: `voted` is what the nodes publish with tracking on (labels with the vote
+    applied, the same cluster ids, objects with the voted class and score and their track id); `track_id` per point
+    (NO_TRACK: in no object, or in a tentative track's); `tracked` what the tracker said of each object, in order;
+    `ms` the time the tracker and the vote took."""
+
+    voted: FrameObjects
+    track_id: np.ndarray  # (N,) int32
+    tracked: list[Tracked]
+    ms: float = 0.0
+
+
+def object_points(objects: FrameObjects) -> tuple[np.ndarray, np.ndarray]:
+    """The points that belong to an object and, for each, its object's index in `objects.objects`: the road-user
+    points whose cluster id is an object's (the one-object rule makes that exactly the object's points). Only the
+    road-user points are looked up: ids below MAX_TABLE (a proposal's first object) in a table, the others (split
+    parts, a few) by binary search (numpy's searchsorted took 1-2 ms for all of a scan's 18k road-user points)."""
+    road = np.flatnonzero(objects.labels != BACKGROUND)
+    if not objects.objects or len(road) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    ids = np.array([obj.cluster_id for obj in objects.objects], dtype=np.int64)
+    point_ids = objects.cluster_id[road]
+    small = (ids >= 0) & (ids < MAX_TABLE)
+    table = np.full(int(ids[small].max(initial=-1)) + 1, -1, np.int64)
+    table[ids[small]] = np.flatnonzero(small)
+    owner = np.full(len(road), -1, np.int64)
+    low = (point_ids >= 0) & (point_ids < len(table))
+    owner[low] = table[point_ids[low]]
+    rest = np.flatnonzero(~low)
+    if len(rest) and not small.all():
+        others = np.flatnonzero(~small)
+        order = others[np.argsort(ids[others], kind="stable")]
+        wanted = point_ids[rest].astype(np.int64)
+        at = np.minimum(np.searchsorted(ids[order], wanted), len(order) - 1)
+        owner[rest] = np.where(ids[order][at] == wanted, order[at], -1)
+    hit = owner >= 0
+    return road[hit], owner[hit]
+
+
+def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np.ndarray | None = None,
+               level: np.ndarray | None = None, points: np.ndarray | None = None,
+               ground: np.ndarray | None = None) -> TrackedScan:
+    """Update `tracker` with one scan's published `objects` (boxes in stage 1's level frame, `level` the rotation from
+    the sensor's frame to it, None when not levelled) at `stamp_s` seconds, with the sensor's pose (world from sensor,
+    4 x 4) when known; return the objects, labels and per-point track ids with the vote applied. With the scan's
+    `points` (level frame, as the objects were fitted; `ground`: stage 1's ground mask, when known) the tracker also
+    matches by footprints, takes parts of a tracked object as that object, and lets a confirmed track no object
+    matched be held by the points stage 2 called background on its footprint (module docstring)."""
+    started = time.perf_counter()
+    centers = np.array([obj.center for obj in objects.objects], dtype=np.float64).reshape(-1, 3)
+    sizes = np.array([obj.size for obj in objects.objects], dtype=np.float64).reshape(-1, 3)
+    back = None if level is None else np.asarray(level, dtype=np.float64)  # rows @ level: level -> sensor
+    if back is not None:
+        centers = centers @ back
+    members, owner = object_points(objects)
+    footprints = background = None
+    if points is not None:
+        footprints = _footprints(points, members, owner, len(objects.objects), back)
+        background = Background(objects, points, ground, back)
+    said = tracker.scan(centers, sizes, [obj.label for obj in objects.objects],
+                        [obj.score for obj in objects.objects], stamp_s, pose, footprints, background)
+    tracked = said.detections
+    voted_class = np.array([t.label for t in tracked], dtype=np.uint8)
+    published_id = np.array([t.track_id if t.confirmed else NO_TRACK for t in tracked], dtype=np.int32)
+    labels = objects.labels.copy()
+    labels[members] = voted_class[owner]
+    track_id = np.full(len(labels), NO_TRACK, np.int32)
+    track_id[members] = published_id[owner]
+    voted_objects = [_voted(obj, t, int(published_id[k])) for k, (obj, t) in
+                     enumerate(zip(objects.objects, tracked, strict=True))]
+    cluster_id = objects.cluster_id
+    if said.held and background is not None and points is not None:
+        cluster_id = cluster_id.copy()
+        voted_objects += _held_objects(points, objects, [(t, background.index[m]) for t, m in said.held], labels,
+                                       cluster_id, track_id)
+    voted = FrameObjects(labels, cluster_id, voted_objects, objects.groups_split)
+    return TrackedScan(voted, track_id, tracked, 1e3 * (time.perf_counter() - started))
+
+
+def _sensor_xy(points: np.ndarray, back: np.ndarray | None) -> np.ndarray:
+    """The points' x, y in the sensor's frame (level-frame points turned back when the scan was levelled)."""
+    xyz = np.asarray(points[:, :3], dtype=np.float64)
+    return xyz[:, :2] if back is None else (xyz @ back)[:, :2]
+
+
+def _footprints(points: np.ndarray, members: np.ndarray, owner: np.ndarray, count: int,
+                back: np.ndarray | None) -> Footprints:
+    """Each object's footprint points (x, y in the sensor frame, about footprints.MAX_POINTS of them at most): first
+    thinned to twice that share of each object's points (a fixed hash of the point's index, no sort of all of them),
+    then evenly spaced."""
+    if not count:
+        return Footprints(np.zeros((0, 2)), np.zeros(0, np.int64))
+    share = np.minimum(1.0, 2 * MAX_POINTS / np.maximum(np.bincount(owner, minlength=count), 1))
+    thin = np.modf(members * GOLDEN)[0] < share[owner]
+    members, owner = members[thin], owner[thin]
+    order = np.argsort(owner, kind="stable")
+    group = owner[order]
+    keep = group_sample(group)
+    return Footprints(_sensor_xy(points[members[order][keep]], back), np.bincount(group[keep], minlength=count))
+
+
+class Background:
+    """The points a waiting track may be held by: those labelled background, off the ground (stage 1's mask, when
+    known), near the waiting tracks; made only when a track waits. `index`: the returned points' indices into the
+    scan."""
+
+    def __init__(self, objects: FrameObjects, points: np.ndarray, ground: np.ndarray | None,
+                 back: np.ndarray | None) -> None:
+        self.objects, self.points, self.ground, self.back = objects, points, ground, back
+        self.index = np.zeros(0, np.int64)
+
+    def __call__(self, centers: np.ndarray, reach: np.ndarray) -> np.ndarray:
+        """The points within `reach` (T,) metres in x and y of any of `centers` (T, 3; sensor frame), x, y, z in the
+        sensor's frame."""
+        centers = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+        if self.back is not None:
+            centers = centers @ self.back.T  # sensor -> level, where the points are
+        reach = np.asarray(reach, dtype=np.float64)
+        low, high = (centers[:, :2] - reach[:, None]).min(axis=0), (centers[:, :2] + reach[:, None]).max(axis=0)
+        xy = self.points[:, :2]
+        index = np.flatnonzero((xy[:, 0] >= low[0]) & (xy[:, 0] <= high[0]) & (xy[:, 1] >= low[1])
+                               & (xy[:, 1] <= high[1]))  # one pass over the scan, then only the points near them
+        keep = self.objects.labels[index] == BACKGROUND
+        if self.ground is not None:
+            keep &= ~np.asarray(self.ground, dtype=bool)[index]
+        index = index[keep]
+        near = np.zeros(len(index), bool)
+        for center, r in zip(centers, reach, strict=True):
+            near |= (np.abs(xy[index, 0] - center[0]) <= r) & (np.abs(xy[index, 1] - center[1]) <= r)
+        self.index = index[near]
+        xyz = np.asarray(self.points[self.index, :3], dtype=np.float64)
+        return xyz if self.back is None else xyz @ self.back
+
+
+def _held_objects(points: np.ndarray, objects: FrameObjects, held: list[tuple[Tracked, np.ndarray]],
+                  labels: np.ndarray, cluster_id: np.ndarray, track_id: np.ndarray) -> list[LabelledObject]:
+    """The background points that held a track as one object each, of the track's class and id: their labels,
+    track ids and cluster ids set (the proposal holding most of them, as its next free part: core.objects' split ids;
+    points mostly in no proposal get a proposal id no point of the scan carries), a box fitted to them, score the
+    track's vote share times HELD_SCORE."""
+    used: dict[int, set[int]] = {}
+    for obj in objects.objects:
+        used.setdefault(obj.proposal_id, set()).add(obj.cluster_id // SPLIT_ID_STRIDE)
+    known = cluster_id[cluster_id >= 0] % SPLIT_ID_STRIDE
+    fresh = int(known.max(initial=-1)) + 1  # a proposal id no point carries, for points mostly in no proposal
+    parts = []
+    for tracked, members in held:
+        ids, counts = np.unique(cluster_id[members], return_counts=True)
+        base = int(ids[np.argmax(counts)])
+        if base < 0 or base >= SPLIT_ID_STRIDE:
+            base, fresh = fresh, fresh + 1
+        taken = used.setdefault(base, set())
+        part = 0 if 0 not in taken else max(taken) + 1
+        taken.add(part)
+        parts.append((tracked.label, base + part * SPLIT_ID_STRIDE, members))
+    out = []
+    for obj, (tracked, members) in zip(boxed_objects(points, parts, np.ones(len(points), np.float32)), held,
+                                       strict=True):
+        labels[members] = tracked.label
+        track_id[members] = tracked.track_id
+        cluster_id[members] = obj.cluster_id
+        out.append(LabelledObject(obj.center, obj.size, obj.yaw, tracked.label, tracked.score * HELD_SCORE,
+                                  obj.cluster_id, obj.plausible, tracked.track_id))
+    return out
+
+
+def _voted(obj: LabelledObject, tracked: Tracked, track_id: int) -> LabelledObject:
+    """`obj` with its track's class and id; its score the voted class's share of the vote, halved (IMPLAUSIBLE_SCORE)
+    when the box cannot be one object of that class."""
+    plausible = obj.plausible if tracked.label == obj.label else plausible_size(tracked.label, obj.size)
+    score = tracked.score if plausible else tracked.score * IMPLAUSIBLE_SCORE
+    return LabelledObject(obj.center, obj.size, obj.yaw, tracked.label, score, obj.cluster_id, plausible, track_id)

@@ -1,0 +1,154 @@
+"""A scan's published objects through the stream's tracker (core/tracked_scan.py, ScanPipeline with tracking):
+track ids published once confirmed, the vote applied to exactly the object's points, the levelled frame turned back,
+and the pipeline holding one tracker per stream."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
+from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
+from pass3d_ros.core.objects import SPLIT_ID_STRIDE, FrameObjects, LabelledObject
+from pass3d_ros.core.pipeline import ScanPipeline
+from pass3d_ros.core.stage2 import open_classifier
+from pass3d_ros.core.stream.tracks import Tracker
+from pass3d_ros.core.tracked_scan import NO_TRACK, object_points, track_scan
+from pass3d_ros.data.spec import open_dataset
+
+
+def one_scan(person_label: int, person_score: float, x: float) -> FrameObjects:
+    """Ten points: 0-3 a person (cluster 5), 4-5 background in proposal 5, 6-8 a car split off proposal 5
+    (cluster 5 + SPLIT_ID_STRIDE), 9 in no proposal."""
+    labels = np.array([person_label] * 4 + [BACKGROUND] * 2 + [CAR] * 3 + [BACKGROUND], np.uint8)
+    cluster = np.array([5] * 6 + [5 + SPLIT_ID_STRIDE] * 3 + [-1], np.int32)
+    objects = [LabelledObject((x, 2.0, -1.0), (0.6, 0.5, 1.7), 0.0, person_label, person_score, 5),
+               LabelledObject((20.0, -3.0, -1.0), (4.0, 1.7, 1.5), 0.0, CAR, 0.9, 5 + SPLIT_ID_STRIDE)]
+    return FrameObjects(labels, cluster, objects)
+
+
+def test_object_points_are_each_object_s_points_split_ids_too() -> None:
+    points, owner = object_points(one_scan(PEDESTRIAN, 0.8, 10.0))
+    assert points.tolist() == [0, 1, 2, 3, 6, 7, 8] and owner.tolist() == [0, 0, 0, 0, 1, 1, 1]
+    huge = one_scan(PEDESTRIAN, 0.8, 10.0)  # ids too far apart for the table: the binary search finds the same
+    far = 3 * SPLIT_ID_STRIDE + 999_999
+    huge.cluster_id[:6] = far
+    huge.objects[0] = dataclasses.replace(huge.objects[0], cluster_id=far)
+    points, owner = object_points(huge)
+    assert points.tolist() == [0, 1, 2, 3, 6, 7, 8] and owner.tolist() == [0, 0, 0, 0, 1, 1, 1]
+
+
+def test_the_vote_goes_onto_exactly_the_object_s_points_and_ids_wait_for_confirmation() -> None:
+    tracker = Tracker()
+    first = track_scan(tracker, one_scan(PEDESTRIAN, 0.9, 10.0), 0.0)
+    assert first.track_id.tolist() == [NO_TRACK] * 10, "tentative tracks publish no id"
+    assert [obj.track_id for obj in first.voted.objects] == [NO_TRACK, NO_TRACK]
+    for k in range(1, 5):
+        out = track_scan(tracker, one_scan(PEDESTRIAN, 0.9, 10.0 + 0.1 * k), 0.1 * k)
+    weak = track_scan(tracker, one_scan(CAR, 0.5, 10.5), 0.5)  # one weak car sighting of the person
+    assert weak.voted.labels.tolist() == [PEDESTRIAN] * 4 + [BACKGROUND] * 2 + [CAR] * 3 + [BACKGROUND]
+    person, car = weak.voted.objects
+    assert person.label == PEDESTRIAN and car.label == CAR
+    assert person.track_id == out.voted.objects[0].track_id >= 0 and car.track_id >= 0
+    assert person.track_id != car.track_id
+    assert weak.track_id.tolist() == [person.track_id] * 4 + [NO_TRACK] * 2 + [car.track_id] * 3 + [NO_TRACK]
+    assert weak.voted.cluster_id.tolist() == one_scan(CAR, 0.5, 10.5).cluster_id.tolist()
+    assert 0.5 < person.score < 1.0, "the voted class's share of the vote"
+
+
+def test_a_levelled_scan_s_boxes_are_tracked_in_the_sensor_frame() -> None:
+    tracker = Tracker()
+    upside_down = np.diag([1.0, -1.0, -1.0])  # sensor -> level: a roll of 180 degrees
+    track_scan(tracker, one_scan(PEDESTRIAN, 0.9, 10.0), 0.0, level=upside_down)
+    assert np.allclose(tracker.tracks[0].state[:2], [10.0, -2.0])
+    assert tracker.tracks[0].z == pytest.approx(1.0)
+
+
+@pytest.fixture(scope="module")
+def drive() -> list:
+    return list(open_dataset("synthetic:drive=4,seed=5,sensor=hdl32e"))
+
+
+def test_the_pipeline_holds_one_tracker_per_stream(drive: list) -> None:
+    classifier = open_classifier(None, "size_rules")
+    tracking = ScanPipeline(classifier=classifier, tracking=True)
+    plain = ScanPipeline(classifier=classifier)
+    ids = []
+    for frame in drive:
+        tracking.follow("a")
+        out = tracking.run(frame.points, frame.ring, stamp_s=frame.stamp_ns * 1e-9, pose=frame.pose)
+        alone = plain.run(frame.points, frame.ring)
+        assert alone.tracked is None and alone.output is alone.published
+        assert out.tracked is not None and out.output is out.tracked.voted
+        # the same scan-by-scan objects; the vote changes points only into road-user classes: an object's points,
+        # or background points a confirmed track held (with its id)
+        assert np.array_equal(out.published.labels, alone.published.labels)
+        changed = out.output.labels != out.published.labels
+        assert np.all(out.output.labels[changed] != BACKGROUND)
+        held = changed & (out.published.labels == BACKGROUND)
+        assert np.all(out.tracked.track_id[held] >= 0)
+        assert np.all(out.output.labels[out.tracked.track_id >= 0] != BACKGROUND)
+        ids.append({obj.track_id for obj in out.output.objects} - {NO_TRACK})
+    assert ids[0] == set() and len(ids[-1]) >= 3, ids
+    assert len(ids[-1] & (ids[1] | ids[2])) >= 0.7 * len(ids[-1]), "most tracks of the last scan were seen before"
+    tracking.follow("b")  # another stream: its tracks start over
+    again = tracking.run(drive[0].points, drive[0].ring, stamp_s=0.0, pose=drive[0].pose)
+    assert {obj.track_id for obj in again.output.objects} == {NO_TRACK}
+    assert tracking.segmenter.tracker.born == 0
+
+
+def person_scan(x: float, label: int, background: bool = False) -> tuple[FrameObjects, np.ndarray]:
+    """A person of 40 points at (x, 2) standing on 30 ground points, as an object of class `label`, or (`background`)
+    as points stage 2 called background in proposal 3; and the scan's points (level frame)."""
+    rng = np.random.default_rng(int(x * 100))
+    body = np.column_stack([rng.uniform(-0.25, 0.25, 40) + x, rng.uniform(-0.2, 0.2, 40) + 2.0,
+                            rng.uniform(-1.7, 0.0, 40), np.full(40, 0.5)])
+    floor = np.column_stack([rng.uniform(-3, 3, 30) + x, rng.uniform(-3, 3, 30) + 2.0, np.full(30, -1.75),
+                             np.full(30, 0.5)])
+    points = np.concatenate([body, floor]).astype(np.float32)
+    labels = np.array([BACKGROUND if background else label] * 40 + [BACKGROUND] * 30, np.uint8)
+    cluster = np.array([3] * 40 + [-1] * 30, np.int32)
+    objects = [] if background else [LabelledObject((x, 2.0, -0.85), (0.5, 0.4, 1.7), 0.0, label, 0.9, 3)]
+    return FrameObjects(labels, cluster, objects), points
+
+
+def test_a_track_holds_the_background_points_stage_2_missed_on_its_footprint() -> None:
+    tracker = Tracker()
+    ground = np.array([False] * 40 + [True] * 30)
+    for k in range(4):
+        objects, points = person_scan(10.0 + 0.1 * k, PEDESTRIAN)
+        seen = track_scan(tracker, objects, 0.1 * k, points=points, ground=ground)
+    person = seen.voted.objects[0].track_id
+    objects, points = person_scan(10.4, PEDESTRIAN, background=True)  # stage 2 missed the person
+    held = track_scan(tracker, objects, 0.4, points=points, ground=ground)
+    (obj,) = held.voted.objects
+    assert obj.track_id == person and obj.label == PEDESTRIAN and obj.cluster_id == 3
+    assert held.voted.labels.tolist() == [PEDESTRIAN] * 40 + [BACKGROUND] * 30, "the ground stays background"
+    assert held.track_id.tolist() == [person] * 40 + [NO_TRACK] * 30
+    assert tracker.tracks[0].misses == 0 and tracker.tracks[0].held == 1
+    objects, points = person_scan(10.5, PEDESTRIAN, background=True)
+    objects.cluster_id[:40] = -1  # stage 1 proposed none of it: the held object gets an id no point carries
+    again = track_scan(tracker, objects, 0.5, points=points, ground=ground)
+    assert [obj.cluster_id for obj in again.voted.objects] == [0] and again.voted.cluster_id[:40].tolist() == [0] * 40
+
+
+def test_a_track_of_unsure_sightings_is_not_held_and_a_held_track_runs_out() -> None:
+    unsure = Tracker()
+    for k in range(4):
+        objects, points = person_scan(10.0, PEDESTRIAN)
+        objects = FrameObjects(objects.labels, objects.cluster_id,
+                               [dataclasses.replace(objects.objects[0], score=0.6)])
+        track_scan(unsure, objects, 0.1 * k, points=points)
+    objects, points = person_scan(10.0, PEDESTRIAN, background=True)
+    assert track_scan(unsure, objects, 0.4, points=points).voted.objects == [], "mean confidence 0.6 < 0.8"
+    sure = Tracker()
+    for k in range(2):  # seen twice: held twice at most
+        objects, points = person_scan(10.0, PEDESTRIAN)
+        track_scan(sure, objects, 0.1 * k, points=points)
+    held = []
+    for k in range(2, 6):
+        objects, points = person_scan(10.0, PEDESTRIAN, background=True)
+        held.append(len(track_scan(sure, objects, 0.1 * k, points=points).voted.objects))
+    assert held == [1, 1, 0, 0]

@@ -1,0 +1,96 @@
+"""`pass3d_evaluate --tracking` (pass3d_ros.evaluation.tracking): flicker, CLEAR-MOT style id switches and
+fragmentations counted case by case, an instance's sighting taken from the object holding most of its points, and the
+command line's JSON and errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
+from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
+from pass3d_ros.core.tracked_scan import NO_TRACK
+from pass3d_ros.evaluation.tracking import Flicker, Mot, Sighting, instance_sightings, scan_period
+from pass3d_ros.tools import evaluate
+
+
+def seen(track: int, cls: int = CAR) -> Sighting:
+    return Sighting(0.0, cls, cls, track, cls if track != NO_TRACK else BACKGROUND, cls)
+
+
+def test_id_switches_and_fragmentations_are_counted_as_clear_mot_counts_them() -> None:
+    mot = Mot()
+    mot.add([seen(NO_TRACK), seen(4), seen(4), seen(NO_TRACK), seen(4), seen(7), seen(7)], CAR)  # a gap, a switch
+    mot.add([seen(NO_TRACK), seen(2), seen(NO_TRACK), seen(NO_TRACK), seen(9)], CAR)  # a gap that ends in a switch
+    mot.add([seen(5)], CAR)  # seen once: no object-track
+    out = mot.summary()
+    assert (out["id_switches"], out["fragmentations"], out["object_tracks"]) == (2, 2, 2)
+    assert out["id_switches_per_100"] == pytest.approx(100.0) and out["matched"] == 8 and out["sightings"] == 13
+
+
+def test_flicker_counts_class_changes_per_object_per_ten_seconds_of_life() -> None:
+    flicker = Flicker()
+    flicker.add([CAR, BACKGROUND, CAR, CAR], [CAR, CAR, CAR, CAR], 0.4)
+    flicker.add([PEDESTRIAN, CAR], [PEDESTRIAN, PEDESTRIAN], 0.6)
+    flicker.add([CAR], [CAR], 0.1)  # seen once: no object over time
+    out = flicker.summary()
+    assert out["objects"] == 2 and out["changes_scan"] == 3 and out["changes_voted"] == 0
+    assert out["per_10s_scan"] == pytest.approx(30.0) and out["reduction"] == pytest.approx(1.0)
+
+
+def test_an_instance_s_sighting_is_the_object_holding_most_of_its_points() -> None:
+    truth = np.array([CAR] * 14 + [PEDESTRIAN] * 12 + [PEDESTRIAN] * 3, np.uint8)
+    instance = np.array([1] * 14 + [2] * 12 + [3] * 3, np.int32)  # instance 3 is too small to be seen
+    scan = np.array([CAR] * 4 + [PEDESTRIAN] * 6 + [BACKGROUND] * 4 + [BACKGROUND] * 7 + [PEDESTRIAN] * 5
+                    + [PEDESTRIAN] * 3, np.uint8)
+    cluster = np.array([1] * 4 + [8] * 6 + [1] * 4 + [2] * 12 + [3] * 3, np.int32)
+    voted = np.where(cluster == 8, CAR, scan).astype(np.uint8)
+    track = np.array([11] * 4 + [12] * 6 + [NO_TRACK] * 4 + [NO_TRACK] * 12 + [NO_TRACK] * 3, np.int32)
+    out = instance_sightings(truth, instance, scan, voted, cluster, track, 0.5)
+    assert set(out) == {1, 2}
+    car = out[1]  # 4 car points in object 1, 6 pedestrian points in object 8: object 8 holds most
+    assert car.track == 12 and car.object_class_scan == PEDESTRIAN and car.object_class_voted == CAR
+    assert car.scan_class == PEDESTRIAN and car.voted_class == CAR
+    person = out[2]  # 7 of its 12 points background: its class flickers to background; its object is tentative
+    assert person.scan_class == BACKGROUND and person.track == NO_TRACK and person.object_class_scan == PEDESTRIAN
+    voted[14:21] = PEDESTRIAN  # a track held its background points: an object with tracking on, of no class before
+    track[14:21] = 13
+    held = instance_sightings(truth, instance, scan, voted, cluster, track, 0.5)[2]
+    assert held.track == 13 and held.object_class_scan == BACKGROUND and held.object_class_voted == PEDESTRIAN
+
+
+def test_scan_period_is_the_stamps_median_step() -> None:
+    assert scan_period([0, 100_000_000, 200_000_000, 400_000_000]) == pytest.approx(0.1)
+    assert scan_period([5, 5]) is None and scan_period([0]) is None
+
+
+def test_tracking_mode_json(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "tracking.json"
+    args = ["--tracking", "--data", "synthetic:drive=5,seed=3,sensor=hdl32e", "--classifier", "size_rules"]
+    assert evaluate.main([*args, "--json", str(out), "--no-progress"]) == 0
+    data = json.loads(out.read_text())
+    assert data["mode"] == "tracking" and data["frames"] == 5 and data["labelled"]
+    (stream,) = data["streams"].values()
+    assert stream["period_from"] == "stamps" and stream["scan_period_s"] == pytest.approx(0.1)
+    assert stream["frames_with_pose"] == 5
+    assert set(data["iou"]) == {"car", "pedestrian", "cyclist"}
+    assert {"scan", "voted", "difference", "low", "high"} <= set(data["iou"]["car"])
+    assert data["mot"]["object_tracks"] > 0 and data["flicker"]["objects"] > 0
+    assert data["track_flicker"]["objects"] > 0 and len(data["per_frame"]) == 5
+    assert "id switches" in capsys.readouterr().out
+    per_frame = tmp_path / "per_frame.json"
+    assert evaluate.main([*args, "--per-frame-instances", "--scan-rate", "2", "--json", str(per_frame),
+                          "--no-progress"]) == 0
+    data = json.loads(per_frame.read_text())
+    assert "mot" not in data and "flicker" not in data and data["instances"].startswith("per-frame")
+    (stream,) = data["streams"].values()
+    assert stream["period_from"] == "--scan-rate" and stream["scan_period_s"] == pytest.approx(0.5)
+
+
+def test_tracking_options_need_tracking(capsys: pytest.CaptureFixture) -> None:
+    assert evaluate.main(["--data", "synthetic:frames=1", "--scan-rate", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--tracking only" in err[0]
