@@ -13,6 +13,7 @@ import time
 from typing import Any, NamedTuple
 
 import numpy as np
+from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
@@ -48,6 +49,7 @@ from pass3d_ros.ros.input_layout import (
 from pass3d_ros.ros.latest_frame import DROPPED, FrameCounters, LatestFrameWorker, Outcome
 from pass3d_ros.ros.markers import boxes_to_markers
 from pass3d_ros.ros.node_base import LOG_PERIOD_S, PointCloudNode
+from pass3d_ros.ros.odometry import NO_MOUNT, OdometryPoses, sensor_in_base
 from pass3d_ros.ros.proposals import ProposalFrame, dense_ids, nearest_proposals, proposal_frame, source_ids
 from pass3d_ros.ros.qos import INPUT_QOS_HELP, QOS_NAMES, qos_profile
 from pass3d_ros.ros.run import run_nodes
@@ -68,6 +70,11 @@ NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
                          "object (where vision_msgs is installed)", None),
     "label_info_topic": ("/pass3d/label_info", "output: vision_msgs/LabelInfo, the class map (transient local, "
                          "where vision_msgs is installed)", None),
+    "odometry_topic": ("", "input: the robot's nav_msgs/Odometry (empty: none); with tracking on, tracks are kept in "
+                       "its world frame, so the robot's own motion is no object's", None),
+    "sensor_in_base": (NO_MOUNT, "the sensor in the odometry's child frame: x y z roll pitch yaw (m, rad), as a URDF "
+                       "joint's origin states it", None),
+    "odometry_max_gap": (0.2, "a scan takes a pose only from odometry this close to its stamp (s)", (0.0, 10.0)),
     "input_qos": ("auto", INPUT_QOS_HELP, None),
     "output_qos": ("reliable", f"QoS of the outputs: {' or '.join(QOS_NAMES)}", None),
     **parameter_table(),  # stage 2's settings: Stage2Config (pass3d_ros.core.stage2.config)
@@ -150,6 +157,7 @@ class SegmentationNode(PointCloudNode):
     publisher: LatestFrameWorker[Labeled] | None = None  # the publishing thread (overlap and process); a class
     # default, because diagnostics may ask for the counters before __init__ has decided
     detections: DetectionOutputs | None = None  # the vision_msgs publishers; None without vision_msgs
+    odometry: OdometryPoses | None = None  # the robot's poses (odometry_topic, with tracking on)
 
     def __init__(self, in_memory: bool = False, **kwargs: Any) -> None:
         super().__init__(PARAMETERS, **kwargs)
@@ -167,6 +175,7 @@ class SegmentationNode(PointCloudNode):
         # and, with tracking on, the stream's tracker (objects over time: pass3d_ros.core.tracked_scan)
         self.stage2 = ProposalSegmenter(self.classifier, self.settings.intensity_match,
                                         tracking=self.settings.tracking)
+        self.odometry = self._subscribe_odometry()
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.labeled_pub = self.output_publisher(PointCloud2, "labeled_topic")
@@ -185,6 +194,19 @@ class SegmentationNode(PointCloudNode):
         # stage 2 on a thread of this process it only added a third thread taking turns for the GIL.
         if self.overlap and isinstance(self.classifier, ProcessClassifier):
             self.publisher = LatestFrameWorker(self._publish, self._on_error, "publish")
+
+    def _subscribe_odometry(self) -> OdometryPoses | None:
+        """The odometry poses the tracker reads (None without `odometry_topic`, or with tracking off: then unused)."""
+        topic = self.get_parameter("odometry_topic").value
+        if not topic:
+            return None
+        if not self.settings.tracking:
+            self.get_logger().warning(f"odometry_topic {topic} is read only with tracking on: not subscribed")
+            return None
+        poses = OdometryPoses(sensor_in_base(self.get_parameter("sensor_in_base").value),
+                              float(self.get_parameter("odometry_max_gap").value))
+        self.create_subscription(Odometry, topic, poses.add_message, qos_profile("reliable"))
+        return poses
 
     def submit_proposals(self, frame: ProposalFrame) -> None:
         """The in-memory input: stage 1's result for one frame, segmented at once on the caller's thread, or with
@@ -259,6 +281,8 @@ class SegmentationNode(PointCloudNode):
         tracker = self.stage2.tracker
         if tracker is not None:
             values.update({"tracks_alive": tracker.alive, "tracks_born": tracker.born, "tracks_lost": tracker.lost})
+        if self.odometry is not None:
+            values.update({"scans_without_pose": self.odometry.missing, "odometry_rejected": self.odometry.rejected})
         warnings = []
         if isinstance(self.classifier, ProcessClassifier):
             values["stage2_restarts"] = self.classifier.restarts
@@ -396,7 +420,11 @@ class SegmentationNode(PointCloudNode):
         if self.publisher is not None:
             clock.mark("handoff")  # the wait in the publishing thread's slot
         out = published(frame, proposals, result, self.get_parameter("min_confidence").value)
-        tracked = self.stage2.track(out, header_stamp_ns(frame) * 1e-9, level=frame.level,
+        pose = None if self.odometry is None else self.odometry.pose_at(header_stamp_ns(frame))
+        if self.odometry is not None and pose is None:
+            self.get_logger().warning("no odometry within odometry_max_gap of the scan: tracked in the sensor's frame",
+                                      throttle_duration_sec=LOG_PERIOD_S)
+        tracked = self.stage2.track(out, header_stamp_ns(frame) * 1e-9, pose=pose, level=frame.level,
                                     points=frame.level_points(), ground=frame.ground)
         out = out if tracked is None else tracked.voted
         clock.mark("compute")  # the objects, the labels and ids they settle, and with tracking on the vote

@@ -26,7 +26,8 @@ IMPORTS = {
     "rcl_interfaces": ("ros-jazzy-rclpy", "rcl_interfaces"),
     "ament_index_python": ("ros-jazzy-rclpy", "ament_index_python"),
     **{name: ("ros-jazzy-common-interfaces", name) for name in (
-        "builtin_interfaces", "std_msgs", "sensor_msgs", "geometry_msgs", "visualization_msgs", "diagnostic_msgs")},
+        "builtin_interfaces", "std_msgs", "sensor_msgs", "geometry_msgs", "visualization_msgs", "diagnostic_msgs",
+        "nav_msgs")},
 }
 # Imported only where guarded, never needed to run: not runtime dependencies.
 OPTIONAL = {"rerun": "pass3d_view (the `view` extra)", "pypatchworkpp": "a benchmark's side-by-side peer",

@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from helpers.ros import STAMP0, Collector, columns, connect, ros_session, scan_message, wait_until
+from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import Marker, MarkerArray
 
 import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
 from pass3d_ros.classes import BACKGROUND, CAR
+from pass3d_ros.core.pipeline import ProposalSegmenter
 from pass3d_ros.core.tracked_scan import NO_TRACK
 from pass3d_ros.data.spec import open_dataset
 from pass3d_ros.ros.inprocess import in_memory_factories
@@ -92,3 +94,55 @@ def test_without_tracking_the_labelled_cloud_has_no_track_id(monkeypatch: pytest
     assert all(obj.track_id == NO_TRACK for objects in published for obj in objects)
     texts = {m.text for m in markers[-1].markers if m.type == Marker.TEXT_VIEW_FACING}
     assert texts <= {"car", "pedestrian", "cyclist"}
+
+
+def odometry_message(pose: np.ndarray, stamp_ns: int) -> Odometry:
+    """A nav_msgs/Odometry holding `pose` (world from base) at `stamp_ns`."""
+    msg = Odometry()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+    p = msg.pose.pose
+    p.position.x, p.position.y, p.position.z = (float(v) for v in pose[:3, 3])
+    r = pose[:3, :3]
+    w = 0.5 * np.sqrt(max(1e-12, 1.0 + np.trace(r)))
+    p.orientation.w = float(w)
+    p.orientation.x = float((r[2, 1] - r[1, 2]) / (4 * w))
+    p.orientation.y = float((r[0, 2] - r[2, 0]) / (4 * w))
+    p.orientation.z = float((r[1, 0] - r[0, 1]) / (4 * w))
+    return msg
+
+
+def test_odometry_gives_the_tracker_the_sensors_pose(monkeypatch: pytest.MonkeyPatch, scans: list) -> None:
+    """With odometry_topic, each scan reaches the tracker with the pose the odometry gave at its stamp (the drive's
+    own poses, the sensor at the odometry frame's origin); a scan without odometry near it is counted."""
+    given: list = []
+    original = ProposalSegmenter.track
+
+    def recording(self, objects, stamp_s=None, pose=None, **kwargs):
+        given.append(pose)
+        return original(self, objects, stamp_s, pose, **kwargs)
+
+    monkeypatch.setattr(ProposalSegmenter, "track", recording)
+    with ros_session() as ros:
+        cluster, segmentation = in_memory_factories()
+        ros.add(cluster(context=ros.context))
+        node = ros.add(segmentation(context=ros.context, parameter_overrides=[
+            Parameter("classifier", value="size_rules"), Parameter("tracking", value=True),
+            Parameter("odometry_topic", value="/odom")]))
+        labeled = Collector(ros, PointCloud2, "/pass3d/labeled")
+        pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+        odom = ros.probe.create_publisher(Odometry, "/odom", qos_profile("reliable"))
+        connect(pub, labeled)
+        assert wait_until(lambda: odom.get_subscription_count() > 0, timeout=5.0)
+        for k, frame in enumerate(scans[:3]):
+            stamp = STAMP0 + (k * 100_000_000 if k < 2 else 1_000_000_000)
+            if k < 2:  # the last scan comes 0.9 s after the last odometry, beyond odometry_max_gap
+                odom.publish(odometry_message(frame.pose, stamp))
+                assert wait_until(lambda k=k: node.odometry is not None and len(node.odometry._stamps) == k + 1,
+                                  timeout=5.0)
+            pub.publish(scan_message(frame, stamp))
+            labeled.wait(k + 1)
+    assert len(given) == 3
+    for pose, frame in zip(given[:2], scans[:2], strict=True):
+        np.testing.assert_allclose(pose, frame.pose, atol=1e-6)
+    assert given[2] is None and node.odometry.missing == 1

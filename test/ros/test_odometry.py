@@ -1,0 +1,67 @@
+"""The sensor's pose at a scan from odometry messages (pass3d_ros.ros.odometry): interpolated between the messages
+around the stamp, the nearest within the gap, none beyond it, the sensor placed on the robot by sensor_in_base."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pass3d_ros.ros.odometry import OdometryPoses, sensor_in_base, transform_from_xyzrpy
+
+S = 1_000_000_000
+
+
+def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
+    return (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+
+
+def test_a_scan_between_two_messages_takes_the_interpolated_pose() -> None:
+    poses = OdometryPoses(max_gap_s=0.2)
+    poses.add(10 * S, (0.0, 0.0, 0.0), yaw_quaternion(0.0))
+    poses.add(10 * S + S // 10, (1.0, 2.0, 0.0), yaw_quaternion(math.pi / 2))
+    pose = poses.pose_at(10 * S + S // 20)
+    np.testing.assert_allclose(pose[:3, 3], (0.5, 1.0, 0.0), atol=1e-9)
+    np.testing.assert_allclose(pose[:3, :3], transform_from_xyzrpy((0, 0, 0, 0, 0, math.pi / 4))[:3, :3], atol=1e-9)
+
+
+def test_the_nearest_message_within_the_gap_else_none_and_counted() -> None:
+    poses = OdometryPoses(max_gap_s=0.2)
+    poses.add(10 * S, (3.0, 0.0, 0.0), yaw_quaternion(0.0))
+    np.testing.assert_allclose(poses.pose_at(10 * S + S // 10)[:3, 3], (3.0, 0.0, 0.0))
+    assert poses.pose_at(10 * S + S // 2) is None
+    assert poses.pose_at(9 * S) is None
+    assert poses.missing == 2
+
+
+def test_the_sensor_is_placed_on_the_robot() -> None:
+    """A sensor 1 m ahead of the base and 2 m up, the robot turned 90 degrees: the sensor sits at y = 1 in the
+    world, z = 2, and its x axis points along the world's y."""
+    poses = OdometryPoses(sensor_in_base("1 0 2 0 0 0"))
+    poses.add(S, (0.0, 0.0, 0.0), yaw_quaternion(math.pi / 2))
+    pose = poses.pose_at(S)
+    np.testing.assert_allclose(pose[:3, 3], (0.0, 1.0, 2.0), atol=1e-9)
+    np.testing.assert_allclose(pose[:3, 0], (0.0, 1.0, 0.0), atol=1e-9)
+
+
+def test_bad_messages_are_counted_and_never_held() -> None:
+    poses = OdometryPoses()
+    assert not poses.add(S, (float("nan"), 0.0, 0.0), yaw_quaternion(0.0))
+    assert not poses.add(S, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
+    assert poses.rejected == 2
+    assert poses.pose_at(S) is None
+
+
+def test_only_the_last_seconds_are_held() -> None:
+    poses = OdometryPoses(hold_s=2.0)
+    for k in range(50):
+        poses.add(k * S // 10, (float(k), 0.0, 0.0), yaw_quaternion(0.0))
+    assert poses.pose_at(S // 10) is None  # 4.8 s before the last message: let go
+    assert poses.pose_at(49 * S // 10) is not None
+
+
+@pytest.mark.parametrize("text", ["1 2 3", "a b c d e f", "0 0 0 0 0 nan"])
+def test_a_bad_sensor_in_base_names_itself(text: str) -> None:
+    with pytest.raises(ValueError, match="sensor_in_base"):
+        sensor_in_base(text)
