@@ -24,7 +24,7 @@ from pass3d_ros.core.stage2.segmentation import SegmentResult
 from pass3d_ros.core.stream import PreparedScan, ScanStream
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stream.intensity_match import IntensityMap, StreamIntensityMatch
-from pass3d_ros.core.stream.tracks import Tracker
+from pass3d_ros.core.stream.tracks import Tracker, TrackerConfig
 from pass3d_ros.core.tracked_scan import TrackedScan, track_scan
 
 NOMINAL_SCAN_PERIOD_S = 0.1  # a scan without a stamp comes this long after the last (a 10 Hz LiDAR's revolution)
@@ -142,11 +142,12 @@ class ProposalSegmenter:
     (`track`). The segmentation node holds one; a `ScanPipeline` holds one."""
 
     def __init__(self, classifier: Classifier, intensity_match: bool = INTENSITY_MATCH,
-                 match: StreamIntensityMatch | None = None, tracking: bool = False) -> None:
+                 match: StreamIntensityMatch | None = None, tracking: bool = False,
+                 tracker_config: TrackerConfig | None = None) -> None:
         self.classifier = classifier
         self.intensity_match = matches_intensity(intensity_match, classifier)
         self.match = match if match is not None else StreamIntensityMatch()
-        self.tracker = Tracker() if tracking else None
+        self.tracker = Tracker(tracker_config) if tracking else None
         self._last_stamp_s: float | None = None
 
     def track(self, objects: FrameObjects, stamp_s: float | None = None, pose: np.ndarray | None = None,

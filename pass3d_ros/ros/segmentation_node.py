@@ -174,7 +174,8 @@ class SegmentationNode(PointCloudNode):
         # stage 2's share of the one door: the stream's intensity map onto the training scale, then the classifier
         # and, with tracking on, the stream's tracker (objects over time: pass3d_ros.core.tracked_scan)
         self.stage2 = ProposalSegmenter(self.classifier, self.settings.intensity_match,
-                                        tracking=self.settings.tracking)
+                                        tracking=self.settings.tracking,
+                                        tracker_config=self.settings.tracker_config())
         self.odometry = self._subscribe_odometry()
         self.add_on_set_parameters_callback(self._on_set_parameters)
 

@@ -5,15 +5,18 @@ allowed range is written. The segmentation node declares one parameter per field
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
+from pass3d_ros.classes import CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.core.stage1.config import refuse_problems, refuse_unknown
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
+from pass3d_ros.core.stream.tracks import TrackerConfig
 from pass3d_ros.core.threads import DEFAULT_THREADS
 
 CLASSIFIERS: tuple[str, ...] = ("network", "size_rules")
+_TRACKER = TrackerConfig()  # the tracker's defaults, read once for the track_* settings below
 DEFAULT_CLASSIFIER = "network"
 
 ParameterEntry = tuple[Any, str, "tuple[float, float] | None"]  # (default, description, closed range or None)
@@ -65,6 +68,25 @@ class Stage2Config:
         "track id, class and score, the markers the id; /diagnostics tracks alive, born and lost. Off by the rule of "
         "docs/experiments/tracks.md",
     )
+    track_gate_car: float = _setting(
+        _TRACKER.gate(CAR), "tracking: a car detection's centre may lie this far from a track's prediction (m)",
+        (0.1, 50.0),
+    )
+    track_gate_pedestrian: float = _setting(
+        _TRACKER.gate(PEDESTRIAN), "tracking: the same for a pedestrian (m)", (0.1, 50.0),
+    )
+    track_gate_cyclist: float = _setting(
+        _TRACKER.gate(CYCLIST), "tracking: the same for a cyclist (m)", (0.1, 50.0),
+    )
+    track_min_hits: int = _setting(
+        _TRACKER.min_hits, "tracking: sightings before a track is confirmed and its id published", (1, 100),
+    )
+    track_max_misses: int = _setting(
+        _TRACKER.max_misses, "tracking: scans a track may go unseen before it ends", (0, 1000),
+    )
+    track_vote_window: int = _setting(
+        _TRACKER.vote_window, "tracking: recent sightings a track's class is voted over", (1, 1000),
+    )
     stage2_timeout: float = _setting(
         5.0, "seconds a frame may take in stage 2: a child process (process) that answers nothing this long is killed "
         "and restarted, ERROR on /diagnostics; a later result is dropped, never published late (raise it for a "
@@ -97,6 +119,13 @@ class Stage2Config:
         """Config from a dict (YAML, ROS parameters); unknown keys are an error, not silently ignored."""
         refuse_unknown("Stage2Config", values, (f.name for f in fields(cls)))
         return cls(**values)
+
+    def tracker_config(self) -> TrackerConfig:
+        """The tracker's settings with the track_* values (the rest: TrackerConfig's defaults)."""
+        return replace(_TRACKER, gate_m=((CAR, self.track_gate_car), (PEDESTRIAN, self.track_gate_pedestrian),
+                                         (CYCLIST, self.track_gate_cyclist)),
+                       min_hits=self.track_min_hits, max_misses=self.track_max_misses,
+                       vote_window=self.track_vote_window)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all settings (for logs and JSON)."""

@@ -106,3 +106,24 @@ def test_stage2_config_is_the_segmentation_nodes_stage2_parameters():
         Stage2Config(threads=True)
     with pytest.raises(ConfigError, match=r"unknown parameter\(s\) max_proposal \(did you mean max_proposals\?\)"):
         Stage2Config.from_mapping({"max_proposal": 3})
+
+
+def test_the_track_settings_reach_the_tracker() -> None:
+    """Stage2Config's track_* values are the tracker's, its defaults TrackerConfig's, and a value out of range is
+    refused by name."""
+    from pass3d_ros.classes import CAR, PEDESTRIAN
+    from pass3d_ros.core.pipeline import ProposalSegmenter
+    from pass3d_ros.core.stage2 import open_classifier
+    from pass3d_ros.core.stage2.config import Stage2Config
+    from pass3d_ros.core.stream.tracks import TrackerConfig
+
+    assert Stage2Config().tracker_config() == TrackerConfig()
+    settings = Stage2Config(tracking=True, track_gate_pedestrian=0.8, track_min_hits=4, track_max_misses=6,
+                            track_vote_window=3)
+    segmenter = ProposalSegmenter(open_classifier(None, "size_rules"), tracking=settings.tracking,
+                                  tracker_config=settings.tracker_config())
+    config = segmenter.tracker.config
+    assert (config.gate(PEDESTRIAN), config.gate(CAR)) == (0.8, TrackerConfig().gate(CAR))
+    assert (config.min_hits, config.max_misses, config.vote_window) == (4, 6, 3)
+    with pytest.raises(ValueError, match="track_min_hits"):
+        Stage2Config(track_min_hits=0)
