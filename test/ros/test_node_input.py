@@ -316,9 +316,9 @@ def stream_with_counted_searches(ros: Ros) -> tuple[Any, Collector, list[int], C
     searches: list[int] = []
     search = ring.rings_from_lines
 
-    def counted(points: np.ndarray, sensor: str = "auto") -> ring.Rings | None:
+    def counted(points: np.ndarray, sensor: str = "auto", tilted: bool = False) -> ring.Rings | None:
         searches.append(len(points))
-        return search(points, sensor)
+        return search(points, sensor, tilted)
 
     ros.add(ClusterProposalNode(context=ros.context))
     clouds = Collector(ros, PointCloud2, "/pass3d/proposals")

@@ -88,6 +88,10 @@ SENSORS: tuple[str, ...] = ("auto", *LASER_TABLES)
 # Laser counts a line search may end at: Velodyne and Ouster make 16, 32, 64 and 128; Hesai's Pandar40 / 40P / 40M
 # have 40 (the tables above), and without 40 here their scans fell back to elevation bins.
 STANDARD_RING_COUNTS: tuple[int, ...] = (16, 32, 40, 64, 128)
+# How many lines fewer than a standard count a search may find and still be read as that sensor: an eighth (at least
+# two), but only two for 40, which sits just above 32: a 32-laser scan's first search can overshoot to 35-37 lines
+# (a 64-laser scan with every other ring off read 37 and, refused, 32 on the second search).
+MISSING_LINES: dict[int, int] = {count: 2 if count == 40 else max(2, count // 8) for count in STANDARD_RING_COUNTS}
 
 
 def ring_limit(sensor: str, n_rings: int) -> int:

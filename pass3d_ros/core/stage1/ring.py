@@ -53,7 +53,7 @@ import numba as nb
 import numpy as np
 
 from pass3d_ros.core.stage1.config import Stage1Config
-from pass3d_ros.core.stage1.lasers import STANDARD_RING_COUNTS, laser_elevations, ring_limit
+from pass3d_ros.core.stage1.lasers import MISSING_LINES, STANDARD_RING_COUNTS, laser_elevations, ring_limit
 from pass3d_ros.core.stage1.ring_field import measure_ring_order
 
 RING_SOURCES: tuple[str, ...] = (
@@ -721,10 +721,10 @@ def line_quality(pts: np.ndarray, ring: np.ndarray, resid: np.ndarray, a: np.nda
 
 
 def standard_ring_count(n_found: int) -> int | None:
-    """The standard laser count (lasers.STANDARD_RING_COUNTS) that `n_found` lines can be: at most it, and at most an
-    eighth (at least two) below it; None if none fits."""
+    """The standard laser count (lasers.STANDARD_RING_COUNTS) that `n_found` lines can be: at most it, and at most
+    lasers.MISSING_LINES of it below; None if none fits."""
     for count in STANDARD_RING_COUNTS:
-        if count - max(2, count // 8) <= n_found <= count:
+        if count - MISSING_LINES[count] <= n_found <= count:
             return count
     return None
 

@@ -34,9 +34,9 @@ def searches(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     calls: list[int] = []
     search: Callable[..., ring.Rings | None] = ring.rings_from_lines
 
-    def counted(points: np.ndarray, sensor: str = "auto") -> ring.Rings | None:
+    def counted(points: np.ndarray, sensor: str = "auto", tilted: bool = False) -> ring.Rings | None:
         calls.append(len(points))
-        return search(points, sensor)
+        return search(points, sensor, tilted)
 
     monkeypatch.setattr(ring, "rings_from_lines", counted)
     return calls
@@ -112,9 +112,9 @@ def test_failed_searches_back_off_and_one_that_finds_lines_starts_over(monkeypat
     calls: list[int] = []
     search: Callable[..., ring.Rings | None] = ring.rings_from_lines
 
-    def failing_three_times(points: np.ndarray, sensor: str = "auto") -> ring.Rings | None:
+    def failing_three_times(points: np.ndarray, sensor: str = "auto", tilted: bool = False) -> ring.Rings | None:
         calls.append(len(points))
-        return None if len(calls) <= 3 else search(points, sensor)
+        return None if len(calls) <= 3 else search(points, sensor, tilted)
 
     monkeypatch.setattr(ring, "rings_from_lines", failing_three_times)
     holder = LineHolder()
