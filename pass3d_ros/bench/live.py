@@ -1,7 +1,7 @@
 """Live-path throughput and memory: a synthetic drive replayed at 10 Hz x rate through both live nodes.
 
 `pass3d_benchmark live [--frames N] [--hz F | --rate R] [--seconds S] [--soak] [--warmup S] [--load N]
-                       [--layout one-process|in-memory|two-process] [--overlap] [--process]
+                       [--layout one-process|in-memory|two-process] [--overlap] [--process] [--tracking] [--drive]
                        [--input-qos auto|sensor|reliable]
                        [--classifier network|size_rules] [--weights W] [--threads N] [--seed K] [--json PATH]`
 
@@ -261,6 +261,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="N competing processes, each spinning one CPU during the run (default 0)")
     parser.add_argument("--layout", choices=("one-process", "in-memory", "two-process"), default="in-memory",
                         help="where the nodes run (default in-memory: the pass3d_pipeline layout)")
+    parser.add_argument("--tracking", action="store_true",
+                        help="segmentation_node's `tracking`: the tracker and its class vote on every scan")
+    parser.add_argument("--drive", action="store_true",
+                        help="the frames are one synthetic drive (synthetic:drive=N: objects persist from scan to "
+                        "scan, as tracks expect) instead of N unrelated scenes")
     parser.add_argument("--overlap", action="store_true",
                         help="segmentation_node's `overlap`: stage 2 on its own thread beside the next scan's stage 1 "
                              "(in-memory and two-process layouts)")
@@ -306,11 +311,12 @@ def run(args: argparse.Namespace) -> int:
     warmup = args.warmup if args.warmup < seconds else seconds / 4.0
     bag_seconds = args.frames / SENSOR_HZ / args.rate
     repeat = max(1, math.ceil(seconds / bag_seconds))
-    spec = f"synthetic:frames={args.frames},seed={args.seed}"
+    spec = f"synthetic:{'drive' if args.drive else 'frames'}={args.frames},seed={args.seed}"
     print(f"classifier {kind}{f' ({weights})' if weights else ''}, torch threads {args.threads}, "
           f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}, layout {args.layout}"
           f"{' (stage 2 overlapping stage 1)' if args.overlap else ''}"
-          f"{' (classifier in a child process)' if args.process else ''}, "
+          f"{' (classifier in a child process)' if args.process else ''}"
+          f"{', tracking on' if args.tracking else ''}, "
           f"competing CPU hogs {args.load}", flush=True)
     cluster_parameters = {"input_qos": args.input_qos} if args.input_qos else {}
     with tempfile.TemporaryDirectory(prefix="pass3d_bench_live_") as workdir:
@@ -325,7 +331,8 @@ def run(args: argparse.Namespace) -> int:
                 result = run_live(
                     bag, lockstep=False, rate=args.rate, keep_labels=False, repeat=repeat, timeout_s=30.0,
                     node_parameters={"segmentation_node": {"classifier": kind, "weights": weights or "",
-                                                           "overlap": args.overlap, "process": args.process},
+                                                           "overlap": args.overlap, "process": args.process,
+                                                           "tracking": args.tracking},
                                      "cluster_proposal_node": cluster_parameters},
                     log_level="warn", layout=args.layout,
                 )
