@@ -335,13 +335,13 @@ class Tracker:
         xyz = to_world.points(np.asarray(background(centers, reach), dtype=np.float64).reshape(-1, 3))
         out: list[tuple[Tracked, np.ndarray]] = []
         free = np.ones(len(xyz), bool)
+        order = np.argsort(point_cells(xyz[:, :2]), kind="stable")  # the points by cell, once: a track's points are
+        keys = point_cells(xyz[order, :2])  # then a few ranges of it (a pass over all of them per track: 6 ms a scan)
         for track, footprint in zip(waiting, _track_cells(waiting), strict=True):
-            reach = np.abs(track.offsets).max(axis=0) + CELL_M
-            near = np.flatnonzero(free & np.all(np.abs(xyz[:, :2] - track.state[:2]) <= reach, axis=1))
-            if len(near) < self.config.hold_points:
-                continue
-            keys = point_cells(xyz[near, :2])
-            mine = near[np.isin(keys, footprint)]
+            starts, ends = np.searchsorted(keys, footprint, "left"), np.searchsorted(keys, footprint, "right")
+            inside = np.concatenate([order[a:b] for a, b in zip(starts, ends, strict=True) if b > a] or
+                                    [np.zeros(0, np.int64)])
+            mine = np.sort(inside[free[inside]])  # in a footprint cell: within the track's reach too
             if len(mine) < self.config.hold_points:
                 continue
             if len(np.intersect1d(cells(xyz[mine, :2]), footprint)) < self.config.hold_cover * len(footprint):
