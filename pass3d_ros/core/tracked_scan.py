@@ -162,32 +162,12 @@ class Background:
         if self.ground is not None:
             keep &= ~np.asarray(self.ground, dtype=bool)[index]
         index = index[keep]
-        index = index[_in_coarse_cells(xy[index], centers[:, :2], reach)]  # then the exact test on those alone
         near = np.zeros(len(index), bool)
         for center, r in zip(centers, reach, strict=True):
             near |= (np.abs(xy[index, 0] - center[0]) <= r) & (np.abs(xy[index, 1] - center[1]) <= r)
         self.index = index[near]
         xyz = np.asarray(self.points[self.index, :3], dtype=np.float64)
         return xyz if self.back is None else xyz @ self.back
-
-
-COARSE_CELL_M = 2.0  # `_in_coarse_cells`' grid
-
-
-def _in_coarse_cells(xy: np.ndarray, centers: np.ndarray, reach: np.ndarray) -> np.ndarray:
-    """Whether each point of `xy` lies in a COARSE_CELL_M cell that some centre's square of half-side `reach` touches:
-    a superset of the points within reach, found in one pass (a pass per centre over a scan's background took 2 ms)."""
-    lo = np.floor((centers - reach[:, None]) / COARSE_CELL_M).astype(np.int64)
-    hi = np.floor((centers + reach[:, None]) / COARSE_CELL_M).astype(np.int64)
-    cell = np.floor(xy / COARSE_CELL_M).astype(np.int64)
-    base = cell.min(axis=0) if len(cell) else np.zeros(2, np.int64)
-    lo, hi, cell = lo - base, hi - base, cell - base
-    shape = (int(max(cell[:, 0].max(initial=0), hi[:, 0].max(initial=0))) + 1,
-             int(max(cell[:, 1].max(initial=0), hi[:, 1].max(initial=0))) + 1)
-    touched = np.zeros(shape, bool)
-    for (x0, y0), (x1, y1) in zip(np.maximum(lo, 0), hi, strict=True):
-        touched[x0:x1 + 1, y0:y1 + 1] = True
-    return touched[cell[:, 0], cell[:, 1]]
 
 
 def _held_objects(points: np.ndarray, objects: FrameObjects, held: list[tuple[Tracked, np.ndarray]],
