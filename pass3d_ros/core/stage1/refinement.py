@@ -346,6 +346,13 @@ def _cluster_rects(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -
     return out
 
 
+def points_needed(rng: np.ndarray, config: Stage1Config) -> np.ndarray:
+    """The few-points gate: the points a cluster centred `rng` metres away (horizontally) needs, th_num_near up to
+    th_num_range, then falling as 1 / range, never below th_num_floor."""
+    return np.maximum(config.th_num_floor,
+                      config.th_num_near * config.th_num_range / np.maximum(rng, config.th_num_range))
+
+
 PART_MARGIN_M = 2.0  # `Gated.may_part`: slack on the bottom and top gates for the local ground's offsets at a part's
 # centre, which differ from those at its cluster's (1.0 m changed the proposals of 10 of 129 judge frames, 2.0 none)
 
@@ -385,9 +392,7 @@ def gate_clusters(
     count, sums, lo, hi, bottom, top = _cluster_stats(points, label, n_clusters, plane_rows, segment_edges)
     centre = sums / np.maximum(count, 1)[:, None]
     rng = np.hypot(centre[:, 0], centre[:, 1])
-    need = np.maximum(
-        config.th_num_floor, config.th_num_near * config.th_num_range / np.maximum(rng, config.th_num_range)
-    )
+    need = points_needed(rng, config)
     extent = hi - lo
     may_part = ((count >= 2 * need) & (rng <= config.max_range) & (bottom <= config.max_bottom + PART_MARGIN_M)
                 & (top >= config.min_top - PART_MARGIN_M))
