@@ -729,10 +729,11 @@ def standard_ring_count(n_found: int) -> int | None:
     return None
 
 
-def _search_lines(sample: np.ndarray, acc: np.ndarray, half_band: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """Laser lines of a fit sample: the accumulator's peaks (`_lines_from_scan`), evened out, refitted, gaps that
-    hold a laser filled, until the count settles; None unless it is near a standard count and the lines fit the
-    sample (`line_quality`)."""
+def _search_lines(sample: np.ndarray, acc: np.ndarray, half_band: int
+                  ) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """Laser lines of a fit sample and how well they fit it (`line_quality`): the accumulator's peaks
+    (`_lines_from_scan`), evened out, refitted, gaps that hold a laser filled, until the count settles; None unless it
+    is near a standard count and the fit reaches _MIN_QUALITY."""
     a, b = _even_out(*_lines_from_scan(acc, half_band))
     if not 2 <= len(a) <= _MAX_LINES:
         return None
@@ -749,9 +750,8 @@ def _search_lines(sample: np.ndarray, acc: np.ndarray, half_band: int) -> tuple[
     if standard_ring_count(len(a)) is None or not np.all(np.isfinite(a) & np.isfinite(b)):
         return None
     ring, resid, a, b = fit_laser_lines(sample, a, b, 1)
-    if line_quality(sample, ring, resid, a) < _MIN_QUALITY:
-        return None
-    return a, b
+    quality = line_quality(sample, ring, resid, a)
+    return None if quality < _MIN_QUALITY else (a, b, quality)
 
 
 def rings_from_known_lines(points: np.ndarray, lines: LaserLines, source: str,
@@ -806,12 +806,10 @@ def rings_from_lines(points: np.ndarray, sensor: str = "auto", tilted: bool = Fa
     for motion in ((vx, vy), (0.0, 0.0)) if moving and tilted else ((vx, vy),):
         seen, acc = _search_view(sample, *motion)
         for half_band in (_HALF_BAND, _N_BINS):
-            lines = _search_lines(seen, acc, half_band)
-            if lines is not None:
-                ring, resid, a, b = fit_laser_lines(seen, *lines, 0)
-                quality = line_quality(seen, ring, resid, a)
-                if best is None or quality > best[0]:
-                    best = (quality, *lines, *motion)
+            found = _search_lines(seen, acc, half_band)
+            if found is not None:
+                if best is None or found[2] > best[0]:
+                    best = (found[2], found[0], found[1], *motion)
                 break
     if best is None:
         return None
