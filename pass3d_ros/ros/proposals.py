@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -58,8 +59,10 @@ class ProposalFrame:
     level: np.ndarray | None = None  # (3, 3) sensor -> level frame when stage 1 levelled the scan (Stage1Result.level)
     ground: np.ndarray | None = None  # (N,) bool stage 1's ground plane when the proposals carry it (for tracking)
 
-    def level_points(self) -> np.ndarray:
-        """The points as stage 1 ran them: in the level frame (its canonical boxes stand on the ground)."""
+    @cached_property
+    def levelled(self) -> np.ndarray:
+        """The points as stage 1 ran them: in the level frame (its canonical boxes stand on the ground); rotated once
+        per frame, on first use (the objects and the tracker both read them)."""
         return level_points(self.points, self.level)
 
 

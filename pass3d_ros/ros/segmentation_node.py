@@ -97,7 +97,7 @@ def published(frame: ProposalFrame, proposals: Budgeted, result: SegmentResult, 
     """The labels, cluster ids and objects the frame publishes: core.objects.frame_objects on the thresholded labels,
     each point owned by the proposal it is published with; boxes fitted in the level frame (they stand on the
     ground)."""
-    return frame_objects(frame.level_points(), proposals.owner, result.proposal_class,
+    return frame_objects(frame.levelled, proposals.owner, result.proposal_class,
                          thresholded(result, min_confidence), result.confidence, frame.cluster_id)
 
 
@@ -426,7 +426,7 @@ class SegmentationNode(PointCloudNode):
             self.get_logger().warning("no odometry within odometry_max_gap of the scan: tracked in the sensor's frame",
                                       throttle_duration_sec=LOG_PERIOD_S)
         tracked = self.stage2.track(out, header_stamp_ns(frame) * 1e-9, pose=pose, level=frame.level,
-                                    points=frame.level_points(), ground=frame.ground)
+                                    points=frame.levelled, ground=frame.ground)
         out = out if tracked is None else tracked.voted
         clock.mark("compute")  # the objects, the labels and ids they settle, and with tracking on the vote
         columns = labeled_cloud(frame, out.labels, out.cluster_id, result.confidence,
