@@ -92,14 +92,19 @@ def shared_cells(first: Sequence[np.ndarray], second: Sequence[np.ndarray]) -> n
     keys, owner = keys[order], owner[order]
     wanted = np.concatenate(second)
     asker = np.repeat(np.arange(len(second)), [len(k) for k in second])
-    left = np.searchsorted(keys, wanted, "left")
-    count = np.searchsorted(keys, wanted, "right") - left
-    if not count.any():
-        return out
-    ends = np.cumsum(count)
-    position = np.repeat(left, count) + np.arange(ends[-1]) - np.repeat(ends - count, count)
+    position, count = matching(keys, wanted)
     np.add.at(out, (owner[position], np.repeat(asker, count)), 1)
     return out
+
+
+def matching(keys: np.ndarray, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The positions in `keys` (sorted) of every entry equal to one of `wanted`, in `wanted`'s order, and how many each
+    of `wanted` matched."""
+    left = np.searchsorted(keys, wanted, "left")
+    count = np.searchsorted(keys, wanted, "right") - left
+    ends = np.cumsum(count)
+    total = int(ends[-1]) if len(ends) else 0
+    return np.repeat(left, count) + np.arange(total) - np.repeat(ends - count, count), count
 
 
 def overlap(first: Sequence[np.ndarray], second: Sequence[np.ndarray]) -> np.ndarray:

@@ -42,6 +42,7 @@ from pass3d_ros.core.stream.footprints import (
     Footprints,
     cells,
     grouped_cells,
+    matching,
     overlap,
     point_cells,
     sample,
@@ -335,12 +336,11 @@ class Tracker:
         xyz = to_world.points(np.asarray(background(centers, reach), dtype=np.float64).reshape(-1, 3))
         out: list[tuple[Tracked, np.ndarray]] = []
         free = np.ones(len(xyz), bool)
-        order = np.argsort(point_cells(xyz[:, :2]), kind="stable")  # the points by cell, once: a track's points are
-        keys = point_cells(xyz[order, :2])  # then a few ranges of it (a pass over all of them per track: 6 ms a scan)
+        keys = point_cells(xyz[:, :2])
+        order = np.argsort(keys, kind="stable")  # the points by cell, once: a track's points are then a few ranges of
+        keys = keys[order]  # it (a pass over all of them per track took 6 ms a scan)
         for track, footprint in zip(waiting, _track_cells(waiting), strict=True):
-            starts, ends = np.searchsorted(keys, footprint, "left"), np.searchsorted(keys, footprint, "right")
-            inside = np.concatenate([order[a:b] for a, b in zip(starts, ends, strict=True) if b > a] or
-                                    [np.zeros(0, np.int64)])
+            inside = order[matching(keys, footprint)[0]]
             mine = np.sort(inside[free[inside]])  # in a footprint cell: within the track's reach too
             if len(mine) < self.config.hold_points:
                 continue
