@@ -11,6 +11,13 @@ NUM_CLASSES = len(CLASS_NAMES)
 # Ground-truth label of a point nobody annotated (e.g. outside KITTI's camera view): scored and trained on by no one.
 IGNORE = 255
 
+# Each class's mean box (length, width, height; metres) in KITTI's object labels as Frustum-PointNets tabulates them
+# (docs: /work/shared/DESIGN.md, "KITTI object label statistics"): one object of the class, for the plausible sizes
+# (core.objects) and the tracker's parts (core.stream.tracks).
+MEAN_SIZE: dict[int, tuple[float, float, float]] = {
+    CAR: (3.88, 1.63, 1.53), PEDESTRIAN: (0.84, 0.66, 1.76), CYCLIST: (1.76, 0.60, 1.74),
+}
+
 # Colours of the paper's figures: car green, pedestrian blue, cyclist pink, background grey.
 CLASS_COLORS_RGB: np.ndarray = np.array(
     [[150, 150, 150], [0, 200, 0], [30, 90, 255], [255, 80, 200]], dtype=np.uint8

@@ -23,7 +23,7 @@ from typing import Any
 import numba as nb
 import numpy as np
 
-from pass3d_ros.classes import BACKGROUND, CAR, CLASS_NAMES, CYCLIST, FOREGROUND, PEDESTRIAN
+from pass3d_ros.classes import BACKGROUND, CLASS_NAMES, FOREGROUND, MEAN_SIZE, PEDESTRIAN
 from pass3d_ros.core.stage2.canonical import fit_box_members
 from pass3d_ros.data.frame import Box3D
 
@@ -34,11 +34,7 @@ MIN_PERSON_POINTS = 5  # a split-off part with fewer points joins the nearest pe
 SPLIT_ID_STRIDE = 1_000_000  # id of a proposal's k-th further object: cluster id + k * SPLIT_ID_STRIDE
 IMPLAUSIBLE_SCORE = 0.5  # an implausible box's score is its points' mean confidence times this
 
-# Mean box (length, width, height) in metres of KITTI's object labels as Frustum-PointNets tabulates them
-# (docs: /work/shared/DESIGN.md, "KITTI object label statistics"); the source of PLAUSIBLE_SIZE.
-MEAN_SIZE: dict[int, tuple[float, float, float]] = {
-    CAR: (3.88, 1.63, 1.53), PEDESTRIAN: (0.84, 0.66, 1.76), CYCLIST: (1.76, 0.60, 1.74),
-}
+# PLAUSIBLE_SIZE comes from classes.MEAN_SIZE, KITTI's mean box of each class.
 PLAUSIBLE_MAX = 1.6  # each edge at most this times the class mean (a KITTI Van, 5.07 x 1.90 x 2.21, is a plausible car)
 PLAUSIBLE_MIN_LENGTH = 0.25  # the longer horizontal edge at least this times the mean length (a partial view)
 PLAUSIBLE_MIN_HEIGHT = 0.3  # the height at least this times the mean height (a child, an occluded lower body)

@@ -84,6 +84,10 @@ class Stage2Config:
     track_max_misses: int = _setting(
         _TRACKER.max_misses, "tracking: scans a track may go unseen before it ends", (0, 1000),
     )
+    track_reid_misses: int = _setting(
+        _TRACKER.reid_misses, "tracking: scans after its last sighting an ended track may still be found again, its id "
+        "kept, by an object no live track takes", (0, 1000),
+    )
     track_vote_window: int = _setting(
         _TRACKER.vote_window, "tracking: recent sightings a track's class is voted over", (1, 1000),
     )
@@ -125,6 +129,7 @@ class Stage2Config:
         return replace(_TRACKER, gate_m=((CAR, self.track_gate_car), (PEDESTRIAN, self.track_gate_pedestrian),
                                          (CYCLIST, self.track_gate_cyclist)),
                        min_hits=self.track_min_hits, max_misses=self.track_max_misses,
+                       reid_misses=self.track_reid_misses,
                        vote_window=self.track_vote_window)
 
     def to_dict(self) -> dict[str, Any]:

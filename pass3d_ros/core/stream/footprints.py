@@ -53,6 +53,18 @@ def cells(xy: np.ndarray) -> np.ndarray:
     return np.unique(point_cells(xy))
 
 
+def extent(xy: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """The longer and shorter side (m) of the smallest box along the principal axes of the points `xy` (M, 2), and
+    the longer side's direction (a unit vector)."""
+    if len(xy) < 2:
+        return 0.0, 0.0, np.array([1.0, 0.0])
+    centred = xy - xy.mean(axis=0)
+    _, vectors = np.linalg.eigh(centred.T @ centred)
+    sides = np.ptp(centred @ vectors, axis=0)
+    longer = int(np.argmax(sides))
+    return float(sides[longer]), float(sides[1 - longer]), vectors[:, longer]
+
+
 def grouped_cells(xy: np.ndarray, counts: Sequence[int] | np.ndarray) -> list[np.ndarray]:
     """`cells` of each of several footprints at once: `xy` (M, 2) their points one after another, `counts` how many
     each has (a footprint of no points has no cells)."""

@@ -35,12 +35,13 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from pass3d_ros.classes import CAR, CYCLIST, NUM_CLASSES, PEDESTRIAN
+from pass3d_ros.classes import CAR, CYCLIST, MEAN_SIZE, NUM_CLASSES, PEDESTRIAN
 from pass3d_ros.core.stream.footprints import (
     CELL_M,
     MAX_POINTS,
     Footprints,
     cells,
+    extent,
     grouped_cells,
     matching,
     overlap,
@@ -49,7 +50,8 @@ from pass3d_ros.core.stream.footprints import (
     shared_cells,
 )
 
-NO_MATCH = 1e6  # the cost of a pair outside the gate
+COS_HEADING = float(np.cos(np.radians(30.0)))  # "along the heading": within 30 degrees of it
+MIN_MARGIN_M = 0.05  # the margin of a pair matched beyond its gate by its footprint (`Tracker._associate`)
 
 
 @dataclass(frozen=True)
@@ -61,9 +63,14 @@ class TrackerConfig:
     class_penalty_m: float = 1.0  # extra cost of matching a detection of another class than the track's
     min_hits: int = 2  # sightings before a track is confirmed (its id published)
     max_misses: int = 3  # scans a track may go unseen before it ends
+    reid_misses: int = 10  # scans after its last sighting an ended confirmed track may still be found again by a
+    # detection that matched no live track (its id kept: an object behind another for a second is the same object)
     vote_window: int = 10  # recent sightings a track's class is voted over
     process_accel: float = 3.0  # m/s^2: how fast a road user may change its velocity (the filter's process noise)
     measurement_m: float = 0.3  # a detection centre's error (the filter's measurement noise)
+    reshape_m: float | None = 0.5  # a detection whose box edges changed by more than this (summed) from its track's
+    # corrects the track's position and not its velocity (`_correct_all`); None: every centre corrects both
+    birth_speed: float = 5.0  # m/s: a new track's velocity is unknown up to this either way (its prior's spread)
     max_dt_s: float = 1.0  # a gap longer than this predicts no further (a stalled stream)
     match_overlap: float = 0.3  # a detection sharing this share of the smaller footprint's cells with a track may
     # match it beyond the centre gate
@@ -75,11 +82,24 @@ class TrackerConfig:
     hold_margin_m: float = 0.5  # the held points' extent may pass the track's remembered size by this much
     max_held: int = 10  # scans in a row a confirmed track may be held without a detection of its own (and never
     # more than its sightings: a track seen twice is held twice at most)
+    part_extent: float | None = 1.3  # a detection is another end of a tracked object of its class when both fit
+    # in this times the class's mean size (KITTI's: 5.0 x 2.1 m for a car); None: footprint overlap only
+    part_gap_m: float = 2.0  # ... its points come this close to the object's (a neighbour's fragment lies apart)
+    heading_speed: float = 2.0  # m/s: ... and for a track this fast, the two lie along its heading (a moving car's
+    # other end is ahead of it or behind it, never beside it)
     youth_penalty_m: float = 0.5  # extra cost of matching a new track, falling to 0 at mature_hits sightings: of two
     # tracks on one object (a duplicate born of a split), the older one wins the object
     mature_hits: int = 10
     hold_min_confidence: float = 0.8  # the mean confidence of its voted class's sightings a held track needs (a
     # track born of a few unsure sightings of clutter is not held on that clutter)
+
+    def extent_limit(self, label: int) -> tuple[float, float] | None:
+        """The longer and shorter horizontal edge one object of class `label` fits in (`part_extent` times its
+        mean size; None without a mean size)."""
+        if self.part_extent is None or label not in MEAN_SIZE:
+            return None
+        length, width, _ = MEAN_SIZE[label]
+        return length * self.part_extent, width * self.part_extent
 
     def gate(self, label: int) -> float:
         """The gate of a detection of class `label` (the widest for a class without one)."""
@@ -197,6 +217,7 @@ class Tracker:
     def reset(self) -> None:
         """Forget every track (a new stream); ids start over."""
         self.tracks: list[Track] = []
+        self.ended: list[Track] = []  # confirmed tracks ended less than reid_misses scans ago (`_revive`)
         self._next_id = 0
         self.born = 0
         self.lost = 0
@@ -232,8 +253,11 @@ class Tracker:
         tracks = self._footprints()
         pairs = self._associate(centers, labels, tracks, detections)
         matched = {d: t for t, d in pairs}
-        self._correct_all([self.tracks[t] for t, _ in pairs], centers[[d for _, d in pairs]])
+        self._correct_all([self.tracks[t] for t, _ in pairs], centers[[d for _, d in pairs]],
+                          sizes[[d for _, d in pairs]])
         parts = self._parts(matched, tracks, detections)
+        if self.config.part_extent is not None:
+            parts.update(self._ends(matched, parts, labels, world))
         out: list[Tracked] = []
         seen: set[int] = set()
         for d in range(len(centers)):
@@ -243,7 +267,12 @@ class Tracker:
             elif d in parts:
                 track = self.tracks[parts[d]]
             else:
-                track = self._birth(centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
+                track = self._revive(centers[d], sizes[d], int(labels[d]), stamp_s,
+                                     None if detections is None else detections[d])
+                if track is None:
+                    track = self._birth(centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
+                else:
+                    self._sighted(track, centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
             seen.add(track.track_id)
             out.append(Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits))
         if footprints is not None:
@@ -252,10 +281,44 @@ class Tracker:
         for track in self.tracks:
             if track.track_id not in seen:
                 track.misses += 1
+        for track in self.ended:
+            track.misses += 1
         ended = [t for t in self.tracks if t.misses > self.config.max_misses]
         self.lost += sum(1 for t in ended if t.hits >= self.config.min_hits)
         self.tracks = [t for t in self.tracks if t.misses <= self.config.max_misses]
+        self.ended = [t for t in self.ended if t.misses <= self.config.reid_misses]
+        self.ended += [t for t in ended if t.hits >= self.config.min_hits and self.config.reid_misses > t.misses]
         return ScanTracks(out, held_out)
+
+    def _revive(self, center: np.ndarray, size: np.ndarray, label: int, stamp_s: float,
+                footprint: np.ndarray | None) -> Track | None:
+        """An ended confirmed track of class `label` that a detection otherwise new finds again (within reid_misses
+        scans of its last sighting): its predicted centre within the class's gate of the detection's, or its last
+        footprint sharing match_overlap of the cells. Such a track lives again, corrected by the detection; else
+        None. Ended tracks take part in no other matching: a neighbour's fragment never takes a lost track's id."""
+        best, best_distance = None, np.inf
+        for track in self.ended:
+            if track.label() != label:
+                continue
+            dt = min(stamp_s - track.stamp_s, self.config.max_dt_s)
+            predicted = track.state[:2] + track.state[2:] * max(dt, 0.0)
+            distance = float(np.hypot(*(predicted - center[:2])))
+            near = distance <= self.config.gate(label)
+            if not near and footprint is not None and track.offsets is not None and len(footprint):
+                mine = cells(predicted + track.offsets)
+                shared = len(np.intersect1d(mine, footprint))
+                near = shared >= self.config.match_overlap * min(len(mine), len(footprint))
+                distance = min(distance, self.config.gate(label))
+            if near and distance < best_distance:
+                best, best_distance = track, distance
+        if best is None:
+            return None
+        self.ended.remove(best)
+        self._predict_all(stamp_s, [best])
+        self._correct_all([best], center[None, :], np.asarray(size, dtype=np.float64)[None, :])
+        best.misses = 0
+        self.tracks.append(best)
+        return best
 
     def _footprints(self) -> list[np.ndarray] | None:
         """Each track's footprint cells where its points are predicted now (its last points moved with its filter);
@@ -266,9 +329,12 @@ class Tracker:
 
     def _associate(self, centers: np.ndarray, labels: Sequence[int], tracks: list[np.ndarray] | None = None,
                    detections: list[np.ndarray] | None = None) -> list[tuple[int, int]]:
-        """(track index, detection index) pairs: the least summed cost, a pair's cost its centre distance (plus
-        class_penalty_m for another class) times 1 - the share of footprint cells it shares; a pair may match
-        within the detection's gate, or beyond it when its footprints share match_overlap of their cells."""
+        """(track index, detection index) pairs: a pair's cost is its centre distance (plus class_penalty_m for
+        another class) times 1 - the share of footprint cells it shares; a pair may match within the detection's
+        gate, or beyond it when its footprints share match_overlap of their cells. The pairs chosen have the most
+        summed margin (gate less cost; MIN_MARGIN_M beyond the gate): a pair is worth its margin, leaving both
+        unmatched nothing, so two poor pairs never beat one good one (a least summed cost would match as many as it
+        can: a track taking a neighbour's fragment so that its own object's track can take the other)."""
         if not self.tracks or len(centers) == 0:
             return []
         predicted = np.array([t.state[:2] for t in self.tracks])
@@ -283,9 +349,9 @@ class Tracker:
             cost = cost * (1.0 - share)
         hits = np.array([t.hits for t in self.tracks], dtype=np.float64)
         cost = cost + self.config.youth_penalty_m * np.clip(1.0 - hits / self.config.mature_hits, 0.0, 1.0)[:, None]
-        cost = np.where(allowed, cost, NO_MATCH)
-        rows, cols = linear_sum_assignment(cost)
-        return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if cost[r, c] < NO_MATCH]
+        margin = np.where(allowed, np.maximum(self.config.gates[det_labels][None, :] - cost, MIN_MARGIN_M), 0.0)
+        rows, cols = linear_sum_assignment(margin, maximize=True)
+        return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if allowed[r, c]]
 
     def _parts(self, matched: dict[int, int], tracks: list[np.ndarray] | None,
                detections: list[np.ndarray] | None) -> dict[int, int]:
@@ -303,6 +369,49 @@ class Tracker:
         best = np.argmax(share, axis=0)
         return {d: confirmed[int(best[k])] for k, d in enumerate(free)
                 if share[best[k], k] >= self.config.part_overlap}
+
+    def _ends(self, matched: dict[int, int], parts: dict[int, int], labels: Sequence[int],
+              world: Footprints | None) -> dict[int, int]:
+        """Unmatched detections that are another end of a confirmed track's object: of the track's class, and the
+        track's last points (moved with it) and its matched detection's points come within part_gap_m of theirs, all
+        of them together still fit one object of that class (`extent_limit`: a parked car passed by is seen first by
+        its rear, then cut in two as its side comes into view), and, for a track moving heading_speed or faster, the
+        union's longer side lies along its heading. The smallest such union wins. detection -> track index."""
+        if world is None:
+            return {}
+        points = world.split()
+        free = [d for d in range(len(points)) if d not in matched and d not in parts and len(points[d])]
+        if not free:
+            return {}
+        by_track: dict[int, list[int]] = {}
+        for d, t in matched.items():
+            track = self.tracks[t]
+            if track.hits >= self.config.min_hits and self.config.extent_limit(track.label()) is not None:
+                by_track.setdefault(t, []).append(d)
+        out: dict[int, int] = {}
+        for d in free:
+            best, best_length = -1, np.inf
+            for t, mine in by_track.items():
+                track = self.tracks[t]
+                limit = self.config.extent_limit(track.label())
+                if track.label() != int(labels[d]) or limit is None:
+                    continue
+                near = np.linalg.norm(points[d].mean(axis=0) - track.state[:2]) <= limit[0]
+                if not near:
+                    continue
+                remembered = [track.state[:2] + track.offsets] if track.offsets is not None else []
+                known = np.concatenate([*remembered, *(points[k] for k in mine)])
+                gap = np.sqrt(((known[:, None, :] - points[d][None, :, :]) ** 2).sum(axis=2).min())
+                if gap > self.config.part_gap_m:
+                    continue
+                length, width, axis = extent(np.concatenate([known, points[d]]))
+                speed = float(np.hypot(*track.state[2:]))
+                along = speed < self.config.heading_speed or abs(axis @ track.state[2:]) >= COS_HEADING * speed
+                if along and length <= limit[0] and width <= limit[1] and length < best_length:
+                    best, best_length = t, length
+            if best >= 0:
+                out[d] = best
+        return out
 
     def _keep_footprints(self, out: list[Tracked], world: Footprints) -> None:
         """Each seen track's footprint: its detections' points (parts included; tracking frame) as offsets from its
@@ -362,7 +471,8 @@ class Tracker:
 
     def _birth(self, center: np.ndarray, size: tuple, label: int, score: float, stamp_s: float) -> Track:
         r = self.config.measurement_m ** 2
-        cov = np.diag([r, r, 25.0, 25.0])  # velocity unknown: up to 5 m/s either way
+        v = self.config.birth_speed ** 2
+        cov = np.diag([r, r, v, v])
         track = Track(self._next_id, np.array([center[0], center[1], 0.0, 0.0]), cov, float(center[2]), size,
                       deque([(label, score)], maxlen=self.config.vote_window), stamp_s=stamp_s)
         self._next_id += 1
@@ -371,11 +481,13 @@ class Tracker:
             self.born += 1
         return track
 
-    def _predict_all(self, stamp_s: float) -> None:
-        """Every track's state and covariance carried to `stamp_s` (constant velocity; at most max_dt_s ahead)."""
-        if not self.tracks:
+    def _predict_all(self, stamp_s: float, tracks: list[Track] | None = None) -> None:
+        """Every track's (or `tracks`') state and covariance carried to `stamp_s` (constant velocity; at most max_dt_s
+        ahead)."""
+        tracks = self.tracks if tracks is None else tracks
+        if not tracks:
             return
-        dt = np.clip(stamp_s - np.array([t.stamp_s for t in self.tracks]), 0.0, self.config.max_dt_s)
+        dt = np.clip(stamp_s - np.array([t.stamp_s for t in tracks]), 0.0, self.config.max_dt_s)
         f = np.broadcast_to(np.eye(4), (len(dt), 4, 4)).copy()
         f[:, 0, 2] = f[:, 1, 3] = dt
         a2 = self.config.process_accel ** 2
@@ -383,17 +495,27 @@ class Tracker:
         q[:, 0, 0] = q[:, 1, 1] = a2 * dt ** 4 / 4
         q[:, 0, 2] = q[:, 2, 0] = q[:, 1, 3] = q[:, 3, 1] = a2 * dt ** 3 / 2
         q[:, 2, 2] = q[:, 3, 3] = a2 * dt ** 2
-        states = np.einsum("tij,tj->ti", f, np.array([t.state for t in self.tracks]))
-        covs = f @ np.array([t.cov for t in self.tracks]) @ f.transpose(0, 2, 1) + q
-        for track, state, cov in zip(self.tracks, states, covs, strict=True):
+        states = np.einsum("tij,tj->ti", f, np.array([t.state for t in tracks]))
+        covs = f @ np.array([t.cov for t in tracks]) @ f.transpose(0, 2, 1) + q
+        for track, state, cov in zip(tracks, states, covs, strict=True):
             track.state, track.cov, track.stamp_s = state, cov, stamp_s
 
-    def _correct_all(self, tracks: list[Track], centers: np.ndarray) -> None:
-        """The Kalman correction of each matched track by its detection's centre (x, y measured), all at once."""
+    def _correct_all(self, tracks: list[Track], centers: np.ndarray, sizes: np.ndarray | None = None) -> None:
+        """The Kalman correction of each matched track by its detection's centre (x, y measured), all at once. With
+        the detections' `sizes`, a box whose horizontal edges changed by more than `reshape_m` from the track's is a
+        new view of the object: its centre corrects the position (uncertain by half the change) and not the velocity (a
+        parked car seen by its rear, then whole, moves its box centre by metres while it stands still)."""
         if not tracks:
             return
         states = np.array([t.state for t in tracks])
         covs = np.array([t.cov for t in tracks])
+        if sizes is not None and self.config.reshape_m is not None:
+            before = np.sort(np.array([t.size[:2] for t in tracks]), axis=1)
+            after = np.sort(np.asarray(sizes, dtype=np.float64)[:, :2], axis=1)
+            change = np.abs(after - before).sum(axis=1)
+            reshaped = change > self.config.reshape_m
+            covs[reshaped, :2, 2:] = covs[reshaped, 2:, :2] = 0.0
+            covs[reshaped, :2, :2] += np.eye(2) * (change[reshaped, None, None] / 2) ** 2  # where it was is moot
         s = covs[:, :2, :2] + np.eye(2) * self.config.measurement_m ** 2
         det = s[:, 0, 0] * s[:, 1, 1] - s[:, 0, 1] * s[:, 1, 0]
         inv = np.stack([np.stack([s[:, 1, 1], -s[:, 0, 1]], -1), np.stack([-s[:, 1, 0], s[:, 0, 0]], -1)], 1)

@@ -55,7 +55,65 @@ def test_births_wait_for_min_hits_and_tracks_end_after_max_misses() -> None:
     scan(tracker, [], 0.6)
     assert tracker.alive == 0 and tracker.lost == 1
     again = scan(tracker, [(5.5, 5.0, PEDESTRIAN, 0.9)], 0.7)[0]
-    assert again.track_id != first.track_id, "a new sighting after the track ended is a new object"
+    assert again.track_id == first.track_id and again.confirmed, "found again within reid_misses: the same object"
+    for k in range(config.max_misses + config.reid_misses + 1):
+        scan(tracker, [], 0.8 + 0.1 * k)
+    later = scan(tracker, [(5.5, 5.0, PEDESTRIAN, 0.9)], 3.0)[0]
+    assert later.track_id != first.track_id and not later.confirmed, "long gone: a new sighting is a new object"
+
+
+def test_an_ended_track_is_found_again_only_by_an_object_no_live_track_takes() -> None:
+    tracker = Tracker(TrackerConfig(max_misses=1))
+    for k in range(5):  # a pedestrian at x = 5 and one at x = 6.2, both still
+        scan(tracker, [(5.0, 0.0, PEDESTRIAN, 0.9), (6.2, 0.0, PEDESTRIAN, 0.9)], 0.1 * k)
+    for k in range(5, 8):  # the first goes unseen and ends; the second stays
+        out = scan(tracker, [(6.2, 0.0, PEDESTRIAN, 0.9)], 0.1 * k)
+    assert [t.track_id for t in out] == [1] and tracker.lost == 1
+    out = scan(tracker, [(5.0, 0.0, PEDESTRIAN, 0.9), (6.2, 0.0, PEDESTRIAN, 0.9)], 0.8)
+    assert [t.track_id for t in out] == [0, 1]
+
+
+def test_one_good_pair_beats_two_poor_ones() -> None:
+    """A car cut in two fragments: its track takes the fragment on its place, though the other fragment lies within
+    its gate too and a neighbour's track could then take this one (a least summed cost matches the most pairs)."""
+    tracker = Tracker()
+    for k in range(5):  # two parked cars, 2.8 m apart along y
+        scan(tracker, [(20.0, 0.0, CAR, 0.9), (20.0, 2.8, CAR, 0.9)], 0.1 * k)
+    out = scan(tracker, [(20.0, -2.0, CAR, 0.9), (20.0, 0.1, CAR, 0.9)], 0.5)  # the first car's two ends
+    assert out[1].track_id == 0, "the fragment on the first car's place keeps its track"
+    assert out[0].track_id != 1, "the second car's track does not take the first car's fragment"
+
+
+def test_a_box_that_grows_moves_its_centre_without_making_the_object_move() -> None:
+    """A parked car seen first by its rear (a 1 m box), then whole (4 m): the centre moves 1.5 m in a scan, the
+    object does not; a new view corrects the position only, so the track's speed stays low."""
+    speeds = {}
+    for reshape in (None, 0.5):
+        tracker = Tracker(TrackerConfig(reshape_m=reshape))
+        for k, length in enumerate((1.0, 1.0, 4.0, 4.0)):
+            centers = np.array([[20.0 + length / 2, 0.0, -1.0]])
+            tracker.update(centers, np.array([[length, 1.7, 1.5]]), [CAR], [0.9], 0.1 * k)
+        speeds[reshape] = float(np.hypot(*tracker.tracks[0].state[2:]))
+    assert speeds[0.5] < 0.5 and speeds[None] > 3.0
+
+
+def test_another_end_of_a_tracked_car_joins_its_track() -> None:
+    """A parked car passed by: its rear is tracked, then its front comes into view as a detection of its own 0.3 m
+    away; both fit one car, so the front takes the car's track and starts none. A car 6 m away is another car."""
+    tracker = Tracker()
+
+    def footprint(*boxes: tuple[float, float, float]) -> Footprints:
+        grid = np.stack(np.meshgrid(np.linspace(-0.5, 0.5, 5), np.linspace(-0.5, 0.5, 5)), -1).reshape(-1, 2)
+        return Footprints.of([grid * [length, 1.6] + [x, y] for x, y, length in boxes])
+
+    for k in range(3):
+        tracker.update(np.array([[20.0, 0.0, -1.0]]), np.array([[1.5, 1.6, 1.5]]), [CAR], [0.9], 0.1 * k,
+                       footprints=footprint((20.0, 0.0, 1.5)))
+    out = tracker.update(np.array([[20.0, 0.0, -1.0], [21.8, 0.0, -1.0], [27.0, 0.0, -1.0]]),
+                         np.array([[1.5, 1.6, 1.5], [1.5, 1.6, 1.5], [1.5, 1.6, 1.5]]), [CAR, CAR, CAR], [0.9] * 3,
+                         0.3, footprints=footprint((20.0, 0.0, 1.5), (21.8, 0.0, 1.5), (27.0, 0.0, 1.5)))
+    assert out[0].track_id == out[1].track_id == 0
+    assert out[2].track_id != 0
 
 
 def test_with_poses_a_parked_car_stays_one_track_while_the_ego_drives_past() -> None:
@@ -114,3 +172,21 @@ def test_a_car_cut_in_two_stays_one_track_and_a_jumping_box_keeps_its_id() -> No
     for k in range(3):
         without.update([[20.0, 4.0, -1.0]], [SIZE[CAR]], [CAR], [0.9], 0.1 * k)
     assert without.update([[16.5, 4.0, -1.0]], [(1.0, 1.7, 1.5)], [CAR], [0.9], 0.4)[0].track_id != car
+
+
+def test_a_moving_car_takes_no_fragment_beside_it() -> None:
+    """A car driving east at 10 m/s passes a parked car's fragment 1.5 m to its side: together they would fit one
+    car across the road, not along it, so the fragment is no end of the moving car."""
+    tracker = Tracker()
+
+    def footprint(*centres: tuple[float, float]) -> Footprints:
+        grid = np.stack(np.meshgrid(np.linspace(-0.7, 0.7, 5), np.linspace(-0.3, 0.3, 3)), -1).reshape(-1, 2)
+        return Footprints.of([grid + centre for centre in centres])
+
+    for k in range(5):
+        x = 10.0 + 1.0 * k
+        tracker.update(np.array([[x, 0.0, -1.0]]), np.array([[1.4, 0.6, 1.5]]), [CAR], [0.9], 0.1 * k,
+                       footprints=footprint((x, 0.0)))
+    out = tracker.update(np.array([[15.0, 0.0, -1.0], [15.0, 1.5, -1.0]]), np.array([[1.4, 0.6, 1.5]] * 2),
+                         [CAR, CAR], [0.9, 0.9], 0.5, footprints=footprint((15.0, 0.0), (15.0, 1.5)))
+    assert out[0].track_id == 0 and out[1].track_id != 0
