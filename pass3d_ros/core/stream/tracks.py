@@ -50,6 +50,8 @@ from pass3d_ros.core.stream.footprints import (
     shared_cells,
 )
 
+LONG_M = 3.0  # a class this long on average (a car) moves its box centre by metres when seen from another side; a
+# person's or a rider's moves less than a centre's error
 COS_HEADING = float(np.cos(np.radians(30.0)))  # "along the heading": within 30 degrees of it
 MIN_MARGIN_M = 0.05  # the margin of a pair matched beyond its gate by its footprint (`Tracker._associate`)
 
@@ -502,8 +504,8 @@ class Tracker:
 
     def _correct_all(self, tracks: list[Track], centers: np.ndarray, sizes: np.ndarray | None = None) -> None:
         """The Kalman correction of each matched track by its detection's centre (x, y measured), all at once. With
-        the detections' `sizes`, a box whose horizontal edges changed by more than `reshape_m` from the track's is a
-        new view of the object: its centre corrects the position (uncertain by half the change) and not the velocity (a
+        the detections' `sizes`, a box of a long object (LONG_M: a car) whose horizontal edges changed by more than
+        `reshape_m` from the track's is a new view of the object: its centre corrects the position (uncertain by half the change) and not the velocity (a
         parked car seen by its rear, then whole, moves its box centre by metres while it stands still)."""
         if not tracks:
             return
@@ -513,7 +515,8 @@ class Tracker:
             before = np.sort(np.array([t.size[:2] for t in tracks]), axis=1)
             after = np.sort(np.asarray(sizes, dtype=np.float64)[:, :2], axis=1)
             change = np.abs(after - before).sum(axis=1)
-            reshaped = change > self.config.reshape_m
+            long = np.array([MEAN_SIZE.get(t.label(), (0.0,))[0] >= LONG_M for t in tracks])
+            reshaped = (change > self.config.reshape_m) & long
             covs[reshaped, :2, 2:] = covs[reshaped, 2:, :2] = 0.0
             covs[reshaped, :2, :2] += np.eye(2) * (change[reshaped, None, None] / 2) ** 2  # where it was is moot
         s = covs[:, :2, :2] + np.eye(2) * self.config.measurement_m ** 2
