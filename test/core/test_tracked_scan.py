@@ -144,11 +144,33 @@ def test_a_track_of_unsure_sightings_is_not_held_and_a_held_track_runs_out() -> 
     objects, points = person_scan(10.0, PEDESTRIAN, background=True)
     assert track_scan(unsure, objects, 0.4, points=points).voted.objects == [], "mean confidence 0.6 < 0.8"
     sure = Tracker()
-    for k in range(5):  # seen 5 scans: held while seen in 0.6 of the scans since its birth (5 of 6, 7, 8; not 9)
+    for k in range(2):  # seen twice: held twice at most
         objects, points = person_scan(10.0, PEDESTRIAN)
         track_scan(sure, objects, 0.1 * k, points=points)
     held = []
-    for k in range(5, 10):
+    for k in range(2, 6):
         objects, points = person_scan(10.0, PEDESTRIAN, background=True)
         held.append(len(track_scan(sure, objects, 0.1 * k, points=points).voted.objects))
-    assert held == [1, 1, 1, 0, 0]
+    assert held == [1, 1, 0, 0]
+
+
+def test_a_track_found_again_is_held_only_once_seen_min_hits_times_more() -> None:
+    """Clutter called a pedestrian twice, unseen until its track ended, then called a pedestrian once more: the track
+    is found again (its id kept) but not held on the clutter's background points after that single sighting."""
+    tracker = Tracker()
+    stamps = iter(0.1 * k for k in range(100))
+
+    def scan(background: bool = False):
+        objects, points = person_scan(10.0, PEDESTRIAN, background)
+        return track_scan(tracker, objects, next(stamps), points=points)
+
+    scan(), scan()
+    empty = FrameObjects(np.zeros(0, np.uint8), np.zeros(0, np.int32), [])
+    for _ in range(tracker.config.max_misses + 1):
+        track_scan(tracker, empty, next(stamps), points=np.zeros((0, 4), np.float32))
+    assert tracker.lost == 1
+    again = scan()
+    assert again.tracked[0].track_id == 0 and again.tracked[0].confirmed
+    assert scan(background=True).voted.objects == []
+    scan()
+    assert [obj.track_id for obj in scan(background=True).voted.objects] == [0], "seen min_hits times since: held"

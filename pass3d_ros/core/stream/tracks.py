@@ -92,8 +92,6 @@ class TrackerConfig:
     youth_penalty_m: float = 0.5  # extra cost of matching a new track, falling to 0 at mature_hits sightings: of two
     # tracks on one object (a duplicate born of a split), the older one wins the object
     mature_hits: int = 10
-    hold_seen_share: float = 0.6  # the share of the scans since its birth a held track must have been seen in (a
-    # track of clutter, seen now and then, is not held on it)
     hold_min_confidence: float = 0.8  # the mean confidence of its voted class's sightings a held track needs (a
     # track born of a few unsure sightings of clutter is not held on that clutter)
 
@@ -129,7 +127,7 @@ class Track:
     hits: int = 1
     misses: int = 0
     held: int = 0  # scans in a row the track was held by background points (no detection of its own)
-    age: int = 1  # scans since its birth (ended ones included)
+    hold_from: int = 0  # the sightings it needs before it may be held (a track found again is confirmed anew)
     offsets: np.ndarray | None = None  # (M, 2) its last points' x, y less its centre: the footprint it carries
     stamp_s: float = 0.0
     _label: int = -1  # the vote's result and its share, made again when a sighting is added
@@ -288,8 +286,6 @@ class Tracker:
                 track.misses += 1
         for track in self.ended:
             track.misses += 1
-        for track in self.tracks + self.ended:
-            track.age += 1
         ended = [t for t in self.tracks if t.misses > self.config.max_misses]
         self.lost += sum(1 for t in ended if t.hits >= self.config.min_hits)
         self.tracks = [t for t in self.tracks if t.misses <= self.config.max_misses]
@@ -324,6 +320,7 @@ class Tracker:
         self._predict_all(stamp_s, [best])
         self._correct_all([best], center[None, :], np.asarray(size, dtype=np.float64)[None, :])
         best.misses = 0
+        best.hold_from = best.hits + self.config.min_hits  # this sighting the first of min_hits
         self.tracks.append(best)
         return best
 
@@ -441,12 +438,12 @@ class Tracker:
         they cover hold_cover of its cells and their extent is within hold_margin_m of its remembered size. A held
         track is corrected by their centre, keeps its class, counts no sighting and no miss, and keeps the footprint
         of its last detection (held points never grow it: a track beside a wall would creep along the wall); it may
-        be held at most max_held scans in a row, and only while it was seen in hold_seen_share of the scans since its
-        birth. A point holds one track at most."""
+        be held at most max_held scans in a row, and a track found again after it ended (`_revive`) only once it is
+        seen min_hits times more. A point holds one track at most."""
         waiting = [t for t in self.tracks if t.track_id not in seen and t.offsets is not None
                    and t.hits >= self.config.min_hits
                    and t.held < min(self.config.max_held, t.hits) and t.confidence() >= self.config.hold_min_confidence
-                   and t.hits >= self.config.hold_seen_share * t.age]
+                   and t.hits >= t.hold_from]
         if not waiting:
             return []
         reach = np.array([np.abs(t.offsets).max() + CELL_M for t in waiting])
@@ -512,8 +509,9 @@ class Tracker:
     def _correct_all(self, tracks: list[Track], centers: np.ndarray, sizes: np.ndarray | None = None) -> None:
         """The Kalman correction of each matched track by its detection's centre (x, y measured), all at once. With
         the detections' `sizes`, a box of a long object (LONG_M: a car) whose horizontal edges changed by more than
-        `reshape_m` from the track's is a new view of the object: its centre corrects the position (uncertain by half the change) and not the velocity (a
-        parked car seen by its rear, then whole, moves its box centre by metres while it stands still)."""
+        `reshape_m` from the track's is a new view of the object: its centre corrects the position (uncertain by half
+        the change) and not the velocity (a parked car seen by its rear, then whole, moves its box centre by metres
+        while it stands still)."""
         if not tracks:
             return
         states = np.array([t.state for t in tracks])
