@@ -67,8 +67,8 @@ def test_long_wall_yields_no_new_car_sized_proposal(height: float) -> None:
     """A 15 m wall of car height has no gap: it stays one cluster, dropped as before."""
     wall = Solid((4.0 + 7.5, -4.0, -SENSOR_HEIGHT + height / 2), (15.0, 0.2, height))
     points, ring, _ = raycast([wall], n_az=2000)
-    before = propose(points, ring, Stage1Config(split_merged=False))
-    after = propose(points, ring, Stage1Config(split_merged=True))
+    before = propose(points, ring, Stage1Config(split_merged=False, rerun_dropped=False))
+    after = propose(points, ring, Stage1Config(split_merged=True, rerun_dropped=False))
     assert after.n_split == 0
     assert len(car_sized(after)) == len(car_sized(before))
     np.testing.assert_array_equal(after.cluster_id, before.cluster_id)
@@ -117,9 +117,10 @@ def test_old_proposals_stay_first_and_unchanged(kind: str) -> None:
     from pass3d_ros.synthetic.dataset import generate_frame
 
     frame = generate_frame(7, 3)
-    before = propose(frame.points, frame.ring, Stage1Config(split_merged=False, split_protruding=False))
+    before = propose(frame.points, frame.ring, Stage1Config(split_merged=False, split_protruding=False,
+                                                            rerun_dropped=False))
     on = {"split_merged": kind in ("split_merged", "both"), "split_protruding": kind in ("split_protruding", "both")}
-    after = propose(frame.points, frame.ring, Stage1Config(**on))
+    after = propose(frame.points, frame.ring, Stage1Config(**on, rerun_dropped=False))
     assert after.n_split >= 1 and len(after.boxes) > len(before.boxes)
     for a, b in zip(before.boxes, after.boxes, strict=False):
         np.testing.assert_allclose(a.center, b.center)
@@ -142,7 +143,7 @@ def person_before_wall(gap: float, yaw: float = 0.5, height: float = 1.75, botto
 @pytest.mark.parametrize("gap", [0.25, 0.35])
 def test_rerun_dropped_cuts_a_person_off_a_long_wall(gap: float) -> None:
     points, ring, hit = raycast(person_before_wall(gap), n_az=1000)
-    before = propose(points, ring, Stage1Config())
+    before = propose(points, ring, Stage1Config(rerun_dropped=False))
     after = propose(points, ring, Stage1Config(rerun_dropped=True))
     person = hit == 0
     assert (before.cluster_id[person] >= 0).mean() < 0.1  # dropped with the wall
@@ -199,7 +200,7 @@ def test_only_rerun_dropped_parts_give_way() -> None:
     """The person cut off the wall by rerun_dropped gives way, and is the only proposal that does; without the option
     no proposal gives way and no point is people-only."""
     points, ring, hit = raycast(person_before_wall(0.25), n_az=1000)
-    before = propose(points, ring, Stage1Config())
+    before = propose(points, ring, Stage1Config(rerun_dropped=False))
     after = propose(points, ring, Stage1Config(rerun_dropped=True))
     assert not before.gives_way.any() and before.people_only() is None
     assert len(after.gives_way) == after.n_proposals and after.gives_way.any()
