@@ -19,7 +19,7 @@ import numpy as np
 from pass3d_ros.core.objects import FrameObjects, frame_objects
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, proposal_members
 from pass3d_ros.core.stage1.proposals import level_points
-from pass3d_ros.core.stage2 import Classifier
+from pass3d_ros.core.stage2 import Classifier, segmentation
 from pass3d_ros.core.stage2.segmentation import SegmentResult
 from pass3d_ros.core.stream import PreparedScan, ScanStream
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
@@ -64,6 +64,12 @@ class ProposedScan:
     def empty(self) -> bool:
         """No point left after the input checks: nothing was proposed."""
         return len(self.scan.points) == 0
+
+    @property
+    def people_only(self) -> np.ndarray | None:
+        """Per point of `scan.points`, whether stage 2 may call it pedestrian or background only
+        (Stage1Result.people_only); None when no point is."""
+        return self.result.people_only()
 
     def nonempty_members(self) -> list[np.ndarray]:
         """The members of the proposals that have points, in proposal order."""
@@ -175,9 +181,11 @@ class ProposalSegmenter:
         and the map when this scan's made it held (for a caller to report once)."""
         return self.match.fold(points) if self.intensity_match else (points, None)
 
-    def segment(self, points: np.ndarray, members: list[np.ndarray]) -> SegmentResult:
-        """The classifier on points already on the training scale (`on_training_scale`)."""
-        return self.classifier.segment(points, members)
+    def segment(self, points: np.ndarray, members: list[np.ndarray], people_only: np.ndarray | None = None
+                ) -> SegmentResult:
+        """The classifier on points already on the training scale (`on_training_scale`); the points flagged in
+        `people_only` (stage 1's `rerun_dropped` parts: ProposedScan.people_only) are pedestrian or background."""
+        return segmentation.people_only(self.classifier.segment(points, members), members, people_only)
 
 
 class ScanPipeline:
@@ -235,7 +243,7 @@ class ScanPipeline:
             raise ValueError("this pipeline has no classifier: stage 1 only")
         started = time.perf_counter()
         chosen = proposed.members if members is None else members
-        segmented = self.segmenter.segment(proposed.points, chosen)
+        segmented = self.segmenter.segment(proposed.points, chosen, proposed.people_only)
         labelled = LabelledScan(proposed, segmented, 1e3 * (time.perf_counter() - started), members is None)
         if members is None:
             labelled.tracked = self.segmenter.track(labelled.published, stamp_s, pose, proposed.result.level,

@@ -252,7 +252,7 @@ class ClusterProposalNode(PointCloudNode):
             if self.sink is not None or self._full else None
         if self.sink is not None:
             self.sink(ProposalFrame(msg.header, points, out_ring, result.cluster_id, result.cluster_id2, source,
-                                    result.level, result.ground))
+                                    result.level, result.ground, result.people_only()))
             clock.mark("sink")
         if self.sink is None or self.proposals_pub.get_subscription_count() > 0:
             if self._full:
@@ -264,7 +264,7 @@ class ClusterProposalNode(PointCloudNode):
                                    "on /pass3d/proposals (output_layout as_input / publish_background): the "
                                    f"{WIRE_PREFIX} prefix is reserved for this package's own columns")
                 full = full_proposals_cloud(source, points, result.cluster_id, result.cluster_id2, result.ground,
-                                            out_ring, result.level)
+                                            out_ring, result.level, result.people_only())
                 cloud = encode(full, header=msg.header, height=source.height, is_dense=source.is_dense)
             else:
                 cloud = encode(proposals_cloud(points, result, out_ring), header=msg.header)

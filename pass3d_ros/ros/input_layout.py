@@ -74,7 +74,10 @@ STAGE1_COLUMNS: tuple[str, ...] = (STAGE1_CLUSTER_ID, STAGE1_CLUSTER_ID2, STAGE1
 # With a levelled scan (a tilted, high or upside-down mount: pass3d_ros.core.stage1.mounting), both forms carry each
 # point's coordinates in the level frame stage 1 ran in, so stage 2 reads the proposals standing on the ground.
 LEVEL_COLUMNS: tuple[str, ...] = (WIRE_PREFIX + "level_x", WIRE_PREFIX + "level_y", WIRE_PREFIX + "level_z")
-WIRE_COLUMNS: tuple[str, ...] = STAGE1_COLUMNS + LEVEL_COLUMNS  # every column of ours, never an input's
+# Where stage 1 kept rerun_dropped's parts, both forms flag their points (uint8 1), which stage 2 may call pedestrian or
+# background only (Stage1Result.people_only); without such points the column is left out.
+STAGE1_PEOPLE_ONLY = WIRE_PREFIX + "people_only"
+WIRE_COLUMNS: tuple[str, ...] = STAGE1_COLUMNS + LEVEL_COLUMNS + (STAGE1_PEOPLE_ONLY,)  # every column of ours
 LEGACY_INTENSITY = "stage1_intensity"  # the old full message's marker (unprefixed columns): refused, see above
 LABEL_COLUMNS: tuple[str, ...] = ("cluster_id", "confidence", "rgb", "label")
 COMPACT_BACKGROUND: tuple[str, ...] = ("x", "y", "z", "intensity", "ring")  # without a source
@@ -119,10 +122,12 @@ def input_source(cloud: np.ndarray, height: int, width: int, read: int, kept: np
 
 
 def full_proposals_cloud(source: InputSource, points: np.ndarray, cluster_id: np.ndarray, cluster_id2: np.ndarray,
-                         ground: np.ndarray, ring: np.ndarray, level: np.ndarray | None = None) -> Extended:
+                         ground: np.ndarray, ring: np.ndarray, level: np.ndarray | None = None,
+                         people_only: np.ndarray | None = None) -> Extended:
     """/pass3d/proposals in the input's layout: every input row and field untouched plus stage 1's `__pass3d_` columns
     (module docstring), to `encode` with the input's height. `ring`: the frame's (one per point stage 1 read);
-    `level`: the level frame's rotation when stage 1 levelled the scan (adds LEVEL_COLUMNS)."""
+    `level`: the level frame's rotation when stage 1 levelled the scan (adds LEVEL_COLUMNS); `people_only`: the
+    points of rerun_dropped's parts when there are some (adds STAGE1_PEOPLE_ONLY)."""
     columns = {
         STAGE1_CLUSTER_ID: source.scatter(cluster_id.astype(np.int32), -1),
         STAGE1_CLUSTER_ID2: source.scatter(cluster_id2.astype(np.int32), -1),
@@ -133,6 +138,8 @@ def full_proposals_cloud(source: InputSource, points: np.ndarray, cluster_id: np
     if level is not None:
         flat = level_points(points, level)
         columns.update({name: source.scatter(flat[:, k], np.nan) for k, name in enumerate(LEVEL_COLUMNS)})
+    if people_only is not None:
+        columns[STAGE1_PEOPLE_ONLY] = source.scatter(people_only.astype(np.uint8), 0)
     return Extended(source.cloud, columns)
 
 

@@ -35,6 +35,7 @@ from pass3d_ros.ros.input_layout import (
     STAGE1_COLUMNS,
     STAGE1_GROUND,
     STAGE1_INTENSITY,
+    STAGE1_PEOPLE_ONLY,
     STAGE1_RING,
     WIRE_COLUMNS,
     InputSource,
@@ -58,6 +59,8 @@ class ProposalFrame:
     source: InputSource | None = None  # the input as it came (pipeline, or proposals in the input's layout)
     level: np.ndarray | None = None  # (3, 3) sensor -> level frame when stage 1 levelled the scan (Stage1Result.level)
     ground: np.ndarray | None = None  # (N,) bool stage 1's ground plane when the proposals carry it (for tracking)
+    people_only: np.ndarray | None = None  # (N,) bool points stage 2 may call pedestrian or background only
+    # (Stage1Result.people_only: rerun_dropped's parts); None: no such point, or the proposals do not say
 
     @cached_property
     def levelled(self) -> np.ndarray:
@@ -87,6 +90,9 @@ def proposals_cloud(points: np.ndarray, result: Stage1Result, ring: np.ndarray |
     if result.level is not None:
         flat = level_points(points, result.level)
         columns.update({name: flat[:, k] for k, name in enumerate(LEVEL_COLUMNS)})
+    people_only = result.people_only()
+    if people_only is not None:
+        columns[STAGE1_PEOPLE_ONLY] = people_only.astype(np.uint8)
     return columns
 
 
@@ -139,8 +145,9 @@ def proposal_frame(msg: PointCloud2) -> ProposalFrame:
     first, second = proposal_ids(cloud)
     points = to_xyzi(cloud, with_ring=False).points
     ground = cloud["ground"].astype(bool) if "ground" in names else None
+    people_only = cloud[STAGE1_PEOPLE_ONLY] != 0 if STAGE1_PEOPLE_ONLY in names else None
     return ProposalFrame(msg.header, points, cloud["ring"] if "ring" in names else None, first, second,
-                         level=_level(cloud, points, None), ground=ground)
+                         level=_level(cloud, points, None), ground=ground, people_only=people_only)
 
 
 def _full_frame(msg: PointCloud2, cloud: np.ndarray) -> ProposalFrame:
@@ -166,7 +173,9 @@ def _full_frame(msg: PointCloud2, cloud: np.ndarray) -> ProposalFrame:
     source = InputSource(cloud[[name for name in names if name not in WIRE_COLUMNS]], int(msg.height),
                          int(msg.width), bool(msg.is_dense), None if len(rows) == len(cloud) else rows)
     ground = cloud[STAGE1_GROUND][rows].astype(bool)
-    return ProposalFrame(msg.header, points, ring, first, second, source, _level(cloud, points, rows), ground)
+    people_only = cloud[STAGE1_PEOPLE_ONLY][rows] != 0 if STAGE1_PEOPLE_ONLY in names else None
+    return ProposalFrame(msg.header, points, ring, first, second, source, _level(cloud, points, rows), ground,
+                         people_only)
 
 
 LEVEL_FIT_POINTS = 2000  # points the level frame's rotation is read back from

@@ -351,7 +351,7 @@ class SegmentationNode(PointCloudNode):
         stage2_points = level_points(self._on_training_scale(points), frame.level)
         clock.mark("decode")
         try:
-            result = self.stage2.segment(stage2_points, members)
+            result = self.stage2.segment(stage2_points, members, frame.people_only)
         except ClassifierProcessHungError as exc:  # killed by the supervisor, which logged it; restarted
             self.frames_down += 1
             self.frames_hung += 1
@@ -397,7 +397,8 @@ class SegmentationNode(PointCloudNode):
             source = dataclasses.replace(source, positions=positions[keep])
         return ProposalFrame(frame.header, frame.points[keep], None if frame.ring is None else frame.ring[keep],
                              frame.cluster_id[keep], frame.cluster_id2[keep], source, frame.level,
-                             None if frame.ground is None else frame.ground[keep])
+                             None if frame.ground is None else frame.ground[keep],
+                             None if frame.people_only is None else frame.people_only[keep])
 
     def _budget(self, frame: ProposalFrame) -> Budgeted:
         """Member points and cluster ids of the frame's proposals, at most max_proposals of them (the nearest): the

@@ -27,7 +27,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from pass3d_ros.classes import BACKGROUND, CAR, CLASS_NAMES, CYCLIST, FOREGROUND, PEDESTRIAN
 from pass3d_ros.core.objects import SPLIT_ID_STRIDE, LabelledObject, frame_objects
 from pass3d_ros.core.stage1 import proposal_members, propose
-from pass3d_ros.core.stage2.segmentation import SegmentResult
+from pass3d_ros.core.stage2.segmentation import SegmentResult, people_only
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 from pass3d_ros.data.frame import Box3D, Frame
 from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
@@ -225,7 +225,7 @@ def mixed_offline(frame: Frame) -> tuple[list[LabelledObject], np.ndarray]:
     """The objects and published labels of `frame` under MixedClassifier, computed offline."""
     stage1 = propose(frame.points, frame.ring)
     members = proposal_members(stage1.cluster_id, stage1.cluster_id2)
-    result = MixedClassifier().segment(frame.points, members)
+    result = people_only(MixedClassifier().segment(frame.points, members), members, stage1.people_only())
     published = frame_objects(frame.points, stage1.cluster_id, result.proposal_class, result.labels,
                               result.confidence)
     return published.objects, published.labels

@@ -24,6 +24,7 @@ from pass3d_ros.classes import BACKGROUND, NUM_CLASSES, packed_rgb
 from pass3d_ros.core.objects import frame_objects
 from pass3d_ros.core.stage1 import Stage1Config, proposal_members, propose
 from pass3d_ros.core.stage2 import open_classifier
+from pass3d_ros.core.stage2.segmentation import people_only
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 from pass3d_ros.data.bag import read_bag
 from pass3d_ros.data.bag_convert import convert
@@ -32,6 +33,7 @@ from pass3d_ros.evaluation.live import run_live
 from pass3d_ros.evaluation.report import score
 from pass3d_ros.msgs.pointcloud2 import encode, header_stamp_ns
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+from pass3d_ros.ros.input_layout import STAGE1_PEOPLE_ONLY
 from pass3d_ros.ros.qos import qos_profile
 from pass3d_ros.ros.segmentation_node import SegmentationNode
 from pass3d_ros.weights import DEFAULT_WEIGHTS_NAME, WEIGHTS_DIR
@@ -65,10 +67,13 @@ def test_proposals_keep_header_order_and_match_offline(ros: Ros, frame: Frame) -
     for msg, stamp, ring in ((first, STAMP0, frame.ring), (second, STAMP0 + 100_000_000, None)):
         assert header_stamp_ns(msg) == stamp and msg.header.frame_id == "velodyne_test"
         cloud = columns(msg)
-        assert cloud.dtype.names == PROPOSAL_FIELDS
+        offline = propose(frame.points, ring)
+        people = offline.people_only()  # rerun_dropped's parts, flagged only where there are some
+        assert cloud.dtype.names == PROPOSAL_FIELDS + (() if people is None else (STAGE1_PEOPLE_ONLY,))
+        if people is not None:
+            np.testing.assert_array_equal(cloud[STAGE1_PEOPLE_ONLY].astype(bool), people)
         got = np.stack([cloud[k] for k in ("x", "y", "z", "intensity")], axis=1)
         assert got.tobytes() == frame.points.tobytes(), "point order and values must be kept"
-        offline = propose(frame.points, ring)
         assert offline.n_proposals > 3
         np.testing.assert_array_equal(cloud["cluster_id"], offline.cluster_id)
         np.testing.assert_array_equal(cloud["cluster_id2"], offline.cluster_id2)
@@ -224,7 +229,7 @@ def test_bad_weights_fail_at_construction(ros: Ros, tmp_path: Path, lite_weights
 def offline_labels(frame: Frame) -> np.ndarray:
     stage1 = propose(frame.points, frame.ring)
     members = proposal_members(stage1.cluster_id, stage1.cluster_id2)
-    return SizeRuleClassifier().segment(frame.points, members).labels
+    return people_only(SizeRuleClassifier().segment(frame.points, members), members, stage1.people_only()).labels
 
 
 def test_bag_through_live_nodes_lockstep(small_bag: Path, tmp_path: Path) -> None:

@@ -383,3 +383,26 @@ def test_compact_proposals_carry_stage1_s_ground_for_tracking() -> None:
     read = proposal_frame(encode(proposals_cloud(frame.points, result), stamp_ns=STAMP0))
     assert read.ground is not None and read.ground.any()
     np.testing.assert_array_equal(read.ground, result.ground)
+
+
+def test_both_proposal_forms_carry_the_people_only_points() -> None:
+    """rerun_dropped's parts (Stage1Result.people_only) cross /pass3d/proposals in the compact and the full form, and
+    the column is left out where there are none."""
+    frame = generate_frame(seed=3, index=0)
+    result = propose(frame.points, frame.ring)
+    assert proposal_frame(encode(proposals_cloud(frame.points, result), stamp_ns=STAMP0)).people_only is None
+    flags = np.zeros(result.n_proposals, dtype=bool)
+    flags[-1] = True
+    result = dataclasses.replace(result, gives_way=flags)
+    people = result.people_only()
+    assert people is not None and people.any()
+    compact = proposal_frame(encode(proposals_cloud(frame.points, result), stamp_ns=STAMP0))
+    np.testing.assert_array_equal(compact.people_only, people)
+    n = len(frame.points)
+    cloud = np.zeros(n, np.dtype([(name, "<f4") for name in "xyz"]))
+    for k, name in enumerate("xyz"):
+        cloud[name] = frame.points[:, k]
+    source = input_source(cloud, 1, n, read=n, kept=None)
+    full = proposal_frame(encode(full_proposals_cloud(source, frame.points, result.cluster_id, result.cluster_id2,
+                                                      result.ground, result.ring, people_only=people)))
+    np.testing.assert_array_equal(full.people_only, people)

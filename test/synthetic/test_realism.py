@@ -44,6 +44,9 @@ def _miss(row: Row) -> str:
 # synthetic world lacks. The test fails when one of them comes back inside, so the list stays true.
 KNOWN_MISSES = (
     "proposal points per ring median",
+    # since rerun_dropped is on (rule R3, docs/experiments/sensors.md): its person-shaped parts of dropped clusters are
+    # more common in the real scans (synthetic 13.8 % of proposals, real 20.0 %: 0.2 points outside the 6)
+    "proposals car-piece-like (length 0.7-2.5 m, height 1.1-2 m)",
 )  # "proposals low wide" met since the scorecard's scans go through the door (input checks, levelling from 3 deg)
 
 

@@ -14,7 +14,7 @@ from pass3d_ros.core import stage2
 from pass3d_ros.core.objects import frame_objects
 from pass3d_ros.core.stage1 import proposal_members, propose
 from pass3d_ros.core.stage2 import pointnet2
-from pass3d_ros.core.stage2.segmentation import Segmenter, make_checkpoint
+from pass3d_ros.core.stage2.segmentation import Segmenter, make_checkpoint, people_only
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 from pass3d_ros.data.outputs import MARKER
 from pass3d_ros.data.semantickitti import read_semantickitti
@@ -30,7 +30,8 @@ FIGURE_HEIGHT = bev.TITLE_PX + bev.PANEL_PX + bev.LEGEND_PX
 def offline(points: np.ndarray, ring: np.ndarray | None, classifier) -> np.ndarray:
     """The labels the nodes publish for a scan (stage 2's, settled by core.objects.frame_objects)."""
     result = propose(points, ring)
-    segmented = classifier.segment(points, proposal_members(result.cluster_id, result.cluster_id2))
+    members = proposal_members(result.cluster_id, result.cluster_id2)
+    segmented = people_only(classifier.segment(points, members), members, result.people_only())
     return frame_objects(points, result.cluster_id, segmented.proposal_class, segmented.labels,
                          segmented.confidence).labels
 

@@ -204,10 +204,12 @@ class Stage1Config:
         0.5, "refinement: split_rerun's th_ring and th_prop are the clustering's times this", 0.05, 1.0,
     )
     rerun_dropped: bool = _param(
-        False, "refinement: split_rerun also clusters again every other dropped cluster of 2 x th_num to "
+        True, "refinement: split_rerun also clusters again every other dropped cluster of 2 x th_num to "
         "rerun_max_points points within max_range (people in a crowd, beside parked motorbikes, against a hedge), "
-        "and keeps each people-sized part (2.0 x 1.2 m at most) that passes the gates; off by default: more people "
-        "found on 32-laser sensors, but clutter called pedestrian (docs/results.md)", 0, 1,
+        "and keeps each part that passes the gates and is shaped like a person standing there (footprint 2.0 x 1.2 m "
+        "at most and 0.1 m deep at least, rising 0.88 m or more to a top at most 2.1 m up); a part takes no point "
+        "another proposal holds, and stage 2 may call its points pedestrian or background only: people in crowds "
+        "found on 32-laser sensors (docs/experiments/sensors.md, rule R3)", 0, 1,
     )
     rerun_max_points: int = _param(
         3000, "refinement: rerun_dropped leaves larger clusters (buildings, long walls) dropped whole", 1, 10_000_000,

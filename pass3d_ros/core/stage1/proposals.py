@@ -50,11 +50,21 @@ class Stage1Result:
     ring_order: _ring_field.RingFieldOrder | None = None  # how a ring field was read (None: no field): pass it on too
     level: np.ndarray | None = None  # (3, 3) the rotation from the sensor's frame to the level frame stage 1 ran in
     # (None: the sensor's own); boxes and ground_planes are in that frame, per-point fields in the input's order
+    gives_way: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # (K,) rerun_dropped's parts:
+    # they hold no point another proposal holds (refinement.enlarged_membership)
 
     @property
     def n_proposals(self) -> int:
         """K, the number of kept proposals."""
         return len(self.boxes)
+
+    def people_only(self) -> np.ndarray | None:
+        """Per point, whether it lies in a proposal that gives way (`gives_way`: a part of `rerun_dropped`, kept to
+        find people, which stage 2 may call pedestrian or background only); None when no proposal gives way. Such a
+        point is in no proposal of another kind (refinement.enlarged_membership), so its primary id says it."""
+        if not self.gives_way.any():
+            return None
+        return (self.cluster_id >= 0) & self.gives_way[np.maximum(self.cluster_id, 0)]
 
 
 def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Config | None = None,
@@ -152,16 +162,17 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     t2 = time.perf_counter()
     label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~work_ground, cfg)
     t3 = time.perf_counter()
-    n_split = 0
+    n_split, gives_way = 0, None
     # With a local ground the gates read heights above it (it passes through the split as the planes argument).
     surface = fit.local if fit.local is not None else fit.planes
     if cfg.split_merged or cfg.split_rerun or cfg.split_protruding:
-        boxes, kept, label, n_split = _split.select_with_split(work, label, n_clusters, surface, fit.segment_edges,
-                                                               cfg, work_ring)
+        boxes, kept, label, n_split, gives_way = _split.select_with_split(work, label, n_clusters, surface,
+                                                                          fit.segment_edges, cfg, work_ring)
     else:
         boxes, kept = _refinement.select_proposals(work, label, n_clusters, surface, fit.segment_edges, cfg)
     floors = None if fit.local is None else _refinement.ground_floors(boxes, fit.local, cfg.th_dist)
-    cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge, floors=floors)
+    cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge, floors=floors,
+                                                              gives_way=gives_way)
     if order is not None:
         cluster_id, cluster_id2 = _in_input_order(order, cluster_id, cluster_id2)
     t4 = time.perf_counter()
@@ -171,6 +182,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
         timings_ms={k: 1e3 * v for k, v in timings.items()}, ring_source=rings.source, ground_planes=fit.planes,
         n_clusters=n_clusters, n_split=n_split, sensor=sensor, lines=rings.lines, ring_order=ring_order,
         level=None if level is None else np.asarray(level, dtype=np.float64),
+        gives_way=np.zeros(len(boxes), dtype=bool) if gives_way is None else gives_way,
     )
 
 

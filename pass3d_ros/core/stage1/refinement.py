@@ -443,10 +443,10 @@ def select_proposals(
 
 @nb.njit(cache=True, nogil=True)
 def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: np.ndarray, margin: np.ndarray,
-                cell: float, floors: np.ndarray) -> tuple:
+                cell: float, floors: np.ndarray, gives_way: np.ndarray) -> tuple:
     """Primary and secondary proposal of every point inside an enlarged box (see `enlarged_membership`);
     `own_of` maps a cluster id to its proposal id or -1; a box reaches down to z = floors[b] where that is lower
-    than its enlarged bottom."""
+    than its enlarged bottom; a box flagged in `gives_way` keeps no point that an unflagged one takes."""
     n = pts.shape[0]
     k = boxes.shape[0]
     primary = np.empty(n, dtype=np.int32)
@@ -518,8 +518,16 @@ def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: n
                 continue
             if primary[i] < 0:
                 primary[i] = b
-            elif secondary[i] < 0:
+            elif secondary[i] < 0 or (not gives_way[b] and gives_way[secondary[i]]):
                 secondary[i] = b
+            elif not gives_way[b] and gives_way[primary[i]]:
+                primary[i] = secondary[i]
+                secondary[i] = b
+    for i in range(n):  # a flagged proposal beside an unflagged one leaves the point to it
+        if primary[i] >= 0 and secondary[i] >= 0 and gives_way[primary[i]] != gives_way[secondary[i]]:
+            if gives_way[primary[i]]:
+                primary[i] = secondary[i]
+            secondary[i] = -1
     return primary, secondary
 
 
@@ -538,20 +546,27 @@ def enlarged_membership(
     margin: tuple[float, float, float],
     cell: float = 2.0,
     floors: np.ndarray | None = None,
+    gives_way: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(cluster_id, cluster_id2) per point: its own kept cluster's proposal first, then the enlarged boxes it
     falls in (lowest id first); -1 where there is none. `margin` (Stage1Config.enlarge) is added on each side, as
     in Box3D.contains. `floors` (one z per box, or None): a box also takes in the points of its enlarged footprint
     from that z up to its centre, when it lies below the enlarged bottom (`ground_floors`: the ground band under
-    it)."""
+    it). `gives_way` (one bool per box, or None): a flagged proposal (a part of `rerun_dropped`) holds no point
+    that an unflagged one holds, its own cluster's points included, so the proposals without the flag keep exactly
+    the points they would hold without the flagged ones, and stage 2's label of a flagged part never overwrites
+    theirs (an enlarged part box beside a car took in the car's edge)."""
     label = np.ascontiguousarray(label, dtype=np.int32)
     own_of = np.full(max(int(label.max()) + 1, 1) if len(label) else 1, -1, dtype=np.int32)
     own_of[kept] = np.arange(len(kept), dtype=np.int32)
     floors = np.full(len(boxes), np.inf) if floors is None else np.ascontiguousarray(floors, dtype=np.float64)
     if len(floors) != len(boxes):
         raise ValueError(f"{len(floors)} floors for {len(boxes)} boxes")
+    gives_way = np.zeros(len(boxes), dtype=np.bool_) if gives_way is None else np.asarray(gives_way, dtype=np.bool_)
+    if len(gives_way) != len(boxes):
+        raise ValueError(f"{len(gives_way)} gives_way flags for {len(boxes)} boxes")
     return _membership(points, label, own_of, boxes_array(boxes), np.asarray(margin, dtype=np.float64), float(cell),
-                       floors)
+                       floors, gives_way)
 
 
 def ground_floors(boxes: list[Box3D], local: LocalGround, band: float) -> np.ndarray:

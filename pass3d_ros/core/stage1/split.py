@@ -40,6 +40,11 @@ from pass3d_ros.data.frame import Box3D
 
 PART_MAX_LENGTH_M = 2.0  # `rerun_dropped` keeps a part of a cluster it chose only when this short (KITTI's mean
 PART_MAX_WIDTH_M = 1.2  # cyclist 1.76 x 0.60 m, pedestrian 0.84 x 0.66 m) and this narrow: people, not pieces of walls
+# ... and only when shaped like a person standing there (`_person_shaped`; rule R3, docs/experiments/sensors.md):
+PART_MIN_RISE_M = 0.88  # its points span at least half KITTI's mean pedestrian height (1.76 m) from bottom to top
+PART_MAX_TOP_M = 2.1  # its top at most KITTI's mean pedestrian height and the ground band (th_dist 0.3 m) above ground
+PART_MIN_DEPTH_M = 0.1  # its footprint's short side at least this: the near half of a body 0.2-0.3 m deep, not a
+# pole, sign or panel seen edge on
 SIDE_WINDOW = 1.0  # metres of axis on each side of a gap whose coverage is checked
 SIDE_COVER = 0.5  # share of that window's bins that must hold a point
 BINS_PER_GAP = 4  # bin width = split_gap / BINS_PER_GAP
@@ -171,16 +176,38 @@ def _gate_parts(points: np.ndarray, label: np.ndarray, first: int, count: int, s
                 segment_edges: np.ndarray, config: Stage1Config, small_only: np.ndarray | None = None
                 ) -> tuple[list[Box3D], np.ndarray]:
     """Boxes and ids of the clusters `first` .. `first + count - 1` of `label` that pass every gate on their own;
-    those flagged in `small_only` (one bool per part) only with a person- or rider-sized footprint."""
+    those flagged in `small_only` (one bool per part) only with a person- or rider-sized footprint and the shape of
+    a person standing there (`_person_shaped`)."""
     part_points = np.flatnonzero(label >= first)
     sub = np.ascontiguousarray(points[part_points])
     sub_label = (label[part_points] - first).astype(np.int32)
     z_lo, z_hi, fitted, rects, keep, *_ = _refinement.gate_clusters(sub, sub_label, count, surface, segment_edges,
                                                                    config)
     if small_only is not None:
-        keep &= ~small_only[fitted] | ((rects[:, 2] <= PART_MAX_LENGTH_M) & (rects[:, 3] <= PART_MAX_WIDTH_M))
+        sized = ((rects[:, 2] <= PART_MAX_LENGTH_M) & (rects[:, 3] <= PART_MAX_WIDTH_M)
+                 & (rects[:, 3] >= PART_MIN_DEPTH_M))
+        flagged = np.zeros(count, dtype=bool)
+        flagged[fitted[keep & small_only[fitted]]] = True
+        shaped = _person_shaped(sub, sub_label, flagged, surface, segment_edges)
+        keep &= ~small_only[fitted] | (sized & shaped[fitted])
     parts = fitted[keep]
     return _refinement.boxes_of(rects[keep], z_lo[parts], z_hi[parts]), first + parts
+
+
+def _person_shaped(points: np.ndarray, label: np.ndarray, flagged: np.ndarray, surface: np.ndarray | LocalGround,
+                   segment_edges: np.ndarray) -> np.ndarray:
+    """Per cluster id (`flagged`: those to look at; the others are False), whether its points rise at least
+    PART_MIN_RISE_M from their lowest to their highest and the highest is at most PART_MAX_TOP_M above the ground,
+    as the gates read heights (`heights_above_ground`). The gates let a cluster's top reach 2.3 m and its bottom float
+    1.5 m up (an occluded car, a person behind one); a part of a crowd's cluster that shows less than half a person,
+    or stands taller than one, was clutter far more often than a person on the development scans (rule R3)."""
+    height = heights_above_ground(points, label, flagged, surface, segment_edges)
+    inside = np.flatnonzero(~np.isnan(height))
+    top = np.full(len(flagged), -np.inf)
+    bottom = np.full(len(flagged), np.inf)
+    np.maximum.at(top, label[inside], height[inside])
+    np.minimum.at(bottom, label[inside], height[inside])
+    return flagged & (top - bottom >= PART_MIN_RISE_M) & (top <= PART_MAX_TOP_M)
 
 
 def heights_above_ground(points: np.ndarray, label: np.ndarray, chosen: np.ndarray, surface: np.ndarray | LocalGround,
@@ -242,19 +269,22 @@ def _dropped_to_rerun(points: np.ndarray, label: np.ndarray, n_clusters: int, n_
 def select_with_split(
     points: np.ndarray, label: np.ndarray, n_clusters: int, planes: np.ndarray | LocalGround,
     segment_edges: np.ndarray, config: Stage1Config, ring: np.ndarray | None = None,
-) -> tuple[list[Box3D], np.ndarray, np.ndarray, int]:
-    """`select_proposals` with the splits: (boxes, kept cluster ids, labels with the parts' new ids, clusters split).
-    The boxes and ids of `select_proposals` come first, unchanged; kept parts follow, first those cut at gaps
-    (`split_merged`, module docstring), then those of scan-line runs again (`split_rerun`; needs `ring`, the rings
-    clustering read, else skipped), then those protruding from dropped taller structures (`split_protruding`,
-    pass3d_ros.core.stage1.protrusion). `planes`: the segment planes or the local ground, as the gates take them."""
+) -> tuple[list[Box3D], np.ndarray, np.ndarray, int, np.ndarray]:
+    """`select_proposals` with the splits: (boxes, kept cluster ids, labels with the parts' new ids, clusters split,
+    which kept proposals give way). The boxes and ids of `select_proposals` come first, unchanged; kept parts follow,
+    first those cut at gaps (`split_merged`, module docstring), then those of scan-line runs again (`split_rerun`;
+    needs `ring`, the rings clustering read, else skipped), then those protruding from dropped taller structures
+    (`split_protruding`, pass3d_ros.core.stage1.protrusion). `planes`: the segment planes or the local ground, as the
+    gates take them. The parts of the clusters only `rerun_dropped` chose give way (one bool per kept id): they hold
+    no point another proposal holds (refinement.enlarged_membership), so the option only adds labels."""
     if n_clusters == 0:
-        return [], np.zeros(0, dtype=np.int64), label, 0
+        return [], np.zeros(0, dtype=np.int64), label, 0, np.zeros(0, dtype=bool)
     z_lo, z_hi, fitted, rects, keep, footprint, count, may_part = _refinement.gate_clusters(
         points, label, n_clusters, planes, segment_edges, config, fit_all=True)
     kept = fitted[keep]
     boxes = _refinement.boxes_of(rects[keep], z_lo[kept], z_hi[kept])
     out, n_total, n_split = label, n_clusters, 0
+    gives_way = np.zeros(0, dtype=np.int64)  # kept ids of rerun_dropped's parts
     if config.split_merged:
         out, n_total, n_split = cut_at_gaps(points, label, n_clusters, fitted[~footprint], rects[~footprint], config)
         if n_split:
@@ -284,6 +314,8 @@ def select_with_split(
             boxes += part_boxes
             kept = np.concatenate([kept, part_ids])
             n_split += n_rerun
+            if small_only is not None:
+                gives_way = part_ids[small_only[part_ids - first]]
     if config.split_protruding:
         chosen = _protrusion_candidates(n_total, kept, z_lo, z_hi, config)
         height = heights_above_ground(points, out, chosen, planes, segment_edges)
@@ -295,7 +327,7 @@ def select_with_split(
             boxes += part_boxes
             kept = np.concatenate([kept, part_ids])
             out, n_split = cut, n_split + n_made
-    return boxes, kept, out, n_split
+    return boxes, kept, out, n_split, np.isin(kept, gives_way)
 
 
 def warm_up() -> None:

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from helpers.scans import SENSOR_HEIGHT, Solid, raycast
 
-from pass3d_ros.core.stage1 import Stage1Config, propose, split
+from pass3d_ros.core.stage1 import Stage1Config, propose, refinement, split
 from pass3d_ros.core.stage1.refinement import min_area_rectangle
+from pass3d_ros.data.frame import Box3D
 
 KITTI_CAR = (3.88, 1.63, 1.53)  # mean KITTI car box (DESIGN.md)
 
@@ -66,8 +67,8 @@ def test_long_wall_yields_no_new_car_sized_proposal(height: float) -> None:
     """A 15 m wall of car height has no gap: it stays one cluster, dropped as before."""
     wall = Solid((4.0 + 7.5, -4.0, -SENSOR_HEIGHT + height / 2), (15.0, 0.2, height))
     points, ring, _ = raycast([wall], n_az=2000)
-    before = propose(points, ring, Stage1Config(split_merged=False))
-    after = propose(points, ring, Stage1Config(split_merged=True))
+    before = propose(points, ring, Stage1Config(split_merged=False, rerun_dropped=False))
+    after = propose(points, ring, Stage1Config(split_merged=True, rerun_dropped=False))
     assert after.n_split == 0
     assert len(car_sized(after)) == len(car_sized(before))
     np.testing.assert_array_equal(after.cluster_id, before.cluster_id)
@@ -116,9 +117,10 @@ def test_old_proposals_stay_first_and_unchanged(kind: str) -> None:
     from pass3d_ros.synthetic.dataset import generate_frame
 
     frame = generate_frame(7, 3)
-    before = propose(frame.points, frame.ring, Stage1Config(split_merged=False, split_protruding=False))
+    before = propose(frame.points, frame.ring, Stage1Config(split_merged=False, split_protruding=False,
+                                                            rerun_dropped=False))
     on = {"split_merged": kind in ("split_merged", "both"), "split_protruding": kind in ("split_protruding", "both")}
-    after = propose(frame.points, frame.ring, Stage1Config(**on))
+    after = propose(frame.points, frame.ring, Stage1Config(**on, rerun_dropped=False))
     assert after.n_split >= 1 and len(after.boxes) > len(before.boxes)
     for a, b in zip(before.boxes, after.boxes, strict=False):
         np.testing.assert_allclose(a.center, b.center)
@@ -128,19 +130,20 @@ def test_old_proposals_stay_first_and_unchanged(kind: str) -> None:
     np.testing.assert_array_equal(after.cluster_id[old], before.cluster_id[old])
 
 
-def person_before_wall(gap: float) -> list[Solid]:
-    """A person (0.3 x 0.6 x 1.75 m) standing `gap` metres in front of a 7.5 m long, 1.2 m high wall, 8 m ahead: one
-    cluster (their faces 0.3 + gap apart: beyond th_ring, within th_prop) longer than any road user and without a gap
-    to cut at."""
-    person = Solid((8.0, 0.0, -SENSOR_HEIGHT + 1.75 / 2), (0.3, 0.6, 1.75))
-    wall = Solid((8.15 + gap + 0.15, 0.0, -SENSOR_HEIGHT + 0.6), (0.3, 7.5, 1.2))
+def person_before_wall(gap: float, yaw: float = 0.5, height: float = 1.75, bottom: float = 0.0,
+                       x: float = 8.0) -> list[Solid]:
+    """A person (0.3 x 0.6 x `height` m from `bottom` above the ground, turned `yaw` so that a front and a side show)
+    standing `gap` metres in front of a 7.5 m long, 1.2 m high wall, `x` metres ahead: one cluster (their faces about
+    0.3 + gap apart: beyond th_ring, within th_prop) longer than any road user and without a gap to cut at."""
+    person = Solid((x, 0.0, -SENSOR_HEIGHT + bottom + height / 2), (0.3, 0.6, height), yaw)
+    wall = Solid((x + 0.15 + gap + 0.15, 0.0, -SENSOR_HEIGHT + 0.6), (0.3, 7.5, 1.2))
     return [person, wall]
 
 
 @pytest.mark.parametrize("gap", [0.25, 0.35])
 def test_rerun_dropped_cuts_a_person_off_a_long_wall(gap: float) -> None:
     points, ring, hit = raycast(person_before_wall(gap), n_az=1000)
-    before = propose(points, ring, Stage1Config())
+    before = propose(points, ring, Stage1Config(rerun_dropped=False))
     after = propose(points, ring, Stage1Config(rerun_dropped=True))
     person = hit == 0
     assert (before.cluster_id[person] >= 0).mean() < 0.1  # dropped with the wall
@@ -158,3 +161,68 @@ def test_rerun_dropped_leaves_large_clusters_whole() -> None:
     n_cluster = int(np.count_nonzero(hit >= 0))
     after = propose(points, ring, Stage1Config(rerun_dropped=True, rerun_max_points=n_cluster // 2))
     assert (after.cluster_id[hit == 0] >= 0).mean() < 0.1
+
+
+def _car_and_part() -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
+    """A car's side (cluster 0, x 5..9 m at y = 0) and a person-sized part (cluster 1) 0.05 m beside its rear end:
+    the part's enlarged box (0.1 m margin) takes in the car's last points, and the car's box the part's nearest."""
+    car_x = np.linspace(5.0, 9.0, 41)
+    person_x = np.linspace(9.05, 9.45, 5)
+    xs = np.concatenate([car_x, person_x])
+    points = np.zeros((len(xs), 4), dtype=np.float32)
+    points[:, 0] = xs
+    points[:, 2] = -1.0
+    label = np.array([0] * len(car_x) + [1] * len(person_x), dtype=np.int32)
+    boxes = [Box3D(center=np.array([7.0, 0.0, -1.0]), size=np.array([4.0, 0.2, 1.0]), yaw=0.0),
+             Box3D(center=np.array([9.25, 0.0, -1.0]), size=np.array([0.4, 0.2, 1.0]), yaw=0.0)]
+    return points, label, boxes, np.array([0, 1])
+
+
+def test_a_part_that_gives_way_takes_no_point_of_another_proposal() -> None:
+    """Without the flag the part's box takes the car's rear points as their second proposal (and the car's box the
+    part's first point); with it, every point another proposal holds is that proposal's alone, the car keeps exactly
+    its points, and the part keeps only the points no other proposal holds."""
+    points, label, boxes, kept = _car_and_part()
+    margin = (0.1, 0.1, 0.4)
+    first, second = refinement.enlarged_membership(points, label, kept, boxes, margin)
+    assert (second == 1).any() and (second == 0).any()
+    gw_first, gw_second = refinement.enlarged_membership(points, label, kept, boxes, margin,
+                                                         gives_way=np.array([False, True]))
+    car_points = {i for i in range(len(points)) if 0 in (first[i], second[i])}
+    assert {i for i in range(len(points)) if 0 in (gw_first[i], gw_second[i])} == car_points
+    assert not ((gw_first == 1) & (gw_second >= 0)).any() and not (gw_second == 1).any()
+    assert set(np.flatnonzero(gw_first == 1)) == set(np.flatnonzero(label == 1)) - car_points
+    with pytest.raises(ValueError, match="gives_way"):
+        refinement.enlarged_membership(points, label, kept, boxes, margin, gives_way=np.array([True]))
+
+
+def test_only_rerun_dropped_parts_give_way() -> None:
+    """The person cut off the wall by rerun_dropped gives way, and is the only proposal that does; without the option
+    no proposal gives way and no point is people-only."""
+    points, ring, hit = raycast(person_before_wall(0.25), n_az=1000)
+    before = propose(points, ring, Stage1Config(rerun_dropped=False))
+    after = propose(points, ring, Stage1Config(rerun_dropped=True))
+    assert not before.gives_way.any() and before.people_only() is None
+    assert len(after.gives_way) == after.n_proposals and after.gives_way.any()
+    people = after.people_only()
+    assert people is not None and people[hit == 0].mean() > 0.9
+    assert not after.gives_way[:before.n_proposals].any()
+
+
+@pytest.mark.parametrize(("what", "shape"), [("a panel seen square on", {"yaw": 0.0}),
+                                             ("less than half a person", {"height": 0.7, "bottom": 0.6}),
+                                             ("taller than a person", {"height": 2.25, "x": 12.0, "gap": 0.35})])
+def test_rerun_dropped_keeps_only_person_shaped_parts(what: str, shape: dict) -> None:
+    """A part that passes the gates but is no person standing there (a flat face, no depth; 0.7 m of rise; a top
+    2.15 m up, seen 12 m away where the highest laser reaches it) stays dropped with the wall; the same part shaped
+    as a person is kept (`test_rerun_dropped_cuts_a_person_off_a_long_wall`, and the control below)."""
+    points, ring, hit = raycast(person_before_wall(**{"gap": 0.25, **shape}), n_az=1000)
+    after = propose(points, ring, Stage1Config(rerun_dropped=True))
+    assert (after.cluster_id[hit == 0] >= 0).mean() < 0.1, what
+
+
+def test_a_person_12_m_away_is_kept() -> None:
+    """The control of the tall case: a 1.75 m person in its place is kept."""
+    points, ring, hit = raycast(person_before_wall(0.35, x=12.0), n_az=1000)
+    after = propose(points, ring, Stage1Config(rerun_dropped=True))
+    assert (after.cluster_id[hit == 0] >= 0).mean() > 0.9

@@ -25,7 +25,9 @@ from pass3d_ros.core.stage2.pointnet2 import (
 from pass3d_ros.core.stage2.segmentation import (
     CheckpointError,
     Segmenter,
+    SegmentResult,
     make_checkpoint,
+    people_only,
     predict_probabilities,
     prepare_proposals,
     scatter_predictions,
@@ -443,3 +445,20 @@ def test_open_classifier_checks_once_and_names_the_file(tmp_path, lite_checkpoin
     rules = open_classifier("", "size_rules")
     assert (rules.kind, rules.weights) == ("size_rules", None)
     assert open_classifier(lite_checkpoint).weights is None  # a checkpoint dict has no file
+
+
+def test_people_only_points_are_pedestrian_or_background() -> None:
+    """Flagged points (rerun_dropped's parts) lose a car or cyclist label to background, with the rest of the
+    probability as confidence; pedestrian and background stay, unflagged points and proposals are untouched; a
+    proposal of flagged points only loses a car or cyclist class."""
+    labels = np.array([CAR, CYCLIST, PEDESTRIAN, BACKGROUND, CAR, CAR], dtype=np.uint8)
+    confidence = np.array([0.9, 0.6, 0.8, 1.0, 0.7, 0.7], dtype=np.float32)
+    result = SegmentResult(labels, confidence, np.array([CAR, CAR], dtype=np.int16))
+    members = [np.array([0, 1, 2, 3]), np.array([3, 4, 5])]
+    mask = np.array([True, True, True, True, False, False])
+    out = people_only(result, members, mask)
+    assert out.labels.tolist() == [BACKGROUND, BACKGROUND, PEDESTRIAN, BACKGROUND, CAR, CAR]
+    np.testing.assert_allclose(out.confidence, [0.1, 0.4, 0.8, 1.0, 0.7, 0.7], rtol=1e-6)
+    assert out.proposal_class.tolist() == [BACKGROUND, CAR]
+    assert labels[0] == CAR  # the input result is not changed
+    assert people_only(result, members, None) is result
