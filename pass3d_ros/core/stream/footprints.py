@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import NamedTuple
 
+import numba as nb
 import numpy as np
 
 CELL_M = 0.5  # the side of a footprint cell, metres
@@ -32,7 +33,7 @@ class Footprints(NamedTuple):
 
     def split(self) -> list[np.ndarray]:
         """One (M_k, 2) array per object."""
-        return np.split(self.xy, np.cumsum(self.counts)[:-1]) if len(self.counts) else []
+        return pieces(self.xy, self.counts)
 
 
 def sample(xy: np.ndarray, limit: int = MAX_POINTS) -> np.ndarray:
@@ -69,43 +70,109 @@ def grouped_cells(xy: np.ndarray, counts: Sequence[int] | np.ndarray) -> list[np
     """`cells` of each of several footprints at once: `xy` (M, 2) their points one after another, `counts` how many
     each has (a footprint of no points has no cells)."""
     counts = np.asarray(counts, dtype=np.int64)
-    group = np.repeat(np.arange(len(counts)), counts)
-    keys = point_cells(xy) if len(xy) else np.zeros(0, np.int64)
-    order = np.lexsort((keys, group))
-    keys, group = keys[order], group[order]
-    first = np.r_[True, (keys[1:] != keys[:-1]) | (group[1:] != group[:-1])] if len(keys) else np.zeros(0, bool)
-    keys, group = keys[first], group[first]
-    return np.split(keys, np.searchsorted(group, np.arange(1, len(counts))))
+    if not len(xy):
+        return [np.zeros(0, np.int64) for _ in counts]
+    flat, sizes = _unique_groups(point_cells(xy), counts)
+    return pieces(flat, sizes)
 
 
-def group_sample(group: np.ndarray, limit: int = MAX_POINTS) -> np.ndarray:
-    """A mask keeping at most `limit` evenly spaced members of each group of `group` (sorted group numbers), as `sample`
-    keeps them of one, for all groups at once."""
-    n = len(group)
-    if not n:
-        return np.zeros(0, bool)
-    start = np.r_[0, np.flatnonzero(group[1:] != group[:-1]) + 1]
-    size = np.diff(np.r_[start, n])
-    rank = np.arange(n) - np.repeat(start, size)
-    total = np.repeat(size, size)
-    step = (rank * limit) // total
-    return (total <= limit) | (rank == 0) | (step != ((rank - 1) * limit) // total)
+def pieces(flat: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
+    """`flat` cut into consecutive pieces of `sizes` (a list of views: np.split costs ten times more)."""
+    ends = np.cumsum(sizes).tolist()
+    return [flat[start:end] for start, end in zip([0, *ends[:-1]], ends, strict=True)]
+
+
+@nb.njit(cache=True, nogil=True)
+def _unique_groups(keys: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each group's sorted unique keys (groups of `counts` consecutive keys), one group after another, and how many
+    each has: an insertion sort within each group (a footprint's few dozen keys), duplicates skipped as they come."""
+    out = np.empty(len(keys), np.int64)
+    sizes = np.zeros(len(counts), np.int64)
+    start = 0
+    written = 0
+    for g in range(len(counts)):
+        first = written
+        for m in range(start, start + counts[g]):
+            key = keys[m]
+            at = written
+            while at > first and out[at - 1] > key:
+                at -= 1
+            if at > first and out[at - 1] == key:
+                continue
+            for k in range(written, at, -1):
+                out[k] = out[k - 1]
+            out[at] = key
+            written += 1
+        start += counts[g]
+        sizes[g] = written - first
+    return out[:written], sizes
+
+
+@nb.njit(cache=True, nogil=True)
+def evenly_spaced(members: np.ndarray, owner: np.ndarray, count: int, limit: int) -> tuple[np.ndarray, np.ndarray]:
+    """At most `limit` evenly spaced of each object's `members` (in their order; `owner` each one's object, 0 ..
+    count - 1), one object's after another, and how many each has: what `sample` keeps of each, for all objects in two
+    passes and no sort."""
+    total = np.zeros(count, np.int64)
+    for k in owner:
+        total[k] += 1
+    kept = np.minimum(total, limit)
+    start = np.zeros(count, np.int64)
+    for k in range(1, count):
+        start[k] = start[k - 1] + kept[k - 1]
+    out = np.empty(int(kept.sum()), members.dtype)
+    rank = np.zeros(count, np.int64)
+    taken = np.zeros(count, np.int64)
+    for m in range(len(members)):
+        k = owner[m]
+        r = rank[k]
+        rank[k] += 1
+        n = total[k]
+        if n <= limit or (taken[k] < limit and r == int(taken[k] * ((n - 1) / (limit - 1)))):
+            out[start[k]] = members[m]
+            start[k] += 1
+            taken[k] += 1
+    return out, kept
 
 
 def shared_cells(first: Sequence[np.ndarray], second: Sequence[np.ndarray]) -> np.ndarray:
     """(len(first), len(second)) counts of the cells each footprint of `first` shares with each of `second` (both
     lists of `cells` keys)."""
-    out = np.zeros((len(first), len(second)), np.int64)
     if not len(first) or not len(second):
-        return out
-    keys = np.concatenate(first)
-    owner = np.repeat(np.arange(len(first)), [len(k) for k in first])
-    order = np.argsort(keys, kind="stable")
-    keys, owner = keys[order], owner[order]
-    wanted = np.concatenate(second)
-    asker = np.repeat(np.arange(len(second)), [len(k) for k in second])
-    position, count = matching(keys, wanted)
-    np.add.at(out, (owner[position], np.repeat(asker, count)), 1)
+        return np.zeros((len(first), len(second)), np.int64)
+    return _shared(*_flat(first), *_flat(second))
+
+
+def _flat(groups: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Several key arrays as one, and where each starts (with the end last)."""
+    sizes = [len(g) for g in groups]
+    return (np.concatenate(groups) if sum(sizes) else np.zeros(0, np.int64)), np.cumsum([0, *sizes])
+
+
+@nb.njit(cache=True, nogil=True)
+def _shared(first: np.ndarray, first_at: np.ndarray, second: np.ndarray, second_at: np.ndarray) -> np.ndarray:
+    """The shared counts of `shared_cells`, each pair's two sorted key lists merged (pairs whose key ranges do not
+    meet are skipped: most pairs of a scan lie apart)."""
+    out = np.zeros((len(first_at) - 1, len(second_at) - 1), np.int64)
+    for i in range(len(first_at) - 1):
+        a0, a1 = first_at[i], first_at[i + 1]
+        if a0 == a1:
+            continue
+        for j in range(len(second_at) - 1):
+            b0, b1 = second_at[j], second_at[j + 1]
+            if b0 == b1 or first[a1 - 1] < second[b0] or second[b1 - 1] < first[a0]:
+                continue
+            a, b, n = a0, b0, 0
+            while a < a1 and b < b1:
+                if first[a] == second[b]:
+                    n += 1
+                    a += 1
+                    b += 1
+                elif first[a] < second[b]:
+                    a += 1
+                else:
+                    b += 1
+            out[i, j] = n
     return out
 
 

@@ -36,23 +36,26 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from pass3d_ros.classes import CAR, CYCLIST, MEAN_SIZE, NUM_CLASSES, PEDESTRIAN
+from pass3d_ros.core.stream import kalman
 from pass3d_ros.core.stream.footprints import (
     CELL_M,
     MAX_POINTS,
     Footprints,
     cells,
+    evenly_spaced,
     extent,
     grouped_cells,
     matching,
     overlap,
+    pieces,
     point_cells,
-    sample,
     shared_cells,
 )
 
 LONG_M = 3.0  # a class this long on average (a car) moves its box centre by metres when seen from another side; a
 # person's or a rider's moves less than a centre's error
 COS_HEADING = float(np.cos(np.radians(30.0)))  # "along the heading": within 30 degrees of it
+MIN_WEIGHT = 1e-3  # a sighting's least weight in the vote (a confidence of 0 still counts)
 MIN_MARGIN_M = 0.05  # the margin of a pair matched beyond its gate by its footprint (`Tracker._associate`)
 
 
@@ -132,10 +135,19 @@ class Track:
     stamp_s: float = 0.0
     _label: int = -1  # the vote's result and its share, made again when a sighting is added
     _score: float = 0.0
+    _weight: list[float] = field(default_factory=lambda: [0.0] * NUM_CLASSES)  # the window's weight per class
+
+    def __post_init__(self) -> None:
+        for label, confidence in self.votes:
+            self._weight[label] += max(confidence, MIN_WEIGHT)
 
     def sighting(self, label: int, confidence: float) -> None:
-        """Add a sighting to the vote."""
+        """Add a sighting to the vote (the window's weights kept as it slides)."""
+        if len(self.votes) == self.votes.maxlen:
+            gone, weight = self.votes[0]
+            self._weight[gone] -= max(weight, MIN_WEIGHT)
         self.votes.append((label, confidence))
+        self._weight[label] += max(confidence, MIN_WEIGHT)
         self._label = -1
 
     def label(self) -> int:
@@ -157,9 +169,7 @@ class Track:
         return sum(mine) / len(mine) if mine else 0.0
 
     def _vote(self) -> None:
-        weight = [0.0] * NUM_CLASSES
-        for label, confidence in self.votes:
-            weight[label] += max(confidence, 1e-3)
+        weight = self._weight
         first = self.votes[0][0]
         best = max(range(NUM_CLASSES), key=weight.__getitem__)
         self._label = first if weight[first] >= weight[best] else best
@@ -383,10 +393,10 @@ class Tracker:
         union's longer side lies along its heading. The smallest such union wins. detection -> track index."""
         if world is None:
             return {}
-        points = world.split()
-        free = [d for d in range(len(points)) if d not in matched and d not in parts and len(points[d])]
+        free = [d for d in range(len(world.counts)) if d not in matched and d not in parts and world.counts[d]]
         if not free:
             return {}
+        points = world.split()
         by_track: dict[int, list[int]] = {}
         for d, t in matched.items():
             track = self.tracks[t]
@@ -418,18 +428,15 @@ class Tracker:
         return out
 
     def _keep_footprints(self, out: list[Tracked], world: Footprints) -> None:
-        """Each seen track's footprint: its detections' points (parts included; tracking frame) as offsets from its
-        centre."""
-        owner = np.repeat(np.array([t.track_id for t in out], dtype=np.int64), world.counts)
-        if not len(owner):
-            return
-        order = np.argsort(owner, kind="stable")
-        ids, starts = np.unique(owner[order], return_index=True)
-        pieces = np.split(world.xy[order], starts[1:])
-        by_id = dict(zip(ids.tolist(), pieces, strict=True))
-        for track in self.tracks:
-            if track.track_id in by_id:
-                track.offsets = sample(by_id[track.track_id], 2 * MAX_POINTS) - track.state[:2]
+        """Each seen track's footprint: its detections' points (parts included; tracking frame), at most 2 x
+        MAX_POINTS evenly spaced, as offsets from its centre."""
+        rows = {t.track_id: k for k, t in enumerate(self.tracks)}
+        owner = np.repeat(np.array([rows[t.track_id] for t in out], dtype=np.int64), world.counts)
+        chosen, kept = evenly_spaced(np.arange(len(owner)), owner, len(self.tracks), 2 * MAX_POINTS)
+        centres = np.repeat(np.array([t.state[:2] for t in self.tracks]).reshape(-1, 2), kept, axis=0)
+        for track, offsets, count in zip(self.tracks, pieces(world.xy[chosen] - centres, kept), kept, strict=True):
+            if count:
+                track.offsets = offsets
 
     def _hold(self, background: Callable[[np.ndarray, np.ndarray], np.ndarray], seen: set[int], stamp_s: float,
               to_world: _Frame) -> list[tuple[Tracked, np.ndarray]]:
@@ -494,15 +501,8 @@ class Tracker:
         if not tracks:
             return
         dt = np.clip(stamp_s - np.array([t.stamp_s for t in tracks]), 0.0, self.config.max_dt_s)
-        f = np.broadcast_to(np.eye(4), (len(dt), 4, 4)).copy()
-        f[:, 0, 2] = f[:, 1, 3] = dt
-        a2 = self.config.process_accel ** 2
-        q = np.zeros((len(dt), 4, 4))
-        q[:, 0, 0] = q[:, 1, 1] = a2 * dt ** 4 / 4
-        q[:, 0, 2] = q[:, 2, 0] = q[:, 1, 3] = q[:, 3, 1] = a2 * dt ** 3 / 2
-        q[:, 2, 2] = q[:, 3, 3] = a2 * dt ** 2
-        states = np.einsum("tij,tj->ti", f, np.array([t.state for t in tracks]))
-        covs = f @ np.array([t.cov for t in tracks]) @ f.transpose(0, 2, 1) + q
+        states, covs = np.array([t.state for t in tracks]), np.array([t.cov for t in tracks])
+        kalman.predict(states, covs, dt, self.config.process_accel)
         for track, state, cov in zip(tracks, states, covs, strict=True):
             track.state, track.cov, track.stamp_s = state, cov, stamp_s
 
@@ -514,22 +514,16 @@ class Tracker:
         while it stands still)."""
         if not tracks:
             return
-        states = np.array([t.state for t in tracks])
-        covs = np.array([t.cov for t in tracks])
+        states, covs = np.array([t.state for t in tracks]), np.array([t.cov for t in tracks])
+        view = np.zeros(len(tracks))
         if sizes is not None and self.config.reshape_m is not None:
             before = np.sort(np.array([t.size[:2] for t in tracks]), axis=1)
             after = np.sort(np.asarray(sizes, dtype=np.float64)[:, :2], axis=1)
             change = np.abs(after - before).sum(axis=1)
             long = np.array([MEAN_SIZE.get(t.label(), (0.0,))[0] >= LONG_M for t in tracks])
-            reshaped = (change > self.config.reshape_m) & long
-            covs[reshaped, :2, 2:] = covs[reshaped, 2:, :2] = 0.0
-            covs[reshaped, :2, :2] += np.eye(2) * (change[reshaped, None, None] / 2) ** 2  # where it was is moot
-        s = covs[:, :2, :2] + np.eye(2) * self.config.measurement_m ** 2
-        det = s[:, 0, 0] * s[:, 1, 1] - s[:, 0, 1] * s[:, 1, 0]
-        inv = np.stack([np.stack([s[:, 1, 1], -s[:, 0, 1]], -1), np.stack([-s[:, 1, 0], s[:, 0, 0]], -1)], 1)
-        gain = covs[:, :, :2] @ (inv / det[:, None, None])  # (T, 4, 2)
-        states = states + np.einsum("tij,tj->ti", gain, centers[:, :2] - states[:, :2])
-        covs = covs - gain @ covs[:, :2, :]
+            view = np.where((change > self.config.reshape_m) & long, (change / 2) ** 2, 0.0)
+        kalman.correct(states, covs, np.ascontiguousarray(centers[:, :2], dtype=np.float64),
+                       self.config.measurement_m ** 2, view)
         for track, state, cov in zip(tracks, states, covs, strict=True):
             track.state, track.cov = state, cov
 

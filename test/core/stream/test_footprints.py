@@ -1,0 +1,64 @@
+"""Footprints (pass3d_ros.core.stream.footprints): the compiled group operations give what the plain ones give."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pass3d_ros.core.stream.footprints import (
+    cells,
+    evenly_spaced,
+    extent,
+    grouped_cells,
+    overlap,
+    sample,
+    shared_cells,
+)
+
+
+def _groups(rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarray]:
+    counts = rng.integers(0, 40, count)
+    centres = np.repeat(rng.uniform(-20, 20, (count, 2)), counts, axis=0)
+    return centres + rng.normal(0, 1.0, (int(counts.sum()), 2)), counts
+
+
+def test_grouped_cells_are_each_groups_cells() -> None:
+    rng = np.random.default_rng(3)
+    xy, counts = _groups(rng, 30)
+    pieces = np.split(xy, np.cumsum(counts)[:-1])
+    for got, points in zip(grouped_cells(xy, counts), pieces, strict=True):
+        assert np.array_equal(got, cells(points) if len(points) else np.zeros(0, np.int64))
+
+
+def test_shared_cells_and_overlap_count_what_sets_share() -> None:
+    rng = np.random.default_rng(4)
+    first = grouped_cells(*_groups(rng, 12))
+    second = grouped_cells(*_groups(rng, 9))
+    shared = shared_cells(first, second)
+    for i, a in enumerate(first):
+        for j, b in enumerate(second):
+            assert shared[i, j] == len(set(a.tolist()) & set(b.tolist()))
+    assert shared.sum() > 0, "the random groups overlap somewhere (else this test tests nothing)"
+    share = overlap(first, second)
+    assert np.all((share >= 0) & (share <= 1))
+
+
+def test_evenly_spaced_keeps_what_sample_keeps_per_object() -> None:
+    rng = np.random.default_rng(5)
+    owner = rng.integers(0, 7, 2000)
+    owner[owner == 3] = 4  # an object with no points
+    members = np.sort(rng.choice(100_000, 2000, replace=False))
+    chosen, kept = evenly_spaced(members, owner, 7, 64)
+    start = 0
+    for k in range(7):
+        mine = members[owner == k]
+        assert np.array_equal(chosen[start:start + kept[k]], sample(mine, 64))
+        start += kept[k]
+    assert kept[3] == 0 and start == len(chosen)
+
+
+def test_extent_of_a_rotated_box() -> None:
+    grid = np.stack(np.meshgrid(np.linspace(-2, 2, 21), np.linspace(-0.8, 0.8, 9)), -1).reshape(-1, 2)
+    turn = np.array([[np.cos(0.6), -np.sin(0.6)], [np.sin(0.6), np.cos(0.6)]])
+    length, width, axis = extent(grid @ turn.T + [5.0, -3.0])
+    assert abs(length - 4.0) < 1e-6 and abs(width - 1.6) < 1e-6
+    assert abs(abs(axis @ turn[:, 0]) - 1.0) < 1e-6
