@@ -109,10 +109,12 @@ def _unique_groups(keys: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np
 
 
 @nb.njit(cache=True, nogil=True)
-def evenly_spaced(members: np.ndarray, owner: np.ndarray, count: int, limit: int) -> tuple[np.ndarray, np.ndarray]:
+def evenly_spaced(members: np.ndarray, owner: np.ndarray, count: int, limit: int,
+                  linspace: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """At most `limit` evenly spaced of each object's `members` (in their order; `owner` each one's object, 0 ..
-    count - 1), one object's after another, and how many each has: what `sample` keeps of each, for all objects in two
-    passes and no sort."""
+    count - 1), one object's after another, and how many each has, for all objects in two passes and no sort: what
+    `sample` keeps of each (`linspace`), or (not `linspace`) the first of each run of members sharing a rank * limit
+    // count (the footprints of a scan's objects)."""
     total = np.zeros(count, np.int64)
     for k in owner:
         total[k] += 1
@@ -128,7 +130,11 @@ def evenly_spaced(members: np.ndarray, owner: np.ndarray, count: int, limit: int
         r = rank[k]
         rank[k] += 1
         n = total[k]
-        if n <= limit or (taken[k] < limit and r == int(taken[k] * ((n - 1) / (limit - 1)))):
+        if linspace:
+            keep = taken[k] < limit and r == int(taken[k] * ((n - 1) / (limit - 1)))
+        else:
+            keep = r == 0 or (r * limit) // n != ((r - 1) * limit) // n
+        if n <= limit or keep:
             out[start[k]] = members[m]
             start[k] += 1
             taken[k] += 1

@@ -62,3 +62,18 @@ def test_extent_of_a_rotated_box() -> None:
     length, width, axis = extent(grid @ turn.T + [5.0, -3.0])
     assert abs(length - 4.0) < 1e-6 and abs(width - 1.6) < 1e-6
     assert abs(abs(axis @ turn[:, 0]) - 1.0) < 1e-6
+
+
+def test_evenly_spaced_by_runs_keeps_the_first_of_each_rank_run() -> None:
+    rng = np.random.default_rng(6)
+    owner = rng.integers(0, 5, 900)
+    members = np.arange(900) * 3
+    chosen, kept = evenly_spaced(members, owner, 5, 64, linspace=False)
+    start = 0
+    for k in range(5):
+        mine = members[owner == k]
+        rank = np.arange(len(mine))
+        step = rank * 64 // len(mine)
+        want = mine[(rank == 0) | (step != np.r_[-1, step[:-1]])] if len(mine) > 64 else mine
+        assert np.array_equal(chosen[start:start + kept[k]], want) and kept[k] == min(len(mine), 64)
+        start += kept[k]
