@@ -26,12 +26,11 @@ from pass3d_ros.core.objects import (
     boxed_objects,
     plausible_size,
 )
-from pass3d_ros.core.stream.footprints import MAX_POINTS, Footprints, evenly_spaced
+from pass3d_ros.core.stream.footprints import MAX_POINTS, Footprints, footprint_members
 from pass3d_ros.core.stream.tracks import Tracked, Tracker
 
 NO_TRACK = -1  # the track id of a point or object in no confirmed track
 MAX_TABLE = 1 << 16  # object_points looks cluster ids below this up in a table
-GOLDEN = 0.6180339887498949  # index times this, modulo 1: a fixed, evenly spread pseudo-random number per point
 HELD_SCORE = 0.5  # a held object's score is its track's vote share times this (stage 2 did not see it)
 
 
@@ -123,14 +122,11 @@ def _sensor_xy(points: np.ndarray, back: np.ndarray | None) -> np.ndarray:
 
 def _footprints(points: np.ndarray, members: np.ndarray, owner: np.ndarray, count: int,
                 back: np.ndarray | None) -> Footprints:
-    """Each object's footprint points (x, y in the sensor frame, about footprints.MAX_POINTS of them at most): first
-    thinned to twice that share of each object's points (a fixed hash of the point's index, no sort of all of them),
-    then evenly spaced (`evenly_spaced`)."""
+    """Each object's footprint points (x, y in the sensor frame): footprints.MAX_POINTS of its points at most, spread
+    over it (`footprint_members`)."""
     if not count:
         return Footprints(np.zeros((0, 2)), np.zeros(0, np.int64))
-    share = np.minimum(1.0, 2 * MAX_POINTS / np.maximum(np.bincount(owner, minlength=count), 1))
-    thin = np.modf(members * GOLDEN)[0] < share[owner]
-    chosen, counts = evenly_spaced(members[thin], owner[thin], count, MAX_POINTS, linspace=False)
+    chosen, counts = footprint_members(members, owner, count, MAX_POINTS)
     return Footprints(_sensor_xy(points[chosen], back), counts)
 
 

@@ -14,6 +14,7 @@ import numpy as np
 
 CELL_M = 0.5  # the side of a footprint cell, metres
 MAX_POINTS = 64  # points of an object kept for its footprint (evenly spaced in scan order, so every ring keeps some)
+GOLDEN = 0.6180339887498949  # footprint_members' hash: index times this, modulo 1 (evenly spread, fixed per point)
 _OFFSET = 1 << 20  # cell indices shifted positive (any position within +-500 km)
 _ROW = 1 << 21
 
@@ -109,12 +110,10 @@ def _unique_groups(keys: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np
 
 
 @nb.njit(cache=True, nogil=True)
-def evenly_spaced(members: np.ndarray, owner: np.ndarray, count: int, limit: int,
-                  linspace: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def evenly_spaced(members: np.ndarray, owner: np.ndarray, count: int, limit: int) -> tuple[np.ndarray, np.ndarray]:
     """At most `limit` evenly spaced of each object's `members` (in their order; `owner` each one's object, 0 ..
-    count - 1), one object's after another, and how many each has, for all objects in two passes and no sort: what
-    `sample` keeps of each (`linspace`), or (not `linspace`) the first of each run of members sharing a rank * limit
-    // count (the footprints of a scan's objects)."""
+    count - 1), one object's after another, and how many each has: what `sample` keeps of each, for all objects in two
+    passes and no sort."""
     total = np.zeros(count, np.int64)
     for k in owner:
         total[k] += 1
@@ -130,14 +129,46 @@ def evenly_spaced(members: np.ndarray, owner: np.ndarray, count: int, limit: int
         r = rank[k]
         rank[k] += 1
         n = total[k]
-        if linspace:
-            keep = taken[k] < limit and r == int(taken[k] * ((n - 1) / (limit - 1)))
-        else:
-            keep = r == 0 or (r * limit) // n != ((r - 1) * limit) // n
-        if n <= limit or keep:
+        if n <= limit or (taken[k] < limit and r == int(taken[k] * ((n - 1) / (limit - 1)))):
             out[start[k]] = members[m]
             start[k] += 1
             taken[k] += 1
+    return out, kept
+
+
+@nb.njit(cache=True, nogil=True)
+def footprint_members(members: np.ndarray, owner: np.ndarray, count: int, limit: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each object's footprint points among its `members` (in their order; `owner` each one's object, 0 .. count - 1),
+    one object's after another, and how many each has: first thinned to about 2 x `limit` of each object's points by
+    a fixed hash of the point's index (frac(index x golden ratio) below the object's share), then of the rest the first
+    of each run sharing rank * limit // total: at most `limit` spread over the object, in two passes and no sort."""
+    total = np.zeros(count, np.int64)
+    for k in owner:
+        total[k] += 1
+    share = np.minimum(1.0, 2 * limit / np.maximum(total, 1))
+    thin = np.empty(len(members), np.bool_)
+    left = np.zeros(count, np.int64)
+    for m in range(len(members)):
+        x = members[m] * GOLDEN
+        thin[m] = x - np.floor(x) < share[owner[m]]
+        if thin[m]:
+            left[owner[m]] += 1
+    kept = np.minimum(left, limit)
+    start = np.zeros(count, np.int64)
+    for k in range(1, count):
+        start[k] = start[k - 1] + kept[k - 1]
+    out = np.empty(int(kept.sum()), members.dtype)
+    rank = np.zeros(count, np.int64)
+    for m in range(len(members)):
+        if not thin[m]:
+            continue
+        k = owner[m]
+        r = rank[k]
+        rank[k] += 1
+        n = left[k]
+        if n <= limit or r == 0 or (r * limit) // n != ((r - 1) * limit) // n:
+            out[start[k]] = members[m]
+            start[k] += 1
     return out, kept
 
 

@@ -8,6 +8,7 @@ from pass3d_ros.core.stream.footprints import (
     cells,
     evenly_spaced,
     extent,
+    footprint_members,
     grouped_cells,
     overlap,
     sample,
@@ -64,16 +65,20 @@ def test_extent_of_a_rotated_box() -> None:
     assert abs(abs(axis @ turn[:, 0]) - 1.0) < 1e-6
 
 
-def test_evenly_spaced_by_runs_keeps_the_first_of_each_rank_run() -> None:
+def test_footprint_members_thin_by_the_hash_then_keep_the_first_of_each_rank_run() -> None:
     rng = np.random.default_rng(6)
-    owner = rng.integers(0, 5, 900)
-    members = np.arange(900) * 3
-    chosen, kept = evenly_spaced(members, owner, 5, 64, linspace=False)
+    owner = rng.integers(0, 5, 3000)
+    owner[owner == 2] = 1  # an object with no points
+    members = np.arange(3000) * 3
+    chosen, kept = footprint_members(members, owner, 5, 64)
     start = 0
     for k in range(5):
         mine = members[owner == k]
+        share = min(1.0, 128 / max(len(mine), 1))
+        mine = mine[np.modf(mine * 0.6180339887498949)[0] < share]
         rank = np.arange(len(mine))
-        step = rank * 64 // len(mine)
+        step = rank * 64 // max(len(mine), 1)
         want = mine[(rank == 0) | (step != np.r_[-1, step[:-1]])] if len(mine) > 64 else mine
         assert np.array_equal(chosen[start:start + kept[k]], want) and kept[k] == min(len(mine), 64)
         start += kept[k]
+    assert kept[2] == 0 and kept.max() == 64
