@@ -20,13 +20,14 @@ import numpy as np
 from pass3d_ros.classes import BACKGROUND
 from pass3d_ros.core.objects import (
     IMPLAUSIBLE_SCORE,
+    MIN_OBJECT_POINTS,
     SPLIT_ID_STRIDE,
     FrameObjects,
     LabelledObject,
     boxed_objects,
     plausible_size,
 )
-from pass3d_ros.core.stream.footprints import MAX_POINTS, Footprints, footprint_members
+from pass3d_ros.core.stream.footprints import MAX_POINTS, Footprints, footprint_members, nearest_owner
 from pass3d_ros.core.stream.tracks import Tracked, Tracker
 
 NO_TRACK = -1  # the track id of a point or object in no confirmed track
@@ -106,10 +107,15 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
     voted_objects = [_voted(obj, t, int(published_id[k])) for k, (obj, t) in
                      enumerate(zip(objects.objects, tracked, strict=True))]
     cluster_id = objects.cluster_id
-    if said.held and background is not None and points is not None:
+    if points is not None and (said.held or said.merged):
         cluster_id = cluster_id.copy()
-        voted_objects += _held_objects(points, objects, [(t, background.index[m]) for t, m in said.held], labels,
-                                       cluster_id, track_id)
+        ids = _PartIds(objects, cluster_id)
+        if said.merged:
+            voted_objects += _shared_out(points, voted_objects, members, owner, said.merged, back, labels,
+                                         cluster_id, track_id, ids)
+        if said.held and background is not None:
+            voted_objects += _held_objects(points, objects, [(t, background.index[m]) for t, m in said.held],
+                                           labels, cluster_id, track_id, ids)
     voted = FrameObjects(labels, cluster_id, voted_objects, objects.groups_split)
     return TrackedScan(voted, track_id, tracked, 1e3 * (time.perf_counter() - started))
 
@@ -163,27 +169,37 @@ class Background:
         return xyz if self.back is None else xyz @ self.back
 
 
-def _held_objects(points: np.ndarray, objects: FrameObjects, held: list[tuple[Tracked, np.ndarray]],
-                  labels: np.ndarray, cluster_id: np.ndarray, track_id: np.ndarray) -> list[LabelledObject]:
-    """The background points that held a track as one object each, of the track's class and id: their labels,
-    track ids and cluster ids set (the proposal holding most of them, as its next free part: core.objects' split ids;
-    points mostly in no proposal get a proposal id no point of the scan carries), a box fitted to them, score the
-    track's vote share times HELD_SCORE."""
-    used: dict[int, set[int]] = {}
-    for obj in objects.objects:
-        used.setdefault(obj.proposal_id, set()).add(obj.cluster_id // SPLIT_ID_STRIDE)
-    known = cluster_id[cluster_id >= 0] % SPLIT_ID_STRIDE
-    fresh = int(known.max(initial=-1)) + 1  # a proposal id no point carries, for points mostly in no proposal
-    parts = []
-    for tracked, members in held:
-        ids, counts = np.unique(cluster_id[members], return_counts=True)
-        base = int(ids[np.argmax(counts)])
+class _PartIds:
+    """Cluster ids for objects made after stage 2 (held, shared out): a proposal's next free part
+    (base + part x SPLIT_ID_STRIDE, core.objects' split ids), or a proposal id no point of the scan carries."""
+
+    def __init__(self, objects: FrameObjects, cluster_id: np.ndarray) -> None:
+        self.used: dict[int, set[int]] = {}
+        for obj in objects.objects:
+            self.used.setdefault(obj.proposal_id, set()).add(obj.cluster_id // SPLIT_ID_STRIDE)
+        known = cluster_id[cluster_id >= 0] % SPLIT_ID_STRIDE
+        self.fresh = int(known.max(initial=-1)) + 1
+
+    def next(self, base: int) -> int:
+        """A new cluster id in proposal `base` (a fresh proposal id when `base` is none)."""
         if base < 0 or base >= SPLIT_ID_STRIDE:
-            base, fresh = fresh, fresh + 1
-        taken = used.setdefault(base, set())
+            base, self.fresh = self.fresh, self.fresh + 1
+        taken = self.used.setdefault(base, set())
         part = 0 if 0 not in taken else max(taken) + 1
         taken.add(part)
-        parts.append((tracked.label, base + part * SPLIT_ID_STRIDE, members))
+        return base + part * SPLIT_ID_STRIDE
+
+
+def _held_objects(points: np.ndarray, objects: FrameObjects, held: list[tuple[Tracked, np.ndarray]],
+                  labels: np.ndarray, cluster_id: np.ndarray, track_id: np.ndarray,
+                  ids: _PartIds) -> list[LabelledObject]:
+    """The background points that held a track as one object each, of the track's class and id: their labels,
+    track ids and cluster ids set (the proposal holding most of them, as its next free part), a box fitted to them,
+    score the track's vote share times HELD_SCORE."""
+    parts = []
+    for tracked, members in held:
+        found, counts = np.unique(cluster_id[members], return_counts=True)
+        parts.append((tracked.label, ids.next(int(found[np.argmax(counts)])), members))
     out = []
     for obj, (tracked, members) in zip(boxed_objects(points, parts, np.ones(len(points), np.float32)), held,
                                        strict=True):
@@ -192,6 +208,45 @@ def _held_objects(points: np.ndarray, objects: FrameObjects, held: list[tuple[Tr
         cluster_id[members] = obj.cluster_id
         out.append(LabelledObject(obj.center, obj.size, obj.yaw, tracked.label, tracked.score * HELD_SCORE,
                                   obj.cluster_id, obj.plausible, tracked.track_id))
+    return out
+
+
+def _shared_out(points: np.ndarray, voted: list[LabelledObject], members: np.ndarray, owner: np.ndarray,
+                merged: dict[int, list[tuple[Tracked, np.ndarray]]], back: np.ndarray | None, labels: np.ndarray,
+                cluster_id: np.ndarray, track_id: np.ndarray, ids: _PartIds) -> list[LabelledObject]:
+    """A merged object's points shared out (`Tracker._covered`): each point goes to the track whose predicted
+    footprint is nearest; a covered track's share of MIN_OBJECT_POINTS or more becomes an object of its own (its
+    track's class, id and score; a new part id of the proposal), the rest stays the object, its box fitted again.
+    `voted` is updated in place; the new objects are returned."""
+    out = []
+    order = np.argsort(owner, kind="stable")
+    starts = np.searchsorted(owner[order], np.arange(len(voted) + 1))
+    for d, entries in merged.items():
+        mine = members[order[starts[d]:starts[d + 1]]]
+        prints = [xyz if back is None else xyz @ back.T for _, xyz in entries]  # sensor -> level, as the points
+        near = nearest_owner(points[mine, :2], prints)
+        keep = near == 0
+        made = []
+        for k, (tracked, _) in enumerate(entries[1:], start=1):
+            share = mine[near == k]
+            if len(share) < MIN_OBJECT_POINTS:
+                keep |= near == k
+                continue
+            made.append((tracked, share))
+        if not made:
+            continue
+        obj = voted[d]
+        rest = mine[keep]
+        parts = [(obj.label, obj.cluster_id, rest)] + [(t.label, ids.next(obj.proposal_id), m) for t, m in made]
+        boxes = boxed_objects(points, parts, np.ones(len(points), np.float32))
+        voted[d] = LabelledObject(boxes[0].center, boxes[0].size, boxes[0].yaw, obj.label, obj.score,
+                                  obj.cluster_id, boxes[0].plausible, obj.track_id)
+        for box, (tracked, share) in zip(boxes[1:], made, strict=True):
+            labels[share] = tracked.label
+            track_id[share] = tracked.track_id if tracked.confirmed else NO_TRACK
+            cluster_id[share] = box.cluster_id
+            out.append(LabelledObject(box.center, box.size, box.yaw, tracked.label, tracked.score, box.cluster_id,
+                                      box.plausible, tracked.track_id if tracked.confirmed else NO_TRACK))
     return out
 
 

@@ -174,3 +174,37 @@ def test_a_track_found_again_is_held_only_once_seen_min_hits_times_more() -> Non
     assert scan(background=True).voted.objects == []
     scan()
     assert [obj.track_id for obj in scan(background=True).voted.objects] == [0], "seen min_hits times since: held"
+
+
+def two_cars(merged: bool) -> tuple[FrameObjects, np.ndarray]:
+    """Two parked cars side by side (x 10, y 0 and y 2.6; 60 points each on a 3.8 x 1.6 m box), as two objects
+    (clusters 3 and 4) or, `merged`, as one object (cluster 3) that stage 1 joined; and the scan's points."""
+    rng = np.random.default_rng(7)
+    cars = [np.column_stack([rng.uniform(-1.9, 1.9, 60) + 10.0, rng.uniform(-0.8, 0.8, 60) + y,
+                             rng.uniform(-1.7, -0.3, 60), np.full(60, 0.5)]) for y in (0.0, 2.6)]
+    points = np.concatenate(cars).astype(np.float32)
+    labels = np.full(120, CAR, np.uint8)
+    if merged:
+        cluster = np.full(120, 3, np.int32)
+        objects = [LabelledObject((10.0, 1.3, -1.0), (3.8, 4.2, 1.4), 0.0, CAR, 0.9, 3)]
+    else:
+        cluster = np.repeat(np.array([3, 4], np.int32), 60)
+        objects = [LabelledObject((10.0, y, -1.0), (3.8, 1.6, 1.4), 0.0, CAR, 0.9, c) for y, c in ((0.0, 3), (2.6, 4))]
+    return FrameObjects(labels, cluster, objects), points
+
+
+def test_an_object_stage_1_merged_is_shared_out_between_the_tracks_it_covers() -> None:
+    tracker = Tracker()
+    for k in range(3):
+        objects, points = two_cars(merged=False)
+        out = track_scan(tracker, objects, 0.1 * k, points=points)
+    assert [o.track_id for o in out.voted.objects] == [0, 1]
+    objects, points = two_cars(merged=True)
+    out = track_scan(tracker, objects, 0.3, points=points)
+    assert sorted(o.track_id for o in out.voted.objects) == [0, 1], "one object per car, each with its track"
+    assert set(out.track_id[:60].tolist()) == {0} and set(out.track_id[60:].tolist()) == {1}
+    ids = {o.track_id: o.cluster_id for o in out.voted.objects}
+    assert ids[0] != ids[1] and set(out.voted.cluster_id[60:].tolist()) == {ids[1]}
+    widths = sorted(min(o.size[:2]) for o in out.voted.objects)
+    assert widths[-1] < 2.0, "each box fitted again to its car's points"
+    assert tracker.alive == 2 and tracker.lost == 0

@@ -172,6 +172,29 @@ def footprint_members(members: np.ndarray, owner: np.ndarray, count: int, limit:
     return out, kept
 
 
+def nearest_owner(xy: np.ndarray, footprints: Sequence[np.ndarray]) -> np.ndarray:
+    """For each point of `xy` (M, 2), the index of the footprint (each (F_k, 2+) points) holding the point nearest it
+    in x, y."""
+    every = np.concatenate([np.asarray(f, dtype=np.float64)[:, :2] for f in footprints])
+    which = np.repeat(np.arange(len(footprints)), [len(f) for f in footprints])
+    return which[_nearest(np.ascontiguousarray(xy, dtype=np.float64), every)]
+
+
+@nb.njit(cache=True, nogil=True)
+def _nearest(xy: np.ndarray, every: np.ndarray) -> np.ndarray:
+    """Index into `every` of the point nearest each point of `xy`."""
+    out = np.empty(len(xy), np.int64)
+    for i in range(len(xy)):
+        best, at = np.inf, 0
+        for j in range(len(every)):
+            dx, dy = xy[i, 0] - every[j, 0], xy[i, 1] - every[j, 1]
+            d = dx * dx + dy * dy
+            if d < best:
+                best, at = d, j
+        out[i] = at
+    return out
+
+
 def shared_cells(first: Sequence[np.ndarray], second: Sequence[np.ndarray]) -> np.ndarray:
     """(len(first), len(second)) counts of the cells each footprint of `first` shares with each of `second` (both
     lists of `cells` keys)."""

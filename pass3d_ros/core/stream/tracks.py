@@ -5,16 +5,21 @@ A track holds a constant-velocity Kalman filter on its box centre in the ground 
 reduced to the plane stage 1 levels the scan into), its box's height and extent, its last points' footprint (cells of
 the ground plane, `footprints`) and its recent sightings' classes and confidences. Each scan:
 1. Every track is predicted to the scan's stamp, its footprint moved with it.
-2. Detections and tracks are matched with the least summed cost (scipy's `linear_sum_assignment`: the Hungarian
-   method, a well-kept C implementation, not ours). A pair's cost is the distance of the detection's centre from the
-   track's predicted centre, plus `class_penalty_m` for another class and up to `youth_penalty_m` for a young track
-   (of two tracks on one object, the older wins it), times 1 - the share of footprint cells they share. A pair may
-   match within the detection's class gate (`gate_m`), or beyond it when their footprints share `match_overlap` of
-   the smaller one's cells (a partly seen car's box centre jumps by metres while its points stay put).
+2. Detections and tracks are matched (scipy's `linear_sum_assignment`: the Hungarian method, a well-kept C
+   implementation, not ours) for the most summed margin: a pair's cost is the distance of the detection's centre from
+   the track's predicted centre, plus `class_penalty_m` for another class and up to `youth_penalty_m` for a young
+   track (of two tracks on one object, the older wins it), times 1 - the share of footprint cells they share; its
+   margin is the detection's class gate (`gate_m`) less that, or 0.05 m for a pair beyond the gate whose footprints
+   share `match_overlap` of the smaller one's cells (a partly seen car's box centre jumps by metres while its points
+   stay put). Leaving both unmatched is worth 0, so two poor pairs never beat one good one.
 3. An unmatched detection lying mostly (`part_overlap` of its cells) on the footprint of a confirmed track that
-   another detection matched is a part of that object (stage 1 cut it in two): it takes that track, and starts none.
-4. Matched tracks are corrected; other unmatched detections start tentative tracks, confirmed after `min_hits`
-   sightings.
+   another detection matched, or that with that track's points fits one object of its class (`_ends`: another end of
+   a parked car coming into view), is a part of that object: it takes that track, and starts none. A matched
+   detection that also covers `merge_cover` of another confirmed track's predicted cells joined two objects: its
+   points are shared out between the tracks by their footprints (`ScanTracks.merged`).
+4. Matched tracks are corrected (a car's new view, its box edges changed by `reshape_m`, corrects the position and not
+   the velocity); other unmatched detections find again a track that ended less than `reid_misses` scans ago, or
+   start tentative tracks, confirmed after `min_hits` sightings.
 5. A confirmed track that no detection matched (waiting) may be held by the scan's points that stage 2 called
    background on its predicted footprint (`_hold`): stage 2 missed the object this scan, the track did not.
 6. Tracks unseen (neither matched nor held) for `max_misses` scans end.
@@ -46,6 +51,7 @@ from pass3d_ros.core.stream.footprints import (
     extent,
     grouped_cells,
     matching,
+    nearest_owner,
     overlap,
     pieces,
     point_cells,
@@ -92,6 +98,8 @@ class TrackerConfig:
     part_gap_m: float = 2.0  # ... its points come this close to the object's (a neighbour's fragment lies apart)
     heading_speed: float = 2.0  # m/s: ... and for a track this fast, the two lie along its heading (a moving car's
     # other end is ahead of it or behind it, never beside it)
+    merge_cover: float | None = 0.5  # a detection holding this share of another confirmed track's predicted cells
+    # (besides its own track's) covers that track's object too: its points are shared out (None: never)
     youth_penalty_m: float = 0.5  # extra cost of matching a new track, falling to 0 at mature_hits sightings: of two
     # tracks on one object (a duplicate born of a split), the older one wins the object
     mature_hits: int = 10
@@ -190,10 +198,13 @@ class Tracked:
 
 class ScanTracks(NamedTuple):
     """What the tracker says of a scan: per detection its track; per held track, the background points that hold
-    it (indices into the `background` the scan was given)."""
+    it (indices into the `background` the scan was given); per merged detection (one that covers another confirmed
+    track's object too), the other tracks and every track's predicted footprint points (x, y, z; sensor frame), its
+    own track's first: the detection's points go to the track whose footprint is nearest (`split_merged`)."""
 
     detections: list[Tracked]
     held: list[tuple[Tracked, np.ndarray]]
+    merged: dict[int, list[tuple[Tracked, np.ndarray]]] | None = None
 
 
 class _Frame:
@@ -271,8 +282,9 @@ class Tracker:
         parts = self._parts(matched, tracks, detections)
         if self.config.part_extent is not None:
             parts.update(self._ends(matched, parts, labels, world))
+        covered = self._covered(matched, parts, labels, tracks, detections)
         out: list[Tracked] = []
-        seen: set[int] = set()
+        seen: set[int] = {self.tracks[u].track_id for others in covered.values() for u in others}
         for d in range(len(centers)):
             if d in matched:
                 track = self.tracks[matched[d]]
@@ -288,8 +300,9 @@ class Tracker:
                     self._sighted(track, centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
             seen.add(track.track_id)
             out.append(Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits))
+        merged = self._merged_footprints(matched, covered, to_world)
         if footprints is not None:
-            self._keep_footprints(out, world)
+            self._keep_footprints(out, world, merged)
         held_out = self._hold(background, seen, stamp_s, to_world) if background is not None else []
         for track in self.tracks:
             if track.track_id not in seen:
@@ -301,7 +314,54 @@ class Tracker:
         self.tracks = [t for t in self.tracks if t.misses <= self.config.max_misses]
         self.ended = [t for t in self.ended if t.misses <= self.config.reid_misses]
         self.ended += [t for t in ended if t.hits >= self.config.min_hits and self.config.reid_misses > t.misses]
-        return ScanTracks(out, held_out)
+        return ScanTracks(out, held_out, merged)
+
+    def _covered(self, matched: dict[int, int], parts: dict[int, int], labels: Sequence[int],
+                 tracks: list[np.ndarray] | None, detections: list[np.ndarray] | None) -> dict[int, list[int]]:
+        """Matched detections that cover another confirmed track's object too (stage 1 joined two cars parked side
+        by side): merge_cover of that track's predicted footprint cells inside the detection's, the track of the
+        detection's class, matched to no other detection that holds more of its cells. detection -> track indices."""
+        if self.config.merge_cover is None or tracks is None or detections is None or not matched:
+            return {}
+        confirmed = [u for u, t in enumerate(self.tracks) if t.hits >= self.config.min_hits and len(tracks[u])]
+        if not confirmed:
+            return {}
+        ds = sorted(matched)
+        shared = shared_cells([tracks[u] for u in confirmed], [detections[d] for d in ds])
+        cover = shared / np.maximum([len(tracks[u]) for u in confirmed], 1)[:, None]
+        owner = {t: d for d, t in matched.items()}
+        out: dict[int, list[int]] = {}
+        for i, u in enumerate(confirmed):
+            best = int(np.argmax(cover[i]))
+            d = ds[best]
+            if cover[i, best] < self.config.merge_cover or matched[d] == u:
+                continue
+            if self.tracks[u].label() != int(labels[d]) or self.tracks[matched[d]].label() != int(labels[d]):
+                continue
+            mine = owner.get(u)
+            if (mine is not None and cover[i, ds.index(mine)] >= cover[i, best]) or u in parts.values():
+                continue  # its own detection holds as much of it, or it took a part: not covered here
+            out.setdefault(d, []).append(u)
+        return out
+
+    def _merged_footprints(self, matched: dict[int, int], covered: dict[int, list[int]],
+                           to_world: _Frame) -> dict[int, list[tuple[Tracked, np.ndarray]]]:
+        """Per merged detection, its track and the tracks it covers, each with its predicted footprint points in
+        the sensor frame (x, y, the track's height)."""
+        out: dict[int, list[tuple[Tracked, np.ndarray]]] = {}
+        for d, others in covered.items():
+            entries = []
+            for u in [matched[d], *others]:
+                track = self.tracks[u]
+                if track.offsets is None:
+                    continue
+                xy = track.state[:2] + track.offsets
+                xyz = np.column_stack([xy, np.full(len(xy), track.z)])
+                said = Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits)
+                entries.append((said, to_world.to_sensor(xyz)))
+            if len(entries) > 1:
+                out[d] = entries
+        return out
 
     def _revive(self, center: np.ndarray, size: np.ndarray, label: int, stamp_s: float,
                 footprint: np.ndarray | None) -> Track | None:
@@ -427,11 +487,20 @@ class Tracker:
                 out[d] = best
         return out
 
-    def _keep_footprints(self, out: list[Tracked], world: Footprints) -> None:
+    def _keep_footprints(self, out: list[Tracked], world: Footprints,
+                         merged: dict[int, list[tuple[Tracked, np.ndarray]]] | None = None) -> None:
         """Each seen track's footprint: its detections' points (parts included; tracking frame), at most 2 x
-        MAX_POINTS evenly spaced, as offsets from its centre."""
+        MAX_POINTS evenly spaced, as offsets from its centre; a merged detection's points go to the track whose
+        predicted footprint is nearest (`nearest_owner`)."""
         rows = {t.track_id: k for k, t in enumerate(self.tracks)}
         owner = np.repeat(np.array([rows[t.track_id] for t in out], dtype=np.int64), world.counts)
+        if merged:
+            starts = np.concatenate([[0], np.cumsum(world.counts)])
+            for d, entries in merged.items():
+                ids = np.array([rows[said.track_id] for said, _ in entries])
+                xy = world.xy[starts[d]:starts[d + 1]]
+                near = nearest_owner(xy, [self.tracks[k].state[:2] + self.tracks[k].offsets for k in ids])
+                owner[starts[d]:starts[d + 1]] = ids[near]
         chosen, kept = evenly_spaced(np.arange(len(owner)), owner, len(self.tracks), 2 * MAX_POINTS)
         centres = np.repeat(np.array([t.state[:2] for t in self.tracks]).reshape(-1, 2), kept, axis=0)
         for track, offsets, count in zip(self.tracks, pieces(world.xy[chosen] - centres, kept), kept, strict=True):
