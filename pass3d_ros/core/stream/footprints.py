@@ -110,6 +110,15 @@ def _unique_groups(keys: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np
 
 
 @nb.njit(cache=True, nogil=True)
+def _starts(kept: np.ndarray) -> np.ndarray:
+    """Where each object's share starts in an array of all of them, one object's after another."""
+    start = np.zeros(len(kept), np.int64)
+    for k in range(1, len(kept)):
+        start[k] = start[k - 1] + kept[k - 1]
+    return start
+
+
+@nb.njit(cache=True, nogil=True)
 def evenly_spaced(members: np.ndarray, owner: np.ndarray, count: int, limit: int) -> tuple[np.ndarray, np.ndarray]:
     """At most `limit` evenly spaced of each object's `members` (in their order; `owner` each one's object, 0 ..
     count - 1), one object's after another, and how many each has: what `sample` keeps of each, for all objects in two
@@ -118,9 +127,7 @@ def evenly_spaced(members: np.ndarray, owner: np.ndarray, count: int, limit: int
     for k in owner:
         total[k] += 1
     kept = np.minimum(total, limit)
-    start = np.zeros(count, np.int64)
-    for k in range(1, count):
-        start[k] = start[k - 1] + kept[k - 1]
+    start = _starts(kept)
     out = np.empty(int(kept.sum()), members.dtype)
     rank = np.zeros(count, np.int64)
     taken = np.zeros(count, np.int64)
@@ -154,9 +161,7 @@ def footprint_members(members: np.ndarray, owner: np.ndarray, count: int, limit:
         if thin[m]:
             left[owner[m]] += 1
     kept = np.minimum(left, limit)
-    start = np.zeros(count, np.int64)
-    for k in range(1, count):
-        start[k] = start[k - 1] + kept[k - 1]
+    start = _starts(kept)
     out = np.empty(int(kept.sum()), members.dtype)
     rank = np.zeros(count, np.int64)
     for m in range(len(members)):
