@@ -151,7 +151,7 @@ def rerun_runs(points: np.ndarray, ring: np.ndarray, label: np.ndarray, n_cluste
         return label, n_clusters, 0
     chosen = np.zeros(n_clusters, dtype=bool)
     chosen[clusters] = True
-    members = np.flatnonzero((label >= 0) & chosen[np.maximum(label, 0)])
+    members = _members_of(label, chosen)
     tight = copy.copy(config)  # two thresholds changed, both smaller: still in range, not validated again
     tight.th_ring = config.th_ring * config.rerun_scale
     tight.th_prop = config.th_prop * config.rerun_scale
@@ -170,6 +170,19 @@ def rerun_runs(points: np.ndarray, ring: np.ndarray, label: np.ndarray, n_cluste
     moved = new_id[part] >= 0
     out[members[moved]] = new_id[part[moved]]
     return out, n_clusters + int(cut.sum()), int(np.count_nonzero(parts_of > 1))
+
+
+@nb.njit(cache=True, nogil=True)
+def _members_of(label: np.ndarray, chosen: np.ndarray) -> np.ndarray:
+    """The indices of the points whose cluster (label >= 0) is flagged in `chosen`, in order: one pass, where
+    numpy's mask took three over the scan."""
+    out = np.empty(len(label), np.int64)
+    found = 0
+    for i in range(len(label)):
+        if label[i] >= 0 and chosen[label[i]]:
+            out[found] = i
+            found += 1
+    return out[:found]
 
 
 def _unique_runs(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -239,10 +252,13 @@ def heights_above_ground(points: np.ndarray, label: np.ndarray, chosen: np.ndarr
     a, b, c, d = planes[s].T
     height[inside] = a * pts[:, 0] + b * pts[:, 1] + c * pts[:, 2] + d
     if isinstance(surface, LocalGround):
-        _, where = np.unique(label[inside], return_inverse=True)
+        where = label[inside]  # cluster ids index the per-cluster sums directly (np.unique's sort not needed)
         counts = np.bincount(where)
-        centre = np.stack([np.bincount(where, weights=pts[:, k]) / counts for k in (0, 1)], axis=1)
-        height[inside] -= surface.offsets(centre)[where]
+        present = np.flatnonzero(counts)
+        centre = np.stack([np.bincount(where, weights=pts[:, k])[present] / counts[present] for k in (0, 1)], axis=1)
+        offset = np.zeros(len(counts))
+        offset[present] = surface.offsets(centre)
+        height[inside] -= offset[where]
     return height
 
 
