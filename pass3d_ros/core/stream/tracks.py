@@ -79,8 +79,8 @@ class TrackerConfig:
     vote_window: int = 10  # recent sightings a track's class is voted over
     process_accel: float = 3.0  # m/s^2: how fast a road user may change its velocity (the filter's process noise)
     measurement_m: float = 0.3  # a detection centre's error (the filter's measurement noise)
-    reshape_m: float | None = 0.5  # a detection whose box edges changed by more than this (summed) from its track's
-    # corrects the track's position and not its velocity (`_correct_all`); None: every centre corrects both
+    reshape_m: float | None = 0.5  # a detection of a long class (a car: LONG_M) whose box edges changed by more than
+    # this (summed) from its track's corrects the track's position, not its velocity (`_correct_all`); None: both
     birth_speed: float = 5.0  # m/s: a new track's velocity is unknown up to this either way (its prior's spread)
     max_dt_s: float = 1.0  # a gap longer than this predicts no further (a stalled stream)
     match_overlap: float = 0.3  # a detection sharing this share of the smaller footprint's cells with a track may
