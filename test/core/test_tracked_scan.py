@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
-from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
+from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.core.objects import SPLIT_ID_STRIDE, FrameObjects, LabelledObject
 from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage2 import open_classifier
@@ -47,14 +47,14 @@ def test_the_vote_goes_onto_exactly_the_object_s_points_and_ids_wait_for_confirm
     assert [obj.track_id for obj in first.voted.objects] == [NO_TRACK, NO_TRACK]
     for k in range(1, 5):
         out = track_scan(tracker, one_scan(PEDESTRIAN, 0.9, 10.0 + 0.1 * k), 0.1 * k)
-    weak = track_scan(tracker, one_scan(CAR, 0.5, 10.5), 0.5)  # one weak car sighting of the person
+    weak = track_scan(tracker, one_scan(CYCLIST, 0.5, 10.5), 0.5)  # one weak rider sighting of the person
     assert weak.voted.labels.tolist() == [PEDESTRIAN] * 4 + [BACKGROUND] * 2 + [CAR] * 3 + [BACKGROUND]
     person, car = weak.voted.objects
     assert person.label == PEDESTRIAN and car.label == CAR
     assert person.track_id == out.voted.objects[0].track_id >= 0 and car.track_id >= 0
     assert person.track_id != car.track_id
     assert weak.track_id.tolist() == [person.track_id] * 4 + [NO_TRACK] * 2 + [car.track_id] * 3 + [NO_TRACK]
-    assert weak.voted.cluster_id.tolist() == one_scan(CAR, 0.5, 10.5).cluster_id.tolist()
+    assert weak.voted.cluster_id.tolist() == one_scan(CYCLIST, 0.5, 10.5).cluster_id.tolist()
     assert 0.5 < person.score < 1.0, "the voted class's share of the vote"
 
 

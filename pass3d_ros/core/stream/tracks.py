@@ -71,6 +71,8 @@ class TrackerConfig:
 
     gate_m: tuple[tuple[int, float], ...] = ((CAR, 3.0), (PEDESTRIAN, 1.5), (CYCLIST, 2.5))  # centre distance a
     # detection of this class may lie from a track's prediction
+    never_match: tuple[tuple[int, int], ...] = ((CAR, PEDESTRIAN),)  # class pairs a track and a detection never
+    # match across: a car is never a person (a person's track taking a car's detection is stage 2 or stage 1 wrong)
     class_penalty_m: float = 1.0  # extra cost of matching a detection of another class than the track's
     min_hits: int = 2  # sightings before a track is confirmed (its id published)
     max_misses: int = 3  # scans a track may go unseen before it ends
@@ -421,6 +423,9 @@ class Tracker:
             share = overlap(tracks, detections)
             allowed |= share >= self.config.match_overlap
             cost = cost * (1.0 - share)
+        for a, b in self.config.never_match:  # neither the centres nor the footprints match these classes
+            allowed &= ~(((track_labels == a)[:, None] & (det_labels == b)[None, :])
+                         | ((track_labels == b)[:, None] & (det_labels == a)[None, :]))
         hits = np.array([t.hits for t in self.tracks], dtype=np.float64)
         cost = cost + self.config.youth_penalty_m * np.clip(1.0 - hits / self.config.mature_hits, 0.0, 1.0)[:, None]
         margin = np.where(allowed, np.maximum(self.config.gates[det_labels][None, :] - cost, MIN_MARGIN_M), 0.0)

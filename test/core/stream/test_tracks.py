@@ -7,11 +7,11 @@ import time
 
 import numpy as np
 
-from pass3d_ros.classes import CAR, PEDESTRIAN
+from pass3d_ros.classes import CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.core.stream.footprints import Footprints
 from pass3d_ros.core.stream.tracks import Tracker, TrackerConfig
 
-SIZE = {CAR: (4.0, 1.7, 1.5), PEDESTRIAN: (0.6, 0.6, 1.7)}
+SIZE = {CAR: (4.0, 1.7, 1.5), PEDESTRIAN: (0.6, 0.6, 1.7), CYCLIST: (1.7, 0.6, 1.7)}
 
 
 def scan(tracker: Tracker, objects: list[tuple[float, float, int, float]], stamp: float, pose=None):
@@ -35,12 +35,25 @@ def test_a_class_that_flickers_holds_the_vote_and_a_real_change_wins() -> None:
     tracker = Tracker()
     labels = []
     for k in range(12):
-        label, conf = (CAR, 0.55) if k in (3, 6, 9) else (PEDESTRIAN, 0.8)  # a weak car sighting in every third
+        label, conf = (CYCLIST, 0.55) if k in (3, 6, 9) else (PEDESTRIAN, 0.8)  # a weak rider sighting in every third
         labels.append(scan(tracker, [(10.0 + 0.13 * k, 2.0, label, conf)], 0.1 * k)[0].label)
     assert labels == [PEDESTRIAN] * 12
     for k in range(12, 40):
-        out = scan(tracker, [(10.0 + 0.13 * k, 2.0, CAR, 0.9)], 0.1 * k)[0]
-    assert out.label == CAR and out.track_id == 0
+        out = scan(tracker, [(10.0 + 0.13 * k, 2.0, CYCLIST, 0.9)], 0.1 * k)[0]
+    assert out.label == CYCLIST and out.track_id == 0
+
+
+def test_a_car_and_a_person_never_match() -> None:
+    """A person's track is not taken by a car detection on its place (nor a car's by a person's): a new track."""
+    tracker = Tracker()
+    for k in range(4):
+        scan(tracker, [(10.0, 2.0, PEDESTRIAN, 0.9)], 0.1 * k)
+    out = scan(tracker, [(10.0, 2.0, CAR, 0.9)], 0.4)[0]
+    assert out.track_id != 0 and out.label == CAR and not out.confirmed
+    allowed = Tracker(TrackerConfig(never_match=()))
+    for k in range(4):
+        scan(allowed, [(10.0, 2.0, PEDESTRIAN, 0.9)], 0.1 * k)
+    assert scan(allowed, [(10.0, 2.0, CAR, 0.9)], 0.4)[0].track_id == 0, "without never_match the class penalty only"
 
 
 def test_births_wait_for_min_hits_and_tracks_end_after_max_misses() -> None:
