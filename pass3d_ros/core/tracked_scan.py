@@ -111,7 +111,7 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
         cluster_id = cluster_id.copy()
         ids = _PartIds(objects, cluster_id)
         if said.merged:
-            voted_objects += _shared_out(points, voted_objects, members, owner, said.merged, back, labels,
+            voted_objects += _shared_out(points, voted_objects, tracked, members, owner, said.merged, back, labels,
                                          cluster_id, track_id, ids)
         if said.held and background is not None:
             voted_objects += _held_objects(points, objects, [(t, background.index[m]) for t, m in said.held],
@@ -211,42 +211,39 @@ def _held_objects(points: np.ndarray, objects: FrameObjects, held: list[tuple[Tr
     return out
 
 
-def _shared_out(points: np.ndarray, voted: list[LabelledObject], members: np.ndarray, owner: np.ndarray,
-                merged: dict[int, list[tuple[Tracked, np.ndarray]]], back: np.ndarray | None, labels: np.ndarray,
-                cluster_id: np.ndarray, track_id: np.ndarray, ids: _PartIds) -> list[LabelledObject]:
+def _shared_out(points: np.ndarray, voted: list[LabelledObject], tracked: list[Tracked], members: np.ndarray,
+                owner: np.ndarray, merged: dict[int, list[tuple[Tracked, np.ndarray]]], back: np.ndarray | None,
+                labels: np.ndarray, cluster_id: np.ndarray, track_id: np.ndarray,
+                ids: _PartIds) -> list[LabelledObject]:
     """A merged object's points shared out (`Tracker._covered`): each point goes to the track whose predicted
     footprint is nearest; a covered track's share of MIN_OBJECT_POINTS or more becomes an object of its own (its
-    track's class, id and score; a new part id of the proposal), the rest stays the object, its box fitted again.
-    `voted` is updated in place; the new objects are returned."""
+    track's class, id and score; a new part id of the proposal), the rest stays the object; both boxes fitted again
+    and scored as `_voted` scores them. `voted` is updated in place; the new objects are returned."""
     out = []
-    order = np.argsort(owner, kind="stable")
-    starts = np.searchsorted(owner[order], np.arange(len(voted) + 1))
     for d, entries in merged.items():
-        mine = members[order[starts[d]:starts[d + 1]]]
+        mine = members[owner == d]
         prints = [xyz if back is None else xyz @ back.T for _, xyz in entries]  # sensor -> level, as the points
         near = nearest_owner(points[mine, :2], prints)
         keep = near == 0
         made = []
-        for k, (tracked, _) in enumerate(entries[1:], start=1):
+        for k, (said, _) in enumerate(entries[1:], start=1):
             share = mine[near == k]
             if len(share) < MIN_OBJECT_POINTS:
                 keep |= near == k
                 continue
-            made.append((tracked, share))
+            made.append((said, share))
         if not made:
             continue
         obj = voted[d]
-        rest = mine[keep]
-        parts = [(obj.label, obj.cluster_id, rest)] + [(t.label, ids.next(obj.proposal_id), m) for t, m in made]
+        parts = [(obj.label, obj.cluster_id, mine[keep])] + [(t.label, ids.next(obj.proposal_id), m) for t, m in made]
         boxes = boxed_objects(points, parts, np.ones(len(points), np.float32))
-        voted[d] = LabelledObject(boxes[0].center, boxes[0].size, boxes[0].yaw, obj.label, obj.score,
-                                  obj.cluster_id, boxes[0].plausible, obj.track_id)
-        for box, (tracked, share) in zip(boxes[1:], made, strict=True):
-            labels[share] = tracked.label
-            track_id[share] = tracked.track_id if tracked.confirmed else NO_TRACK
+        voted[d] = _voted(boxes[0], tracked[d], obj.track_id)
+        for box, (said, share) in zip(boxes[1:], made, strict=True):
+            published = said.track_id if said.confirmed else NO_TRACK
+            labels[share] = said.label
+            track_id[share] = published
             cluster_id[share] = box.cluster_id
-            out.append(LabelledObject(box.center, box.size, box.yaw, tracked.label, tracked.score, box.cluster_id,
-                                      box.plausible, tracked.track_id if tracked.confirmed else NO_TRACK))
+            out.append(_voted(box, said, published))
     return out
 
 

@@ -37,13 +37,6 @@ class Footprints(NamedTuple):
         return pieces(self.xy, self.counts)
 
 
-def sample(xy: np.ndarray, limit: int = MAX_POINTS) -> np.ndarray:
-    """At most `limit` of the rows of `xy`, evenly spaced (all of them when there are fewer)."""
-    if len(xy) <= limit:
-        return xy
-    return xy[np.linspace(0, len(xy) - 1, limit).astype(np.int64)]
-
-
 def point_cells(xy: np.ndarray) -> np.ndarray:
     """The key of the CELL_M cell each point of `xy` (M, 2) falls in."""
     index = np.floor(np.asarray(xy, dtype=np.float64) / CELL_M).astype(np.int64) + _OFFSET
@@ -121,8 +114,8 @@ def _starts(kept: np.ndarray) -> np.ndarray:
 @nb.njit(cache=True, nogil=True)
 def evenly_spaced(members: np.ndarray, owner: np.ndarray, count: int, limit: int) -> tuple[np.ndarray, np.ndarray]:
     """At most `limit` evenly spaced of each object's `members` (in their order; `owner` each one's object, 0 ..
-    count - 1), one object's after another, and how many each has: what `sample` keeps of each, for all objects in two
-    passes and no sort."""
+    count - 1), one object's after another, and how many each has: of an object of n members, those at
+    np.linspace(0, n - 1, limit) (all of them when n <= limit), for all objects in two passes and no sort."""
     total = np.zeros(count, np.int64)
     for k in owner:
         total[k] += 1

@@ -60,6 +60,7 @@ from pass3d_ros.core.stream.footprints import (
 
 LONG_M = 3.0  # a class this long on average (a car) moves its box centre by metres when seen from another side; a
 # person's or a rider's moves less than a centre's error
+LONG_CLASS = np.array([MEAN_SIZE.get(label, (0.0,))[0] >= LONG_M for label in range(NUM_CLASSES)])  # per class id
 COS_HEADING = float(np.cos(np.radians(30.0)))  # "along the heading": within 30 degrees of it
 MIN_WEIGHT = 1e-3  # a sighting's least weight in the vote (a confidence of 0 still counts)
 MIN_MARGIN_M = 0.05  # the margin of a pair matched beyond its gate by its footprint (`Tracker._associate`)
@@ -288,20 +289,17 @@ class Tracker:
         out: list[Tracked] = []
         seen: set[int] = {self.tracks[u].track_id for others in covered.values() for u in others}
         for d in range(len(centers)):
-            if d in matched:
-                track = self.tracks[matched[d]]
-                self._sighted(track, centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
-            elif d in parts:
+            if d in parts:
                 track = self.tracks[parts[d]]
             else:
-                track = self._revive(centers[d], sizes[d], int(labels[d]), stamp_s,
-                                     None if detections is None else detections[d])
+                track = self.tracks[matched[d]] if d in matched else self._revive(
+                    centers[d], sizes[d], int(labels[d]), stamp_s, None if detections is None else detections[d])
                 if track is None:
                     track = self._birth(centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
                 else:
                     self._sighted(track, centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
             seen.add(track.track_id)
-            out.append(Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits))
+            out.append(self._said(track))
         merged = self._merged_footprints(matched, covered, to_world)
         if footprints is not None:
             self._keep_footprints(out, world, merged)
@@ -318,6 +316,10 @@ class Tracker:
         self.ended += [t for t in ended if t.hits >= self.config.min_hits and self.config.reid_misses > t.misses]
         return ScanTracks(out, held_out, merged)
 
+    def _said(self, track: Track) -> Tracked:
+        """What the tracker says of a track this scan: its id, voted class and score, whether it is confirmed."""
+        return Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits)
+
     def _covered(self, matched: dict[int, int], parts: dict[int, int], labels: Sequence[int],
                  tracks: list[np.ndarray] | None, detections: list[np.ndarray] | None) -> dict[int, list[int]]:
         """Matched detections that cover another confirmed track's object too (stage 1 joined two cars parked side
@@ -333,10 +335,11 @@ class Tracker:
         cover = shared / np.maximum([len(tracks[u]) for u in confirmed], 1)[:, None]
         owner = {t: d for d, t in matched.items()}
         out: dict[int, list[int]] = {}
-        for i, u in enumerate(confirmed):
-            best = int(np.argmax(cover[i]))
+        bests = np.argmax(cover, axis=1)
+        for i in np.flatnonzero(cover[np.arange(len(confirmed)), bests] >= self.config.merge_cover):
+            u, best = confirmed[i], int(bests[i])  # the few tracks half inside some detection: their own, mostly
             d = ds[best]
-            if cover[i, best] < self.config.merge_cover or matched[d] == u:
+            if matched[d] == u:
                 continue
             if self.tracks[u].label() != int(labels[d]) or self.tracks[matched[d]].label() != int(labels[d]):
                 continue
@@ -359,8 +362,7 @@ class Tracker:
                     continue
                 xy = track.state[:2] + track.offsets
                 xyz = np.column_stack([xy, np.full(len(xy), track.z)])
-                said = Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits)
-                entries.append((said, to_world.to_sensor(xyz)))
+                entries.append((self._said(track), to_world.to_sensor(xyz)))
             if len(entries) > 1:
                 out[d] = entries
         return out
@@ -379,10 +381,8 @@ class Tracker:
             predicted = track.state[:2] + track.state[2:] * max(dt, 0.0)
             distance = float(np.hypot(*(predicted - center[:2])))
             near = distance <= self.config.gate(label)
-            if not near and footprint is not None and track.offsets is not None and len(footprint):
-                mine = cells(predicted + track.offsets)
-                shared = len(np.intersect1d(mine, footprint))
-                near = shared >= self.config.match_overlap * min(len(mine), len(footprint))
+            if not near and footprint is not None and track.offsets is not None:
+                near = overlap([cells(predicted + track.offsets)], [footprint])[0, 0] >= self.config.match_overlap
                 distance = min(distance, self.config.gate(label))
             if near and distance < best_distance:
                 best, best_distance = track, distance
@@ -462,7 +462,7 @@ class Tracker:
         if not free:
             return {}
         points = world.split()
-        by_track: dict[int, list[int]] = {}
+        by_track: dict[int, list[int]] = {}  # confirmed tracks of a class with a size: their detections this scan
         for d, t in matched.items():
             track = self.tracks[t]
             if track.hits >= self.config.min_hits and self.config.extent_limit(track.label()) is not None:
@@ -472,9 +472,9 @@ class Tracker:
             best, best_length = -1, np.inf
             for t, mine in by_track.items():
                 track = self.tracks[t]
-                limit = self.config.extent_limit(track.label())
-                if track.label() != int(labels[d]) or limit is None:
+                if track.label() != int(labels[d]):
                     continue
+                limit = self.config.extent_limit(track.label())
                 near = np.linalg.norm(points[d].mean(axis=0) - track.state[:2]) <= limit[0]
                 if not near:
                     continue
@@ -542,9 +542,9 @@ class Tracker:
                 continue
             if len(np.intersect1d(cells(xyz[mine, :2]), footprint)) < self.config.hold_cover * len(footprint):
                 continue
-            extent = np.ptp(xyz[mine], axis=0)
+            spread = np.ptp(xyz[mine], axis=0)
             length = max(track.size[0], track.size[1]) + self.config.hold_margin_m
-            if np.hypot(extent[0], extent[1]) > np.hypot(length, length) or extent[2] > track.size[2] + 0.5:
+            if np.hypot(spread[0], spread[1]) > np.hypot(length, length) or spread[2] > track.size[2] + 0.5:
                 continue
             free[mine] = False
             center = (xyz[mine].min(axis=0) + xyz[mine].max(axis=0)) / 2
@@ -553,7 +553,7 @@ class Tracker:
             track.misses = 0
             track.z, track.stamp_s = float(center[2]), stamp_s
             seen.add(track.track_id)
-            out.append((Tracked(track.track_id, track.label(), track.score(), True), mine))
+            out.append((self._said(track), mine))
         return out
 
     def _birth(self, center: np.ndarray, size: tuple, label: int, score: float, stamp_s: float) -> Track:
@@ -594,7 +594,7 @@ class Tracker:
             before = np.sort(np.array([t.size[:2] for t in tracks]), axis=1)
             after = np.sort(np.asarray(sizes, dtype=np.float64)[:, :2], axis=1)
             change = np.abs(after - before).sum(axis=1)
-            long = np.array([MEAN_SIZE.get(t.label(), (0.0,))[0] >= LONG_M for t in tracks])
+            long = LONG_CLASS[[t.label() for t in tracks]]
             view = np.where((change > self.config.reshape_m) & long, (change / 2) ** 2, 0.0)
         kalman.correct(states, covs, np.ascontiguousarray(centers[:, :2], dtype=np.float64),
                        self.config.measurement_m ** 2, view)

@@ -11,7 +11,6 @@ from pass3d_ros.core.stream.footprints import (
     footprint_members,
     grouped_cells,
     overlap,
-    sample,
     shared_cells,
 )
 
@@ -43,7 +42,11 @@ def test_shared_cells_and_overlap_count_what_sets_share() -> None:
     assert np.all((share >= 0) & (share <= 1))
 
 
-def test_evenly_spaced_keeps_what_sample_keeps_per_object() -> None:
+def _linspace_sample(members: np.ndarray, limit: int) -> np.ndarray:
+    return members if len(members) <= limit else members[np.linspace(0, len(members) - 1, limit).astype(np.int64)]
+
+
+def test_evenly_spaced_keeps_linspace_positions_per_object() -> None:
     rng = np.random.default_rng(5)
     owner = rng.integers(0, 7, 2000)
     owner[owner == 3] = 4  # an object with no points
@@ -52,7 +55,7 @@ def test_evenly_spaced_keeps_what_sample_keeps_per_object() -> None:
     start = 0
     for k in range(7):
         mine = members[owner == k]
-        assert np.array_equal(chosen[start:start + kept[k]], sample(mine, 64))
+        assert np.array_equal(chosen[start:start + kept[k]], _linspace_sample(mine, 64))
         start += kept[k]
     assert kept[3] == 0 and start == len(chosen)
 
