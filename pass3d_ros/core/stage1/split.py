@@ -31,6 +31,7 @@ import copy
 import numba as nb
 import numpy as np
 
+from pass3d_ros.core.stage1 import crowd as _crowd
 from pass3d_ros.core.stage1 import protrusion as _protrusion
 from pass3d_ros.core.stage1 import refinement as _refinement
 from pass3d_ros.core.stage1 import scanline as _scanline
@@ -227,13 +228,37 @@ def _person_shaped(points: np.ndarray, label: np.ndarray, flagged: np.ndarray, s
     as the gates read heights (`heights_above_ground`). The gates let a cluster's top reach 2.3 m and its bottom float
     1.5 m up (an occluded car, a person behind one); a part of a crowd's cluster that shows less than half a person,
     or stands taller than one, was clutter far more often than a person on the development scans (rule R3)."""
-    height = heights_above_ground(points, label, flagged, surface, segment_edges)
+    return _shaped(heights_above_ground(points, label, flagged, surface, segment_edges), label, flagged)
+
+
+def _shaped(height: np.ndarray, label: np.ndarray, flagged: np.ndarray) -> np.ndarray:
+    """`_person_shaped` from the points' heights above the ground (NaN for points of clusters not flagged)."""
     inside = np.flatnonzero(~np.isnan(height))
     top = np.full(len(flagged), -np.inf)
     bottom = np.full(len(flagged), np.inf)
     np.maximum.at(top, label[inside], height[inside])
     np.minimum.at(bottom, label[inside], height[inside])
     return flagged & (top - bottom >= PART_MIN_RISE_M) & (top <= PART_MAX_TOP_M)
+
+
+def _people_in_groups(points: np.ndarray, label: np.ndarray, n_total: int, groups: np.ndarray,
+                      surface: np.ndarray | LocalGround, segment_edges: np.ndarray, config: Stage1Config
+                      ) -> tuple[np.ndarray, int, list[Box3D], np.ndarray]:
+    """(labels, cluster count, boxes, kept ids) of the people found in the clusters `groups` (parts of
+    `rerun_dropped` too big for one person, yet of a person's height: pass3d_ros.core.stage1.crowd), each person a new
+    cluster id gated again as a part of `rerun_dropped` is."""
+    flagged = np.zeros(n_total, dtype=bool)
+    flagged[groups] = True
+    height = heights_above_ground(points, label, flagged, surface, segment_edges)
+    shaped = np.flatnonzero(_shaped(height, label, flagged))
+    if len(shaped) == 0:
+        return label, n_total, [], np.zeros(0, dtype=np.int64)
+    out, n_after, n_people = _crowd.people_apart(points, label, n_total, shaped, height)
+    if n_people == 0:
+        return label, n_total, [], np.zeros(0, dtype=np.int64)
+    boxes, ids = _gate_parts(points, out, n_total, n_people, surface, segment_edges, config,
+                             np.ones(n_people, dtype=bool))
+    return out, n_after, boxes, ids
 
 
 def heights_above_ground(points: np.ndarray, label: np.ndarray, chosen: np.ndarray, surface: np.ndarray | LocalGround,
@@ -345,6 +370,13 @@ def select_with_split(
             n_split += n_rerun
             if small_only is not None:
                 gives_way = part_ids[small_only[part_ids - first]]
+                if config.split_groups:  # the people of a group too big for one person, one part each
+                    groups = first + np.flatnonzero(small_only)
+                    out, n_total, people_boxes, people_ids = _people_in_groups(
+                        points, out, n_total, np.setdiff1d(groups, part_ids), planes, segment_edges, config)
+                    boxes += people_boxes
+                    kept = np.concatenate([kept, people_ids])
+                    gives_way = np.concatenate([gives_way, people_ids])
     if config.split_protruding:
         chosen = _protrusion_candidates(n_total, kept, z_lo, z_hi, config)
         height = heights_above_ground(points, out, chosen, planes, segment_edges)
