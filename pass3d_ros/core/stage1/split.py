@@ -201,15 +201,17 @@ def _unique_runs(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _gate_parts(points: np.ndarray, label: np.ndarray, first: int, count: int, surface: np.ndarray | LocalGround,
                 segment_edges: np.ndarray, config: Stage1Config, small_only: np.ndarray | None = None
-                ) -> tuple[list[Box3D], np.ndarray]:
+                ) -> tuple[list[Box3D], np.ndarray, np.ndarray]:
     """Boxes and ids of the clusters `first` .. `first + count - 1` of `label` that pass every gate on their own;
     those flagged in `small_only` (one bool per part) only with a person- or rider-sized footprint and the shape of
-    a person standing there (`_person_shaped`)."""
+    a person standing there (`_person_shaped`). Third, the ids of the flagged parts that may be groups of people
+    (`_people_in_groups`): they pass every gate but the footprint or this one, with points for two people."""
     part_points = np.flatnonzero(label >= first)
     sub = np.ascontiguousarray(points[part_points])
     sub_label = (label[part_points] - first).astype(np.int32)
-    z_lo, z_hi, fitted, rects, keep, *_ = _refinement.gate_clusters(sub, sub_label, count, surface, segment_edges,
-                                                                   config)
+    z_lo, z_hi, fitted, rects, keep, _, _, may_part = _refinement.gate_clusters(sub, sub_label, count, surface,
+                                                                                segment_edges, config)
+    groups = np.zeros(0, dtype=np.int64)
     if small_only is not None:
         sized = ((rects[:, 2] <= PART_MAX_LENGTH_M) & (rects[:, 3] <= PART_MAX_WIDTH_M)
                  & (rects[:, 3] >= PART_MIN_DEPTH_M))
@@ -217,8 +219,9 @@ def _gate_parts(points: np.ndarray, label: np.ndarray, first: int, count: int, s
         flagged[fitted[keep & small_only[fitted]]] = True
         shaped = _person_shaped(sub, sub_label, flagged, surface, segment_edges)
         keep &= ~small_only[fitted] | (sized & shaped[fitted])
+        groups = first + fitted[small_only[fitted] & ~keep & may_part[fitted]]
     parts = fitted[keep]
-    return _refinement.boxes_of(rects[keep], z_lo[parts], z_hi[parts]), first + parts
+    return _refinement.boxes_of(rects[keep], z_lo[parts], z_hi[parts]), first + parts, groups
 
 
 def _person_shaped(points: np.ndarray, label: np.ndarray, flagged: np.ndarray, surface: np.ndarray | LocalGround,
@@ -256,8 +259,8 @@ def _people_in_groups(points: np.ndarray, label: np.ndarray, n_total: int, group
     out, n_after, n_people = _crowd.people_apart(points, label, n_total, shaped, height)
     if n_people == 0:
         return label, n_total, [], np.zeros(0, dtype=np.int64)
-    boxes, ids = _gate_parts(points, out, n_total, n_people, surface, segment_edges, config,
-                             np.ones(n_people, dtype=bool))
+    boxes, ids, _ = _gate_parts(points, out, n_total, n_people, surface, segment_edges, config,
+                                np.ones(n_people, dtype=bool))
     return out, n_after, boxes, ids
 
 
@@ -342,8 +345,8 @@ def select_with_split(
     if config.split_merged:
         out, n_total, n_split = cut_at_gaps(points, label, n_clusters, fitted[~footprint], rects[~footprint], config)
         if n_split:
-            part_boxes, part_ids = _gate_parts(points, out, n_clusters, n_total - n_clusters, planes, segment_edges,
-                                               config)
+            part_boxes, part_ids, _ = _gate_parts(points, out, n_clusters, n_total - n_clusters, planes,
+                                                  segment_edges, config)
             boxes += part_boxes
             kept = np.concatenate([kept, part_ids])
     if config.split_rerun and ring is not None:
@@ -363,17 +366,16 @@ def select_with_split(
                 moved = out >= first
                 origin[out[moved] - first] = before[moved]
                 small_only = ~np.isin(origin, wide)
-            part_boxes, part_ids = _gate_parts(points, out, first, n_total - first, planes, segment_edges, config,
-                                               small_only)
+            part_boxes, part_ids, groups = _gate_parts(points, out, first, n_total - first, planes, segment_edges,
+                                                       config, small_only)
             boxes += part_boxes
             kept = np.concatenate([kept, part_ids])
             n_split += n_rerun
             if small_only is not None:
                 gives_way = part_ids[small_only[part_ids - first]]
-                if config.split_groups:  # the people of a group too big for one person, one part each
-                    groups = first + np.flatnonzero(small_only)
-                    out, n_total, people_boxes, people_ids = _people_in_groups(
-                        points, out, n_total, np.setdiff1d(groups, part_ids), planes, segment_edges, config)
+                if config.split_groups and len(groups):  # a group too big for one person: one part per person
+                    out, n_total, people_boxes, people_ids = _people_in_groups(points, out, n_total, groups, planes,
+                                                                               segment_edges, config)
                     boxes += people_boxes
                     kept = np.concatenate([kept, people_ids])
                     gives_way = np.concatenate([gives_way, people_ids])
@@ -383,8 +385,8 @@ def select_with_split(
         cut, n_parts, n_made = _protrusion.protruding_parts(points, out, height, n_total, np.flatnonzero(chosen),
                                                             config.max_top, config.th_num_floor)
         if n_made:
-            part_boxes, part_ids = _gate_parts(points, cut, n_total, n_parts - n_total, planes, segment_edges,
-                                               config)
+            part_boxes, part_ids, _ = _gate_parts(points, cut, n_total, n_parts - n_total, planes, segment_edges,
+                                                  config)
             boxes += part_boxes
             kept = np.concatenate([kept, part_ids])
             out, n_split = cut, n_split + n_made
