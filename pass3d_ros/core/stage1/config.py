@@ -212,9 +212,10 @@ class Stage1Config:
         "found on 32-laser sensors (docs/experiments/sensors.md, rule R3)", 0, 1,
     )
     split_groups: bool = _param(
-        False, "refinement: a part of rerun_dropped of a person's height but too big for one person is a group of "
-        "people: each head found in it (the highest points, 0.45 m or more apart) takes the points within 0.6 m, and "
-        "each such part is kept as rerun_dropped's are (pass3d_ros.core.stage1.crowd)", 0, 1,
+        True, "refinement: a part of rerun_dropped of a person's height but too big for one person is a group of "
+        "people: each head found in it (the highest points, 0.45 m or more apart, nothing as high 0.3-0.6 m around) "
+        "takes the points within 0.6 m, and each such part is kept as rerun_dropped's are "
+        "(pass3d_ros.core.stage1.crowd; docs/experiments/sensors.md, rule C1)", 0, 1,
     )
     rerun_max_points: int = _param(
         3000, "refinement: rerun_dropped leaves larger clusters (buildings, long walls) dropped whole", 1, 10_000_000,

@@ -92,8 +92,8 @@ def test_split_groups_keeps_the_people_of_a_group_by_a_wall() -> None:
     solids, n_people_solids = group_by_a_wall(0.9)
     points, ring, hit = raycast(solids, n_az=1000)
     people = (hit >= 0) & (hit < n_people_solids)
-    off = propose(points, ring, Stage1Config())
-    on = propose(points, ring, Stage1Config(split_groups=True))
+    off = propose(points, ring, Stage1Config(split_groups=False))
+    on = propose(points, ring, Stage1Config())
     assert (off.cluster_id[people] >= 0).mean() < 0.1  # without the option the group stays dropped with the wall
     assert (on.cluster_id[people] >= 0).mean() > 0.9
     owners = [np.unique(on.cluster_id[hit // 2 == p], return_counts=True) for p in range(n_people_solids // 2)]
