@@ -227,9 +227,13 @@ def test_bad_weights_fail_at_construction(ros: Ros, tmp_path: Path, lite_weights
 # ---- a bag through both live nodes ----
 
 def offline_labels(frame: Frame) -> np.ndarray:
+    """The labels the nodes publish for `frame`, made offline: each point's label settled within its own (primary)
+    proposal (core.objects.frame_objects), as a point in two of rerun_dropped's people parts can be named twice."""
     stage1 = propose(frame.points, frame.ring)
     members = proposal_members(stage1.cluster_id, stage1.cluster_id2)
-    return people_only(SizeRuleClassifier().segment(frame.points, members), members, stage1.people_only()).labels
+    result = people_only(SizeRuleClassifier().segment(frame.points, members), members, stage1.people_only())
+    return frame_objects(frame.points, stage1.cluster_id, result.proposal_class, result.labels,
+                         result.confidence).labels
 
 
 def test_bag_through_live_nodes_lockstep(small_bag: Path, tmp_path: Path) -> None:
