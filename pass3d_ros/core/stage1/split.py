@@ -43,7 +43,6 @@ PART_MAX_LENGTH_M = 2.0  # `rerun_dropped` keeps a part of a cluster it chose on
 PART_MAX_WIDTH_M = 1.2  # cyclist 1.76 x 0.60 m, pedestrian 0.84 x 0.66 m) and this narrow: people, not pieces of walls
 # ... and only when shaped like a person standing there (`_person_shaped`; rule R3, docs/experiments/sensors.md):
 PART_MIN_RISE_M = 0.88  # its points span at least half KITTI's mean pedestrian height (1.76 m) from bottom to top
-PART_MAX_TOP_M = 2.1  # its top at most KITTI's mean pedestrian height and the ground band (th_dist 0.3 m) above ground
 PART_MIN_DEPTH_M = 0.1  # its footprint's short side at least this: the near half of a body 0.2-0.3 m deep, not a
 # pole, sign or panel seen edge on
 SIDE_WINDOW = 1.0  # metres of axis on each side of a gap whose coverage is checked
@@ -227,10 +226,11 @@ def _gate_parts(points: np.ndarray, label: np.ndarray, first: int, count: int, s
 def _person_shaped(points: np.ndarray, label: np.ndarray, flagged: np.ndarray, surface: np.ndarray | LocalGround,
                    segment_edges: np.ndarray) -> np.ndarray:
     """Per cluster id (`flagged`: those to look at; the others are False), whether its points rise at least
-    PART_MIN_RISE_M from their lowest to their highest and the highest is at most PART_MAX_TOP_M above the ground,
-    as the gates read heights (`heights_above_ground`). The gates let a cluster's top reach 2.3 m and its bottom float
-    1.5 m up (an occluded car, a person behind one); a part of a crowd's cluster that shows less than half a person,
-    or stands taller than one, was clutter far more often than a person on the development scans (rule R3)."""
+    PART_MIN_RISE_M from their lowest to their highest, as the gates read heights (`heights_above_ground`). The gates
+    let a cluster's bottom float 1.5 m up (an occluded car, a person behind one); a part of a crowd's cluster that
+    shows less than half a person was clutter far more often than a person on the development scans (rule R3). Its
+    top is bounded by the gates' max_top alone (rule R4: a tall person, or one whose ground reads low, reaches
+    2.1-2.3 m)."""
     return _shaped(heights_above_ground(points, label, flagged, surface, segment_edges), label, flagged)
 
 
@@ -241,7 +241,7 @@ def _shaped(height: np.ndarray, label: np.ndarray, flagged: np.ndarray) -> np.nd
     bottom = np.full(len(flagged), np.inf)
     np.maximum.at(top, label[inside], height[inside])
     np.minimum.at(bottom, label[inside], height[inside])
-    return flagged & (top - bottom >= PART_MIN_RISE_M) & (top <= PART_MAX_TOP_M)
+    return flagged & (top - bottom >= PART_MIN_RISE_M)
 
 
 def _people_in_groups(points: np.ndarray, label: np.ndarray, n_total: int, groups: np.ndarray,

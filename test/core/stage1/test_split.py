@@ -211,18 +211,20 @@ def test_only_rerun_dropped_parts_give_way() -> None:
 
 @pytest.mark.parametrize(("what", "shape"), [("a panel seen square on", {"yaw": 0.0}),
                                              ("less than half a person", {"height": 0.7, "bottom": 0.6}),
-                                             ("taller than a person", {"height": 2.25, "x": 12.0, "gap": 0.35})])
+                                             ("taller than a person", {"height": 2.6, "x": 20.0, "gap": 0.35})])
 def test_rerun_dropped_keeps_only_person_shaped_parts(what: str, shape: dict) -> None:
-    """A part that passes the gates but is no person standing there (a flat face, no depth; 0.7 m of rise; a top
-    2.15 m up, seen 12 m away where the highest laser reaches it) stays dropped with the wall; the same part shaped
-    as a person is kept (`test_rerun_dropped_cuts_a_person_off_a_long_wall`, and the control below)."""
+    """A part that is no person standing there (a flat face, no depth; 0.7 m of rise; a top above the gates' max_top,
+    2.4 m up where the highest laser reaches it 20 m away) stays dropped with the wall; the same part shaped as a
+    person is kept (`test_rerun_dropped_cuts_a_person_off_a_long_wall`, and the controls below)."""
     points, ring, hit = raycast(person_before_wall(**{"gap": 0.25, **shape}), n_az=1000)
     after = propose(points, ring, Stage1Config(rerun_dropped=True))
     assert (after.cluster_id[hit == 0] >= 0).mean() < 0.1, what
 
 
-def test_a_person_12_m_away_is_kept() -> None:
-    """The control of the tall case: a 1.75 m person in its place is kept."""
-    points, ring, hit = raycast(person_before_wall(0.35, x=12.0), n_az=1000)
+@pytest.mark.parametrize(("height", "x"), [(1.75, 12.0), (1.75, 20.0), (2.0, 12.0)])
+def test_a_person_12_or_20_m_away_is_kept(height: float, x: float) -> None:
+    """The controls of the tall case: a person in its place is kept, a tall one too (2.0 m, seen up to 2.15 m 12 m
+    away: rule R4)."""
+    points, ring, hit = raycast(person_before_wall(0.35, height=height, x=x), n_az=1000)
     after = propose(points, ring, Stage1Config(rerun_dropped=True))
     assert (after.cluster_id[hit == 0] >= 0).mean() > 0.9
