@@ -123,13 +123,14 @@ def test_benchmark_runs_and_reports_missing_patchwork(tmp_path, capsys, monkeypa
 
 
 # Measured on the six kitti_dev frames (this 2-core machine): foreground recall 0.981 (car 0.981, pedestrian
-# 0.992, cyclist 1.000), proposals per frame median 35.5 / mean 30.5 (33.5 / 28.5 without rerun_dropped, on by
-# default since rule R3: two person-shaped parts a frame), ground precision 0.912, recall 0.994.
+# 0.992, cyclist 1.000), proposals per frame median 36.5 / mean 31.5 (33.5 / 28.5 without rerun_dropped, on by
+# default since rule R3: two person-shaped parts a frame; 35.5 / 30.5 before rule R4 let a part's top reach the
+# gates' max_top), ground precision 0.912, recall 0.994.
 # The floors below sit a little under those numbers, so a regression shows. They are regression floors, not the
-# targets (recall >= 0.90, <= 35 proposals, ground precision >= 0.93): the proposals floor (<= 36 vs 35.5) is half a
-# proposal over the target since rule R3 (docs/experiments/sensors.md). A deliberate change to stage 1 (order-free
-# rings, parameters that follow the sensor) may move these numbers: re-measure with `pass3d_evaluate --stage1-only` on
-# the same frames and move a floor in the same commit.
+# targets (recall >= 0.90, <= 35 proposals, ground precision >= 0.93): the proposals floor (<= 37 vs 36.5) is 1.5
+# proposals over the target since rules R3 and R4 (docs/experiments/sensors.md). A deliberate change to stage 1
+# (order-free rings, parameters that follow the sensor) may move these numbers: re-measure with
+# `pass3d_evaluate --stage1-only` on the same frames and move a floor in the same commit.
 def test_real_kitti_frames_meet_the_measured_floors(kitti_dev, tmp_path):
     out = tmp_path / "real.json"
     specs = [f"kitti_object:{kitti_dev / 'object' / 'training'}",
@@ -143,7 +144,7 @@ def test_real_kitti_frames_meet_the_measured_floors(kitti_dev, tmp_path):
     assert data["frames"] == 6
     assert st["foreground_recall"] >= 0.97
     assert st["class_recall"]["pedestrian"] >= 0.95
-    assert st["proposals_per_frame"]["median"] <= 36 and st["proposals_per_frame"]["mean"] <= 31
+    assert st["proposals_per_frame"]["median"] <= 37 and st["proposals_per_frame"]["mean"] <= 32
     assert st["ground"]["precision"] >= 0.90 and st["ground"]["recall"] >= 0.99
     assert all(row["ring_source"] == "azimuth_wrap" for row in data["per_frame"])
     assert st["ms_per_frame"]["median"] < 100.0  # a loose sanity bound: timing here is shared and noisy
