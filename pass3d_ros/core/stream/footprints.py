@@ -63,11 +63,20 @@ def extent(xy: np.ndarray) -> tuple[float, float, np.ndarray]:
 def grouped_cells(xy: np.ndarray, counts: Sequence[int] | np.ndarray) -> list[np.ndarray]:
     """`cells` of each of several footprints at once: `xy` (M, 2) their points one after another, `counts` how many
     each has (a footprint of no points has no cells)."""
+    keys, starts = cell_sets(xy, counts)
+    return pieces(keys, np.diff(starts))
+
+
+def cell_sets(xy: np.ndarray, counts: Sequence[int] | np.ndarray,
+              shift: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """`grouped_cells` flat: every footprint's sorted unique keys one after another, and where each starts (its end
+    last; `shared_cells_flat` takes them as they are). With `shift` (K, 2) footprint k's points are moved by shift[k]
+    first (a track's remembered points carried to its predicted centre), in the same pass."""
     counts = np.asarray(counts, dtype=np.int64)
-    if not len(xy):
-        return [np.zeros(0, np.int64) for _ in counts]
-    flat, sizes = _unique_groups(point_cells(xy), counts)
-    return pieces(flat, sizes)
+    xy = np.ascontiguousarray(xy, dtype=np.float64).reshape(-1, 2)
+    if shift is None:
+        shift = np.zeros((len(counts), 2))
+    return _moved_unique_groups(xy, counts, np.ascontiguousarray(shift, dtype=np.float64))
 
 
 def pieces(flat: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
@@ -77,17 +86,20 @@ def pieces(flat: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
 
 
 @nb.njit(cache=True, nogil=True)
-def _unique_groups(keys: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each group's sorted unique keys (groups of `counts` consecutive keys), one group after another, and how many
-    each has: an insertion sort within each group (a footprint's few dozen keys), duplicates skipped as they come."""
-    out = np.empty(len(keys), np.int64)
-    sizes = np.zeros(len(counts), np.int64)
+def _moved_unique_groups(xy: np.ndarray, counts: np.ndarray, shift: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each group's sorted unique cell keys (`point_cells` of groups of `counts` consecutive points, group g's moved by
+    shift[g]), one group after another, and where each starts (the end last): an insertion sort within each group (a
+    footprint's few dozen keys), duplicates skipped as they come."""
+    out = np.empty(len(xy), np.int64)
+    starts = np.zeros(len(counts) + 1, np.int64)
     start = 0
     written = 0
     for g in range(len(counts)):
         first = written
         for m in range(start, start + counts[g]):
-            key = keys[m]
+            column = np.int64(np.floor((xy[m, 0] + shift[g, 0]) / CELL_M)) + _OFFSET
+            row = np.int64(np.floor((xy[m, 1] + shift[g, 1]) / CELL_M)) + _OFFSET
+            key = column * _ROW + row
             at = written
             while at > first and out[at - 1] > key:
                 at -= 1
@@ -98,8 +110,8 @@ def _unique_groups(keys: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np
             out[at] = key
             written += 1
         start += counts[g]
-        sizes[g] = written - first
-    return out[:written], sizes
+        starts[g + 1] = written
+    return out[:written], starts
 
 
 @nb.njit(cache=True, nogil=True)
@@ -199,6 +211,11 @@ def shared_cells(first: Sequence[np.ndarray], second: Sequence[np.ndarray]) -> n
     if not len(first) or not len(second):
         return np.zeros((len(first), len(second)), np.int64)
     return _shared(*_flat(first), *_flat(second))
+
+
+def shared_cells_flat(first: tuple[np.ndarray, np.ndarray], second: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """`shared_cells` of two `cell_sets` (keys, starts) as they are (no list of arrays made and joined again)."""
+    return _shared(first[0], first[1], second[0], second[1])
 
 
 def _flat(groups: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -46,16 +46,16 @@ from pass3d_ros.core.stream.footprints import (
     CELL_M,
     MAX_POINTS,
     Footprints,
+    cell_sets,
     cells,
     evenly_spaced,
     extent,
-    grouped_cells,
     matching,
     nearest_owner,
     overlap,
     pieces,
     point_cells,
-    shared_cells,
+    shared_cells_flat,
 )
 
 LONG_M = 3.0  # a class this long on average (a car) moves its box centre by metres when seen from another side; a
@@ -210,6 +210,20 @@ class ScanTracks(NamedTuple):
     merged: dict[int, list[tuple[Tracked, np.ndarray]]] | None = None
 
 
+class _Shared(NamedTuple):
+    """A scan's footprint cells shared by each track (predicted) and each detection, counted once for the matching,
+    the parts and the merged objects: `cells` (T, K), each track's and each detection's cell count."""
+
+    cells: np.ndarray
+    tracks: np.ndarray
+    detections: np.ndarray
+
+    def overlap(self) -> np.ndarray:
+        """Shared cells over the smaller footprint of each pair (`footprints.overlap`)."""
+        smaller = np.minimum(self.tracks[:, None], self.detections[None, :])
+        return self.cells / np.maximum(smaller, 1)
+
+
 class _Frame:
     """Sensor frame -> tracking frame: the pose (world from sensor) when known, else none."""
 
@@ -227,10 +241,13 @@ class _Frame:
         return xy if self.pose is None else xy @ self.pose[:2, :2].T + self.pose[:2, 3]
 
 
-def _track_cells(tracks: Sequence[Track]) -> list[np.ndarray]:
-    """Each track's footprint cells where its points are predicted now (none without points), all at once."""
-    offsets = [np.zeros((0, 2)) if t.offsets is None else t.state[:2] + t.offsets for t in tracks]
-    return grouped_cells(np.concatenate(offsets) if offsets else np.zeros((0, 2)), [len(o) for o in offsets])
+def _track_cells(tracks: Sequence[Track]) -> tuple[np.ndarray, np.ndarray]:
+    """Each track's footprint cells where its points are predicted now (none without points), all at once, as
+    `cell_sets` (keys, starts): its remembered offsets moved by its predicted centre in the same pass."""
+    offsets = [t.offsets for t in tracks if t.offsets is not None]
+    counts = [0 if t.offsets is None else len(t.offsets) for t in tracks]
+    centres = np.array([t.state[:2] for t in tracks]).reshape(-1, 2)
+    return cell_sets(np.concatenate(offsets) if offsets else np.zeros((0, 2)), counts, centres)
 
 
 class Tracker:
@@ -272,20 +289,22 @@ class Tracker:
         to_world = _Frame(pose)
         centers = to_world.points(np.asarray(centers, dtype=np.float64).reshape(-1, 3))
         sizes = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
-        world = detections = None
+        world = detections = shared = None
         if footprints is not None:
             world = Footprints(to_world.xy(footprints.xy), footprints.counts)
-            detections = grouped_cells(world.xy, world.counts)
+            detections = cell_sets(world.xy, world.counts)
         self._predict_all(stamp_s)
         tracks = self._footprints()
-        pairs = self._associate(centers, labels, tracks, detections)
+        if tracks is not None and detections is not None:
+            shared = _Shared(shared_cells_flat(tracks, detections), np.diff(tracks[1]), np.diff(detections[1]))
+        pairs = self._associate(centers, labels, shared)
         matched = {d: t for t, d in pairs}
         self._correct_all([self.tracks[t] for t, _ in pairs], centers[[d for _, d in pairs]],
                           sizes[[d for _, d in pairs]])
-        parts = self._parts(matched, tracks, detections)
+        parts = self._parts(matched, shared)
         if self.config.part_extent is not None:
             parts.update(self._ends(matched, parts, labels, world))
-        covered = self._covered(matched, parts, labels, tracks, detections)
+        covered = self._covered(matched, parts, labels, shared)
         out: list[Tracked] = []
         seen: set[int] = {self.tracks[u].track_id for others in covered.values() for u in others}
         for d in range(len(centers)):
@@ -293,7 +312,8 @@ class Tracker:
                 track = self.tracks[parts[d]]
             else:
                 track = self.tracks[matched[d]] if d in matched else self._revive(
-                    centers[d], sizes[d], int(labels[d]), stamp_s, None if detections is None else detections[d])
+                    centers[d], sizes[d], int(labels[d]), stamp_s,
+                    None if detections is None else detections[0][detections[1][d]:detections[1][d + 1]])
                 if track is None:
                     track = self._birth(centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
                 else:
@@ -321,18 +341,17 @@ class Tracker:
         return Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits)
 
     def _covered(self, matched: dict[int, int], parts: dict[int, int], labels: Sequence[int],
-                 tracks: list[np.ndarray] | None, detections: list[np.ndarray] | None) -> dict[int, list[int]]:
+                 shared: _Shared | None) -> dict[int, list[int]]:
         """Matched detections that cover another confirmed track's object too (stage 1 joined two cars parked side
         by side): merge_cover of that track's predicted footprint cells inside the detection's, the track of the
         detection's class, matched to no other detection that holds more of its cells. detection -> track indices."""
-        if self.config.merge_cover is None or tracks is None or detections is None or not matched:
+        if self.config.merge_cover is None or shared is None or not matched:
             return {}
-        confirmed = [u for u, t in enumerate(self.tracks) if t.hits >= self.config.min_hits and len(tracks[u])]
+        confirmed = [u for u, t in enumerate(self.tracks) if t.hits >= self.config.min_hits and shared.tracks[u]]
         if not confirmed:
             return {}
         ds = sorted(matched)
-        shared = shared_cells([tracks[u] for u in confirmed], [detections[d] for d in ds])
-        cover = shared / np.maximum([len(tracks[u]) for u in confirmed], 1)[:, None]
+        cover = shared.cells[np.ix_(confirmed, ds)] / np.maximum(shared.tracks[confirmed], 1)[:, None]
         owner = {t: d for d, t in matched.items()}
         out: dict[int, list[int]] = {}
         bests = np.argmax(cover, axis=1)
@@ -396,15 +415,15 @@ class Tracker:
         self.tracks.append(best)
         return best
 
-    def _footprints(self) -> list[np.ndarray] | None:
-        """Each track's footprint cells where its points are predicted now (its last points moved with its filter);
-        an empty footprint for a track without points; None when no track has any."""
+    def _footprints(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Each track's footprint cells where its points are predicted now (its last points moved with its filter;
+        `cell_sets`): an empty footprint for a track without points; None when no track has any."""
         if not any(t.offsets is not None for t in self.tracks):
             return None
         return _track_cells(self.tracks)
 
-    def _associate(self, centers: np.ndarray, labels: Sequence[int], tracks: list[np.ndarray] | None = None,
-                   detections: list[np.ndarray] | None = None) -> list[tuple[int, int]]:
+    def _associate(self, centers: np.ndarray, labels: Sequence[int],
+                   shared: _Shared | None = None) -> list[tuple[int, int]]:
         """(track index, detection index) pairs: a pair's cost is its centre distance (plus class_penalty_m for
         another class) times 1 - the share of footprint cells it shares; a pair may match within the detection's
         gate, or beyond it when its footprints share match_overlap of their cells. The pairs chosen have the most
@@ -419,8 +438,8 @@ class Tracker:
         det_labels = np.asarray(labels)
         cost = cost + self.config.class_penalty_m * (track_labels[:, None] != det_labels[None, :])
         allowed = cost <= self.config.gates[det_labels][None, :]
-        if tracks is not None and detections is not None:
-            share = overlap(tracks, detections)
+        if shared is not None:
+            share = shared.overlap()
             allowed |= share >= self.config.match_overlap
             cost = cost * (1.0 - share)
         for a, b in self.config.never_match:  # neither the centres nor the footprints match these classes
@@ -432,19 +451,17 @@ class Tracker:
         rows, cols = linear_sum_assignment(margin, maximize=True)
         return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if allowed[r, c]]
 
-    def _parts(self, matched: dict[int, int], tracks: list[np.ndarray] | None,
-               detections: list[np.ndarray] | None) -> dict[int, int]:
+    def _parts(self, matched: dict[int, int], shared: _Shared | None) -> dict[int, int]:
         """Unmatched detections that are part of a confirmed track another detection matched this scan: most of
         their cells (part_overlap) on the track's footprint (a car stage 1 cut in two). detection -> track index."""
-        if tracks is None or detections is None:
+        if shared is None:
             return {}
         taken = sorted(set(matched.values()))
-        free = [d for d in range(len(detections)) if d not in matched]
+        free = [d for d in range(len(shared.detections)) if d not in matched]
         confirmed = [t for t in taken if self.tracks[t].hits >= self.config.min_hits]
         if not free or not confirmed:
             return {}
-        shared = shared_cells([tracks[t] for t in confirmed], [detections[d] for d in free])
-        share = shared / np.maximum([len(detections[d]) for d in free], 1)[None, :]
+        share = shared.cells[np.ix_(confirmed, free)] / np.maximum(shared.detections[free], 1)[None, :]
         best = np.argmax(share, axis=0)
         return {d: confirmed[int(best[k])] for k, d in enumerate(free)
                 if share[best[k], k] >= self.config.part_overlap}
@@ -535,7 +552,8 @@ class Tracker:
         keys = point_cells(xyz[:, :2])
         order = np.argsort(keys, kind="stable")  # the points by cell, once: a track's points are then a few ranges of
         keys = keys[order]  # it (a pass over all of them per track took 6 ms a scan)
-        for track, footprint in zip(waiting, _track_cells(waiting), strict=True):
+        keys_at = _track_cells(waiting)
+        for track, footprint in zip(waiting, pieces(keys_at[0], np.diff(keys_at[1])), strict=True):
             inside = order[matching(keys, footprint)[0]]
             mine = np.sort(inside[free[inside]])  # in a footprint cell: within the track's reach too
             if len(mine) < self.config.hold_points:
