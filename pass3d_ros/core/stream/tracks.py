@@ -31,9 +31,8 @@ no object's; without one, in the sensor's frame, where the filter's velocity abs
 """
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 from typing import NamedTuple
 
@@ -57,12 +56,12 @@ from pass3d_ros.core.stream.footprints import (
     point_cells,
     shared_cells_flat,
 )
+from pass3d_ros.core.stream.track_store import MIN_WEIGHT, Track, TrackStore, sight
 
 LONG_M = 3.0  # a class this long on average (a car) moves its box centre by metres when seen from another side; a
 # person's or a rider's moves less than a centre's error
 LONG_CLASS = np.array([MEAN_SIZE.get(label, (0.0,))[0] >= LONG_M for label in range(NUM_CLASSES)])  # per class id
 COS_HEADING = float(np.cos(np.radians(30.0)))  # "along the heading": within 30 degrees of it
-MIN_WEIGHT = 1e-3  # a sighting's least weight in the vote (a confidence of 0 still counts)
 MIN_MARGIN_M = 0.05  # the margin of a pair matched beyond its gate by its footprint (`Tracker._associate`)
 
 
@@ -126,66 +125,6 @@ class TrackerConfig:
         """The gate of each class id, as `gate` says (one array: a scan looks up every detection's at once)."""
         widest = max(g for _, g in self.gate_m)
         return np.array([dict(self.gate_m).get(label, widest) for label in range(NUM_CLASSES)])
-
-
-@dataclass
-class Track:
-    """One object over time: its filter state in the tracking frame and its sightings."""
-
-    track_id: int
-    state: np.ndarray  # (4,) x, y, vx, vy
-    cov: np.ndarray  # (4, 4)
-    z: float  # the box centre's height
-    size: tuple[float, float, float]
-    votes: deque = field(default_factory=deque)  # (label, confidence) of the recent sightings
-    hits: int = 1
-    misses: int = 0
-    held: int = 0  # scans in a row the track was held by background points (no detection of its own)
-    hold_from: int = 0  # the sightings it needs before it may be held (a track found again is confirmed anew)
-    offsets: np.ndarray | None = None  # (M, 2) its last points' x, y less its centre: the footprint it carries
-    stamp_s: float = 0.0
-    _label: int = -1  # the vote's result and its share, made again when a sighting is added
-    _score: float = 0.0
-    _weight: list[float] = field(default_factory=lambda: [0.0] * NUM_CLASSES)  # the window's weight per class
-
-    def __post_init__(self) -> None:
-        for label, confidence in self.votes:
-            self._weight[label] += max(confidence, MIN_WEIGHT)
-
-    def sighting(self, label: int, confidence: float) -> None:
-        """Add a sighting to the vote (the window's weights kept as it slides)."""
-        if len(self.votes) == self.votes.maxlen:
-            gone, weight = self.votes[0]
-            self._weight[gone] -= max(weight, MIN_WEIGHT)
-        self.votes.append((label, confidence))
-        self._weight[label] += max(confidence, MIN_WEIGHT)
-        self._label = -1
-
-    def label(self) -> int:
-        """The confidence-weighted vote of the recent sightings (the first sighting's class wins a tie)."""
-        if self._label < 0:
-            self._vote()
-        return self._label
-
-    def score(self) -> float:
-        """The voted class's share of the vote weight."""
-        if self._label < 0:
-            self._vote()
-        return self._score
-
-    def confidence(self) -> float:
-        """The mean confidence of the recent sightings of the voted class."""
-        label = self.label()
-        mine = [confidence for vote, confidence in self.votes if vote == label]
-        return sum(mine) / len(mine) if mine else 0.0
-
-    def _vote(self) -> None:
-        weight = self._weight
-        first = self.votes[0][0]
-        best = max(range(NUM_CLASSES), key=weight.__getitem__)
-        self._label = first if weight[first] >= weight[best] else best
-        total = sum(weight)
-        self._score = weight[self._label] / total if total else 0.0
 
 
 @dataclass(frozen=True)
@@ -260,6 +199,7 @@ class Tracker:
 
     def reset(self) -> None:
         """Forget every track (a new stream); ids start over."""
+        self.store = TrackStore(self.config.vote_window)
         self.tracks: list[Track] = []
         self.ended: list[Track] = []  # confirmed tracks ended less than reid_misses scans ago (`_revive`)
         self._next_id = 0
@@ -269,7 +209,7 @@ class Tracker:
     @property
     def alive(self) -> int:
         """Confirmed tracks now."""
-        return sum(1 for t in self.tracks if t.hits >= self.config.min_hits)
+        return int((self.store.hits[self._slots(self.tracks)] >= self.config.min_hits).sum())
 
     def update(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
                stamp_s: float, pose: np.ndarray | None = None,
@@ -305,36 +245,76 @@ class Tracker:
         if self.config.part_extent is not None:
             parts.update(self._ends(matched, parts, labels, world))
         covered = self._covered(matched, parts, labels, shared)
-        out: list[Tracked] = []
-        seen: set[int] = {self.tracks[u].track_id for others in covered.values() for u in others}
-        for d in range(len(centers)):
-            if d in parts:
-                track = self.tracks[parts[d]]
-            else:
-                track = self.tracks[matched[d]] if d in matched else self._revive(
-                    centers[d], sizes[d], int(labels[d]), stamp_s,
-                    None if detections is None else detections[0][detections[1][d]:detections[1][d + 1]])
-                if track is None:
-                    track = self._birth(centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
-                else:
-                    self._sighted(track, centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
-            seen.add(track.track_id)
-            out.append(self._said(track))
+        rows, early = self._sightings(centers, sizes, labels, scores, stamp_s, matched, parts, detections)
+        out = self._said_all(rows, early)
+        seen = {self.tracks[u].track_id for others in covered.values() for u in others}
+        seen.update(self.tracks[row].track_id for row in rows)
         merged = self._merged_footprints(matched, covered, to_world)
         if footprints is not None:
-            self._keep_footprints(out, world, merged)
+            self._keep_footprints(rows, world, merged)
         held_out = self._hold(background, seen, stamp_s, to_world) if background is not None else []
-        for track in self.tracks:
-            if track.track_id not in seen:
-                track.misses += 1
-        for track in self.ended:
-            track.misses += 1
-        ended = [t for t in self.tracks if t.misses > self.config.max_misses]
-        self.lost += sum(1 for t in ended if t.hits >= self.config.min_hits)
-        self.tracks = [t for t in self.tracks if t.misses <= self.config.max_misses]
-        self.ended = [t for t in self.ended if t.misses <= self.config.reid_misses]
-        self.ended += [t for t in ended if t.hits >= self.config.min_hits and self.config.reid_misses > t.misses]
+        self._age(seen)
         return ScanTracks(out, held_out, merged)
+
+    def _sightings(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
+                   stamp_s: float, matched: dict[int, int], parts: dict[int, int],
+                   detections: tuple[np.ndarray, np.ndarray] | None) -> tuple[list[int], dict[int, Tracked]]:
+        """Each detection's track (its row in `tracks`): a matched track sighted (all at once), a part its object's
+        track, any other a track found again (`_revive`) or born, in detection order. Also what the tracker says of
+        the parts that come before their object's own detection (said before that detection's sighting)."""
+        own = {t: d for d, t in matched.items()}
+        early = {d: self._said(self.tracks[t]) for d, t in parts.items() if own[t] > d}
+        ds = sorted(matched)
+        self._sighted([self.tracks[matched[d]] for d in ds], centers[ds], sizes[ds],
+                      np.asarray(labels, dtype=np.int64)[ds] if ds else np.zeros(0, np.int64),
+                      np.asarray(scores, dtype=np.float64)[ds] if ds else np.zeros(0), stamp_s)
+        rows = []
+        for d in range(len(centers)):
+            if d in parts:
+                rows.append(parts[d])
+                continue
+            if d in matched:
+                rows.append(matched[d])
+                continue
+            track = self._revive(centers[d], sizes[d], int(labels[d]), stamp_s,
+                                 None if detections is None else detections[0][detections[1][d]:detections[1][d + 1]])
+            if track is None:
+                self._birth(centers[d], sizes[d], int(labels[d]), float(scores[d]), stamp_s)
+            else:
+                self._sighted([track], centers[d:d + 1], sizes[d:d + 1], np.array([int(labels[d])]),
+                              np.array([float(scores[d])]), stamp_s)
+            rows.append(len(self.tracks) - 1)
+        return rows, early
+
+    def _said_all(self, rows: list[int], early: dict[int, Tracked]) -> list[Tracked]:
+        """What the tracker says of each detection's track (`rows`), all voted at once; `early` as `_sightings`."""
+        slots = self._slots([self.tracks[row] for row in rows])
+        label, score = self.store.voted(slots)
+        confirmed = self.store.hits[slots] >= self.config.min_hits
+        return [early[d] if d in early else Tracked(self.tracks[row].track_id, lab, sc, ok) for d, (row, lab, sc, ok)
+                in enumerate(zip(rows, label.tolist(), score.tolist(), confirmed.tolist(), strict=True))]
+
+    def _age(self, seen: set[int]) -> None:
+        """A miss for each track not seen this scan and each ended one; tracks unseen max_misses scans end (the
+        confirmed ones may be found again for reid_misses scans), ended ones unseen reid_misses are forgotten."""
+        store = self.store
+        unseen = [t.slot for t in self.tracks if t.track_id not in seen] + [t.slot for t in self.ended]
+        store.misses[unseen] += 1
+        gone = store.misses[self._slots(self.tracks)] > self.config.max_misses
+        ended = [t for t, g in zip(self.tracks, gone.tolist(), strict=True) if g]
+        self.lost += sum(1 for t in ended if t.hits >= self.config.min_hits)
+        self.tracks = [t for t, g in zip(self.tracks, gone.tolist(), strict=True) if not g]
+        kept = [t for t in self.ended if t.misses <= self.config.reid_misses]
+        found = [t for t in ended if t.hits >= self.config.min_hits and self.config.reid_misses > t.misses]
+        store.release([t.slot for t in self.ended if t.misses > self.config.reid_misses]
+                      + [t.slot for t in ended if not (t.hits >= self.config.min_hits
+                                                      and self.config.reid_misses > t.misses)])
+        self.ended = kept + found
+
+    @staticmethod
+    def _slots(tracks: Sequence[Track]) -> np.ndarray:
+        """The store rows of `tracks`."""
+        return np.array([t.slot for t in tracks], dtype=np.int64)
 
     def _said(self, track: Track) -> Tracked:
         """What the tracker says of a track this scan: its id, voted class and score, whether it is confirmed."""
@@ -432,9 +412,10 @@ class Tracker:
         can: a track taking a neighbour's fragment so that its own object's track can take the other)."""
         if not self.tracks or len(centers) == 0:
             return []
-        predicted = np.array([t.state[:2] for t in self.tracks])
+        slots = self._slots(self.tracks)
+        predicted = self.store.state[slots, :2]
         cost = np.linalg.norm(predicted[:, None, :] - centers[None, :, :2], axis=2)
-        track_labels = np.array([t.label() for t in self.tracks])
+        track_labels = self.store.voted(slots)[0]
         det_labels = np.asarray(labels)
         cost = cost + self.config.class_penalty_m * (track_labels[:, None] != det_labels[None, :])
         allowed = cost <= self.config.gates[det_labels][None, :]
@@ -445,7 +426,7 @@ class Tracker:
         for a, b in self.config.never_match:  # neither the centres nor the footprints match these classes
             allowed &= ~(((track_labels == a)[:, None] & (det_labels == b)[None, :])
                          | ((track_labels == b)[:, None] & (det_labels == a)[None, :]))
-        hits = np.array([t.hits for t in self.tracks], dtype=np.float64)
+        hits = self.store.hits[slots].astype(np.float64)
         cost = cost + self.config.youth_penalty_m * np.clip(1.0 - hits / self.config.mature_hits, 0.0, 1.0)[:, None]
         margin = np.where(allowed, np.maximum(self.config.gates[det_labels][None, :] - cost, MIN_MARGIN_M), 0.0)
         rows, cols = linear_sum_assignment(margin, maximize=True)
@@ -509,22 +490,22 @@ class Tracker:
                 out[d] = best
         return out
 
-    def _keep_footprints(self, out: list[Tracked], world: Footprints,
+    def _keep_footprints(self, rows: list[int], world: Footprints,
                          merged: dict[int, list[tuple[Tracked, np.ndarray]]] | None = None) -> None:
         """Each seen track's footprint: its detections' points (parts included; tracking frame), at most 2 x
         MAX_POINTS evenly spaced, as offsets from its centre; a merged detection's points go to the track whose
-        predicted footprint is nearest (`nearest_owner`)."""
-        rows = {t.track_id: k for k, t in enumerate(self.tracks)}
-        owner = np.repeat(np.array([rows[t.track_id] for t in out], dtype=np.int64), world.counts)
+        predicted footprint is nearest (`nearest_owner`); `rows` each detection's track."""
+        index = {t.track_id: k for k, t in enumerate(self.tracks)}
+        owner = np.repeat(np.array(rows, dtype=np.int64), world.counts)
         if merged:
             starts = np.concatenate([[0], np.cumsum(world.counts)])
             for d, entries in merged.items():
-                ids = np.array([rows[said.track_id] for said, _ in entries])
+                ids = np.array([index[said.track_id] for said, _ in entries])
                 xy = world.xy[starts[d]:starts[d + 1]]
                 near = nearest_owner(xy, [self.tracks[k].state[:2] + self.tracks[k].offsets for k in ids])
                 owner[starts[d]:starts[d + 1]] = ids[near]
         chosen, kept = evenly_spaced(np.arange(len(owner)), owner, len(self.tracks), 2 * MAX_POINTS)
-        centres = np.repeat(np.array([t.state[:2] for t in self.tracks]).reshape(-1, 2), kept, axis=0)
+        centres = np.repeat(self.store.state[self._slots(self.tracks), :2], kept, axis=0)
         for track, offsets, count in zip(self.tracks, pieces(world.xy[chosen] - centres, kept), kept, strict=True):
             if count:
                 track.offsets = offsets
@@ -574,12 +555,13 @@ class Tracker:
             out.append((self._said(track), mine))
         return out
 
-    def _birth(self, center: np.ndarray, size: tuple, label: int, score: float, stamp_s: float) -> Track:
+    def _birth(self, center: np.ndarray, size: np.ndarray, label: int, score: float, stamp_s: float) -> Track:
+        """A new tentative track of one sighting, at rest where the detection is, its velocity unknown."""
         r = self.config.measurement_m ** 2
         v = self.config.birth_speed ** 2
-        cov = np.diag([r, r, v, v])
-        track = Track(self._next_id, np.array([center[0], center[1], 0.0, 0.0]), cov, float(center[2]), size,
-                      deque([(label, score)], maxlen=self.config.vote_window), stamp_s=stamp_s)
+        slot = self.store.new(np.array([center[0], center[1], 0.0, 0.0]), np.diag([r, r, v, v]), float(center[2]),
+                              size, label, score, stamp_s)
+        track = Track(self._next_id, slot, self.store)
         self._next_id += 1
         self.tracks.append(track)
         if self.config.min_hits <= 1:
@@ -592,11 +574,11 @@ class Tracker:
         tracks = self.tracks if tracks is None else tracks
         if not tracks:
             return
-        dt = np.clip(stamp_s - np.array([t.stamp_s for t in tracks]), 0.0, self.config.max_dt_s)
-        states, covs = np.array([t.state for t in tracks]), np.array([t.cov for t in tracks])
+        slots, store = self._slots(tracks), self.store
+        dt = np.clip(stamp_s - store.stamp[slots], 0.0, self.config.max_dt_s)
+        states, covs = store.state[slots], store.cov[slots]
         kalman.predict(states, covs, dt, self.config.process_accel)
-        for track, state, cov in zip(tracks, states, covs, strict=True):
-            track.state, track.cov, track.stamp_s = state, cov, stamp_s
+        store.state[slots], store.cov[slots], store.stamp[slots] = states, covs, stamp_s
 
     def _correct_all(self, tracks: list[Track], centers: np.ndarray, sizes: np.ndarray | None = None) -> None:
         """The Kalman correction of each matched track by its detection's centre (x, y measured), all at once. With
@@ -606,26 +588,29 @@ class Tracker:
         while it stands still)."""
         if not tracks:
             return
-        states, covs = np.array([t.state for t in tracks]), np.array([t.cov for t in tracks])
+        slots, store = self._slots(tracks), self.store
+        states, covs = store.state[slots], store.cov[slots]
         view = np.zeros(len(tracks))
         if sizes is not None and self.config.reshape_m is not None:
-            before = np.sort(np.array([t.size[:2] for t in tracks]), axis=1)
+            before = np.sort(store.box[slots, :2], axis=1)
             after = np.sort(np.asarray(sizes, dtype=np.float64)[:, :2], axis=1)
             change = np.abs(after - before).sum(axis=1)
-            long = LONG_CLASS[[t.label() for t in tracks]]
+            long = LONG_CLASS[store.voted(slots)[0]]
             view = np.where((change > self.config.reshape_m) & long, (change / 2) ** 2, 0.0)
         kalman.correct(states, covs, np.ascontiguousarray(centers[:, :2], dtype=np.float64),
                        self.config.measurement_m ** 2, view)
-        for track, state, cov in zip(tracks, states, covs, strict=True):
-            track.state, track.cov = state, cov
+        store.state[slots], store.cov[slots] = states, covs
 
-    def _sighted(self, track: Track, center: np.ndarray, size: tuple, label: int, score: float,
-                 stamp_s: float) -> None:
-        """A corrected track's sighting: its height, extent, vote and counts."""
-        track.z, track.size, track.stamp_s = float(center[2]), size, stamp_s
-        track.sighting(label, score)
-        track.hits += 1
-        track.misses = 0
-        track.held = 0
-        if track.hits == self.config.min_hits:
-            self.born += 1
+    def _sighted(self, tracks: list[Track], centers: np.ndarray, sizes: np.ndarray, labels: np.ndarray,
+                 scores: np.ndarray, stamp_s: float) -> None:
+        """Corrected tracks' sightings, all at once: their height, box, vote and counts."""
+        if not tracks:
+            return
+        slots, store = self._slots(tracks), self.store
+        store.z[slots], store.box[slots], store.stamp[slots] = centers[:, 2], sizes, stamp_s
+        sight(slots, labels, scores, store.votes, store.confidences, store.first, store.count, store.weight,
+              store.label, MIN_WEIGHT)
+        store.hits[slots] += 1
+        store.misses[slots] = 0
+        store.held[slots] = 0
+        self.born += int((store.hits[slots] == self.config.min_hits).sum())

@@ -1,0 +1,220 @@
+"""Every track's numbers in one stream's arrays, a row (slot) per track: its filter state, box, counts and the vote of
+its recent sightings. A scan's predictions, corrections, sightings and votes are then one compiled call or one numpy
+operation over the rows it touches, not one Python call per track (at 60 tracks those calls were half the tracker's
+time). `Track` is one track's view of its row; a slot is reused once its track is forgotten.
+
+The vote: a track's class is the confidence-weighted vote of its last `window` sightings (each weighs its confidence,
+at least MIN_WEIGHT); the window's weight per class is kept as it slides (added as a sighting comes, taken off as it
+leaves); the oldest sighting's class wins a tie; the score is the voted class's share of the weight.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from pass3d_ros.classes import NUM_CLASSES
+
+MIN_WEIGHT = 1e-3  # a sighting's least weight in the vote (a confidence of 0 still counts)
+FIRST_ROWS = 64  # rows made at first; twice as many each time they are all used
+
+
+class TrackStore:
+    """The rows of a stream's tracks (module docstring). Arrays per row: `state` (x, y, vx, vy), `cov` (4 x 4),
+    `stamp` (s), `z`, `box` (length, width, height), `hits`, `misses`, `held`, `hold_from`, and the vote: the window's
+    classes and confidences (`votes`, `confidences`; a ring from `first`, `count` long), `weight` per class, the
+    voted `label` (-1: to vote again) and its `score`."""
+
+    def __init__(self, window: int) -> None:
+        self.window = window
+        self.free: list[int] = []
+        self.rows = 0
+        self._grow(FIRST_ROWS)
+
+    def _grow(self, rows: int) -> None:
+        """Room for `rows` rows, the rows in use kept."""
+        def grown(old: np.ndarray | None, shape: tuple[int, ...], dtype: type, fill: float = 0) -> np.ndarray:
+            new = np.full((rows, *shape), fill, dtype)
+            if old is not None:
+                new[:len(old)] = old
+            return new
+        has = hasattr(self, "state")
+        self.state = grown(self.state if has else None, (4,), np.float64)
+        self.cov = grown(self.cov if has else None, (4, 4), np.float64)
+        self.stamp = grown(self.stamp if has else None, (), np.float64)
+        self.z = grown(self.z if has else None, (), np.float64)
+        self.box = grown(self.box if has else None, (3,), np.float64)
+        self.hits = grown(self.hits if has else None, (), np.int64)
+        self.misses = grown(self.misses if has else None, (), np.int64)
+        self.held = grown(self.held if has else None, (), np.int64)
+        self.hold_from = grown(self.hold_from if has else None, (), np.int64)
+        self.votes = grown(self.votes if has else None, (self.window,), np.int64)
+        self.confidences = grown(self.confidences if has else None, (self.window,), np.float64)
+        self.first = grown(self.first if has else None, (), np.int64)
+        self.count = grown(self.count if has else None, (), np.int64)
+        self.weight = grown(self.weight if has else None, (NUM_CLASSES,), np.float64)
+        self.label = grown(self.label if has else None, (), np.int64, -1)
+        self.score = grown(self.score if has else None, (), np.float64)
+
+    def new(self, state: np.ndarray, cov: np.ndarray, z: float, box: np.ndarray, label: int, confidence: float,
+            stamp_s: float) -> int:
+        """A row for a new track seen once (its first sighting's class and confidence), its slot."""
+        if self.free:
+            slot = self.free.pop()
+        else:
+            if self.rows == len(self.state):
+                self._grow(2 * len(self.state))
+            slot = self.rows
+            self.rows += 1
+        self.state[slot], self.cov[slot], self.stamp[slot], self.z[slot], self.box[slot] = state, cov, stamp_s, z, box
+        self.hits[slot], self.misses[slot], self.held[slot], self.hold_from[slot] = 1, 0, 0, 0
+        self.first[slot] = self.count[slot] = 0
+        self.weight[slot] = 0.0
+        slots = np.array([slot])
+        sight(slots, np.array([label]), np.array([confidence]), self.votes, self.confidences, self.first, self.count,
+              self.weight, self.label, MIN_WEIGHT)
+        return slot
+
+    def release(self, slots: list[int]) -> None:
+        """Forget the tracks of `slots`: their rows are free for new tracks."""
+        self.free.extend(slots)
+
+    def voted(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The voted class and score of the tracks of `slots`, each voted again where a sighting came since."""
+        vote(slots, self.votes, self.first, self.weight, self.label, self.score)
+        return self.label[slots], self.score[slots]
+
+    def confidence(self, slot: int) -> float:
+        """The mean confidence of a track's recent sightings of its voted class."""
+        label = int(self.voted(np.array([slot]))[0][0])
+        ring = (self.first[slot] + np.arange(self.count[slot])) % self.window
+        mine = [float(c) for v, c in zip(self.votes[slot, ring], self.confidences[slot, ring], strict=True)
+                if v == label]
+        return sum(mine) / len(mine) if mine else 0.0
+
+
+@nb.njit(cache=True, nogil=True)
+def sight(slots: np.ndarray, labels: np.ndarray, confidences: np.ndarray, votes: np.ndarray, ring: np.ndarray,
+          first: np.ndarray, count: np.ndarray, weight: np.ndarray, voted: np.ndarray, least: float) -> None:
+    """Add a sighting (class, confidence) to each track of `slots`' vote window, the oldest leaving a full window, the
+    window's weight per class kept as it slides; its vote is made again when next asked (`vote`)."""
+    window = votes.shape[1]
+    for i in range(len(slots)):
+        s = slots[i]
+        if count[s] == window:
+            gone = first[s]
+            weight[s, votes[s, gone]] -= max(ring[s, gone], least)
+            first[s] = (gone + 1) % window
+            count[s] -= 1
+        at = (first[s] + count[s]) % window
+        votes[s, at] = labels[i]
+        ring[s, at] = confidences[i]
+        count[s] += 1
+        weight[s, labels[i]] += max(confidences[i], least)
+        voted[s] = -1
+
+
+@nb.njit(cache=True, nogil=True)
+def vote(slots: np.ndarray, votes: np.ndarray, first: np.ndarray, weight: np.ndarray, voted: np.ndarray,
+         score: np.ndarray) -> None:
+    """The vote of each track of `slots` whose window changed: the class of most weight, the oldest sighting's class
+    on a tie; its score that class's share of the weight (0 when there is none)."""
+    for s in slots:
+        if voted[s] >= 0:
+            continue
+        oldest = votes[s, first[s]]
+        best = 0
+        for c in range(1, weight.shape[1]):
+            if weight[s, c] > weight[s, best]:
+                best = c
+        label = oldest if weight[s, oldest] >= weight[s, best] else best
+        total = 0.0
+        for c in range(weight.shape[1]):
+            total += weight[s, c]
+        voted[s] = label
+        score[s] = weight[s, label] / total if total != 0.0 else 0.0
+
+
+class Track:
+    """One track: its id and remembered footprint (`offsets`: its last points' x, y less its centre), and its row
+    `slot` of the stream's `TrackStore` (read and written through the properties)."""
+
+    __slots__ = ("offsets", "slot", "store", "track_id")
+
+    def __init__(self, track_id: int, slot: int, store: TrackStore) -> None:
+        self.track_id, self.slot, self.store = track_id, slot, store
+        self.offsets: np.ndarray | None = None
+
+    @property
+    def state(self) -> np.ndarray:
+        """x, y, vx, vy (a view of the row)."""
+        return self.store.state[self.slot]
+
+    @property
+    def cov(self) -> np.ndarray:
+        return self.store.cov[self.slot]
+
+    @property
+    def stamp_s(self) -> float:
+        return float(self.store.stamp[self.slot])
+
+    @stamp_s.setter
+    def stamp_s(self, value: float) -> None:
+        self.store.stamp[self.slot] = value
+
+    @property
+    def z(self) -> float:
+        """The box centre's height."""
+        return float(self.store.z[self.slot])
+
+    @z.setter
+    def z(self, value: float) -> None:
+        self.store.z[self.slot] = value
+
+    @property
+    def size(self) -> tuple[float, float, float]:
+        """The last sighting's box: length, width, height."""
+        length, width, height = self.store.box[self.slot]
+        return float(length), float(width), float(height)
+
+    @property
+    def hits(self) -> int:
+        return int(self.store.hits[self.slot])
+
+    @property
+    def misses(self) -> int:
+        return int(self.store.misses[self.slot])
+
+    @misses.setter
+    def misses(self, value: int) -> None:
+        self.store.misses[self.slot] = value
+
+    @property
+    def held(self) -> int:
+        """Scans in a row the track was held by background points (no detection of its own)."""
+        return int(self.store.held[self.slot])
+
+    @held.setter
+    def held(self, value: int) -> None:
+        self.store.held[self.slot] = value
+
+    @property
+    def hold_from(self) -> int:
+        """The sightings it needs before it may be held (a track found again is confirmed anew)."""
+        return int(self.store.hold_from[self.slot])
+
+    @hold_from.setter
+    def hold_from(self, value: int) -> None:
+        self.store.hold_from[self.slot] = value
+
+    def label(self) -> int:
+        """The confidence-weighted vote of the recent sightings (module docstring)."""
+        return int(self.store.voted(np.array([self.slot]))[0][0])
+
+    def score(self) -> float:
+        """The voted class's share of the vote weight."""
+        return float(self.store.voted(np.array([self.slot]))[1][0])
+
+    def confidence(self) -> float:
+        """The mean confidence of the recent sightings of the voted class."""
+        return self.store.confidence(self.slot)
