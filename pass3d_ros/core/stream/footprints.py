@@ -86,10 +86,30 @@ def pieces(flat: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
 
 
 @nb.njit(cache=True, nogil=True)
+def _key(x: float, y: float) -> int:
+    """`point_cells` of one point."""
+    return (np.int64(np.floor(x / CELL_M)) + _OFFSET) * _ROW + np.int64(np.floor(y / CELL_M)) + _OFFSET
+
+
+@nb.njit(cache=True, nogil=True)
+def _insert(out: np.ndarray, first: int, written: int, key: int) -> int:
+    """`key` into the sorted unique keys out[first:written] unless there; the new end (an insertion sort step: a
+    footprint has a few dozen keys)."""
+    at = written
+    while at > first and out[at - 1] > key:
+        at -= 1
+    if at > first and out[at - 1] == key:
+        return written
+    for k in range(written, at, -1):
+        out[k] = out[k - 1]
+    out[at] = key
+    return written + 1
+
+
+@nb.njit(cache=True, nogil=True)
 def _moved_unique_groups(xy: np.ndarray, counts: np.ndarray, shift: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each group's sorted unique cell keys (`point_cells` of groups of `counts` consecutive points, group g's moved by
-    shift[g]), one group after another, and where each starts (the end last): an insertion sort within each group (a
-    footprint's few dozen keys), duplicates skipped as they come."""
+    shift[g]), one group after another, and where each starts (the end last)."""
     out = np.empty(len(xy), np.int64)
     starts = np.zeros(len(counts) + 1, np.int64)
     start = 0
@@ -97,21 +117,47 @@ def _moved_unique_groups(xy: np.ndarray, counts: np.ndarray, shift: np.ndarray) 
     for g in range(len(counts)):
         first = written
         for m in range(start, start + counts[g]):
-            column = np.int64(np.floor((xy[m, 0] + shift[g, 0]) / CELL_M)) + _OFFSET
-            row = np.int64(np.floor((xy[m, 1] + shift[g, 1]) / CELL_M)) + _OFFSET
-            key = column * _ROW + row
-            at = written
-            while at > first and out[at - 1] > key:
-                at -= 1
-            if at > first and out[at - 1] == key:
-                continue
-            for k in range(written, at, -1):
-                out[k] = out[k - 1]
-            out[at] = key
-            written += 1
+            written = _insert(out, first, written, _key(xy[m, 0] + shift[g, 0], xy[m, 1] + shift[g, 1]))
         start += counts[g]
         starts[g + 1] = written
     return out[:written], starts
+
+
+@nb.njit(cache=True, nogil=True)
+def rows_cells(xy: np.ndarray, counts: np.ndarray, rows: np.ndarray,
+               shift: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`cell_sets` of footprints kept as rows of `xy` (R, L, 2), row r's first counts[r] points: those of `rows`, row r
+    moved by shift[r, :2] (a track's remembered offsets carried to its predicted centre)."""
+    total = 0
+    for r in rows:
+        total += counts[r]
+    out = np.empty(total, np.int64)
+    starts = np.zeros(len(rows) + 1, np.int64)
+    written = 0
+    for g in range(len(rows)):
+        r = rows[g]
+        first = written
+        for m in range(counts[r]):
+            written = _insert(out, first, written, _key(xy[r, m, 0] + shift[r, 0], xy[r, m, 1] + shift[r, 1]))
+        starts[g + 1] = written
+    return out[:written], starts
+
+
+@nb.njit(cache=True, nogil=True)
+def keep_rows(xy: np.ndarray, chosen: np.ndarray, kept: np.ndarray, rows: np.ndarray, centres: np.ndarray,
+              into: np.ndarray, counts: np.ndarray) -> None:
+    """Footprints kept as rows (`rows_cells`): object k's points xy[chosen] (kept[k] of them, one object's after
+    another) less its row's centre (centres[rows[k], :2]) into row rows[k] of `into`, its count into `counts`; an
+    object of no points keeps its row's footprint."""
+    start = 0
+    for k in range(len(kept)):
+        r = rows[k]
+        if kept[k]:
+            for m in range(kept[k]):
+                into[r, m, 0] = xy[chosen[start + m], 0] - centres[r, 0]
+                into[r, m, 1] = xy[chosen[start + m], 1] - centres[r, 1]
+            counts[r] = kept[k]
+        start += kept[k]
 
 
 @nb.njit(cache=True, nogil=True)

@@ -14,16 +14,19 @@ import numba as nb
 import numpy as np
 
 from pass3d_ros.classes import NUM_CLASSES
+from pass3d_ros.core.stream.footprints import MAX_POINTS
 
 MIN_WEIGHT = 1e-3  # a sighting's least weight in the vote (a confidence of 0 still counts)
 FIRST_ROWS = 64  # rows made at first; twice as many each time they are all used
+FOOTPRINT_POINTS = 2 * MAX_POINTS  # a track's remembered footprint points at most
 
 
 class TrackStore:
     """The rows of a stream's tracks (module docstring). Arrays per row: `state` (x, y, vx, vy), `cov` (4 x 4),
     `stamp` (s), `z`, `box` (length, width, height), `hits`, `misses`, `held`, `hold_from`, and the vote: the window's
     classes and confidences (`votes`, `confidences`; a ring from `first`, `count` long), `weight` per class, the
-    voted `label` (-1: to vote again) and its `score`."""
+    voted `label` (-1: to vote again) and its `score`; the footprint it carries: its last points' x, y less its centre
+    (`offsets`, the first `points` of the row; none: no points yet)."""
 
     def __init__(self, window: int) -> None:
         self.window = window
@@ -55,6 +58,8 @@ class TrackStore:
         self.weight = grown(self.weight if has else None, (NUM_CLASSES,), np.float64)
         self.label = grown(self.label if has else None, (), np.int64, -1)
         self.score = grown(self.score if has else None, (), np.float64)
+        self.offsets = grown(self.offsets if has else None, (FOOTPRINT_POINTS, 2), np.float64)
+        self.points = grown(self.points if has else None, (), np.int64)
 
     def new(self, state: np.ndarray, cov: np.ndarray, z: float, box: np.ndarray, label: int, confidence: float,
             stamp_s: float) -> int:
@@ -67,7 +72,7 @@ class TrackStore:
             slot = self.rows
             self.rows += 1
         self.state[slot], self.cov[slot], self.stamp[slot], self.z[slot], self.box[slot] = state, cov, stamp_s, z, box
-        self.hits[slot], self.misses[slot], self.held[slot], self.hold_from[slot] = 1, 0, 0, 0
+        self.hits[slot], self.misses[slot], self.held[slot], self.hold_from[slot], self.points[slot] = 1, 0, 0, 0, 0
         self.first[slot] = self.count[slot] = 0
         self.weight[slot] = 0.0
         slots = np.array([slot])
@@ -136,14 +141,19 @@ def vote(slots: np.ndarray, votes: np.ndarray, first: np.ndarray, weight: np.nda
 
 
 class Track:
-    """One track: its id and remembered footprint (`offsets`: its last points' x, y less its centre), and its row
-    `slot` of the stream's `TrackStore` (read and written through the properties)."""
+    """One track: its id and its row `slot` of the stream's `TrackStore` (read and written through the
+    properties)."""
 
-    __slots__ = ("offsets", "slot", "store", "track_id")
+    __slots__ = ("slot", "store", "track_id")
 
     def __init__(self, track_id: int, slot: int, store: TrackStore) -> None:
         self.track_id, self.slot, self.store = track_id, slot, store
-        self.offsets: np.ndarray | None = None
+
+    @property
+    def offsets(self) -> np.ndarray | None:
+        """(M, 2) its last points' x, y less its centre: the footprint it carries (None before it has any)."""
+        count = self.store.points[self.slot]
+        return self.store.offsets[self.slot, :count] if count else None
 
     @property
     def state(self) -> np.ndarray:

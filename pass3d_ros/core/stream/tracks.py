@@ -41,22 +41,24 @@ from scipy.optimize import linear_sum_assignment
 
 from pass3d_ros.classes import CAR, CYCLIST, MEAN_SIZE, NUM_CLASSES, PEDESTRIAN
 from pass3d_ros.core.stream import kalman
+from pass3d_ros.core.stream.association import margins
 from pass3d_ros.core.stream.footprints import (
     CELL_M,
-    MAX_POINTS,
     Footprints,
     cell_sets,
     cells,
     evenly_spaced,
     extent,
+    keep_rows,
     matching,
     nearest_owner,
     overlap,
     pieces,
     point_cells,
+    rows_cells,
     shared_cells_flat,
 )
-from pass3d_ros.core.stream.track_store import MIN_WEIGHT, Track, TrackStore, sight
+from pass3d_ros.core.stream.track_store import FOOTPRINT_POINTS, MIN_WEIGHT, Track, TrackStore, sight
 
 LONG_M = 3.0  # a class this long on average (a car) moves its box centre by metres when seen from another side; a
 # person's or a rider's moves less than a centre's error
@@ -121,6 +123,15 @@ class TrackerConfig:
         return float(self.gates[label])
 
     @cached_property
+    def never(self) -> np.ndarray:
+        """(NUM_CLASSES, NUM_CLASSES): whether a track and a detection of these classes never match (`never_match`,
+        either way round)."""
+        table = np.zeros((NUM_CLASSES, NUM_CLASSES), bool)
+        for a, b in self.never_match:
+            table[a, b] = table[b, a] = True
+        return table
+
+    @cached_property
     def gates(self) -> np.ndarray:
         """The gate of each class id, as `gate` says (one array: a scan looks up every detection's at once)."""
         widest = max(g for _, g in self.gate_m)
@@ -157,11 +168,6 @@ class _Shared(NamedTuple):
     tracks: np.ndarray
     detections: np.ndarray
 
-    def overlap(self) -> np.ndarray:
-        """Shared cells over the smaller footprint of each pair (`footprints.overlap`)."""
-        smaller = np.minimum(self.tracks[:, None], self.detections[None, :])
-        return self.cells / np.maximum(smaller, 1)
-
 
 class _Frame:
     """Sensor frame -> tracking frame: the pose (world from sensor) when known, else none."""
@@ -178,15 +184,6 @@ class _Frame:
     def xy(self, xy: np.ndarray) -> np.ndarray:
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         return xy if self.pose is None else xy @ self.pose[:2, :2].T + self.pose[:2, 3]
-
-
-def _track_cells(tracks: Sequence[Track]) -> tuple[np.ndarray, np.ndarray]:
-    """Each track's footprint cells where its points are predicted now (none without points), all at once, as
-    `cell_sets` (keys, starts): its remembered offsets moved by its predicted centre in the same pass."""
-    offsets = [t.offsets for t in tracks if t.offsets is not None]
-    counts = [0 if t.offsets is None else len(t.offsets) for t in tracks]
-    centres = np.array([t.state[:2] for t in tracks]).reshape(-1, 2)
-    return cell_sets(np.concatenate(offsets) if offsets else np.zeros((0, 2)), counts, centres)
 
 
 class Tracker:
@@ -398,9 +395,14 @@ class Tracker:
     def _footprints(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Each track's footprint cells where its points are predicted now (its last points moved with its filter;
         `cell_sets`): an empty footprint for a track without points; None when no track has any."""
-        if not any(t.offsets is not None for t in self.tracks):
+        slots = self._slots(self.tracks)
+        if not self.store.points[slots].any():
             return None
-        return _track_cells(self.tracks)
+        return self._cells(slots)
+
+    def _cells(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The footprint cells of the tracks of `slots` where their points are predicted now (`cell_sets`)."""
+        return rows_cells(self.store.offsets, self.store.points, slots, self.store.state)
 
     def _associate(self, centers: np.ndarray, labels: Sequence[int],
                    shared: _Shared | None = None) -> list[tuple[int, int]]:
@@ -413,22 +415,14 @@ class Tracker:
         if not self.tracks or len(centers) == 0:
             return []
         slots = self._slots(self.tracks)
-        predicted = self.store.state[slots, :2]
-        cost = np.linalg.norm(predicted[:, None, :] - centers[None, :, :2], axis=2)
-        track_labels = self.store.voted(slots)[0]
-        det_labels = np.asarray(labels)
-        cost = cost + self.config.class_penalty_m * (track_labels[:, None] != det_labels[None, :])
-        allowed = cost <= self.config.gates[det_labels][None, :]
-        if shared is not None:
-            share = shared.overlap()
-            allowed |= share >= self.config.match_overlap
-            cost = cost * (1.0 - share)
-        for a, b in self.config.never_match:  # neither the centres nor the footprints match these classes
-            allowed &= ~(((track_labels == a)[:, None] & (det_labels == b)[None, :])
-                         | ((track_labels == b)[:, None] & (det_labels == a)[None, :]))
-        hits = self.store.hits[slots].astype(np.float64)
-        cost = cost + self.config.youth_penalty_m * np.clip(1.0 - hits / self.config.mature_hits, 0.0, 1.0)[:, None]
-        margin = np.where(allowed, np.maximum(self.config.gates[det_labels][None, :] - cost, MIN_MARGIN_M), 0.0)
+        none, empty = np.zeros((0, 0), np.int64), np.zeros(0, np.int64)
+        config = self.config
+        margin, allowed = margins(
+            self.store.state[slots, :2], centers, self.store.voted(slots)[0], np.asarray(labels, dtype=np.int64),
+            none if shared is None else shared.cells, empty if shared is None else shared.tracks,
+            empty if shared is None else shared.detections, self.store.hits[slots].astype(np.float64), config.gates,
+            config.never, config.class_penalty_m, config.match_overlap, config.youth_penalty_m,
+            float(config.mature_hits), MIN_MARGIN_M)
         rows, cols = linear_sum_assignment(margin, maximize=True)
         return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if allowed[r, c]]
 
@@ -504,11 +498,9 @@ class Tracker:
                 xy = world.xy[starts[d]:starts[d + 1]]
                 near = nearest_owner(xy, [self.tracks[k].state[:2] + self.tracks[k].offsets for k in ids])
                 owner[starts[d]:starts[d + 1]] = ids[near]
-        chosen, kept = evenly_spaced(np.arange(len(owner)), owner, len(self.tracks), 2 * MAX_POINTS)
-        centres = np.repeat(self.store.state[self._slots(self.tracks), :2], kept, axis=0)
-        for track, offsets, count in zip(self.tracks, pieces(world.xy[chosen] - centres, kept), kept, strict=True):
-            if count:
-                track.offsets = offsets
+        chosen, kept = evenly_spaced(np.arange(len(owner)), owner, len(self.tracks), FOOTPRINT_POINTS)
+        keep_rows(world.xy, chosen, kept, self._slots(self.tracks), self.store.state, self.store.offsets,
+                  self.store.points)
 
     def _hold(self, background: Callable[[np.ndarray, np.ndarray], np.ndarray], seen: set[int], stamp_s: float,
               to_world: _Frame) -> list[tuple[Tracked, np.ndarray]]:
@@ -533,7 +525,7 @@ class Tracker:
         keys = point_cells(xyz[:, :2])
         order = np.argsort(keys, kind="stable")  # the points by cell, once: a track's points are then a few ranges of
         keys = keys[order]  # it (a pass over all of them per track took 6 ms a scan)
-        keys_at = _track_cells(waiting)
+        keys_at = self._cells(self._slots(waiting))
         for track, footprint in zip(waiting, pieces(keys_at[0], np.diff(keys_at[1])), strict=True):
             inside = order[matching(keys, footprint)[0]]
             mine = np.sort(inside[free[inside]])  # in a footprint cell: within the track's reach too
