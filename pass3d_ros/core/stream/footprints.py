@@ -206,7 +206,7 @@ def footprint_members(members: np.ndarray, owner: np.ndarray, count: int, limit:
     for k in owner:
         total[k] += 1
     share = np.minimum(1.0, 2 * limit / np.maximum(total, 1))
-    thin = np.empty(len(members), np.bool_)
+    thin = np.empty(len(members), np.int64)
     left = np.zeros(count, np.int64)
     for m in range(len(members)):
         x = members[m] * GOLDEN
@@ -216,14 +216,19 @@ def footprint_members(members: np.ndarray, owner: np.ndarray, count: int, limit:
     start = _starts(kept)
     spare = int(kept.sum())
     out = np.empty(spare + 1, members.dtype)
+    every = (left <= limit).astype(np.int64)  # objects whose thinned points are all kept
     rank = np.zeros(count, np.int64)
+    rest = np.zeros(count, np.int64)  # rank * limit modulo the object's total, kept as the rank grows (no division)
     for m in range(len(members)):
         k = owner[m]
+        t = thin[m]
         r = rank[k]
-        n = max(left[k], 1)
-        keep = thin[m] & ((left[k] <= limit) | (r == 0) | ((r * limit) // n != ((r - 1) * limit) // n))
-        rank[k] += thin[m]
-        out[start[k] if keep else spare] = members[m]
+        on = rest[k] + limit * (r > 0)  # rank * limit // total moved on: the remainder passed the total
+        run = np.int64(on >= left[k])
+        keep = t & (every[k] | np.int64(r == 0) | run)
+        rest[k] += t * (on - left[k] * run - rest[k])
+        rank[k] = r + t
+        out[spare + keep * (start[k] - spare)] = members[m]
         start[k] += keep
     return out[:spare], kept
 

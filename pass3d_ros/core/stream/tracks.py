@@ -238,10 +238,11 @@ class Tracker:
         matched = {d: t for t, d in pairs}
         self._correct_all([self.tracks[t] for t, _ in pairs], centers[[d for _, d in pairs]],
                           sizes[[d for _, d in pairs]])
-        parts = self._parts(matched, shared)
+        confirmed = self.store.hits[self._slots(self.tracks)] >= self.config.min_hits
+        parts = self._parts(matched, shared, confirmed)
         if self.config.part_extent is not None:
             parts.update(self._ends(matched, parts, labels, world))
-        covered = self._covered(matched, parts, labels, shared)
+        covered = self._covered(matched, parts, labels, shared, confirmed)
         rows, early = self._sightings(centers, sizes, labels, scores, stamp_s, matched, parts, detections)
         out = self._said_all(rows, early)
         seen = {self.tracks[u].track_id for others in covered.values() for u in others}
@@ -318,13 +319,14 @@ class Tracker:
         return Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits)
 
     def _covered(self, matched: dict[int, int], parts: dict[int, int], labels: Sequence[int],
-                 shared: _Shared | None) -> dict[int, list[int]]:
+                 shared: _Shared | None, confirmed: np.ndarray) -> dict[int, list[int]]:
         """Matched detections that cover another confirmed track's object too (stage 1 joined two cars parked side
         by side): merge_cover of that track's predicted footprint cells inside the detection's, the track of the
-        detection's class, matched to no other detection that holds more of its cells. detection -> track indices."""
+        detection's class, matched to no other detection that holds more of its cells. detection -> track indices.
+        `confirmed`: whether each track is."""
         if self.config.merge_cover is None or shared is None or not matched:
             return {}
-        confirmed = [u for u, t in enumerate(self.tracks) if t.hits >= self.config.min_hits and shared.tracks[u]]
+        confirmed = np.flatnonzero(confirmed & (shared.tracks > 0)).tolist()
         if not confirmed:
             return {}
         ds = sorted(matched)
@@ -426,14 +428,15 @@ class Tracker:
         rows, cols = linear_sum_assignment(margin, maximize=True)
         return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if allowed[r, c]]
 
-    def _parts(self, matched: dict[int, int], shared: _Shared | None) -> dict[int, int]:
+    def _parts(self, matched: dict[int, int], shared: _Shared | None, confirmed: np.ndarray) -> dict[int, int]:
         """Unmatched detections that are part of a confirmed track another detection matched this scan: most of
-        their cells (part_overlap) on the track's footprint (a car stage 1 cut in two). detection -> track index."""
+        their cells (part_overlap) on the track's footprint (a car stage 1 cut in two). detection -> track index.
+        `confirmed`: whether each track is."""
         if shared is None:
             return {}
         taken = sorted(set(matched.values()))
         free = [d for d in range(len(shared.detections)) if d not in matched]
-        confirmed = [t for t in taken if self.tracks[t].hits >= self.config.min_hits]
+        confirmed = [t for t in taken if confirmed[t]]
         if not free or not confirmed:
             return {}
         share = shared.cells[np.ix_(confirmed, free)] / np.maximum(shared.detections[free], 1)[None, :]
