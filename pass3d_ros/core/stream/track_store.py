@@ -25,8 +25,8 @@ class TrackStore:
     """The rows of a stream's tracks (module docstring). Arrays per row: `state` (x, y, vx, vy), `cov` (4 x 4),
     `stamp` (s), `z`, `box` (length, width, height), `hits`, `misses`, `held`, `hold_from`, and the vote: the window's
     classes and confidences (`votes`, `confidences`; a ring from `first`, `count` long), `weight` per class, the
-    voted `label` (-1: to vote again) and its `score`; the footprint it carries: its last points' x, y less its centre
-    (`offsets`, the first `points` of the row; none: no points yet)."""
+    voted `label` (-1: to vote again) and its `score`; its `track_id`; the footprint it carries: its last points' x, y
+    less its centre (`offsets`, the first `points` of the row; none: no points yet)."""
 
     def __init__(self, window: int) -> None:
         self.window = window
@@ -60,9 +60,10 @@ class TrackStore:
         self.score = grown(self.score if has else None, (), np.float64)
         self.offsets = grown(self.offsets if has else None, (FOOTPRINT_POINTS, 2), np.float64)
         self.points = grown(self.points if has else None, (), np.int64)
+        self.track_id = grown(self.track_id if has else None, (), np.int64)
 
-    def new(self, state: np.ndarray, cov: np.ndarray, z: float, box: np.ndarray, label: int, confidence: float,
-            stamp_s: float) -> int:
+    def new(self, track_id: int, state: np.ndarray, cov: np.ndarray, z: float, box: np.ndarray, label: int,
+            confidence: float, stamp_s: float) -> int:
         """A row for a new track seen once (its first sighting's class and confidence), its slot."""
         if self.free:
             slot = self.free.pop()
@@ -72,6 +73,7 @@ class TrackStore:
             slot = self.rows
             self.rows += 1
         self.state[slot], self.cov[slot], self.stamp[slot], self.z[slot], self.box[slot] = state, cov, stamp_s, z, box
+        self.track_id[slot] = track_id
         self.hits[slot], self.misses[slot], self.held[slot], self.hold_from[slot], self.points[slot] = 1, 0, 0, 0, 0
         self.first[slot] = self.count[slot] = 0
         self.weight[slot] = 0.0

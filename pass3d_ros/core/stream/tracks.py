@@ -138,8 +138,7 @@ class TrackerConfig:
         return np.array([dict(self.gate_m).get(label, widest) for label in range(NUM_CLASSES)])
 
 
-@dataclass(frozen=True)
-class Tracked:
+class Tracked(NamedTuple):
     """What the tracker says of one detection of the scan: its track, the track's voted class and score, and whether
     the track is confirmed (a tentative track's id is not yet worth publishing)."""
 
@@ -198,6 +197,7 @@ class Tracker:
         """Forget every track (a new stream); ids start over."""
         self.store = TrackStore(self.config.vote_window)
         self.tracks: list[Track] = []
+        self._rows, self._rows_of = np.zeros(0, np.int64), self.tracks  # `_live`
         self.ended: list[Track] = []  # confirmed tracks ended less than reid_misses scans ago (`_revive`)
         self._next_id = 0
         self.born = 0
@@ -206,7 +206,7 @@ class Tracker:
     @property
     def alive(self) -> int:
         """Confirmed tracks now."""
-        return int((self.store.hits[self._slots(self.tracks)] >= self.config.min_hits).sum())
+        return int((self.store.hits[self._live()] >= self.config.min_hits).sum())
 
     def update(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
                stamp_s: float, pose: np.ndarray | None = None,
@@ -238,7 +238,7 @@ class Tracker:
         matched = {d: t for t, d in pairs}
         self._correct_all([self.tracks[t] for t, _ in pairs], centers[[d for _, d in pairs]],
                           sizes[[d for _, d in pairs]])
-        confirmed = self.store.hits[self._slots(self.tracks)] >= self.config.min_hits
+        confirmed = self.store.hits[self._live()] >= self.config.min_hits
         parts = self._parts(matched, shared, confirmed)
         if self.config.part_extent is not None:
             parts.update(self._ends(matched, parts, labels, world))
@@ -286,11 +286,11 @@ class Tracker:
 
     def _said_all(self, rows: list[int], early: dict[int, Tracked]) -> list[Tracked]:
         """What the tracker says of each detection's track (`rows`), all voted at once; `early` as `_sightings`."""
-        slots = self._slots([self.tracks[row] for row in rows])
+        slots = self._live()[rows]
         label, score = self.store.voted(slots)
         confirmed = self.store.hits[slots] >= self.config.min_hits
-        return [early[d] if d in early else Tracked(self.tracks[row].track_id, lab, sc, ok) for d, (row, lab, sc, ok)
-                in enumerate(zip(rows, label.tolist(), score.tolist(), confirmed.tolist(), strict=True))]
+        return [early[d] if d in early else Tracked(*said) for d, said in enumerate(zip(
+            self.store.track_id[slots].tolist(), label.tolist(), score.tolist(), confirmed.tolist(), strict=True))]
 
     def _age(self, seen: set[int]) -> None:
         """A miss for each track not seen this scan and each ended one; tracks unseen max_misses scans end (the
@@ -298,7 +298,7 @@ class Tracker:
         store = self.store
         unseen = [t.slot for t in self.tracks if t.track_id not in seen] + [t.slot for t in self.ended]
         store.misses[unseen] += 1
-        gone = store.misses[self._slots(self.tracks)] > self.config.max_misses
+        gone = store.misses[self._live()] > self.config.max_misses
         ended = [t for t, g in zip(self.tracks, gone.tolist(), strict=True) if g]
         self.lost += sum(1 for t in ended if t.hits >= self.config.min_hits)
         self.tracks = [t for t, g in zip(self.tracks, gone.tolist(), strict=True) if not g]
@@ -313,6 +313,12 @@ class Tracker:
     def _slots(tracks: Sequence[Track]) -> np.ndarray:
         """The store rows of `tracks`."""
         return np.array([t.slot for t in tracks], dtype=np.int64)
+
+    def _live(self) -> np.ndarray:
+        """The store rows of `tracks`, made again only when the list changed (a track born, found again or ended)."""
+        if self._rows_of is not self.tracks or len(self._rows) != len(self.tracks):
+            self._rows, self._rows_of = self._slots(self.tracks), self.tracks
+        return self._rows
 
     def _said(self, track: Track) -> Tracked:
         """What the tracker says of a track this scan: its id, voted class and score, whether it is confirmed."""
@@ -334,11 +340,10 @@ class Tracker:
         owner = {t: d for d, t in matched.items()}
         out: dict[int, list[int]] = {}
         bests = np.argmax(cover, axis=1)
-        for i in np.flatnonzero(cover[np.arange(len(confirmed)), bests] >= self.config.merge_cover):
-            u, best = confirmed[i], int(bests[i])  # the few tracks half inside some detection: their own, mostly
+        others = np.array([matched[d] for d in ds])[bests] != confirmed  # a track mostly inside another's detection
+        for i in np.flatnonzero((cover[np.arange(len(confirmed)), bests] >= self.config.merge_cover) & others):
+            u, best = confirmed[i], int(bests[i])
             d = ds[best]
-            if matched[d] == u:
-                continue
             if self.tracks[u].label() != int(labels[d]) or self.tracks[matched[d]].label() != int(labels[d]):
                 continue
             mine = owner.get(u)
@@ -397,7 +402,7 @@ class Tracker:
     def _footprints(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Each track's footprint cells where its points are predicted now (its last points moved with its filter;
         `cell_sets`): an empty footprint for a track without points; None when no track has any."""
-        slots = self._slots(self.tracks)
+        slots = self._live()
         if not self.store.points[slots].any():
             return None
         return self._cells(slots)
@@ -416,7 +421,7 @@ class Tracker:
         can: a track taking a neighbour's fragment so that its own object's track can take the other)."""
         if not self.tracks or len(centers) == 0:
             return []
-        slots = self._slots(self.tracks)
+        slots = self._live()
         none, empty = np.zeros((0, 0), np.int64), np.zeros(0, np.int64)
         config = self.config
         margin, allowed = margins(
@@ -502,7 +507,7 @@ class Tracker:
                 near = nearest_owner(xy, [self.tracks[k].state[:2] + self.tracks[k].offsets for k in ids])
                 owner[starts[d]:starts[d + 1]] = ids[near]
         chosen, kept = evenly_spaced(np.arange(len(owner)), owner, len(self.tracks), FOOTPRINT_POINTS)
-        keep_rows(world.xy, chosen, kept, self._slots(self.tracks), self.store.state, self.store.offsets,
+        keep_rows(world.xy, chosen, kept, self._live(), self.store.state, self.store.offsets,
                   self.store.points)
 
     def _hold(self, background: Callable[[np.ndarray, np.ndarray], np.ndarray], seen: set[int], stamp_s: float,
@@ -554,8 +559,8 @@ class Tracker:
         """A new tentative track of one sighting, at rest where the detection is, its velocity unknown."""
         r = self.config.measurement_m ** 2
         v = self.config.birth_speed ** 2
-        slot = self.store.new(np.array([center[0], center[1], 0.0, 0.0]), np.diag([r, r, v, v]), float(center[2]),
-                              size, label, score, stamp_s)
+        slot = self.store.new(self._next_id, np.array([center[0], center[1], 0.0, 0.0]), np.diag([r, r, v, v]),
+                              float(center[2]), size, label, score, stamp_s)
         track = Track(self._next_id, slot, self.store)
         self._next_id += 1
         self.tracks.append(track)
@@ -566,10 +571,9 @@ class Tracker:
     def _predict_all(self, stamp_s: float, tracks: list[Track] | None = None) -> None:
         """Every track's (or `tracks`') state and covariance carried to `stamp_s` (constant velocity; at most max_dt_s
         ahead)."""
-        tracks = self.tracks if tracks is None else tracks
-        if not tracks:
+        slots, store = self._live() if tracks is None else self._slots(tracks), self.store
+        if not len(slots):
             return
-        slots, store = self._slots(tracks), self.store
         dt = np.clip(stamp_s - store.stamp[slots], 0.0, self.config.max_dt_s)
         states, covs = store.state[slots], store.cov[slots]
         kalman.predict(states, covs, dt, self.config.process_accel)
