@@ -43,3 +43,33 @@ def margins(predicted: np.ndarray, centers: np.ndarray, track_labels: np.ndarray
             allowed[t, d] = ok
             margin[t, d] = max(gate - cost, least) if ok else 0.0
     return margin, allowed
+
+
+@nb.njit(cache=True, nogil=True)
+def covering(shared: np.ndarray, track_cells: np.ndarray, confirmed: np.ndarray, det_track: np.ndarray,
+             least: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The confirmed tracks (with footprint cells) that the matched detection holding most of their predicted cells
+    (the first of equals; `det_track` each detection's track, -1 unmatched) holds `least` of or more and is not their
+    own: the tracks, those detections, the share it holds and the share their own detection holds (-1: none)."""
+    tracks, detections = shared.shape
+    found = np.empty(tracks, np.int64)
+    where = np.empty(tracks, np.int64)
+    share = np.empty(tracks)
+    own = np.empty(tracks)
+    n = 0
+    for u in range(tracks):
+        if not confirmed[u] or track_cells[u] == 0:
+            continue
+        best, most, mine = -1, -1.0, -1.0
+        for d in range(detections):
+            if det_track[d] < 0:
+                continue
+            cover = shared[u, d] / max(track_cells[u], 1)
+            if cover > most:
+                best, most = d, cover
+            if det_track[d] == u:
+                mine = cover
+        if best >= 0 and most >= least and det_track[best] != u:
+            found[n], where[n], share[n], own[n] = u, best, most, mine
+            n += 1
+    return found[:n], where[:n], share[:n], own[:n]

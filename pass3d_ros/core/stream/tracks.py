@@ -41,7 +41,7 @@ from scipy.optimize import linear_sum_assignment
 
 from pass3d_ros.classes import CAR, CYCLIST, MEAN_SIZE, NUM_CLASSES, PEDESTRIAN
 from pass3d_ros.core.stream import kalman
-from pass3d_ros.core.stream.association import margins
+from pass3d_ros.core.stream.association import covering, margins
 from pass3d_ros.core.stream.footprints import (
     CELL_M,
     Footprints,
@@ -332,22 +332,15 @@ class Tracker:
         `confirmed`: whether each track is."""
         if self.config.merge_cover is None or shared is None or not matched:
             return {}
-        confirmed = np.flatnonzero(confirmed & (shared.tracks > 0)).tolist()
-        if not confirmed:
-            return {}
-        ds = sorted(matched)
-        cover = shared.cells[np.ix_(confirmed, ds)] / np.maximum(shared.tracks[confirmed], 1)[:, None]
-        owner = {t: d for d, t in matched.items()}
+        det_track = np.full(len(shared.detections), -1, np.int64)
+        det_track[list(matched)] = list(matched.values())
         out: dict[int, list[int]] = {}
-        bests = np.argmax(cover, axis=1)
-        others = np.array([matched[d] for d in ds])[bests] != confirmed  # a track mostly inside another's detection
-        for i in np.flatnonzero((cover[np.arange(len(confirmed)), bests] >= self.config.merge_cover) & others):
-            u, best = confirmed[i], int(bests[i])
-            d = ds[best]
+        taken = set(parts.values())
+        for u, d, most, mine in zip(*(a.tolist() for a in covering(
+                shared.cells, shared.tracks, confirmed, det_track, self.config.merge_cover)), strict=True):
             if self.tracks[u].label() != int(labels[d]) or self.tracks[matched[d]].label() != int(labels[d]):
                 continue
-            mine = owner.get(u)
-            if (mine is not None and cover[i, ds.index(mine)] >= cover[i, best]) or u in parts.values():
+            if mine >= most or u in taken:
                 continue  # its own detection holds as much of it, or it took a part: not covered here
             out.setdefault(d, []).append(u)
         return out
@@ -572,12 +565,8 @@ class Tracker:
         """Every track's (or `tracks`') state and covariance carried to `stamp_s` (constant velocity; at most max_dt_s
         ahead)."""
         slots, store = self._live() if tracks is None else self._slots(tracks), self.store
-        if not len(slots):
-            return
-        dt = np.clip(stamp_s - store.stamp[slots], 0.0, self.config.max_dt_s)
-        states, covs = store.state[slots], store.cov[slots]
-        kalman.predict(states, covs, dt, self.config.process_accel)
-        store.state[slots], store.cov[slots], store.stamp[slots] = states, covs, stamp_s
+        kalman.predict_rows(slots, store.state, store.cov, store.stamp, stamp_s, self.config.max_dt_s,
+                            self.config.process_accel)
 
     def _correct_all(self, tracks: list[Track], centers: np.ndarray, sizes: np.ndarray | None = None) -> None:
         """The Kalman correction of each matched track by its detection's centre (x, y measured), all at once. With
@@ -588,7 +577,6 @@ class Tracker:
         if not tracks:
             return
         slots, store = self._slots(tracks), self.store
-        states, covs = store.state[slots], store.cov[slots]
         view = np.zeros(len(tracks))
         if sizes is not None and self.config.reshape_m is not None:
             before = np.sort(store.box[slots, :2], axis=1)
@@ -596,9 +584,8 @@ class Tracker:
             change = np.abs(after - before).sum(axis=1)
             long = LONG_CLASS[store.voted(slots)[0]]
             view = np.where((change > self.config.reshape_m) & long, (change / 2) ** 2, 0.0)
-        kalman.correct(states, covs, np.ascontiguousarray(centers[:, :2], dtype=np.float64),
-                       self.config.measurement_m ** 2, view)
-        store.state[slots], store.cov[slots] = states, covs
+        kalman.correct_rows(slots, store.state, store.cov, np.ascontiguousarray(centers[:, :2], dtype=np.float64),
+                            self.config.measurement_m ** 2, view)
 
     def _sighted(self, tracks: list[Track], centers: np.ndarray, sizes: np.ndarray, labels: np.ndarray,
                  scores: np.ndarray, stamp_s: float) -> None:
