@@ -85,16 +85,12 @@ def pieces(flat: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
     return [flat[start:end] for start, end in zip([0, *ends[:-1]], ends, strict=True)]
 
 
-@nb.njit(cache=True, nogil=True)
-def _key(x: float, y: float) -> int:
-    """`point_cells` of one point."""
-    return (np.int64(np.floor(x / CELL_M)) + _OFFSET) * _ROW + np.int64(np.floor(y / CELL_M)) + _OFFSET
+MARKS = 1024  # a footprint whose cells' bounding box holds at most this many cells is sorted by marking them
 
 
 @nb.njit(cache=True, nogil=True)
 def _insert(out: np.ndarray, first: int, written: int, key: int) -> int:
-    """`key` into the sorted unique keys out[first:written] unless there; the new end (an insertion sort step: a
-    footprint has a few dozen keys)."""
+    """`key` into the sorted unique keys out[first:written] unless there; the new end (an insertion sort step)."""
     at = written
     while at > first and out[at - 1] > key:
         at -= 1
@@ -107,17 +103,53 @@ def _insert(out: np.ndarray, first: int, written: int, key: int) -> int:
 
 
 @nb.njit(cache=True, nogil=True)
+def _group_cells(columns: np.ndarray, rows: np.ndarray, n: int, out: np.ndarray, written: int,
+                 marks: np.ndarray) -> int:
+    """The sorted unique keys of the cells (columns[:n], rows[:n]) written to `out` from `written`; the new end. The
+    cells are marked in their bounding box (`marks`, all False, left so) and read back in key order: a footprint's
+    box holds a few dozen cells, and marking has none of an insertion sort's unforeseeable branches; a larger box
+    is insertion sorted."""
+    if n == 0:
+        return written
+    c0, c1, r0, r1 = columns[0], columns[0], rows[0], rows[0]
+    for m in range(1, n):
+        c0, c1 = min(c0, columns[m]), max(c1, columns[m])
+        r0, r1 = min(r0, rows[m]), max(r1, rows[m])
+    height = r1 - r0 + 1
+    if (c1 - c0 + 1) * height > len(marks):
+        first = written
+        for m in range(n):
+            written = _insert(out, first, written, (columns[m] + _OFFSET) * _ROW + rows[m] + _OFFSET)
+        return written
+    for m in range(n):
+        marks[(columns[m] - c0) * height + rows[m] - r0] = True
+    for c in range(c1 - c0 + 1):
+        for r in range(height):
+            if marks[c * height + r]:
+                marks[c * height + r] = False
+                out[written] = (c0 + c + _OFFSET) * _ROW + r0 + r + _OFFSET
+                written += 1
+    return written
+
+
+@nb.njit(cache=True, nogil=True)
 def _moved_unique_groups(xy: np.ndarray, counts: np.ndarray, shift: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each group's sorted unique cell keys (`point_cells` of groups of `counts` consecutive points, group g's moved by
     shift[g]), one group after another, and where each starts (the end last)."""
     out = np.empty(len(xy), np.int64)
     starts = np.zeros(len(counts) + 1, np.int64)
+    longest = 0
+    for g in range(len(counts)):
+        longest = max(longest, counts[g])
+    columns, rows = np.empty(longest, np.int64), np.empty(longest, np.int64)
+    marks = np.zeros(MARKS, np.bool_)
     start = 0
     written = 0
     for g in range(len(counts)):
-        first = written
-        for m in range(start, start + counts[g]):
-            written = _insert(out, first, written, _key(xy[m, 0] + shift[g, 0], xy[m, 1] + shift[g, 1]))
+        for m in range(counts[g]):
+            columns[m] = np.int64(np.floor((xy[start + m, 0] + shift[g, 0]) / CELL_M))
+            rows[m] = np.int64(np.floor((xy[start + m, 1] + shift[g, 1]) / CELL_M))
+        written = _group_cells(columns, rows, counts[g], out, written, marks)
         start += counts[g]
         starts[g + 1] = written
     return out[:written], starts
@@ -133,12 +165,15 @@ def rows_cells(xy: np.ndarray, counts: np.ndarray, rows: np.ndarray,
         total += counts[r]
     out = np.empty(total, np.int64)
     starts = np.zeros(len(rows) + 1, np.int64)
+    columns, cell_rows = np.empty(xy.shape[1], np.int64), np.empty(xy.shape[1], np.int64)
+    marks = np.zeros(MARKS, np.bool_)
     written = 0
     for g in range(len(rows)):
         r = rows[g]
-        first = written
         for m in range(counts[r]):
-            written = _insert(out, first, written, _key(xy[r, m, 0] + shift[r, 0], xy[r, m, 1] + shift[r, 1]))
+            columns[m] = np.int64(np.floor((xy[r, m, 0] + shift[r, 0]) / CELL_M))
+            cell_rows[m] = np.int64(np.floor((xy[r, m, 1] + shift[r, 1]) / CELL_M))
+        written = _group_cells(columns, cell_rows, counts[r], out, written, marks)
         starts[g + 1] = written
     return out[:written], starts
 

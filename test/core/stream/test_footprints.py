@@ -11,6 +11,7 @@ from pass3d_ros.core.stream.footprints import (
     footprint_members,
     grouped_cells,
     overlap,
+    rows_cells,
     shared_cells,
 )
 
@@ -85,3 +86,21 @@ def test_footprint_members_thin_by_the_hash_then_keep_the_first_of_each_rank_run
         assert np.array_equal(chosen[start:start + kept[k]], want) and kept[k] == min(len(mine), 64)
         start += kept[k]
     assert kept[2] == 0 and kept.max() == 64
+
+
+def test_wide_footprints_and_footprints_kept_as_rows_give_their_points_cells() -> None:
+    """A footprint too wide to sort by marking its cells gives the same cells; footprints kept as rows of one array
+    (a track's offsets), each moved by its row's centre, give the cells of their moved points."""
+    rng = np.random.default_rng(5)
+    wide = rng.uniform(-40, 40, (50, 2))
+    assert np.array_equal(grouped_cells(wide, [50])[0], cells(wide))
+    xy, counts = _groups(rng, 8)
+    kept = np.zeros((8, 40, 2))
+    for k, piece in enumerate(np.split(xy, np.cumsum(counts)[:-1])):
+        kept[k, :len(piece)] = piece
+    centres = rng.uniform(-5, 5, (8, 4))
+    order = np.array([3, 0, 5, 7])
+    keys, starts = rows_cells(kept, counts, order, centres)
+    for g, row in enumerate(order):
+        expected = cells(kept[row, :counts[row]] + centres[row, :2]) if counts[row] else np.zeros(0, np.int64)
+        assert np.array_equal(keys[starts[g]:starts[g + 1]], expected)
