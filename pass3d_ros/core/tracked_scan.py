@@ -58,8 +58,9 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
     matches by footprints, takes parts of a tracked object as that object, and lets a confirmed track no object
     matched be held by the points stage 2 called background on its footprint (module docstring)."""
     started = time.perf_counter()
-    centers = np.array([obj.center for obj in objects.objects], dtype=np.float64).reshape(-1, 3)
-    sizes = np.array([obj.size for obj in objects.objects], dtype=np.float64).reshape(-1, 3)
+    boxes = np.array([(*obj.center, *obj.size, obj.label, obj.score) for obj in objects.objects],
+                     dtype=np.float64).reshape(-1, 8)  # one pass over the objects: centre, size, class, score
+    centers, sizes = np.ascontiguousarray(boxes[:, :3]), np.ascontiguousarray(boxes[:, 3:6])
     back = None if level is None else np.asarray(level, dtype=np.float64)  # rows @ level: level -> sensor
     if back is not None:
         centers = centers @ back
@@ -68,14 +69,14 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
     if points is not None:
         footprints = _footprints(points, members, owner, len(objects.objects), back)
         background = Background(objects, points, ground, back)
-    said = tracker.scan(centers, sizes, [obj.label for obj in objects.objects],
-                        [obj.score for obj in objects.objects], stamp_s, pose, footprints, background)
+    said = tracker.scan(centers, sizes, boxes[:, 6].astype(np.int64), boxes[:, 7], stamp_s, pose, footprints,
+                        background)
     tracked = said.detections
     voted_class = np.array([t.label for t in tracked], dtype=np.uint8)
     published_id = np.array([t.track_id if t.confirmed else NO_TRACK for t in tracked], dtype=np.int32)
     labels, track_id = paint(objects.labels, members, owner, voted_class, published_id, NO_TRACK)
-    voted_objects = [_voted(obj, t, int(published_id[k])) for k, (obj, t) in
-                     enumerate(zip(objects.objects, tracked, strict=True))]
+    voted_objects = [_voted(obj, t, k) for obj, t, k in zip(objects.objects, tracked, published_id.tolist(),
+                                                             strict=True)]
     cluster_id = objects.cluster_id
     if points is not None and (said.held or said.merged):
         cluster_id = cluster_id.copy()

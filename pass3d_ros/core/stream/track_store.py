@@ -82,6 +82,15 @@ class TrackStore:
               self.weight, self.label, MIN_WEIGHT)
         return slot
 
+    def see(self, slots: np.ndarray, centers: np.ndarray, sizes: np.ndarray, labels: np.ndarray,
+            confidences: np.ndarray, stamp_s: float, confirmed_at: int) -> int:
+        """A sighting of each track of `slots` (its detection's centre, box, class and confidence): height, box and
+        stamp set, the vote's window moved on, one more hit, no miss, not held. Says how many reached `confirmed_at`
+        hits with it."""
+        return _see(slots, np.ascontiguousarray(centers, dtype=np.float64), np.ascontiguousarray(sizes, np.float64),
+                    labels, confidences, stamp_s, confirmed_at, self.z, self.box, self.stamp, self.hits, self.misses,
+                    self.held, self.votes, self.confidences, self.first, self.count, self.weight, self.label)
+
     def release(self, slots: list[int]) -> None:
         """Forget the tracks of `slots`: their rows are free for new tracks."""
         self.free.extend(slots)
@@ -119,6 +128,26 @@ def sight(slots: np.ndarray, labels: np.ndarray, confidences: np.ndarray, votes:
         count[s] += 1
         weight[s, labels[i]] += max(confidences[i], least)
         voted[s] = -1
+
+
+@nb.njit(cache=True, nogil=True)
+def _see(slots: np.ndarray, centers: np.ndarray, sizes: np.ndarray, labels: np.ndarray, confidences: np.ndarray,
+         stamp_s: float, confirmed_at: int, z: np.ndarray, box: np.ndarray, stamp: np.ndarray, hits: np.ndarray,
+         misses: np.ndarray, held: np.ndarray, votes: np.ndarray, ring: np.ndarray, first: np.ndarray,
+         count: np.ndarray, weight: np.ndarray, voted: np.ndarray) -> int:
+    """`TrackStore.see` on the store's arrays."""
+    sight(slots, labels, confidences, votes, ring, first, count, weight, voted, MIN_WEIGHT)
+    confirmed = 0
+    for i in range(len(slots)):
+        s = slots[i]
+        z[s] = centers[i, 2]
+        box[s, :] = sizes[i, :3]
+        stamp[s] = stamp_s
+        hits[s] += 1
+        misses[s] = 0
+        held[s] = 0
+        confirmed += hits[s] == confirmed_at
+    return confirmed
 
 
 @nb.njit(cache=True, nogil=True)

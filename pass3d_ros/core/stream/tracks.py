@@ -58,7 +58,7 @@ from pass3d_ros.core.stream.footprints import (
     rows_cells,
     shared_cells_flat,
 )
-from pass3d_ros.core.stream.track_store import FOOTPRINT_POINTS, MIN_WEIGHT, Track, TrackStore, sight
+from pass3d_ros.core.stream.track_store import FOOTPRINT_POINTS, Track, TrackStore
 
 LONG_M = 3.0  # a class this long on average (a car) moves its box centre by metres when seen from another side; a
 # person's or a rider's moves less than a centre's error
@@ -263,9 +263,8 @@ class Tracker:
         own = {t: d for d, t in matched.items()}
         early = {d: self._said(self.tracks[t]) for d, t in parts.items() if own[t] > d}
         ds = sorted(matched)
-        self._sighted([self.tracks[matched[d]] for d in ds], centers[ds], sizes[ds],
-                      np.asarray(labels, dtype=np.int64)[ds] if ds else np.zeros(0, np.int64),
-                      np.asarray(scores, dtype=np.float64)[ds] if ds else np.zeros(0), stamp_s)
+        self._sighted(self._live()[[matched[d] for d in ds]], centers[ds], sizes[ds],
+                      np.asarray(labels, dtype=np.int64)[ds], np.asarray(scores, dtype=np.float64)[ds], stamp_s)
         rows = []
         for d in range(len(centers)):
             if d in parts:
@@ -279,7 +278,7 @@ class Tracker:
             if track is None:
                 self._birth(centers[d], sizes[d], int(labels[d]), float(scores[d]), stamp_s)
             else:
-                self._sighted([track], centers[d:d + 1], sizes[d:d + 1], np.array([int(labels[d])]),
+                self._sighted(np.array([track.slot]), centers[d:d + 1], sizes[d:d + 1], np.array([int(labels[d])]),
                               np.array([float(scores[d])]), stamp_s)
             rows.append(len(self.tracks) - 1)
         return rows, early
@@ -424,7 +423,8 @@ class Tracker:
             config.never, config.class_penalty_m, config.match_overlap, config.youth_penalty_m,
             float(config.mature_hits), MIN_MARGIN_M)
         rows, cols = linear_sum_assignment(margin, maximize=True)
-        return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if allowed[r, c]]
+        keep = allowed[rows, cols]
+        return list(zip(rows[keep].tolist(), cols[keep].tolist(), strict=True))
 
     def _parts(self, matched: dict[int, int], shared: _Shared | None, confirmed: np.ndarray) -> dict[int, int]:
         """Unmatched detections that are part of a confirmed track another detection matched this scan: most of
@@ -432,9 +432,9 @@ class Tracker:
         `confirmed`: whether each track is."""
         if shared is None:
             return {}
-        taken = sorted(set(matched.values()))
+        taken = np.unique(np.fromiter(matched.values(), np.int64, len(matched)))
         free = [d for d in range(len(shared.detections)) if d not in matched]
-        confirmed = [t for t in taken if confirmed[t]]
+        confirmed = taken[confirmed[taken]].tolist()
         if not free or not confirmed:
             return {}
         share = shared.cells[np.ix_(confirmed, free)] / np.maximum(shared.detections[free], 1)[None, :]
@@ -490,9 +490,9 @@ class Tracker:
         """Each seen track's footprint: its detections' points (parts included; tracking frame), at most 2 x
         MAX_POINTS evenly spaced, as offsets from its centre; a merged detection's points go to the track whose
         predicted footprint is nearest (`nearest_owner`); `rows` each detection's track."""
-        index = {t.track_id: k for k, t in enumerate(self.tracks)}
         owner = np.repeat(np.array(rows, dtype=np.int64), world.counts)
         if merged:
+            index = {t.track_id: k for k, t in enumerate(self.tracks)}
             starts = np.concatenate([[0], np.cumsum(world.counts)])
             for d, entries in merged.items():
                 ids = np.array([index[said.track_id] for said, _ in entries])
@@ -587,16 +587,7 @@ class Tracker:
         kalman.correct_rows(slots, store.state, store.cov, np.ascontiguousarray(centers[:, :2], dtype=np.float64),
                             self.config.measurement_m ** 2, view)
 
-    def _sighted(self, tracks: list[Track], centers: np.ndarray, sizes: np.ndarray, labels: np.ndarray,
+    def _sighted(self, slots: np.ndarray, centers: np.ndarray, sizes: np.ndarray, labels: np.ndarray,
                  scores: np.ndarray, stamp_s: float) -> None:
-        """Corrected tracks' sightings, all at once: their height, box, vote and counts."""
-        if not tracks:
-            return
-        slots, store = self._slots(tracks), self.store
-        store.z[slots], store.box[slots], store.stamp[slots] = centers[:, 2], sizes, stamp_s
-        sight(slots, labels, scores, store.votes, store.confidences, store.first, store.count, store.weight,
-              store.label, MIN_WEIGHT)
-        store.hits[slots] += 1
-        store.misses[slots] = 0
-        store.held[slots] = 0
-        self.born += int((store.hits[slots] == self.config.min_hits).sum())
+        """Corrected tracks' sightings (their store rows), all at once: their height, box, vote and counts."""
+        self.born += self.store.see(slots, centers, sizes, labels, scores, stamp_s, self.config.min_hits)
