@@ -234,38 +234,45 @@ def footprint_members(members: np.ndarray, owner: np.ndarray, count: int, limit:
     """Each object's footprint points among its `members` (in their order; `owner` each one's object, 0 .. count - 1),
     one object's after another, and how many each has: first thinned to about 2 x `limit` of each object's points by
     a fixed hash of the point's index (frac(index x golden ratio) below the object's share), then of the rest the first
-    of each run sharing rank * limit // total: at most `limit` spread over the object, in two passes and no sort. The
-    passes choose without branching (a write to a spare slot instead of none): which points are kept is a coin toss
-    to the processor, whose mispredicted branches cost four times the arithmetic."""
+    of each run sharing rank * limit // total: at most `limit` spread over the object. The members are put in their
+    objects' order first (a stable counting sort), so each object is then one short run of memory, read twice."""
     total = np.zeros(count, np.int64)
     for k in owner:
         total[k] += 1
-    share = np.minimum(1.0, 2 * limit / np.maximum(total, 1))
-    thin = np.empty(len(members), np.int64)
-    left = np.zeros(count, np.int64)
+    at = _starts(total)
+    ordered = np.empty(len(members), members.dtype)
     for m in range(len(members)):
-        x = members[m] * GOLDEN
-        thin[m] = x - np.floor(x) < share[owner[m]]
-        left[owner[m]] += thin[m]
-    kept = np.minimum(left, limit)
-    start = _starts(kept)
-    spare = int(kept.sum())
-    out = np.empty(spare + 1, members.dtype)
-    every = (left <= limit).astype(np.int64)  # objects whose thinned points are all kept
-    rank = np.zeros(count, np.int64)
-    rest = np.zeros(count, np.int64)  # rank * limit modulo the object's total, kept as the rank grows (no division)
-    for m in range(len(members)):
-        k = owner[m]
-        t = thin[m]
-        r = rank[k]
-        on = rest[k] + limit * (r > 0)  # rank * limit // total moved on: the remainder passed the total
-        run = np.int64(on >= left[k])
-        keep = t & (every[k] | np.int64(r == 0) | run)
-        rest[k] += t * (on - left[k] * run - rest[k])
-        rank[k] = r + t
-        out[spare + keep * (start[k] - spare)] = members[m]
-        start[k] += keep
-    return out[:spare], kept
+        ordered[at[owner[m]]] = members[m]
+        at[owner[m]] += 1
+    thin = np.empty(len(members), members.dtype)
+    out = np.empty(len(members), members.dtype)
+    kept = np.zeros(count, np.int64)
+    written = 0
+    start = 0
+    for k in range(count):
+        share = min(1.0, 2 * limit / max(total[k], 1))
+        left = 0
+        for m in range(start, start + total[k]):
+            x = ordered[m] * GOLDEN
+            thin[left] = ordered[m]
+            left += x - np.floor(x) < share
+        start += total[k]
+        first = written
+        if left <= limit:
+            out[written:written + left] = thin[:left]
+            written += left
+        elif limit > 0:
+            out[written] = thin[0]
+            written += 1
+            rest = 0  # rank * limit modulo left, kept as the rank grows: a new run where it passes left
+            for r in range(1, left):
+                rest += limit
+                run = rest >= left
+                rest -= left * run
+                out[written] = thin[r]
+                written += run
+        kept[k] = written - first
+    return out[:written], kept
 
 
 def nearest_owner(xy: np.ndarray, footprints: Sequence[np.ndarray]) -> np.ndarray:
