@@ -27,7 +27,7 @@ from pass3d_ros.core.objects import (
     boxed_objects,
     plausible_size,
 )
-from pass3d_ros.core.point_owners import object_points, paint
+from pass3d_ros.core.point_owners import object_points, paint, take_rows
 from pass3d_ros.core.stream.footprints import MAX_POINTS, Footprints, footprint_members, nearest_owner
 from pass3d_ros.core.stream.tracks import Tracked, Tracker
 
@@ -104,7 +104,7 @@ def _footprints(points: np.ndarray, members: np.ndarray, owner: np.ndarray, coun
     if not count:
         return Footprints(np.zeros((0, 2)), np.zeros(0, np.int64))
     chosen, counts = footprint_members(members, owner, count, MAX_POINTS)
-    return Footprints(_sensor_xy(points[chosen], back), counts)
+    return Footprints(_sensor_xy(take_rows(points, chosen), back), counts)
 
 
 class Background:

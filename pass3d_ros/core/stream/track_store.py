@@ -151,6 +151,23 @@ def _see(slots: np.ndarray, centers: np.ndarray, sizes: np.ndarray, labels: np.n
 
 
 @nb.njit(cache=True, nogil=True)
+def new_views(slots: np.ndarray, box: np.ndarray, sizes: np.ndarray, long: np.ndarray, limit: float) -> np.ndarray:
+    """Per track of `slots`, the variance a new view of its object adds to its position before a correction: (change
+    / 2)^2 where the track is of a long class (`long`) and its box's horizontal edges (shorter with shorter) changed
+    by more than `limit` in sum from its row of `box` to `sizes`; else 0."""
+    out = np.zeros(len(slots))
+    for i in range(len(slots)):
+        s = slots[i]
+        before0, before1 = min(box[s, 0], box[s, 1]), max(box[s, 0], box[s, 1])
+        after0, after1 = min(sizes[i, 0], sizes[i, 1]), max(sizes[i, 0], sizes[i, 1])
+        change = abs(after0 - before0) + abs(after1 - before1)
+        if change > limit and long[i]:
+            half = change / 2
+            out[i] = half * half
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
 def vote(slots: np.ndarray, votes: np.ndarray, first: np.ndarray, weight: np.ndarray, voted: np.ndarray,
          score: np.ndarray) -> None:
     """The vote of each track of `slots` whose window changed: the class of most weight, the oldest sighting's class

@@ -58,7 +58,7 @@ from pass3d_ros.core.stream.footprints import (
     rows_cells,
     shared_cells_flat,
 )
-from pass3d_ros.core.stream.track_store import FOOTPRINT_POINTS, Track, TrackStore
+from pass3d_ros.core.stream.track_store import FOOTPRINT_POINTS, Track, TrackStore, new_views
 
 LONG_M = 3.0  # a class this long on average (a car) moves its box centre by metres when seen from another side; a
 # person's or a rider's moves less than a centre's error
@@ -236,7 +236,7 @@ class Tracker:
             shared = _Shared(shared_cells_flat(tracks, detections), np.diff(tracks[1]), np.diff(detections[1]))
         pairs = self._associate(centers, labels, shared)
         matched = {d: t for t, d in pairs}
-        self._correct_all([self.tracks[t] for t, _ in pairs], centers[[d for _, d in pairs]],
+        self._correct_all(self._live()[[t for t, _ in pairs]], centers[[d for _, d in pairs]],
                           sizes[[d for _, d in pairs]])
         confirmed = self.store.hits[self._live()] >= self.config.min_hits
         parts = self._parts(matched, shared, confirmed)
@@ -385,7 +385,7 @@ class Tracker:
             return None
         self.ended.remove(best)
         self._predict_all(stamp_s, [best])
-        self._correct_all([best], center[None, :], np.asarray(size, dtype=np.float64)[None, :])
+        self._correct_all(np.array([best.slot]), center[None, :], np.asarray(size, dtype=np.float64)[None, :])
         best.misses = 0
         best.hold_from = best.hits + self.config.min_hits  # this sighting the first of min_hits
         self.tracks.append(best)
@@ -432,10 +432,12 @@ class Tracker:
         `confirmed`: whether each track is."""
         if shared is None:
             return {}
-        taken = np.unique(np.fromiter(matched.values(), np.int64, len(matched)))
         free = [d for d in range(len(shared.detections)) if d not in matched]
+        if not free:
+            return {}
+        taken = np.unique(np.fromiter(matched.values(), np.int64, len(matched)))
         confirmed = taken[confirmed[taken]].tolist()
-        if not free or not confirmed:
+        if not confirmed:
             return {}
         share = shared.cells[np.ix_(confirmed, free)] / np.maximum(shared.detections[free], 1)[None, :]
         best = np.argmax(share, axis=0)
@@ -540,7 +542,7 @@ class Tracker:
                 continue
             free[mine] = False
             center = (xyz[mine].min(axis=0) + xyz[mine].max(axis=0)) / 2
-            self._correct_all([track], center[None, :])
+            self._correct_all(np.array([track.slot]), center[None, :])
             track.held += 1
             track.misses = 0
             track.z, track.stamp_s = float(center[2]), stamp_s
@@ -568,22 +570,20 @@ class Tracker:
         kalman.predict_rows(slots, store.state, store.cov, store.stamp, stamp_s, self.config.max_dt_s,
                             self.config.process_accel)
 
-    def _correct_all(self, tracks: list[Track], centers: np.ndarray, sizes: np.ndarray | None = None) -> None:
-        """The Kalman correction of each matched track by its detection's centre (x, y measured), all at once. With
+    def _correct_all(self, slots: np.ndarray, centers: np.ndarray, sizes: np.ndarray | None = None) -> None:
+        """The Kalman correction of each matched track (its store row) by its detection's centre (x, y measured), all
+        at once. With
         the detections' `sizes`, a box of a long object (LONG_M: a car) whose horizontal edges changed by more than
         `reshape_m` from the track's is a new view of the object: its centre corrects the position (uncertain by half
         the change) and not the velocity (a parked car seen by its rear, then whole, moves its box centre by metres
         while it stands still)."""
-        if not tracks:
+        if not len(slots):
             return
-        slots, store = self._slots(tracks), self.store
-        view = np.zeros(len(tracks))
+        store = self.store
+        view = np.zeros(len(slots))
         if sizes is not None and self.config.reshape_m is not None:
-            before = np.sort(store.box[slots, :2], axis=1)
-            after = np.sort(np.asarray(sizes, dtype=np.float64)[:, :2], axis=1)
-            change = np.abs(after - before).sum(axis=1)
-            long = LONG_CLASS[store.voted(slots)[0]]
-            view = np.where((change > self.config.reshape_m) & long, (change / 2) ** 2, 0.0)
+            view = new_views(slots, store.box, np.ascontiguousarray(sizes, dtype=np.float64),
+                             LONG_CLASS[store.voted(slots)[0]], self.config.reshape_m)
         kalman.correct_rows(slots, store.state, store.cov, np.ascontiguousarray(centers[:, :2], dtype=np.float64),
                             self.config.measurement_m ** 2, view)
 
