@@ -234,10 +234,9 @@ class Tracker:
         tracks = self._footprints()
         if tracks is not None and detections is not None:
             shared = _Shared(shared_cells_flat(tracks, detections), np.diff(tracks[1]), np.diff(detections[1]))
-        pairs = self._associate(centers, labels, shared)
-        matched = {d: t for t, d in pairs}
-        self._correct_all(self._live()[[t for t, _ in pairs]], centers[[d for _, d in pairs]],
-                          sizes[[d for _, d in pairs]])
+        rows, cols = self._associate(centers, labels, shared)
+        matched = dict(zip(cols.tolist(), rows.tolist(), strict=True))
+        self._correct_all(self._live()[rows], centers[cols], sizes[cols])
         confirmed = self.store.hits[self._live()] >= self.config.min_hits
         parts = self._parts(matched, shared, confirmed)
         if self.config.part_extent is not None:
@@ -246,7 +245,7 @@ class Tracker:
         rows, early = self._sightings(centers, sizes, labels, scores, stamp_s, matched, parts, detections)
         out = self._said_all(rows, early)
         seen = {self.tracks[u].track_id for others in covered.values() for u in others}
-        seen.update(self.tracks[row].track_id for row in rows)
+        seen.update(self.store.track_id[self._live()[rows]].tolist())
         merged = self._merged_footprints(matched, covered, to_world)
         if footprints is not None:
             self._keep_footprints(rows, world, merged)
@@ -294,10 +293,12 @@ class Tracker:
     def _age(self, seen: set[int]) -> None:
         """A miss for each track not seen this scan and each ended one; tracks unseen max_misses scans end (the
         confirmed ones may be found again for reid_misses scans), ended ones unseen reid_misses are forgotten."""
-        store = self.store
-        unseen = [t.slot for t in self.tracks if t.track_id not in seen] + [t.slot for t in self.ended]
-        store.misses[unseen] += 1
-        gone = store.misses[self._live()] > self.config.max_misses
+        store, live = self.store, self._live()
+        unseen = [s for s, i in zip(live.tolist(), store.track_id[live].tolist(), strict=True) if i not in seen]
+        store.misses[unseen + [t.slot for t in self.ended]] += 1
+        gone = store.misses[live] > self.config.max_misses
+        if not self.ended and not gone.any():
+            return  # nothing ends, nothing is forgotten (the list of tracks stays as it is)
         ended = [t for t, g in zip(self.tracks, gone.tolist(), strict=True) if g]
         self.lost += sum(1 for t in ended if t.hits >= self.config.min_hits)
         self.tracks = [t for t, g in zip(self.tracks, gone.tolist(), strict=True) if not g]
@@ -404,15 +405,15 @@ class Tracker:
         return rows_cells(self.store.offsets, self.store.points, slots, self.store.state)
 
     def _associate(self, centers: np.ndarray, labels: Sequence[int],
-                   shared: _Shared | None = None) -> list[tuple[int, int]]:
-        """(track index, detection index) pairs: a pair's cost is its centre distance (plus class_penalty_m for
-        another class) times 1 - the share of footprint cells it shares; a pair may match within the detection's
-        gate, or beyond it when its footprints share match_overlap of their cells. The pairs chosen have the most
-        summed margin (gate less cost; MIN_MARGIN_M beyond the gate): a pair is worth its margin, leaving both
-        unmatched nothing, so two poor pairs never beat one good one (a least summed cost would match as many as it
-        can: a track taking a neighbour's fragment so that its own object's track can take the other)."""
+                   shared: _Shared | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The matched pairs' track indices and detection indices: a pair's cost is its centre distance (plus
+        class_penalty_m for another class) times 1 - the share of footprint cells it shares; a pair may match within
+        the detection's gate, or beyond it when its footprints share match_overlap of their cells. The pairs chosen
+        have the most summed margin (gate less cost; MIN_MARGIN_M beyond the gate): a pair is worth its margin, leaving
+        both unmatched nothing, so two poor pairs never beat one good one (a least summed cost would match as many as
+        it can: a track taking a neighbour's fragment so that its own object's track can take the other)."""
         if not self.tracks or len(centers) == 0:
-            return []
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
         slots = self._live()
         none, empty = np.zeros((0, 0), np.int64), np.zeros(0, np.int64)
         config = self.config
@@ -424,7 +425,7 @@ class Tracker:
             float(config.mature_hits), MIN_MARGIN_M)
         rows, cols = linear_sum_assignment(margin, maximize=True)
         keep = allowed[rows, cols]
-        return list(zip(rows[keep].tolist(), cols[keep].tolist(), strict=True))
+        return rows[keep], cols[keep]
 
     def _parts(self, matched: dict[int, int], shared: _Shared | None, confirmed: np.ndarray) -> dict[int, int]:
         """Unmatched detections that are part of a confirmed track another detection matched this scan: most of
