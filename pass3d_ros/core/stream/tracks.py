@@ -28,6 +28,9 @@ sighting's class; a change needs the new class to lead the window's vote. Parts 
 
 With a pose per scan (world from sensor, 4 x 4: odometry), tracks live in the world frame and the ego's own motion is
 no object's; without one, in the sensor's frame, where the filter's velocity absorbs the ego's.
+
+A track's numbers live in a row of the stream's `TrackStore` (`track_store`), so each step above is one compiled call
+or numpy operation over all tracks (`kalman`, `association`, `footprints`), not a Python call per track.
 """
 from __future__ import annotations
 
