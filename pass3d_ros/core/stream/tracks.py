@@ -289,9 +289,11 @@ class Tracker:
         """What the tracker says of each detection's track (`rows`), all voted at once; `early` as `_sightings`."""
         slots = self._live()[rows]
         label, score = self.store.voted(slots)
-        confirmed = self.store.hits[slots] >= self.config.min_hits
-        return [early[d] if d in early else Tracked(*said) for d, said in enumerate(zip(
-            self.store.track_id[slots].tolist(), label.tolist(), score.tolist(), confirmed.tolist(), strict=True))]
+        ids, confirmed = self.store.track_id[slots].tolist(), (self.store.hits[slots] >= self.config.min_hits).tolist()
+        out = list(map(Tracked, ids, label.tolist(), score.tolist(), confirmed))
+        for d, said in early.items():
+            out[d] = said
+        return out
 
     def _age(self, seen: set[int]) -> None:
         """A miss for each track not seen this scan and each ended one; tracks unseen max_misses scans end (the
@@ -518,8 +520,9 @@ class Tracker:
         of its last detection (held points never grow it: a track beside a wall would creep along the wall); it may
         be held at most max_held scans in a row, and a track found again after it ended (`_revive`) only once it is
         seen min_hits times more. A point holds one track at most."""
-        waiting = [t for t in self.tracks if t.track_id not in seen and t.offsets is not None
-                   and t.hits >= self.config.min_hits
+        ids = self.store.track_id[self._live()].tolist()
+        unseen = [t for t, i in zip(self.tracks, ids, strict=True) if i not in seen]
+        waiting = [t for t in unseen if t.offsets is not None and t.hits >= self.config.min_hits
                    and t.held < min(self.config.max_held, t.hits) and t.confidence() >= self.config.hold_min_confidence
                    and t.hits >= t.hold_from]
         if not waiting:
