@@ -267,11 +267,15 @@ class Track:
 
     def label(self) -> int:
         """The confidence-weighted vote of the recent sightings (module docstring)."""
-        return int(self.store.voted(np.array([self.slot]))[0][0])
+        if self.store.label[self.slot] < 0:
+            self.store.voted(np.array([self.slot]))
+        return int(self.store.label[self.slot])
 
     def score(self) -> float:
         """The voted class's share of the vote weight."""
-        return float(self.store.voted(np.array([self.slot]))[1][0])
+        if self.store.label[self.slot] < 0:
+            self.store.voted(np.array([self.slot]))
+        return float(self.store.score[self.slot])
 
     def confidence(self) -> float:
         """The mean confidence of the recent sightings of the voted class."""

@@ -55,7 +55,6 @@ from pass3d_ros.core.stream.footprints import (
     keep_rows,
     matching,
     nearest_owner,
-    overlap,
     pieces,
     point_cells,
     rows_cells,
@@ -374,21 +373,30 @@ class Tracker:
         scans of its last sighting): its predicted centre within the class's gate of the detection's, or its last
         footprint sharing match_overlap of the cells. Such a track lives again, corrected by the detection; else
         None. Ended tracks take part in no other matching: a neighbour's fragment never takes a lost track's id."""
-        best, best_distance = None, np.inf
-        for track in self.ended:
-            if track.label() != label:
-                continue
-            dt = min(stamp_s - track.stamp_s, self.config.max_dt_s)
-            predicted = track.state[:2] + track.state[2:] * max(dt, 0.0)
-            distance = float(np.hypot(*(predicted - center[:2])))
-            near = distance <= self.config.gate(label)
-            if not near and footprint is not None and track.offsets is not None:
-                near = overlap([cells(predicted + track.offsets)], [footprint])[0, 0] >= self.config.match_overlap
-                distance = min(distance, self.config.gate(label))
-            if near and distance < best_distance:
-                best, best_distance = track, distance
-        if best is None:
+        if not self.ended:
             return None
+        store, slots = self.store, self._slots(self.ended)
+        mine = np.flatnonzero(store.voted(slots)[0] == label)
+        if not len(mine):
+            return None
+        slots = slots[mine]
+        dt = np.maximum(np.minimum(stamp_s - store.stamp[slots], self.config.max_dt_s), 0.0)
+        predicted = store.state[slots, :2] + store.state[slots, 2:] * dt[:, None]
+        distance = np.hypot(predicted[:, 0] - center[0], predicted[:, 1] - center[1])
+        gate = self.config.gate(label)
+        near = distance <= gate
+        far = np.flatnonzero(~near & (store.points[slots] > 0)) if footprint is not None else []
+        if len(far):  # beyond the gate: its last footprint, moved with it, sharing match_overlap of the cells
+            moved = np.zeros((len(store.state), 2))
+            moved[slots[far]] = predicted[far]
+            keys, starts = rows_cells(store.offsets, store.points, slots[far], moved)
+            shared = shared_cells_flat((keys, starts), (footprint, np.array([0, len(footprint)])))[:, 0]
+            near[far] = shared / np.maximum(np.minimum(np.diff(starts), len(footprint)), 1) >= self.config.match_overlap
+            distance[far] = np.minimum(distance[far], gate)
+        found = np.flatnonzero(near)
+        if not len(found):
+            return None
+        best = self.ended[int(mine[found[np.argmin(distance[found])]])]
         self.ended.remove(best)
         self._predict_all(stamp_s, [best])
         self._correct_all(np.array([best.slot]), center[None, :], np.asarray(size, dtype=np.float64)[None, :])
