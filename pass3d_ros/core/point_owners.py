@@ -1,6 +1,6 @@
 """Which published object each point of a scan belongs to, and a tracked scan's vote painted back onto those points:
-compiled passes over the scan (numpy's masks, gathers and scatters over 120k points cost about half a millisecond a
-scan, the tracker's budget, where one loop costs a tenth of it)."""
+compiled passes over the road-user points and the scan (numpy's lookups, gathers and scatters over them cost about
+half a millisecond a scan, half the tracker's budget, where a loop costs a fraction of it)."""
 
 from __future__ import annotations
 
@@ -18,15 +18,15 @@ def object_points(objects: FrameObjects) -> tuple[np.ndarray, np.ndarray]:
     points whose cluster id is an object's (the one-object rule makes that exactly the object's points). Ids below
     MAX_TABLE (a proposal's first object) are looked up in a table, the others (split parts, a few) by binary search."""
     ids = np.array([obj.cluster_id for obj in objects.objects], dtype=np.int64)
-    return _owners(objects.labels, objects.cluster_id, ids, BACKGROUND, MAX_TABLE)
+    road = np.flatnonzero(objects.labels != BACKGROUND)  # numpy's vectorised pass: a scan is mostly background
+    return _owners(road, objects.cluster_id, ids, MAX_TABLE)
 
 
 @nb.njit(cache=True, nogil=True)
-def _owners(labels: np.ndarray, point_ids: np.ndarray, ids: np.ndarray, background: int,
-            max_table: int) -> tuple[np.ndarray, np.ndarray]:
-    """`object_points` compiled: the road-user points counted, gathered (each point written, the count moved on only
-    for a road user's: no branch on a coin toss to the processor), then their owners looked up by `ids` (each
-    object's cluster id; the last object of an id wins the table, the first the search), those of none dropped."""
+def _owners(road: np.ndarray, point_ids: np.ndarray, ids: np.ndarray, max_table: int) -> tuple[np.ndarray, np.ndarray]:
+    """The owners of the `road` points by `ids` (each object's cluster id; the last object of an id wins the table,
+    the first the search), those of none dropped: one pass, each point written and the count moved on only for an
+    object's (no branch on a coin toss to the processor)."""
     top = -1
     others = 0
     for k in range(len(ids)):
@@ -46,18 +46,11 @@ def _owners(labels: np.ndarray, point_ids: np.ndarray, ids: np.ndarray, backgrou
             j += 1
     order = far[np.argsort(ids[far], kind="mergesort")]
     far_ids = ids[order]
-    road_points = 0
-    for i in range(len(labels)):
-        road_points += labels[i] != background
-    members = np.empty(road_points + 1, np.int64)  # a spare slot for the points after the last road user's
-    road = 0
-    for i in range(len(labels)):
-        members[road] = i
-        road += labels[i] != background
-    owner = np.empty(road_points, np.int64)
+    members = np.empty(len(road), np.int64)
+    owner = np.empty(len(road), np.int64)
     n = 0
-    for m in range(road_points):  # the road-user points' owners, those of no object dropped in place
-        i = members[m]
+    for m in range(len(road)):
+        i = road[m]
         at = min(np.uint64(np.int64(point_ids[i]) + 1), np.uint64(outside))  # below -1 wraps round: outside
         found = table[at]
         if others and (at == 0 or at == outside):  # a split part's id (none in most scans)

@@ -472,19 +472,22 @@ class Tracker:
             return {}
         points = world.split()
         by_track: dict[int, list[int]] = {}  # confirmed tracks of a class with a size: their detections this scan
+        track_label: dict[int, int] = {}
         for d, t in matched.items():
             track = self.tracks[t]
             if track.hits >= self.config.min_hits and self.config.extent_limit(track.label()) is not None:
                 by_track.setdefault(t, []).append(d)
+                track_label[t] = track.label()
         out: dict[int, int] = {}
         for d in free:
             best, best_length = -1, np.inf
+            centre = points[d].mean(axis=0)
             for t, mine in by_track.items():
-                track = self.tracks[t]
-                if track.label() != int(labels[d]):
+                if track_label[t] != int(labels[d]):
                     continue
-                limit = self.config.extent_limit(track.label())
-                near = np.linalg.norm(points[d].mean(axis=0) - track.state[:2]) <= limit[0]
+                track = self.tracks[t]
+                limit = self.config.extent_limit(track_label[t])
+                near = np.linalg.norm(centre - track.state[:2]) <= limit[0]
                 if not near:
                     continue
                 remembered = [track.state[:2] + track.offsets] if track.offsets is not None else []
