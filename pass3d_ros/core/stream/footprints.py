@@ -60,23 +60,11 @@ def extent(xy: np.ndarray) -> tuple[float, float, np.ndarray]:
     return float(sides[longer]), float(sides[1 - longer]), vectors[:, longer]
 
 
-def grouped_cells(xy: np.ndarray, counts: Sequence[int] | np.ndarray) -> list[np.ndarray]:
-    """`cells` of each of several footprints at once: `xy` (M, 2) their points one after another, `counts` how many
-    each has (a footprint of no points has no cells)."""
-    keys, starts = cell_sets(xy, counts)
-    return pieces(keys, np.diff(starts))
-
-
-def cell_sets(xy: np.ndarray, counts: Sequence[int] | np.ndarray,
-              shift: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """`grouped_cells` flat: every footprint's sorted unique keys one after another, and where each starts (its end
-    last; `shared_cells_flat` takes them as they are). With `shift` (K, 2) footprint k's points are moved by shift[k]
-    first (a track's remembered points carried to its predicted centre), in the same pass."""
+def cell_sets(xy: np.ndarray, counts: Sequence[int] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`cells` of each of several footprints at once (`xy` (M, 2) their points one after another, `counts` how many
+    each has): every footprint's sorted unique keys one after another, and where each starts (its end last)."""
     counts = np.asarray(counts, dtype=np.int64)
-    xy = np.ascontiguousarray(xy, dtype=np.float64).reshape(-1, 2)
-    if shift is None:
-        shift = np.zeros((len(counts), 2))
-    return _moved_unique_groups(xy, counts, np.ascontiguousarray(shift, dtype=np.float64))
+    return _unique_groups(np.ascontiguousarray(xy, dtype=np.float64).reshape(-1, 2), counts)
 
 
 def pieces(flat: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
@@ -133,9 +121,9 @@ def _group_cells(columns: np.ndarray, rows: np.ndarray, n: int, out: np.ndarray,
 
 
 @nb.njit(cache=True, nogil=True)
-def _moved_unique_groups(xy: np.ndarray, counts: np.ndarray, shift: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each group's sorted unique cell keys (`point_cells` of groups of `counts` consecutive points, group g's moved by
-    shift[g]), one group after another, and where each starts (the end last)."""
+def _unique_groups(xy: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each group's sorted unique cell keys (`point_cells` of groups of `counts` consecutive points), one group after
+    another, and where each starts (the end last)."""
     out = np.empty(len(xy), np.int64)
     starts = np.zeros(len(counts) + 1, np.int64)
     longest = 0
@@ -147,8 +135,8 @@ def _moved_unique_groups(xy: np.ndarray, counts: np.ndarray, shift: np.ndarray) 
     written = 0
     for g in range(len(counts)):
         for m in range(counts[g]):
-            columns[m] = np.int64(np.floor((xy[start + m, 0] + shift[g, 0]) / CELL_M))
-            rows[m] = np.int64(np.floor((xy[start + m, 1] + shift[g, 1]) / CELL_M))
+            columns[m] = np.int64(np.floor(xy[start + m, 0] / CELL_M))
+            rows[m] = np.int64(np.floor(xy[start + m, 1] / CELL_M))
         written = _group_cells(columns, rows, counts[g], out, written, marks)
         start += counts[g]
         starts[g + 1] = written
@@ -298,23 +286,10 @@ def _nearest(xy: np.ndarray, every: np.ndarray) -> np.ndarray:
     return out
 
 
-def shared_cells(first: Sequence[np.ndarray], second: Sequence[np.ndarray]) -> np.ndarray:
+def shared_cells(first: tuple[np.ndarray, np.ndarray], second: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """(len(first), len(second)) counts of the cells each footprint of `first` shares with each of `second` (both
-    lists of `cells` keys)."""
-    if not len(first) or not len(second):
-        return np.zeros((len(first), len(second)), np.int64)
-    return _shared(*_flat(first), *_flat(second))
-
-
-def shared_cells_flat(first: tuple[np.ndarray, np.ndarray], second: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """`shared_cells` of two `cell_sets` (keys, starts) as they are (no list of arrays made and joined again)."""
+    `cell_sets`: keys, starts)."""
     return _shared(first[0], first[1], second[0], second[1])
-
-
-def _flat(groups: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Several key arrays as one, and where each starts (with the end last)."""
-    sizes = [len(g) for g in groups]
-    return (np.concatenate(groups) if sum(sizes) else np.zeros(0, np.int64)), np.cumsum([0, *sizes])
 
 
 @nb.njit(cache=True, nogil=True)
@@ -352,10 +327,3 @@ def matching(keys: np.ndarray, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarr
     ends = np.cumsum(count)
     total = int(ends[-1]) if len(ends) else 0
     return np.repeat(left, count) + np.arange(total) - np.repeat(ends - count, count), count
-
-
-def overlap(first: Sequence[np.ndarray], second: Sequence[np.ndarray]) -> np.ndarray:
-    """Shared cells over the smaller footprint of each pair (0..1): 1 when one footprint lies within the other."""
-    shared = shared_cells(first, second)
-    smaller = np.minimum(np.array([len(k) for k in first])[:, None], np.array([len(k) for k in second])[None, :])
-    return shared / np.maximum(smaller, 1)

@@ -9,18 +9,11 @@ import numpy as np
 
 
 @nb.njit(cache=True, nogil=True)
-def predict(states: np.ndarray, covs: np.ndarray, dt: np.ndarray, accel: float) -> None:
-    """Carry each state (T, 4) and covariance (T, 4, 4) `dt` (T,) seconds ahead, in place; white acceleration of
-    spread `accel` (m/s^2) is the process noise."""
-    for t in range(len(dt)):
-        _predict(states[t], covs[t], dt[t], accel * accel)
-
-
-@nb.njit(cache=True, nogil=True)
 def predict_rows(rows: np.ndarray, states: np.ndarray, covs: np.ndarray, stamps: np.ndarray, stamp_s: float,
                  max_dt: float, accel: float) -> None:
-    """`predict` of the `rows` of `states`, `covs` to `stamp_s` from their `stamps` (at most `max_dt` ahead, never
-    back), their stamps set to it: a stream's tracks kept as rows of one array, in place."""
+    """Carry the `rows` of `states` (x, y, vx, vy) and `covs` (4 x 4) to `stamp_s` from their `stamps` (at most
+    `max_dt` ahead, never back), in place, their stamps set to it; white acceleration of spread `accel` (m/s^2) is the
+    process noise."""
     for r in rows:
         _predict(states[r], covs[r], min(max(stamp_s - stamps[r], 0.0), max_dt), accel * accel)
         stamps[r] = stamp_s
@@ -28,7 +21,7 @@ def predict_rows(rows: np.ndarray, states: np.ndarray, covs: np.ndarray, stamps:
 
 @nb.njit(cache=True, nogil=True)
 def _predict(state: np.ndarray, p: np.ndarray, h: float, a2: float) -> None:
-    """One state (4,) and covariance (4, 4) `h` seconds ahead (`predict`)."""
+    """One state (4,) and covariance (4, 4) `h` seconds ahead (`predict_rows`)."""
     state[0] += h * state[2]
     state[1] += h * state[3]
     for i in range(4):  # P F^T: column 0 += h * column 2, column 1 += h * column 3
@@ -46,26 +39,19 @@ def _predict(state: np.ndarray, p: np.ndarray, h: float, a2: float) -> None:
 
 
 @nb.njit(cache=True, nogil=True)
-def correct(states: np.ndarray, covs: np.ndarray, measured: np.ndarray, noise: float, view: np.ndarray) -> None:
-    """Correct each state (T, 4) and covariance (T, 4, 4) by its measured centre (T, 2) of variance `noise`, in
-    place. Where `view` (T,) is above 0 the centre is a new view of the object: the position's link to the velocity
-    is cut first and the position made uncertain by `view` more (where the old view's centre was says little of
-    where this one's is), so the centre corrects the position and not the velocity."""
-    for t in range(len(states)):
-        _correct(states[t], covs[t], measured[t, 0], measured[t, 1], noise, view[t])
-
-
-@nb.njit(cache=True, nogil=True)
 def correct_rows(rows: np.ndarray, states: np.ndarray, covs: np.ndarray, measured: np.ndarray, noise: float,
                  view: np.ndarray) -> None:
-    """`correct` of the `rows` of `states`, `covs` by `measured` (one centre per row, in order), in place."""
+    """Correct the `rows` of `states` and `covs` by their measured centres (`measured`, one per row, in order) of
+    variance `noise`, in place. Where `view` (one per row) is above 0 the centre is a new view of the object: the
+    position's link to the velocity is cut first and the position made uncertain by `view` more (where the old view's
+    centre was says little of where this one's is), so the centre corrects the position and not the velocity."""
     for t in range(len(rows)):
         _correct(states[rows[t]], covs[rows[t]], measured[t, 0], measured[t, 1], noise, view[t])
 
 
 @nb.njit(cache=True, nogil=True)
 def _correct(state: np.ndarray, p: np.ndarray, x: float, y: float, noise: float, view: float) -> None:
-    """One state (4,) and covariance (4, 4) corrected by the centre (x, y) (`correct`)."""
+    """One state (4,) and covariance (4, 4) corrected by the centre (x, y) (`correct_rows`)."""
     gain = np.empty((4, 2))
     top = np.empty((2, 4))
     if view > 0.0:

@@ -58,7 +58,7 @@ from pass3d_ros.core.stream.footprints import (
     pieces,
     point_cells,
     rows_cells,
-    shared_cells_flat,
+    shared_cells,
 )
 from pass3d_ros.core.stream.track_store import FOOTPRINT_POINTS, Track, TrackStore, new_views
 
@@ -235,7 +235,7 @@ class Tracker:
         self._predict_all(stamp_s)
         tracks = self._footprints()
         if tracks is not None and detections is not None:
-            shared = _Shared(shared_cells_flat(tracks, detections), np.diff(tracks[1]), np.diff(detections[1]))
+            shared = _Shared(shared_cells(tracks, detections), np.diff(tracks[1]), np.diff(detections[1]))
         rows, cols = self._associate(centers, labels, shared)
         matched = dict(zip(cols.tolist(), rows.tolist(), strict=True))
         self._correct_all(self._live()[rows], centers[cols], sizes[cols])
@@ -390,7 +390,7 @@ class Tracker:
             moved = np.zeros((len(store.state), 2))
             moved[slots[far]] = predicted[far]
             keys, starts = rows_cells(store.offsets, store.points, slots[far], moved)
-            shared = shared_cells_flat((keys, starts), (footprint, np.array([0, len(footprint)])))[:, 0]
+            shared = shared_cells((keys, starts), (footprint, np.array([0, len(footprint)])))[:, 0]
             near[far] = shared / np.maximum(np.minimum(np.diff(starts), len(footprint)), 1) >= self.config.match_overlap
             distance[far] = np.minimum(distance[far], gate)
         found = np.flatnonzero(near)
