@@ -28,39 +28,51 @@ class TrackStore:
     voted `label` (-1: to vote again) and its `score`; its `track_id`; the footprint it carries: its last points' x, y
     less its centre (`offsets`, the first `points` of the row; none: no points yet)."""
 
+    state: np.ndarray
+    cov: np.ndarray
+    stamp: np.ndarray
+    z: np.ndarray
+    box: np.ndarray
+    hits: np.ndarray
+    misses: np.ndarray
+    held: np.ndarray
+    hold_from: np.ndarray
+    votes: np.ndarray
+    confidences: np.ndarray
+    first: np.ndarray
+    count: np.ndarray
+    weight: np.ndarray
+    label: np.ndarray
+    score: np.ndarray
+    track_id: np.ndarray
+    offsets: np.ndarray
+    points: np.ndarray
+
     def __init__(self, window: int) -> None:
         self.window = window
         self.free: list[int] = []
         self.rows = 0
         self._grow(FIRST_ROWS)
 
+    def _fields(self) -> list[tuple[str, tuple[int, ...], type, float]]:
+        """Each array's name, shape of one row, type and the value of a row not yet used."""
+        one = ()
+        return [("state", (4,), np.float64, 0), ("cov", (4, 4), np.float64, 0), ("stamp", one, np.float64, 0),
+                ("z", one, np.float64, 0), ("box", (3,), np.float64, 0), ("hits", one, np.int64, 0),
+                ("misses", one, np.int64, 0), ("held", one, np.int64, 0), ("hold_from", one, np.int64, 0),
+                ("votes", (self.window,), np.int64, 0), ("confidences", (self.window,), np.float64, 0),
+                ("first", one, np.int64, 0), ("count", one, np.int64, 0), ("weight", (NUM_CLASSES,), np.float64, 0),
+                ("label", one, np.int64, -1), ("score", one, np.float64, 0), ("track_id", one, np.int64, 0),
+                ("offsets", (FOOTPRINT_POINTS, 2), np.float64, 0), ("points", one, np.int64, 0)]
+
     def _grow(self, rows: int) -> None:
         """Room for `rows` rows, the rows in use kept."""
-        def grown(old: np.ndarray | None, shape: tuple[int, ...], dtype: type, fill: float = 0) -> np.ndarray:
-            new = np.full((rows, *shape), fill, dtype)
+        for name, shape, dtype, fill in self._fields():
+            grown = np.full((rows, *shape), fill, dtype)
+            old = getattr(self, name, None)
             if old is not None:
-                new[:len(old)] = old
-            return new
-        has = hasattr(self, "state")
-        self.state = grown(self.state if has else None, (4,), np.float64)
-        self.cov = grown(self.cov if has else None, (4, 4), np.float64)
-        self.stamp = grown(self.stamp if has else None, (), np.float64)
-        self.z = grown(self.z if has else None, (), np.float64)
-        self.box = grown(self.box if has else None, (3,), np.float64)
-        self.hits = grown(self.hits if has else None, (), np.int64)
-        self.misses = grown(self.misses if has else None, (), np.int64)
-        self.held = grown(self.held if has else None, (), np.int64)
-        self.hold_from = grown(self.hold_from if has else None, (), np.int64)
-        self.votes = grown(self.votes if has else None, (self.window,), np.int64)
-        self.confidences = grown(self.confidences if has else None, (self.window,), np.float64)
-        self.first = grown(self.first if has else None, (), np.int64)
-        self.count = grown(self.count if has else None, (), np.int64)
-        self.weight = grown(self.weight if has else None, (NUM_CLASSES,), np.float64)
-        self.label = grown(self.label if has else None, (), np.int64, -1)
-        self.score = grown(self.score if has else None, (), np.float64)
-        self.offsets = grown(self.offsets if has else None, (FOOTPRINT_POINTS, 2), np.float64)
-        self.points = grown(self.points if has else None, (), np.int64)
-        self.track_id = grown(self.track_id if has else None, (), np.int64)
+                grown[:len(old)] = old
+            setattr(self, name, grown)
 
     def new(self, track_id: int, state: np.ndarray, cov: np.ndarray, z: float, box: np.ndarray, label: int,
             confidence: float, stamp_s: float) -> int:
