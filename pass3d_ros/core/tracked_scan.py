@@ -27,11 +27,11 @@ from pass3d_ros.core.objects import (
     boxed_objects,
     plausible_size,
 )
+from pass3d_ros.core.point_owners import object_points, paint, take_rows
 from pass3d_ros.core.stream.footprints import MAX_POINTS, Footprints, footprint_members, nearest_owner
 from pass3d_ros.core.stream.tracks import Tracked, Tracker
 
 NO_TRACK = -1  # the track id of a point or object in no confirmed track
-MAX_TABLE = 1 << 16  # object_points looks cluster ids below this up in a table
 HELD_SCORE = 0.5  # a held object's score is its track's vote share times this (stage 2 did not see it)
 
 
@@ -48,33 +48,6 @@ class TrackedScan:
     ms: float = 0.0
 
 
-def object_points(objects: FrameObjects) -> tuple[np.ndarray, np.ndarray]:
-    """The points that belong to an object and, for each, its object's index in `objects.objects`: the road-user
-    points whose cluster id is an object's (the one-object rule makes that exactly the object's points). Only the
-    road-user points are looked up: ids below MAX_TABLE (a proposal's first object) in a table, the others (split
-    parts, a few) by binary search (numpy's searchsorted took 1-2 ms for all of a scan's 18k road-user points)."""
-    road = np.flatnonzero(objects.labels != BACKGROUND)
-    if not objects.objects or len(road) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    ids = np.array([obj.cluster_id for obj in objects.objects], dtype=np.int64)
-    point_ids = objects.cluster_id[road]
-    small = (ids >= 0) & (ids < MAX_TABLE)
-    table = np.full(int(ids[small].max(initial=-1)) + 1, -1, np.int64)
-    table[ids[small]] = np.flatnonzero(small)
-    owner = np.full(len(road), -1, np.int64)
-    low = (point_ids >= 0) & (point_ids < len(table))
-    owner[low] = table[point_ids[low]]
-    rest = np.flatnonzero(~low)
-    if len(rest) and not small.all():
-        others = np.flatnonzero(~small)
-        order = others[np.argsort(ids[others], kind="stable")]
-        wanted = point_ids[rest].astype(np.int64)
-        at = np.minimum(np.searchsorted(ids[order], wanted), len(order) - 1)
-        owner[rest] = np.where(ids[order][at] == wanted, order[at], -1)
-    hit = owner >= 0
-    return road[hit], owner[hit]
-
-
 def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np.ndarray | None = None,
                level: np.ndarray | None = None, points: np.ndarray | None = None,
                ground: np.ndarray | None = None) -> TrackedScan:
@@ -85,8 +58,9 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
     matches by footprints, takes parts of a tracked object as that object, and lets a confirmed track no object
     matched be held by the points stage 2 called background on its footprint (module docstring)."""
     started = time.perf_counter()
-    centers = np.array([obj.center for obj in objects.objects], dtype=np.float64).reshape(-1, 3)
-    sizes = np.array([obj.size for obj in objects.objects], dtype=np.float64).reshape(-1, 3)
+    boxes = np.array([(*obj.center, *obj.size, obj.label, obj.score) for obj in objects.objects],
+                     dtype=np.float64).reshape(-1, 8)  # one pass over the objects: centre, size, class, score
+    centers, sizes = np.ascontiguousarray(boxes[:, :3]), np.ascontiguousarray(boxes[:, 3:6])
     back = None if level is None else np.asarray(level, dtype=np.float64)  # rows @ level: level -> sensor
     if back is not None:
         centers = centers @ back
@@ -95,17 +69,14 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
     if points is not None:
         footprints = _footprints(points, members, owner, len(objects.objects), back)
         background = Background(objects, points, ground, back)
-    said = tracker.scan(centers, sizes, [obj.label for obj in objects.objects],
-                        [obj.score for obj in objects.objects], stamp_s, pose, footprints, background)
+    said = tracker.scan(centers, sizes, boxes[:, 6].astype(np.int64), boxes[:, 7], stamp_s, pose, footprints,
+                        background)
     tracked = said.detections
     voted_class = np.array([t.label for t in tracked], dtype=np.uint8)
     published_id = np.array([t.track_id if t.confirmed else NO_TRACK for t in tracked], dtype=np.int32)
-    labels = objects.labels.copy()
-    labels[members] = voted_class[owner]
-    track_id = np.full(len(labels), NO_TRACK, np.int32)
-    track_id[members] = published_id[owner]
-    voted_objects = [_voted(obj, t, int(published_id[k])) for k, (obj, t) in
-                     enumerate(zip(objects.objects, tracked, strict=True))]
+    labels, track_id = paint(objects.labels, members, owner, voted_class, published_id, NO_TRACK)
+    voted_objects = [_voted(obj, t, k) for obj, t, k in zip(objects.objects, tracked, published_id.tolist(),
+                                                             strict=True)]
     cluster_id = objects.cluster_id
     if points is not None and (said.held or said.merged):
         cluster_id = cluster_id.copy()
@@ -133,7 +104,7 @@ def _footprints(points: np.ndarray, members: np.ndarray, owner: np.ndarray, coun
     if not count:
         return Footprints(np.zeros((0, 2)), np.zeros(0, np.int64))
     chosen, counts = footprint_members(members, owner, count, MAX_POINTS)
-    return Footprints(_sensor_xy(points[chosen], back), counts)
+    return Footprints(_sensor_xy(take_rows(points, chosen), back), counts)
 
 
 class Background:

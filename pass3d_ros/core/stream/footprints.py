@@ -60,14 +60,11 @@ def extent(xy: np.ndarray) -> tuple[float, float, np.ndarray]:
     return float(sides[longer]), float(sides[1 - longer]), vectors[:, longer]
 
 
-def grouped_cells(xy: np.ndarray, counts: Sequence[int] | np.ndarray) -> list[np.ndarray]:
-    """`cells` of each of several footprints at once: `xy` (M, 2) their points one after another, `counts` how many
-    each has (a footprint of no points has no cells)."""
+def cell_sets(xy: np.ndarray, counts: Sequence[int] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`cells` of each of several footprints at once (`xy` (M, 2) their points one after another, `counts` how many
+    each has): every footprint's sorted unique keys one after another, and where each starts (its end last)."""
     counts = np.asarray(counts, dtype=np.int64)
-    if not len(xy):
-        return [np.zeros(0, np.int64) for _ in counts]
-    flat, sizes = _unique_groups(point_cells(xy), counts)
-    return pieces(flat, sizes)
+    return _unique_groups(np.ascontiguousarray(xy, dtype=np.float64).reshape(-1, 2), counts)
 
 
 def pieces(flat: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
@@ -76,30 +73,114 @@ def pieces(flat: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
     return [flat[start:end] for start, end in zip([0, *ends[:-1]], ends, strict=True)]
 
 
+MARKS = 1024  # a footprint whose cells' bounding box holds at most this many cells is sorted by marking them
+
+
 @nb.njit(cache=True, nogil=True)
-def _unique_groups(keys: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each group's sorted unique keys (groups of `counts` consecutive keys), one group after another, and how many
-    each has: an insertion sort within each group (a footprint's few dozen keys), duplicates skipped as they come."""
-    out = np.empty(len(keys), np.int64)
-    sizes = np.zeros(len(counts), np.int64)
+def _insert(out: np.ndarray, first: int, written: int, key: int) -> int:
+    """`key` into the sorted unique keys out[first:written] unless there; the new end (an insertion sort step)."""
+    at = written
+    while at > first and out[at - 1] > key:
+        at -= 1
+    if at > first and out[at - 1] == key:
+        return written
+    for k in range(written, at, -1):
+        out[k] = out[k - 1]
+    out[at] = key
+    return written + 1
+
+
+@nb.njit(cache=True, nogil=True)
+def _group_cells(columns: np.ndarray, rows: np.ndarray, n: int, out: np.ndarray, written: int,
+                 marks: np.ndarray) -> int:
+    """The sorted unique keys of the cells (columns[:n], rows[:n]) written to `out` from `written`; the new end. The
+    cells are marked in their bounding box (`marks`, all False, left so) and read back in key order: a footprint's
+    box holds a few dozen cells, and marking has none of an insertion sort's unforeseeable branches; a larger box
+    is insertion sorted."""
+    if n == 0:
+        return written
+    c0, c1, r0, r1 = columns[0], columns[0], rows[0], rows[0]
+    for m in range(1, n):
+        c0, c1 = min(c0, columns[m]), max(c1, columns[m])
+        r0, r1 = min(r0, rows[m]), max(r1, rows[m])
+    height = r1 - r0 + 1
+    if (c1 - c0 + 1) * height > len(marks):
+        first = written
+        for m in range(n):
+            written = _insert(out, first, written, (columns[m] + _OFFSET) * _ROW + rows[m] + _OFFSET)
+        return written
+    for m in range(n):
+        marks[(columns[m] - c0) * height + rows[m] - r0] = True
+    for c in range(c1 - c0 + 1):
+        for r in range(height):
+            if marks[c * height + r]:
+                marks[c * height + r] = False
+                out[written] = (c0 + c + _OFFSET) * _ROW + r0 + r + _OFFSET
+                written += 1
+    return written
+
+
+@nb.njit(cache=True, nogil=True)
+def _unique_groups(xy: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each group's sorted unique cell keys (`point_cells` of groups of `counts` consecutive points), one group after
+    another, and where each starts (the end last)."""
+    out = np.empty(len(xy), np.int64)
+    starts = np.zeros(len(counts) + 1, np.int64)
+    longest = 0
+    for g in range(len(counts)):
+        longest = max(longest, counts[g])
+    columns, rows = np.empty(longest, np.int64), np.empty(longest, np.int64)
+    marks = np.zeros(MARKS, np.bool_)
     start = 0
     written = 0
     for g in range(len(counts)):
-        first = written
-        for m in range(start, start + counts[g]):
-            key = keys[m]
-            at = written
-            while at > first and out[at - 1] > key:
-                at -= 1
-            if at > first and out[at - 1] == key:
-                continue
-            for k in range(written, at, -1):
-                out[k] = out[k - 1]
-            out[at] = key
-            written += 1
+        for m in range(counts[g]):
+            columns[m] = np.int64(np.floor(xy[start + m, 0] / CELL_M))
+            rows[m] = np.int64(np.floor(xy[start + m, 1] / CELL_M))
+        written = _group_cells(columns, rows, counts[g], out, written, marks)
         start += counts[g]
-        sizes[g] = written - first
-    return out[:written], sizes
+        starts[g + 1] = written
+    return out[:written], starts
+
+
+@nb.njit(cache=True, nogil=True)
+def rows_cells(xy: np.ndarray, counts: np.ndarray, rows: np.ndarray,
+               shift: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`cell_sets` of footprints kept as rows of `xy` (R, L, 2), row r's first counts[r] points: those of `rows`, row r
+    moved by shift[r, :2] (a track's remembered offsets carried to its predicted centre)."""
+    total = 0
+    for r in rows:
+        total += counts[r]
+    out = np.empty(total, np.int64)
+    starts = np.zeros(len(rows) + 1, np.int64)
+    columns, cell_rows = np.empty(xy.shape[1], np.int64), np.empty(xy.shape[1], np.int64)
+    marks = np.zeros(MARKS, np.bool_)
+    written = 0
+    for g in range(len(rows)):
+        r = rows[g]
+        for m in range(counts[r]):
+            columns[m] = np.int64(np.floor((xy[r, m, 0] + shift[r, 0]) / CELL_M))
+            cell_rows[m] = np.int64(np.floor((xy[r, m, 1] + shift[r, 1]) / CELL_M))
+        written = _group_cells(columns, cell_rows, counts[r], out, written, marks)
+        starts[g + 1] = written
+    return out[:written], starts
+
+
+@nb.njit(cache=True, nogil=True)
+def keep_rows(xy: np.ndarray, chosen: np.ndarray, kept: np.ndarray, rows: np.ndarray, centres: np.ndarray,
+              into: np.ndarray, counts: np.ndarray) -> None:
+    """Footprints kept as rows (`rows_cells`): object k's points xy[chosen] (kept[k] of them, one object's after
+    another) less its row's centre (centres[rows[k], :2]) into row rows[k] of `into`, its count into `counts`; an
+    object of no points keeps its row's footprint."""
+    start = 0
+    for k in range(len(kept)):
+        r = rows[k]
+        if kept[k]:
+            for m in range(kept[k]):
+                into[r, m, 0] = xy[chosen[start + m], 0] - centres[r, 0]
+                into[r, m, 1] = xy[chosen[start + m], 1] - centres[r, 1]
+            counts[r] = kept[k]
+        start += kept[k]
 
 
 @nb.njit(cache=True, nogil=True)
@@ -141,33 +222,45 @@ def footprint_members(members: np.ndarray, owner: np.ndarray, count: int, limit:
     """Each object's footprint points among its `members` (in their order; `owner` each one's object, 0 .. count - 1),
     one object's after another, and how many each has: first thinned to about 2 x `limit` of each object's points by
     a fixed hash of the point's index (frac(index x golden ratio) below the object's share), then of the rest the first
-    of each run sharing rank * limit // total: at most `limit` spread over the object, in two passes and no sort."""
+    of each run sharing rank * limit // total: at most `limit` spread over the object. The members are put in their
+    objects' order first (a stable counting sort), so each object is then one short run of memory, read twice."""
     total = np.zeros(count, np.int64)
     for k in owner:
         total[k] += 1
-    share = np.minimum(1.0, 2 * limit / np.maximum(total, 1))
-    thin = np.empty(len(members), np.bool_)
-    left = np.zeros(count, np.int64)
+    at = _starts(total)
+    ordered = np.empty(len(members), members.dtype)
     for m in range(len(members)):
-        x = members[m] * GOLDEN
-        thin[m] = x - np.floor(x) < share[owner[m]]
-        if thin[m]:
-            left[owner[m]] += 1
-    kept = np.minimum(left, limit)
-    start = _starts(kept)
-    out = np.empty(int(kept.sum()), members.dtype)
-    rank = np.zeros(count, np.int64)
-    for m in range(len(members)):
-        if not thin[m]:
-            continue
-        k = owner[m]
-        r = rank[k]
-        rank[k] += 1
-        n = left[k]
-        if n <= limit or r == 0 or (r * limit) // n != ((r - 1) * limit) // n:
-            out[start[k]] = members[m]
-            start[k] += 1
-    return out, kept
+        ordered[at[owner[m]]] = members[m]
+        at[owner[m]] += 1
+    thin = np.empty(len(members), members.dtype)
+    out = np.empty(len(members), members.dtype)
+    kept = np.zeros(count, np.int64)
+    written = 0
+    start = 0
+    for k in range(count):
+        share = min(1.0, 2 * limit / max(total[k], 1))
+        left = 0
+        for m in range(start, start + total[k]):
+            x = ordered[m] * GOLDEN
+            thin[left] = ordered[m]
+            left += x - np.floor(x) < share
+        start += total[k]
+        first = written
+        if left <= limit:
+            out[written:written + left] = thin[:left]
+            written += left
+        elif limit > 0:
+            out[written] = thin[0]
+            written += 1
+            rest = 0  # rank * limit modulo left, kept as the rank grows: a new run where it passes left
+            for r in range(1, left):
+                rest += limit
+                run = rest >= left
+                rest -= left * run
+                out[written] = thin[r]
+                written += run
+        kept[k] = written - first
+    return out[:written], kept
 
 
 def nearest_owner(xy: np.ndarray, footprints: Sequence[np.ndarray]) -> np.ndarray:
@@ -193,18 +286,10 @@ def _nearest(xy: np.ndarray, every: np.ndarray) -> np.ndarray:
     return out
 
 
-def shared_cells(first: Sequence[np.ndarray], second: Sequence[np.ndarray]) -> np.ndarray:
+def shared_cells(first: tuple[np.ndarray, np.ndarray], second: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """(len(first), len(second)) counts of the cells each footprint of `first` shares with each of `second` (both
-    lists of `cells` keys)."""
-    if not len(first) or not len(second):
-        return np.zeros((len(first), len(second)), np.int64)
-    return _shared(*_flat(first), *_flat(second))
-
-
-def _flat(groups: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Several key arrays as one, and where each starts (with the end last)."""
-    sizes = [len(g) for g in groups]
-    return (np.concatenate(groups) if sum(sizes) else np.zeros(0, np.int64)), np.cumsum([0, *sizes])
+    `cell_sets`: keys, starts)."""
+    return _shared(first[0], first[1], second[0], second[1])
 
 
 @nb.njit(cache=True, nogil=True)
@@ -242,10 +327,3 @@ def matching(keys: np.ndarray, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarr
     ends = np.cumsum(count)
     total = int(ends[-1]) if len(ends) else 0
     return np.repeat(left, count) + np.arange(total) - np.repeat(ends - count, count), count
-
-
-def overlap(first: Sequence[np.ndarray], second: Sequence[np.ndarray]) -> np.ndarray:
-    """Shared cells over the smaller footprint of each pair (0..1): 1 when one footprint lies within the other."""
-    shared = shared_cells(first, second)
-    smaller = np.minimum(np.array([len(k) for k in first])[:, None], np.array([len(k) for k in second])[None, :])
-    return shared / np.maximum(smaller, 1)

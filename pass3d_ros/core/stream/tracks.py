@@ -28,12 +28,14 @@ sighting's class; a change needs the new class to lead the window's vote. Parts 
 
 With a pose per scan (world from sensor, 4 x 4: odometry), tracks live in the world frame and the ego's own motion is
 no object's; without one, in the sensor's frame, where the filter's velocity absorbs the ego's.
+
+A track's numbers live in a row of the stream's `TrackStore` (`track_store`), so each step above is one compiled call
+or numpy operation over all tracks (`kalman`, `association`, `footprints`), not a Python call per track.
 """
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 from typing import NamedTuple
 
@@ -42,27 +44,28 @@ from scipy.optimize import linear_sum_assignment
 
 from pass3d_ros.classes import CAR, CYCLIST, MEAN_SIZE, NUM_CLASSES, PEDESTRIAN
 from pass3d_ros.core.stream import kalman
+from pass3d_ros.core.stream.association import covering, margins
 from pass3d_ros.core.stream.footprints import (
     CELL_M,
-    MAX_POINTS,
     Footprints,
+    cell_sets,
     cells,
     evenly_spaced,
     extent,
-    grouped_cells,
+    keep_rows,
     matching,
     nearest_owner,
-    overlap,
     pieces,
     point_cells,
+    rows_cells,
     shared_cells,
 )
+from pass3d_ros.core.stream.track_store import FOOTPRINT_POINTS, Track, TrackStore, new_views
 
 LONG_M = 3.0  # a class this long on average (a car) moves its box centre by metres when seen from another side; a
 # person's or a rider's moves less than a centre's error
 LONG_CLASS = np.array([MEAN_SIZE.get(label, (0.0,))[0] >= LONG_M for label in range(NUM_CLASSES)])  # per class id
 COS_HEADING = float(np.cos(np.radians(30.0)))  # "along the heading": within 30 degrees of it
-MIN_WEIGHT = 1e-3  # a sighting's least weight in the vote (a confidence of 0 still counts)
 MIN_MARGIN_M = 0.05  # the margin of a pair matched beyond its gate by its footprint (`Tracker._associate`)
 
 
@@ -122,74 +125,22 @@ class TrackerConfig:
         return float(self.gates[label])
 
     @cached_property
+    def never(self) -> np.ndarray:
+        """(NUM_CLASSES, NUM_CLASSES): whether a track and a detection of these classes never match (`never_match`,
+        either way round)."""
+        table = np.zeros((NUM_CLASSES, NUM_CLASSES), bool)
+        for a, b in self.never_match:
+            table[a, b] = table[b, a] = True
+        return table
+
+    @cached_property
     def gates(self) -> np.ndarray:
         """The gate of each class id, as `gate` says (one array: a scan looks up every detection's at once)."""
         widest = max(g for _, g in self.gate_m)
         return np.array([dict(self.gate_m).get(label, widest) for label in range(NUM_CLASSES)])
 
 
-@dataclass
-class Track:
-    """One object over time: its filter state in the tracking frame and its sightings."""
-
-    track_id: int
-    state: np.ndarray  # (4,) x, y, vx, vy
-    cov: np.ndarray  # (4, 4)
-    z: float  # the box centre's height
-    size: tuple[float, float, float]
-    votes: deque = field(default_factory=deque)  # (label, confidence) of the recent sightings
-    hits: int = 1
-    misses: int = 0
-    held: int = 0  # scans in a row the track was held by background points (no detection of its own)
-    hold_from: int = 0  # the sightings it needs before it may be held (a track found again is confirmed anew)
-    offsets: np.ndarray | None = None  # (M, 2) its last points' x, y less its centre: the footprint it carries
-    stamp_s: float = 0.0
-    _label: int = -1  # the vote's result and its share, made again when a sighting is added
-    _score: float = 0.0
-    _weight: list[float] = field(default_factory=lambda: [0.0] * NUM_CLASSES)  # the window's weight per class
-
-    def __post_init__(self) -> None:
-        for label, confidence in self.votes:
-            self._weight[label] += max(confidence, MIN_WEIGHT)
-
-    def sighting(self, label: int, confidence: float) -> None:
-        """Add a sighting to the vote (the window's weights kept as it slides)."""
-        if len(self.votes) == self.votes.maxlen:
-            gone, weight = self.votes[0]
-            self._weight[gone] -= max(weight, MIN_WEIGHT)
-        self.votes.append((label, confidence))
-        self._weight[label] += max(confidence, MIN_WEIGHT)
-        self._label = -1
-
-    def label(self) -> int:
-        """The confidence-weighted vote of the recent sightings (the first sighting's class wins a tie)."""
-        if self._label < 0:
-            self._vote()
-        return self._label
-
-    def score(self) -> float:
-        """The voted class's share of the vote weight."""
-        if self._label < 0:
-            self._vote()
-        return self._score
-
-    def confidence(self) -> float:
-        """The mean confidence of the recent sightings of the voted class."""
-        label = self.label()
-        mine = [confidence for vote, confidence in self.votes if vote == label]
-        return sum(mine) / len(mine) if mine else 0.0
-
-    def _vote(self) -> None:
-        weight = self._weight
-        first = self.votes[0][0]
-        best = max(range(NUM_CLASSES), key=weight.__getitem__)
-        self._label = first if weight[first] >= weight[best] else best
-        total = sum(weight)
-        self._score = weight[self._label] / total if total else 0.0
-
-
-@dataclass(frozen=True)
-class Tracked:
+class Tracked(NamedTuple):
     """What the tracker says of one detection of the scan: its track, the track's voted class and score, and whether
     the track is confirmed (a tentative track's id is not yet worth publishing)."""
 
@@ -210,6 +161,15 @@ class ScanTracks(NamedTuple):
     merged: dict[int, list[tuple[Tracked, np.ndarray]]] | None = None
 
 
+class _Shared(NamedTuple):
+    """A scan's footprint cells shared by each track (predicted) and each detection, counted once for the matching,
+    the parts and the merged objects: `cells` (T, K), each track's and each detection's cell count."""
+
+    cells: np.ndarray
+    tracks: np.ndarray
+    detections: np.ndarray
+
+
 class _Frame:
     """Sensor frame -> tracking frame: the pose (world from sensor) when known, else none."""
 
@@ -227,12 +187,6 @@ class _Frame:
         return xy if self.pose is None else xy @ self.pose[:2, :2].T + self.pose[:2, 3]
 
 
-def _track_cells(tracks: Sequence[Track]) -> list[np.ndarray]:
-    """Each track's footprint cells where its points are predicted now (none without points), all at once."""
-    offsets = [np.zeros((0, 2)) if t.offsets is None else t.state[:2] + t.offsets for t in tracks]
-    return grouped_cells(np.concatenate(offsets) if offsets else np.zeros((0, 2)), [len(o) for o in offsets])
-
-
 class Tracker:
     """The tracks of one stream (module docstring). `update` takes a scan's detections (centre, size, class,
     confidence) and its stamp, and says each detection's track; `alive`, `born`, `lost` count for diagnostics."""
@@ -243,7 +197,9 @@ class Tracker:
 
     def reset(self) -> None:
         """Forget every track (a new stream); ids start over."""
+        self.store = TrackStore(self.config.vote_window)
         self.tracks: list[Track] = []
+        self._rows, self._rows_of = np.zeros(0, np.int64), self.tracks  # `_live`
         self.ended: list[Track] = []  # confirmed tracks ended less than reid_misses scans ago (`_revive`)
         self._next_id = 0
         self.born = 0
@@ -252,7 +208,7 @@ class Tracker:
     @property
     def alive(self) -> int:
         """Confirmed tracks now."""
-        return sum(1 for t in self.tracks if t.hits >= self.config.min_hits)
+        return int((self.store.hits[self._live()] >= self.config.min_hits).sum())
 
     def update(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
                stamp_s: float, pose: np.ndarray | None = None,
@@ -272,79 +228,123 @@ class Tracker:
         to_world = _Frame(pose)
         centers = to_world.points(np.asarray(centers, dtype=np.float64).reshape(-1, 3))
         sizes = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
-        world = detections = None
+        world = detections = shared = None
         if footprints is not None:
             world = Footprints(to_world.xy(footprints.xy), footprints.counts)
-            detections = grouped_cells(world.xy, world.counts)
+            detections = cell_sets(world.xy, world.counts)
         self._predict_all(stamp_s)
         tracks = self._footprints()
-        pairs = self._associate(centers, labels, tracks, detections)
-        matched = {d: t for t, d in pairs}
-        self._correct_all([self.tracks[t] for t, _ in pairs], centers[[d for _, d in pairs]],
-                          sizes[[d for _, d in pairs]])
-        parts = self._parts(matched, tracks, detections)
+        if tracks is not None and detections is not None:
+            shared = _Shared(shared_cells(tracks, detections), np.diff(tracks[1]), np.diff(detections[1]))
+        rows, cols = self._associate(centers, labels, shared)
+        matched = dict(zip(cols.tolist(), rows.tolist(), strict=True))
+        self._correct_all(self._live()[rows], centers[cols], sizes[cols])
+        confirmed = self.store.hits[self._live()] >= self.config.min_hits
+        parts = self._parts(matched, shared, confirmed)
         if self.config.part_extent is not None:
             parts.update(self._ends(matched, parts, labels, world))
-        covered = self._covered(matched, parts, labels, tracks, detections)
-        out: list[Tracked] = []
-        seen: set[int] = {self.tracks[u].track_id for others in covered.values() for u in others}
-        for d in range(len(centers)):
-            if d in parts:
-                track = self.tracks[parts[d]]
-            else:
-                track = self.tracks[matched[d]] if d in matched else self._revive(
-                    centers[d], sizes[d], int(labels[d]), stamp_s, None if detections is None else detections[d])
-                if track is None:
-                    track = self._birth(centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
-                else:
-                    self._sighted(track, centers[d], tuple(sizes[d]), int(labels[d]), float(scores[d]), stamp_s)
-            seen.add(track.track_id)
-            out.append(self._said(track))
+        covered = self._covered(matched, parts, labels, shared, confirmed)
+        rows, early = self._sightings(centers, sizes, labels, scores, stamp_s, matched, parts, detections)
+        out = self._said_all(rows, early)
+        seen = {self.tracks[u].track_id for others in covered.values() for u in others}
+        seen.update(self.store.track_id[self._live()[rows]].tolist())
         merged = self._merged_footprints(matched, covered, to_world)
         if footprints is not None:
-            self._keep_footprints(out, world, merged)
+            self._keep_footprints(rows, world, merged)
         held_out = self._hold(background, seen, stamp_s, to_world) if background is not None else []
-        for track in self.tracks:
-            if track.track_id not in seen:
-                track.misses += 1
-        for track in self.ended:
-            track.misses += 1
-        ended = [t for t in self.tracks if t.misses > self.config.max_misses]
-        self.lost += sum(1 for t in ended if t.hits >= self.config.min_hits)
-        self.tracks = [t for t in self.tracks if t.misses <= self.config.max_misses]
-        self.ended = [t for t in self.ended if t.misses <= self.config.reid_misses]
-        self.ended += [t for t in ended if t.hits >= self.config.min_hits and self.config.reid_misses > t.misses]
+        self._age(seen)
         return ScanTracks(out, held_out, merged)
+
+    def _sightings(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
+                   stamp_s: float, matched: dict[int, int], parts: dict[int, int],
+                   detections: tuple[np.ndarray, np.ndarray] | None) -> tuple[list[int], dict[int, Tracked]]:
+        """Each detection's track (its row in `tracks`): a matched track sighted (all at once), a part its object's
+        track, any other a track found again (`_revive`) or born, in detection order. Also what the tracker says of
+        the parts that come before their object's own detection (said before that detection's sighting)."""
+        own = {t: d for d, t in matched.items()}
+        early = {d: self._said(self.tracks[t]) for d, t in parts.items() if own[t] > d}
+        ds = sorted(matched)
+        self._sighted(self._live()[[matched[d] for d in ds]], centers[ds], sizes[ds],
+                      np.asarray(labels, dtype=np.int64)[ds], np.asarray(scores, dtype=np.float64)[ds], stamp_s)
+        rows = []
+        for d in range(len(centers)):
+            if d in parts:
+                rows.append(parts[d])
+                continue
+            if d in matched:
+                rows.append(matched[d])
+                continue
+            track = self._revive(centers[d], sizes[d], int(labels[d]), stamp_s,
+                                 None if detections is None else detections[0][detections[1][d]:detections[1][d + 1]])
+            if track is None:
+                self._birth(centers[d], sizes[d], int(labels[d]), float(scores[d]), stamp_s)
+            else:
+                self._sighted(np.array([track.slot]), centers[d:d + 1], sizes[d:d + 1], np.array([int(labels[d])]),
+                              np.array([float(scores[d])]), stamp_s)
+            rows.append(len(self.tracks) - 1)
+        return rows, early
+
+    def _said_all(self, rows: list[int], early: dict[int, Tracked]) -> list[Tracked]:
+        """What the tracker says of each detection's track (`rows`), all voted at once; `early` as `_sightings`."""
+        slots = self._live()[rows]
+        label, score = self.store.voted(slots)
+        ids, confirmed = self.store.track_id[slots].tolist(), (self.store.hits[slots] >= self.config.min_hits).tolist()
+        out = list(map(Tracked, ids, label.tolist(), score.tolist(), confirmed))
+        for d, said in early.items():
+            out[d] = said
+        return out
+
+    def _age(self, seen: set[int]) -> None:
+        """A miss for each track not seen this scan and each ended one; tracks unseen max_misses scans end (the
+        confirmed ones may be found again for reid_misses scans), ended ones unseen reid_misses are forgotten."""
+        store, live = self.store, self._live()
+        unseen = [s for s, i in zip(live.tolist(), store.track_id[live].tolist(), strict=True) if i not in seen]
+        store.misses[unseen + [t.slot for t in self.ended]] += 1
+        gone = store.misses[live] > self.config.max_misses
+        if not self.ended and not gone.any():
+            return  # nothing ends, nothing is forgotten (the list of tracks stays as it is)
+        ended = [t for t, g in zip(self.tracks, gone.tolist(), strict=True) if g]
+        self.lost += sum(1 for t in ended if t.hits >= self.config.min_hits)
+        self.tracks = [t for t, g in zip(self.tracks, gone.tolist(), strict=True) if not g]
+        kept = [t for t in self.ended if t.misses <= self.config.reid_misses]
+        found = [t for t in ended if t.hits >= self.config.min_hits and self.config.reid_misses > t.misses]
+        store.release([t.slot for t in self.ended if t.misses > self.config.reid_misses]
+                      + [t.slot for t in ended if not (t.hits >= self.config.min_hits
+                                                      and self.config.reid_misses > t.misses)])
+        self.ended = kept + found
+
+    @staticmethod
+    def _slots(tracks: Sequence[Track]) -> np.ndarray:
+        """The store rows of `tracks`."""
+        return np.array([t.slot for t in tracks], dtype=np.int64)
+
+    def _live(self) -> np.ndarray:
+        """The store rows of `tracks`, made again only when the list changed (a track born, found again or ended)."""
+        if self._rows_of is not self.tracks or len(self._rows) != len(self.tracks):
+            self._rows, self._rows_of = self._slots(self.tracks), self.tracks
+        return self._rows
 
     def _said(self, track: Track) -> Tracked:
         """What the tracker says of a track this scan: its id, voted class and score, whether it is confirmed."""
         return Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits)
 
     def _covered(self, matched: dict[int, int], parts: dict[int, int], labels: Sequence[int],
-                 tracks: list[np.ndarray] | None, detections: list[np.ndarray] | None) -> dict[int, list[int]]:
+                 shared: _Shared | None, confirmed: np.ndarray) -> dict[int, list[int]]:
         """Matched detections that cover another confirmed track's object too (stage 1 joined two cars parked side
         by side): merge_cover of that track's predicted footprint cells inside the detection's, the track of the
-        detection's class, matched to no other detection that holds more of its cells. detection -> track indices."""
-        if self.config.merge_cover is None or tracks is None or detections is None or not matched:
+        detection's class, matched to no other detection that holds more of its cells. detection -> track indices.
+        `confirmed`: whether each track is."""
+        if self.config.merge_cover is None or shared is None or not matched:
             return {}
-        confirmed = [u for u, t in enumerate(self.tracks) if t.hits >= self.config.min_hits and len(tracks[u])]
-        if not confirmed:
-            return {}
-        ds = sorted(matched)
-        shared = shared_cells([tracks[u] for u in confirmed], [detections[d] for d in ds])
-        cover = shared / np.maximum([len(tracks[u]) for u in confirmed], 1)[:, None]
-        owner = {t: d for d, t in matched.items()}
+        det_track = np.full(len(shared.detections), -1, np.int64)
+        det_track[list(matched)] = list(matched.values())
         out: dict[int, list[int]] = {}
-        bests = np.argmax(cover, axis=1)
-        for i in np.flatnonzero(cover[np.arange(len(confirmed)), bests] >= self.config.merge_cover):
-            u, best = confirmed[i], int(bests[i])  # the few tracks half inside some detection: their own, mostly
-            d = ds[best]
-            if matched[d] == u:
-                continue
+        taken = set(parts.values())
+        for u, d, most, mine in zip(*(a.tolist() for a in covering(
+                shared.cells, shared.tracks, confirmed, det_track, self.config.merge_cover)), strict=True):
             if self.tracks[u].label() != int(labels[d]) or self.tracks[matched[d]].label() != int(labels[d]):
                 continue
-            mine = owner.get(u)
-            if (mine is not None and cover[i, ds.index(mine)] >= cover[i, best]) or u in parts.values():
+            if mine >= most or u in taken:
                 continue  # its own detection holds as much of it, or it took a part: not covered here
             out.setdefault(d, []).append(u)
         return out
@@ -373,78 +373,87 @@ class Tracker:
         scans of its last sighting): its predicted centre within the class's gate of the detection's, or its last
         footprint sharing match_overlap of the cells. Such a track lives again, corrected by the detection; else
         None. Ended tracks take part in no other matching: a neighbour's fragment never takes a lost track's id."""
-        best, best_distance = None, np.inf
-        for track in self.ended:
-            if track.label() != label:
-                continue
-            dt = min(stamp_s - track.stamp_s, self.config.max_dt_s)
-            predicted = track.state[:2] + track.state[2:] * max(dt, 0.0)
-            distance = float(np.hypot(*(predicted - center[:2])))
-            near = distance <= self.config.gate(label)
-            if not near and footprint is not None and track.offsets is not None:
-                near = overlap([cells(predicted + track.offsets)], [footprint])[0, 0] >= self.config.match_overlap
-                distance = min(distance, self.config.gate(label))
-            if near and distance < best_distance:
-                best, best_distance = track, distance
-        if best is None:
+        if not self.ended:
             return None
+        store, slots = self.store, self._slots(self.ended)
+        mine = np.flatnonzero(store.voted(slots)[0] == label)
+        if not len(mine):
+            return None
+        slots = slots[mine]
+        dt = np.maximum(np.minimum(stamp_s - store.stamp[slots], self.config.max_dt_s), 0.0)
+        predicted = store.state[slots, :2] + store.state[slots, 2:] * dt[:, None]
+        distance = np.hypot(predicted[:, 0] - center[0], predicted[:, 1] - center[1])
+        gate = self.config.gate(label)
+        near = distance <= gate
+        far = np.flatnonzero(~near & (store.points[slots] > 0)) if footprint is not None else []
+        if len(far):  # beyond the gate: its last footprint, moved with it, sharing match_overlap of the cells
+            moved = np.zeros((len(store.state), 2))
+            moved[slots[far]] = predicted[far]
+            keys, starts = rows_cells(store.offsets, store.points, slots[far], moved)
+            shared = shared_cells((keys, starts), (footprint, np.array([0, len(footprint)])))[:, 0]
+            near[far] = shared / np.maximum(np.minimum(np.diff(starts), len(footprint)), 1) >= self.config.match_overlap
+            distance[far] = np.minimum(distance[far], gate)
+        found = np.flatnonzero(near)
+        if not len(found):
+            return None
+        best = self.ended[int(mine[found[np.argmin(distance[found])]])]
         self.ended.remove(best)
         self._predict_all(stamp_s, [best])
-        self._correct_all([best], center[None, :], np.asarray(size, dtype=np.float64)[None, :])
+        self._correct_all(np.array([best.slot]), center[None, :], np.asarray(size, dtype=np.float64)[None, :])
         best.misses = 0
         best.hold_from = best.hits + self.config.min_hits  # this sighting the first of min_hits
         self.tracks.append(best)
         return best
 
-    def _footprints(self) -> list[np.ndarray] | None:
-        """Each track's footprint cells where its points are predicted now (its last points moved with its filter);
-        an empty footprint for a track without points; None when no track has any."""
-        if not any(t.offsets is not None for t in self.tracks):
+    def _footprints(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Each track's footprint cells where its points are predicted now (its last points moved with its filter;
+        `cell_sets`): an empty footprint for a track without points; None when no track has any."""
+        slots = self._live()
+        if not self.store.points[slots].any():
             return None
-        return _track_cells(self.tracks)
+        return self._cells(slots)
 
-    def _associate(self, centers: np.ndarray, labels: Sequence[int], tracks: list[np.ndarray] | None = None,
-                   detections: list[np.ndarray] | None = None) -> list[tuple[int, int]]:
-        """(track index, detection index) pairs: a pair's cost is its centre distance (plus class_penalty_m for
-        another class) times 1 - the share of footprint cells it shares; a pair may match within the detection's
-        gate, or beyond it when its footprints share match_overlap of their cells. The pairs chosen have the most
-        summed margin (gate less cost; MIN_MARGIN_M beyond the gate): a pair is worth its margin, leaving both
-        unmatched nothing, so two poor pairs never beat one good one (a least summed cost would match as many as it
-        can: a track taking a neighbour's fragment so that its own object's track can take the other)."""
+    def _cells(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The footprint cells of the tracks of `slots` where their points are predicted now (`cell_sets`)."""
+        return rows_cells(self.store.offsets, self.store.points, slots, self.store.state)
+
+    def _associate(self, centers: np.ndarray, labels: Sequence[int],
+                   shared: _Shared | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The matched pairs' track indices and detection indices: a pair's cost is its centre distance (plus
+        class_penalty_m for another class) times 1 - the share of footprint cells it shares; a pair may match within
+        the detection's gate, or beyond it when its footprints share match_overlap of their cells. The pairs chosen
+        have the most summed margin (gate less cost; MIN_MARGIN_M beyond the gate): a pair is worth its margin, leaving
+        both unmatched nothing, so two poor pairs never beat one good one (a least summed cost would match as many as
+        it can: a track taking a neighbour's fragment so that its own object's track can take the other)."""
         if not self.tracks or len(centers) == 0:
-            return []
-        predicted = np.array([t.state[:2] for t in self.tracks])
-        cost = np.linalg.norm(predicted[:, None, :] - centers[None, :, :2], axis=2)
-        track_labels = np.array([t.label() for t in self.tracks])
-        det_labels = np.asarray(labels)
-        cost = cost + self.config.class_penalty_m * (track_labels[:, None] != det_labels[None, :])
-        allowed = cost <= self.config.gates[det_labels][None, :]
-        if tracks is not None and detections is not None:
-            share = overlap(tracks, detections)
-            allowed |= share >= self.config.match_overlap
-            cost = cost * (1.0 - share)
-        for a, b in self.config.never_match:  # neither the centres nor the footprints match these classes
-            allowed &= ~(((track_labels == a)[:, None] & (det_labels == b)[None, :])
-                         | ((track_labels == b)[:, None] & (det_labels == a)[None, :]))
-        hits = np.array([t.hits for t in self.tracks], dtype=np.float64)
-        cost = cost + self.config.youth_penalty_m * np.clip(1.0 - hits / self.config.mature_hits, 0.0, 1.0)[:, None]
-        margin = np.where(allowed, np.maximum(self.config.gates[det_labels][None, :] - cost, MIN_MARGIN_M), 0.0)
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        slots = self._live()
+        none, empty = np.zeros((0, 0), np.int64), np.zeros(0, np.int64)
+        config = self.config
+        margin, allowed = margins(
+            self.store.state[slots, :2], centers, self.store.voted(slots)[0], np.asarray(labels, dtype=np.int64),
+            none if shared is None else shared.cells, empty if shared is None else shared.tracks,
+            empty if shared is None else shared.detections, self.store.hits[slots].astype(np.float64), config.gates,
+            config.never, config.class_penalty_m, config.match_overlap, config.youth_penalty_m,
+            float(config.mature_hits), MIN_MARGIN_M)
         rows, cols = linear_sum_assignment(margin, maximize=True)
-        return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if allowed[r, c]]
+        keep = allowed[rows, cols]
+        return rows[keep], cols[keep]
 
-    def _parts(self, matched: dict[int, int], tracks: list[np.ndarray] | None,
-               detections: list[np.ndarray] | None) -> dict[int, int]:
+    def _parts(self, matched: dict[int, int], shared: _Shared | None, confirmed: np.ndarray) -> dict[int, int]:
         """Unmatched detections that are part of a confirmed track another detection matched this scan: most of
-        their cells (part_overlap) on the track's footprint (a car stage 1 cut in two). detection -> track index."""
-        if tracks is None or detections is None:
+        their cells (part_overlap) on the track's footprint (a car stage 1 cut in two). detection -> track index.
+        `confirmed`: whether each track is."""
+        if shared is None:
             return {}
-        taken = sorted(set(matched.values()))
-        free = [d for d in range(len(detections)) if d not in matched]
-        confirmed = [t for t in taken if self.tracks[t].hits >= self.config.min_hits]
-        if not free or not confirmed:
+        free = [d for d in range(len(shared.detections)) if d not in matched]
+        if not free:
             return {}
-        shared = shared_cells([tracks[t] for t in confirmed], [detections[d] for d in free])
-        share = shared / np.maximum([len(detections[d]) for d in free], 1)[None, :]
+        taken = np.unique(np.fromiter(matched.values(), np.int64, len(matched)))
+        confirmed = taken[confirmed[taken]].tolist()
+        if not confirmed:
+            return {}
+        share = shared.cells[np.ix_(confirmed, free)] / np.maximum(shared.detections[free], 1)[None, :]
         best = np.argmax(share, axis=0)
         return {d: confirmed[int(best[k])] for k, d in enumerate(free)
                 if share[best[k], k] >= self.config.part_overlap}
@@ -463,19 +472,22 @@ class Tracker:
             return {}
         points = world.split()
         by_track: dict[int, list[int]] = {}  # confirmed tracks of a class with a size: their detections this scan
+        track_label: dict[int, int] = {}
         for d, t in matched.items():
             track = self.tracks[t]
             if track.hits >= self.config.min_hits and self.config.extent_limit(track.label()) is not None:
                 by_track.setdefault(t, []).append(d)
+                track_label[t] = track.label()
         out: dict[int, int] = {}
         for d in free:
             best, best_length = -1, np.inf
+            centre = points[d].mean(axis=0)
             for t, mine in by_track.items():
-                track = self.tracks[t]
-                if track.label() != int(labels[d]):
+                if track_label[t] != int(labels[d]):
                     continue
-                limit = self.config.extent_limit(track.label())
-                near = np.linalg.norm(points[d].mean(axis=0) - track.state[:2]) <= limit[0]
+                track = self.tracks[t]
+                limit = self.config.extent_limit(track_label[t])
+                near = np.linalg.norm(centre - track.state[:2]) <= limit[0]
                 if not near:
                     continue
                 remembered = [track.state[:2] + track.offsets] if track.offsets is not None else []
@@ -492,25 +504,23 @@ class Tracker:
                 out[d] = best
         return out
 
-    def _keep_footprints(self, out: list[Tracked], world: Footprints,
+    def _keep_footprints(self, rows: list[int], world: Footprints,
                          merged: dict[int, list[tuple[Tracked, np.ndarray]]] | None = None) -> None:
         """Each seen track's footprint: its detections' points (parts included; tracking frame), at most 2 x
         MAX_POINTS evenly spaced, as offsets from its centre; a merged detection's points go to the track whose
-        predicted footprint is nearest (`nearest_owner`)."""
-        rows = {t.track_id: k for k, t in enumerate(self.tracks)}
-        owner = np.repeat(np.array([rows[t.track_id] for t in out], dtype=np.int64), world.counts)
+        predicted footprint is nearest (`nearest_owner`); `rows` each detection's track."""
+        owner = np.repeat(np.array(rows, dtype=np.int64), world.counts)
         if merged:
+            index = {t.track_id: k for k, t in enumerate(self.tracks)}
             starts = np.concatenate([[0], np.cumsum(world.counts)])
             for d, entries in merged.items():
-                ids = np.array([rows[said.track_id] for said, _ in entries])
+                ids = np.array([index[said.track_id] for said, _ in entries])
                 xy = world.xy[starts[d]:starts[d + 1]]
                 near = nearest_owner(xy, [self.tracks[k].state[:2] + self.tracks[k].offsets for k in ids])
                 owner[starts[d]:starts[d + 1]] = ids[near]
-        chosen, kept = evenly_spaced(np.arange(len(owner)), owner, len(self.tracks), 2 * MAX_POINTS)
-        centres = np.repeat(np.array([t.state[:2] for t in self.tracks]).reshape(-1, 2), kept, axis=0)
-        for track, offsets, count in zip(self.tracks, pieces(world.xy[chosen] - centres, kept), kept, strict=True):
-            if count:
-                track.offsets = offsets
+        chosen, kept = evenly_spaced(np.arange(len(owner)), owner, len(self.tracks), FOOTPRINT_POINTS)
+        keep_rows(world.xy, chosen, kept, self._live(), self.store.state, self.store.offsets,
+                  self.store.points)
 
     def _hold(self, background: Callable[[np.ndarray, np.ndarray], np.ndarray], seen: set[int], stamp_s: float,
               to_world: _Frame) -> list[tuple[Tracked, np.ndarray]]:
@@ -521,8 +531,9 @@ class Tracker:
         of its last detection (held points never grow it: a track beside a wall would creep along the wall); it may
         be held at most max_held scans in a row, and a track found again after it ended (`_revive`) only once it is
         seen min_hits times more. A point holds one track at most."""
-        waiting = [t for t in self.tracks if t.track_id not in seen and t.offsets is not None
-                   and t.hits >= self.config.min_hits
+        ids = self.store.track_id[self._live()].tolist()
+        unseen = [t for t, i in zip(self.tracks, ids, strict=True) if i not in seen]
+        waiting = [t for t in unseen if t.offsets is not None and t.hits >= self.config.min_hits
                    and t.held < min(self.config.max_held, t.hits) and t.confidence() >= self.config.hold_min_confidence
                    and t.hits >= t.hold_from]
         if not waiting:
@@ -535,7 +546,8 @@ class Tracker:
         keys = point_cells(xyz[:, :2])
         order = np.argsort(keys, kind="stable")  # the points by cell, once: a track's points are then a few ranges of
         keys = keys[order]  # it (a pass over all of them per track took 6 ms a scan)
-        for track, footprint in zip(waiting, _track_cells(waiting), strict=True):
+        keys_at = self._cells(self._slots(waiting))
+        for track, footprint in zip(waiting, pieces(keys_at[0], np.diff(keys_at[1])), strict=True):
             inside = order[matching(keys, footprint)[0]]
             mine = np.sort(inside[free[inside]])  # in a footprint cell: within the track's reach too
             if len(mine) < self.config.hold_points:
@@ -548,7 +560,7 @@ class Tracker:
                 continue
             free[mine] = False
             center = (xyz[mine].min(axis=0) + xyz[mine].max(axis=0)) / 2
-            self._correct_all([track], center[None, :])
+            self._correct_all(np.array([track.slot]), center[None, :])
             track.held += 1
             track.misses = 0
             track.z, track.stamp_s = float(center[2]), stamp_s
@@ -556,12 +568,13 @@ class Tracker:
             out.append((self._said(track), mine))
         return out
 
-    def _birth(self, center: np.ndarray, size: tuple, label: int, score: float, stamp_s: float) -> Track:
+    def _birth(self, center: np.ndarray, size: np.ndarray, label: int, score: float, stamp_s: float) -> Track:
+        """A new tentative track of one sighting, at rest where the detection is, its velocity unknown."""
         r = self.config.measurement_m ** 2
         v = self.config.birth_speed ** 2
-        cov = np.diag([r, r, v, v])
-        track = Track(self._next_id, np.array([center[0], center[1], 0.0, 0.0]), cov, float(center[2]), size,
-                      deque([(label, score)], maxlen=self.config.vote_window), stamp_s=stamp_s)
+        slot = self.store.new(self._next_id, np.array([center[0], center[1], 0.0, 0.0]), np.diag([r, r, v, v]),
+                              float(center[2]), size, label, score, stamp_s)
+        track = Track(self._next_id, slot, self.store)
         self._next_id += 1
         self.tracks.append(track)
         if self.config.min_hits <= 1:
@@ -571,43 +584,28 @@ class Tracker:
     def _predict_all(self, stamp_s: float, tracks: list[Track] | None = None) -> None:
         """Every track's (or `tracks`') state and covariance carried to `stamp_s` (constant velocity; at most max_dt_s
         ahead)."""
-        tracks = self.tracks if tracks is None else tracks
-        if not tracks:
-            return
-        dt = np.clip(stamp_s - np.array([t.stamp_s for t in tracks]), 0.0, self.config.max_dt_s)
-        states, covs = np.array([t.state for t in tracks]), np.array([t.cov for t in tracks])
-        kalman.predict(states, covs, dt, self.config.process_accel)
-        for track, state, cov in zip(tracks, states, covs, strict=True):
-            track.state, track.cov, track.stamp_s = state, cov, stamp_s
+        slots, store = self._live() if tracks is None else self._slots(tracks), self.store
+        kalman.predict_rows(slots, store.state, store.cov, store.stamp, stamp_s, self.config.max_dt_s,
+                            self.config.process_accel)
 
-    def _correct_all(self, tracks: list[Track], centers: np.ndarray, sizes: np.ndarray | None = None) -> None:
-        """The Kalman correction of each matched track by its detection's centre (x, y measured), all at once. With
+    def _correct_all(self, slots: np.ndarray, centers: np.ndarray, sizes: np.ndarray | None = None) -> None:
+        """The Kalman correction of each matched track (its store row) by its detection's centre (x, y measured), all
+        at once. With
         the detections' `sizes`, a box of a long object (LONG_M: a car) whose horizontal edges changed by more than
         `reshape_m` from the track's is a new view of the object: its centre corrects the position (uncertain by half
         the change) and not the velocity (a parked car seen by its rear, then whole, moves its box centre by metres
         while it stands still)."""
-        if not tracks:
+        if not len(slots):
             return
-        states, covs = np.array([t.state for t in tracks]), np.array([t.cov for t in tracks])
-        view = np.zeros(len(tracks))
+        store = self.store
+        view = np.zeros(len(slots))
         if sizes is not None and self.config.reshape_m is not None:
-            before = np.sort(np.array([t.size[:2] for t in tracks]), axis=1)
-            after = np.sort(np.asarray(sizes, dtype=np.float64)[:, :2], axis=1)
-            change = np.abs(after - before).sum(axis=1)
-            long = LONG_CLASS[[t.label() for t in tracks]]
-            view = np.where((change > self.config.reshape_m) & long, (change / 2) ** 2, 0.0)
-        kalman.correct(states, covs, np.ascontiguousarray(centers[:, :2], dtype=np.float64),
-                       self.config.measurement_m ** 2, view)
-        for track, state, cov in zip(tracks, states, covs, strict=True):
-            track.state, track.cov = state, cov
+            view = new_views(slots, store.box, np.ascontiguousarray(sizes, dtype=np.float64),
+                             LONG_CLASS[store.voted(slots)[0]], self.config.reshape_m)
+        kalman.correct_rows(slots, store.state, store.cov, np.ascontiguousarray(centers[:, :2], dtype=np.float64),
+                            self.config.measurement_m ** 2, view)
 
-    def _sighted(self, track: Track, center: np.ndarray, size: tuple, label: int, score: float,
-                 stamp_s: float) -> None:
-        """A corrected track's sighting: its height, extent, vote and counts."""
-        track.z, track.size, track.stamp_s = float(center[2]), size, stamp_s
-        track.sighting(label, score)
-        track.hits += 1
-        track.misses = 0
-        track.held = 0
-        if track.hits == self.config.min_hits:
-            self.born += 1
+    def _sighted(self, slots: np.ndarray, centers: np.ndarray, sizes: np.ndarray, labels: np.ndarray,
+                 scores: np.ndarray, stamp_s: float) -> None:
+        """Corrected tracks' sightings (their store rows), all at once: their height, box, vote and counts."""
+        self.born += self.store.see(slots, centers, sizes, labels, scores, stamp_s, self.config.min_hits)

@@ -2,17 +2,25 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from pass3d_ros.core.stream.footprints import (
+    cell_sets,
     cells,
     evenly_spaced,
     extent,
     footprint_members,
-    grouped_cells,
-    overlap,
+    rows_cells,
     shared_cells,
 )
+
+
+def grouped_cells(xy: np.ndarray, counts: np.ndarray) -> list[np.ndarray]:
+    """`cell_sets` as one array per footprint."""
+    keys, starts = cell_sets(xy, counts)
+    return [keys[a:b] for a, b in itertools.pairwise(starts)]
 
 
 def _groups(rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -29,17 +37,14 @@ def test_grouped_cells_are_each_groups_cells() -> None:
         assert np.array_equal(got, cells(points) if len(points) else np.zeros(0, np.int64))
 
 
-def test_shared_cells_and_overlap_count_what_sets_share() -> None:
+def test_shared_cells_count_what_sets_share() -> None:
     rng = np.random.default_rng(4)
-    first = grouped_cells(*_groups(rng, 12))
-    second = grouped_cells(*_groups(rng, 9))
-    shared = shared_cells(first, second)
-    for i, a in enumerate(first):
-        for j, b in enumerate(second):
+    first_points, second_points = _groups(rng, 12), _groups(rng, 9)
+    shared = shared_cells(cell_sets(*first_points), cell_sets(*second_points))
+    for i, a in enumerate(grouped_cells(*first_points)):
+        for j, b in enumerate(grouped_cells(*second_points)):
             assert shared[i, j] == len(set(a.tolist()) & set(b.tolist()))
     assert shared.sum() > 0, "the random groups overlap somewhere (else this test tests nothing)"
-    share = overlap(first, second)
-    assert np.all((share >= 0) & (share <= 1))
 
 
 def _linspace_sample(members: np.ndarray, limit: int) -> np.ndarray:
@@ -85,3 +90,21 @@ def test_footprint_members_thin_by_the_hash_then_keep_the_first_of_each_rank_run
         assert np.array_equal(chosen[start:start + kept[k]], want) and kept[k] == min(len(mine), 64)
         start += kept[k]
     assert kept[2] == 0 and kept.max() == 64
+
+
+def test_wide_footprints_and_footprints_kept_as_rows_give_their_points_cells() -> None:
+    """A footprint too wide to sort by marking its cells gives the same cells; footprints kept as rows of one array
+    (a track's offsets), each moved by its row's centre, give the cells of their moved points."""
+    rng = np.random.default_rng(5)
+    wide = rng.uniform(-40, 40, (50, 2))
+    assert np.array_equal(grouped_cells(wide, [50])[0], cells(wide))
+    xy, counts = _groups(rng, 8)
+    kept = np.zeros((8, 40, 2))
+    for k, piece in enumerate(np.split(xy, np.cumsum(counts)[:-1])):
+        kept[k, :len(piece)] = piece
+    centres = rng.uniform(-5, 5, (8, 4))
+    order = np.array([3, 0, 5, 7])
+    keys, starts = rows_cells(kept, counts, order, centres)
+    for g, row in enumerate(order):
+        expected = cells(kept[row, :counts[row]] + centres[row, :2]) if counts[row] else np.zeros(0, np.int64)
+        assert np.array_equal(keys[starts[g]:starts[g + 1]], expected)

@@ -1,4 +1,5 @@
-"""The tracker's filter (pass3d_ros.core.stream.kalman): the compiled loops give the textbook matrix formulas."""
+"""The tracker's filter (pass3d_ros.core.stream.kalman): the compiled loops over rows give the textbook matrix
+formulas."""
 
 from __future__ import annotations
 
@@ -26,8 +27,12 @@ def test_predict_is_f_p_f_transposed_plus_q() -> None:
             q[axis, axis + 2] = q[axis + 2, axis] = 9.0 * h ** 3 / 2
         want_states.append(f @ x)
         want_covs.append(f @ p @ f.T + q)
-    kalman.predict(states, covs, dt, 3.0)
-    assert np.allclose(states, want_states) and np.allclose(covs, want_covs)
+    stamps = -dt  # carried to 0.0: dt ahead
+    rows = np.array([0, 1, 2, 4])  # row 3 stays where it is
+    before = states[3].copy()
+    kalman.predict_rows(rows, states, covs, stamps, 0.0, 10.0, 3.0)
+    assert np.allclose(states[rows], np.array(want_states)[rows]) and np.allclose(covs[rows], np.array(want_covs)[rows])
+    assert np.array_equal(states[3], before) and np.all(stamps[rows] == 0.0)
 
 
 def test_correct_is_the_kalman_update_and_a_new_view_leaves_the_velocity() -> None:
@@ -43,7 +48,7 @@ def test_correct_is_the_kalman_update_and_a_new_view_leaves_the_velocity() -> No
         want_covs.append((np.eye(4) - gain @ h) @ p)
     velocity = states[:, 2:].copy()
     view = np.array([0.0, 0.0, 0.0, 4.0])
-    kalman.correct(states, covs, measured, 0.09, view)
+    kalman.correct_rows(np.arange(4), states, covs, measured, 0.09, view)
     assert np.allclose(states[:3], want_states[:3]) and np.allclose(covs[:3], want_covs[:3])
     assert np.allclose(states[3, 2:], velocity[3]), "a new view corrects the position only"
     assert np.linalg.norm(states[3, :2] - measured[3]) < np.linalg.norm(want_states[3][:2] - measured[3])
