@@ -189,7 +189,9 @@ def _shared_out(points: np.ndarray, voted: list[LabelledObject], tracked: list[T
     """A merged object's points shared out (`Tracker._covered`): each point goes to the track whose predicted
     footprint is nearest; a covered track's share of MIN_OBJECT_POINTS or more becomes an object of its own (its
     track's class, id and score; a new part id of the proposal), the rest stays the object; both boxes fitted again
-    and scored as `_voted` scores them. `voted` is updated in place; the new objects are returned."""
+    and scored as `_voted` scores them. An object none of whose points is nearest its own track's footprint stays
+    whole (its matched track's): sharing it out would leave that track an object of no point. `voted` is updated in
+    place; the new objects are returned."""
     out = []
     for d, entries in merged.items():
         mine = members[owner == d]
@@ -203,7 +205,7 @@ def _shared_out(points: np.ndarray, voted: list[LabelledObject], tracked: list[T
                 keep |= near == k
                 continue
             made.append((said, share))
-        if not made:
+        if not made or not keep.any():
             continue
         obj = voted[d]
         parts = [(obj.label, obj.cluster_id, mine[keep])] + [(t.label, ids.next(obj.proposal_id), m) for t, m in made]

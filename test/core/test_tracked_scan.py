@@ -208,3 +208,22 @@ def test_an_object_stage_1_merged_is_shared_out_between_the_tracks_it_covers() -
     widths = sorted(min(o.size[:2]) for o in out.voted.objects)
     assert widths[-1] < 2.0, "each box fitted again to its car's points"
     assert tracker.alive == 2 and tracker.lost == 0
+
+
+def test_a_merged_object_all_nearest_the_covered_track_stays_whole() -> None:
+    """When every point of a merged object lies nearest the covered track's footprint, sharing it out would leave its
+    own track an object of no point (a crash in box fitting once): the object stays whole, its own track's."""
+    from pass3d_ros.core.stream.tracks import Tracked
+    from pass3d_ros.core.tracked_scan import _PartIds, _shared_out
+
+    objects, points = two_cars(merged=True)
+    n = len(points)
+    own, covered = Tracked(0, CAR, 0.9, True), Tracked(1, CAR, 0.8, True)
+    far = np.array([[40.0, -20.0, -1.0]])  # the own track's footprint, nowhere near the points
+    near = np.column_stack([points[:, :2], np.full(n, -1.0)])  # the covered track's, under every point
+    voted = list(objects.objects)
+    labels, cluster_id, track_id = objects.labels.copy(), objects.cluster_id.copy(), np.zeros(n, np.int32)
+    made = _shared_out(points, voted, [own], np.arange(n), np.zeros(n, np.int64), {0: [(own, far), (covered, near)]},
+                       None, labels, cluster_id, track_id, _PartIds(objects, objects.cluster_id))
+    assert made == [] and voted == list(objects.objects)
+    np.testing.assert_array_equal(cluster_id, objects.cluster_id)
