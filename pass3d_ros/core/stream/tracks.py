@@ -104,7 +104,7 @@ class TrackerConfig:
     part_gap_m: float = 2.0  # ... its points come this close to the object's (a neighbour's fragment lies apart)
     heading_speed: float = 2.0  # m/s: ... and for a track this fast, the two lie along its heading (a moving car's
     # other end is ahead of it or behind it, never beside it)
-    merge_cover: float | None = 0.5  # a detection holding this share of another confirmed track's predicted cells
+    merge_cover: float | None = 0.4  # a detection holding this share of another confirmed track's predicted cells
     # (besides its own track's) covers that track's object too: its points are shared out (None: never)
     youth_penalty_m: float = 0.5  # extra cost of matching a new track, falling to 0 at mature_hits sightings: of two
     # tracks on one object (a duplicate born of a split), the older one wins the object
