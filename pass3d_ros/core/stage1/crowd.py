@@ -4,9 +4,11 @@ People walking side by side, a queue, a group chatting are tenths of a metre apa
 clustering's reach even at `split_rerun`'s half thresholds; their part is too big for one person and stage 2 calls a
 group of three or more mostly background (a lone person's points pedestrian 70 % of the time on the parking lot, a
 group's 2-14 %; docs/experiments/sensors.md, rule C1). Each person's head and shoulders are the highest points
-around them, so the points are taken from the highest down: one that stands SEED_MIN_H or more above the ground
-and PERSON_SPACING or more (in x-y) from every head already found is another person's head. Every point of the
-group then goes to the nearest head in x-y, if within PERSON_RADIUS; the rest (a bag, a pole between them) to none.
+around them, so the points are taken from the highest down: one that stands SEED_MIN_H or more above the ground,
+PERSON_SPACING or more (in x-y) from every head already found, and alone (no point from HEAD_WIDTH out to
+PERSON_RADIUS around it less than HEAD_DROP lower: the top of a wall, a hedge or a vehicle runs on at one height) is
+another person's head. A group with two heads or more is parted: every point goes to the nearest head in x-y, if
+within PERSON_RADIUS; the rest (a bag, a pole between them) to none.
 """
 
 from __future__ import annotations
