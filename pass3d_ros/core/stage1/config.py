@@ -207,9 +207,9 @@ class Stage1Config:
         True, "refinement: split_rerun also clusters again every other dropped cluster of 2 x th_num to "
         "rerun_max_points points within max_range (people in a crowd, beside parked motorbikes, against a hedge), "
         "and keeps each part that passes the gates and is shaped like a person standing there (footprint 2.0 x 1.2 m "
-        "at most and 0.1 m deep at least, rising 0.88 m or more to a top at most 2.1 m up); a part takes no point "
+        "at most and 0.1 m deep at least, rising 0.88 m or more, its top within max_top); a part takes no point "
         "another proposal holds, and stage 2 may call its points pedestrian or background only: people in crowds "
-        "found on 32-laser sensors (docs/experiments/sensors.md, rule R3)", 0, 1,
+        "found on 32-laser sensors (docs/experiments/sensors.md, rules R3 and R4)", 0, 1,
     )
     split_groups: bool = _param(
         True, "refinement: a part of rerun_dropped of a person's height but too big for one person is a group of "
