@@ -230,13 +230,16 @@ def format_tracking(summary: dict, per_frame: bool = False) -> str:
                          f"{interval_text(row)}")
     if summary.get("flicker"):
         lines.append(_per_10s(summary["flicker"], "ground-truth objects"))
-        mot = summary["mot"]
+        mot, most = summary["mot"], summary["mot_most_points"]
         if mot["object_tracks"]:
             lines.append(f"  id switches {mot['id_switches']} ({mot['id_switches_per_100']:.1f} per 100 object-tracks),"
                          " "
                          f"fragmentations {mot['fragmentations']} ({mot['fragmentations_per_100']:.1f} per 100), "
-                         f"{mot['object_tracks']} object-tracks, {mot['matched']} of {mot['sightings']} sightings in "
-                         "a confirmed track")
+                         f"{mot['object_tracks']} object-tracks, {mot['matched']} of {mot['sightings']} sightings "
+                         "matched (CLEAR-MOT: object and instance hold more than half of each other's points)")
+            lines.append(f"  by the object holding most of each instance's points: id switches {most['id_switches']} "
+                         f"({most['id_switches_per_100']:.1f} per 100), fragmentations {most['fragmentations']} "
+                         f"({most['fragmentations_per_100']:.1f} per 100), {most['matched']} matched")
     elif summary.get("instances"):
         lines.append(f"  instances {summary['instances']}")
     lines.append(_per_10s(summary["track_flicker"], "tracks (label-free)"))

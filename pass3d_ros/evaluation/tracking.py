@@ -9,10 +9,14 @@ each scan's scan-by-scan labels (`LabelledScan.published`) beside the labels wit
   points' published labels (background included: a person called background in one sweep and pedestrian in the next
   is flicker); a change between consecutive such scans is one class change; flicker = class changes per object per
   10 s of its life (first to last such scan, plus one scan period), pooled over the objects.
-- CLEAR-MOT style id switches and fragmentations per 100 object-tracks (instances seen in 2+ scans): an instance's
-  sighting in a scan is the published object holding most of its points; it is matched when that object's track is
-  confirmed. A switch: a matched sighting whose track id differs from the instance's previous matched one. A
-  fragmentation: matched, then unmatched in one or more scans where the instance is seen, then matched again.
+- CLEAR-MOT id switches and fragmentations per 100 object-tracks (instances seen in 2+ scans; Bernardin and
+  Stiefelhagen 2008). An instance and a published object correspond in a scan when the object holds more than half of
+  the instance's points and the instance more than half of the object's (one to one, as CLEAR-MOT's correspondences
+  are: a threshold on overlap, here over points); the instance is matched when that object's track is confirmed. A
+  switch: a matched sighting whose track id differs from the instance's previous matched one. A fragmentation:
+  matched, then unmatched in one or more scans where the instance is seen, then matched again. Also counted the way
+  this module first did (`mot_most_points`): the sighting is the object holding most of the instance's points,
+  however few, so that two people stage 1 joined for one scan both take its one track (a switch for one of them).
 - Label-free flicker of the tracks themselves (any data): per track, class changes along its sightings of the
   scan-by-scan class against those of the voted class, per 10 s of the track's life, pooled over tracks seen 2+ times.
 
@@ -41,6 +45,7 @@ from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import DatasetError
 from pass3d_ros.evaluation.offline import proposed_frame
 
+MATCH_SHARE = 0.5  # an object and an instance correspond when each holds more than this share of the other's points
 MIN_INSTANCE_POINTS = 10  # labelled points that make a ground-truth object seen in a scan (MIN_OBJECT_POINTS alike)
 FLICKER_PERIOD_S = 10.0  # flicker is counted per this much of an object's life
 PER_TRACKS = 100  # id switches and fragmentations are counted per this many object-tracks
@@ -88,6 +93,7 @@ class Sighting:
     track: int  # NO_TRACK: unmatched (no object, or a tentative track's)
     object_class_scan: int  # the main object's class, scan-by-scan and voted (BACKGROUND: no object)
     object_class_voted: int
+    match: int = NO_TRACK  # the track of the object that corresponds to it (CLEAR-MOT, MATCH_SHARE), else NO_TRACK
 
 
 @dataclass
@@ -104,8 +110,11 @@ def instance_sightings(truth: np.ndarray, instance: np.ndarray, scan: np.ndarray
                        cluster_id: np.ndarray, track_id: np.ndarray, stamp_s: float) -> dict[int, Sighting]:
     """Each ground-truth road user of a scan with at least MIN_INSTANCE_POINTS labelled points: its majority
     published class scan-by-scan and voted, and its sighting: the object published with tracking on (`voted` labels,
-    `cluster_id` its ids: held objects too) holding most of its points."""
+    `cluster_id` its ids: held objects too) holding most of its points; `match` that object's track where the two
+    correspond (MATCH_SHARE of each other's points)."""
     mine = np.isin(truth, FOREGROUND) & (instance >= 0)
+    on_road = voted != BACKGROUND
+    object_ids, object_sizes = np.unique(cluster_id[on_road], return_counts=True)
     out: dict[int, Sighting] = {}
     ids, counts = np.unique(instance[mine], return_counts=True)
     index = np.flatnonzero(mine)
@@ -117,19 +126,25 @@ def instance_sightings(truth: np.ndarray, instance: np.ndarray, scan: np.ndarray
         scan_class = int(np.bincount(scan[points], minlength=NUM_CLASSES).argmax())
         voted_class = int(np.bincount(voted[points], minlength=NUM_CLASSES).argmax())
         road = points[voted[points] != BACKGROUND]
-        track, object_scan, object_voted = NO_TRACK, BACKGROUND, BACKGROUND
+        track, object_scan, object_voted, match = NO_TRACK, BACKGROUND, BACKGROUND, NO_TRACK
         if len(road):
             objects, held = np.unique(cluster_id[road], return_counts=True)
-            main = road[cluster_id[road] == objects[np.argmax(held)]]
+            most = int(np.argmax(held))
+            main = road[cluster_id[road] == objects[most]]
             track = int(track_id[main[0]])
             object_scan, object_voted = int(scan[main[0]]), int(voted[main[0]])
-        out[int(g)] = Sighting(stamp_s, scan_class, voted_class, track, object_scan, object_voted)
+            size = object_sizes[np.searchsorted(object_ids, objects[most])]
+            if held[most] > MATCH_SHARE * len(points) and held[most] > MATCH_SHARE * size:
+                match = track
+        out[int(g)] = Sighting(stamp_s, scan_class, voted_class, track, object_scan, object_voted, match)
     return out
 
 
 @dataclass
 class Mot:
-    """CLEAR-MOT style counts over ground-truth instances (module docstring)."""
+    """CLEAR-MOT counts over ground-truth instances (module docstring): by the one-to-one correspondences
+    (`Sighting.match`), or with `most_points` by the object holding most of each instance's points (`Sighting.track`).
+    """
 
     object_tracks: int = 0
     sightings: int = 0
@@ -138,6 +153,7 @@ class Mot:
     fragmentations: int = 0
     right_scan: int = 0  # sightings with an object whose class is the instance's (scan-by-scan, voted)
     right_voted: int = 0
+    most_points: bool = False
 
     def add(self, sightings: list[Sighting], truth_class: int) -> None:
         """One instance's sightings in order."""
@@ -148,15 +164,16 @@ class Mot:
             self.sightings += 1
             self.right_scan += s.object_class_scan == truth_class
             self.right_voted += s.object_class_voted == truth_class
-            if s.track == NO_TRACK:
+            track = s.track if self.most_points else s.match
+            if track == NO_TRACK:
                 gap = last_track is not None
                 continue
             self.matched += 1
-            if last_track is not None and s.track != last_track:
+            if last_track is not None and track != last_track:
                 self.id_switches += 1
             if gap:
                 self.fragmentations += 1
-            last_track, gap = s.track, False
+            last_track, gap = track, False
 
     def summary(self) -> dict:
         per = PER_TRACKS / self.object_tracks if self.object_tracks else None
@@ -188,6 +205,7 @@ class TrackingEvaluation:
         self.instance_flicker = Flicker()
         self.track_flicker = Flicker()
         self.mot = Mot()
+        self.mot_most_points = Mot(most_points=True)
         self.truth_class: dict[tuple[str, int], list[int]] = defaultdict(lambda: [0] * NUM_CLASSES)
         self.streams: dict[str, dict] = {}
         self.track_ms: list[float] = []
@@ -231,6 +249,7 @@ class TrackingEvaluation:
             self.instance_flicker.add([s.scan_class for s in sightings], [s.voted_class for s in sightings], life)
             truth = self.truth_class[(spec, g)]
             self.mot.add(sightings, int(np.argmax(truth)))
+            self.mot_most_points.add(sightings, int(np.argmax(truth)))
         for sightings in history.tracks.values():
             life = sightings[-1][0] - sightings[0][0] + period
             self.track_flicker.add([s[1] for s in sightings], [s[2] for s in sightings], life)
@@ -256,6 +275,7 @@ class TrackingEvaluation:
             out["instances"] = "persistent"
             out["flicker"] = self.instance_flicker.summary()
             out["mot"] = self.mot.summary()
+            out["mot_most_points"] = self.mot_most_points.summary()
         out["per_frame"] = [{"frame": a["frame"], "confusion_scan": a["confusion"], "confusion_voted": b["confusion"]}
                             for a, b in zip(self.scan.per_frame, self.voted.per_frame, strict=True)]
         return out

@@ -1,5 +1,5 @@
-"""`pass3d_evaluate --tracking` (pass3d_ros.evaluation.tracking): flicker, CLEAR-MOT style id switches and
-fragmentations counted case by case, an instance's sighting taken from the object holding most of its points, and the
+"""`pass3d_evaluate --tracking` (pass3d_ros.evaluation.tracking): flicker, CLEAR-MOT id switches and fragmentations
+counted case by case, an instance's sighting (the object holding most of its points) and its one-to-one match, and the
 command line's JSON and errors."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pass3d_ros.tools import evaluate
 
 
 def seen(track: int, cls: int = CAR) -> Sighting:
-    return Sighting(0.0, cls, cls, track, cls if track != NO_TRACK else BACKGROUND, cls)
+    return Sighting(0.0, cls, cls, track, cls if track != NO_TRACK else BACKGROUND, cls, track)
 
 
 def test_id_switches_and_fragmentations_are_counted_as_clear_mot_counts_them() -> None:
@@ -62,6 +62,36 @@ def test_an_instance_s_sighting_is_the_object_holding_most_of_its_points() -> No
     assert held.track == 13 and held.object_class_scan == BACKGROUND and held.object_class_voted == PEDESTRIAN
 
 
+def test_a_joined_object_corresponds_to_the_instance_holding_most_of_it_only() -> None:
+    truth = np.full(22, PEDESTRIAN, np.uint8)
+    instance = np.array([1] * 10 + [2] * 12, np.int32)
+    labels = truth.copy()
+    cluster = np.full(22, 5, np.int32)  # stage 1 joined two people: one object, one track
+    track = np.full(22, 21, np.int32)
+    out = instance_sightings(truth, instance, labels, labels, cluster, track, 0.0)
+    assert out[1].track == out[2].track == 21  # each holds its points in that object
+    assert out[1].match == NO_TRACK and out[2].match == 21  # 10 of 22 points are not more than half of the object
+    cluster[:10] = 6  # apart again: each object holds all of its instance's points and nothing else
+    track[:10] = 20
+    out = instance_sightings(truth, instance, labels, labels, cluster, track, 0.1)
+    assert (out[1].match, out[2].match) == (20, 21)
+
+
+def test_clear_mot_counts_a_scan_in_a_neighbour_s_object_as_a_gap_not_two_switches() -> None:
+    def joined(neighbour: int) -> Sighting:
+        return Sighting(0.0, PEDESTRIAN, PEDESTRIAN, neighbour, PEDESTRIAN, PEDESTRIAN, NO_TRACK)
+
+    def alone(own: int) -> Sighting:
+        return Sighting(0.0, PEDESTRIAN, PEDESTRIAN, own, PEDESTRIAN, PEDESTRIAN, own)
+
+    history = [alone(7), joined(21), alone(7), alone(7)]
+    clear, most = Mot(), Mot(most_points=True)
+    clear.add(history, PEDESTRIAN)
+    most.add(history, PEDESTRIAN)
+    assert (clear.id_switches, clear.fragmentations, clear.matched) == (0, 1, 3)
+    assert (most.id_switches, most.fragmentations, most.matched) == (2, 0, 4)
+
+
 def test_scan_period_is_the_stamps_median_step() -> None:
     assert scan_period([0, 100_000_000, 200_000_000, 400_000_000]) == pytest.approx(0.1)
     assert scan_period([5, 5]) is None and scan_period([0]) is None
@@ -79,13 +109,16 @@ def test_tracking_mode_json(tmp_path: Path, capsys: pytest.CaptureFixture) -> No
     assert set(data["iou"]) == {"car", "pedestrian", "cyclist"}
     assert {"scan", "voted", "difference", "low", "high"} <= set(data["iou"]["car"])
     assert data["mot"]["object_tracks"] > 0 and data["flicker"]["objects"] > 0
+    assert data["mot_most_points"]["object_tracks"] == data["mot"]["object_tracks"]
+    assert data["mot_most_points"]["matched"] >= data["mot"]["matched"]
     assert data["track_flicker"]["objects"] > 0 and len(data["per_frame"]) == 5
     assert "id switches" in capsys.readouterr().out
     per_frame = tmp_path / "per_frame.json"
     assert evaluate.main([*args, "--per-frame-instances", "--scan-rate", "2", "--json", str(per_frame),
                           "--no-progress"]) == 0
     data = json.loads(per_frame.read_text())
-    assert "mot" not in data and "flicker" not in data and data["instances"].startswith("per-frame")
+    assert "mot" not in data and "mot_most_points" not in data and "flicker" not in data
+    assert data["instances"].startswith("per-frame")
     (stream,) = data["streams"].values()
     assert stream["period_from"] == "--scan-rate" and stream["scan_period_s"] == pytest.approx(0.5)
 
