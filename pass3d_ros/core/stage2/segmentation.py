@@ -20,7 +20,7 @@ import numba as nb
 import numpy as np
 import torch
 
-from pass3d_ros.classes import BACKGROUND, CAR, CLASS_NAMES, CYCLIST
+from pass3d_ros.classes import BACKGROUND, CAR, CLASS_NAMES, CYCLIST, PEDESTRIAN
 from pass3d_ros.core.stage2 import canonical, pointnet2_cpu
 from pass3d_ros.core.stage2.pointnet2 import ModelConfig, PointNet2Seg, flush_subnormals, fuse_batchnorm
 from pass3d_ros.msgs.errors import UserError
@@ -41,11 +41,15 @@ class CheckpointError(UserError):
 
 
 class SegmentResult(NamedTuple):
-    """labels (N,) uint8, confidence (N,) float32, proposal_class (P,) int16 (-1: proposal not classified)."""
+    """labels (N,) uint8, confidence (N,) float32, proposal_class (P,) int16 (-1: proposal not classified);
+    `people_share` (N,) float32: of each point's winning prediction, its pedestrian probability over its pedestrian
+    and background probabilities together (NaN: not predicted), what `people_only` decides by; None from a classifier
+    without probabilities."""
 
     labels: np.ndarray
     confidence: np.ndarray
     proposal_class: np.ndarray
+    people_share: np.ndarray | None = None
 
 
 @dataclass
@@ -179,24 +183,50 @@ def scatter_predictions(
     return out_labels, out_conf
 
 
+def scatter_values(num_points: int, point_index: np.ndarray, confidence: np.ndarray, values: np.ndarray
+                   ) -> np.ndarray:
+    """Per point (float32), `values` of the prediction `scatter_predictions` lets win; NaN for unpredicted points."""
+    out = np.full(num_points, np.nan, dtype=np.float32)
+    if len(point_index) == 0:
+        return out
+    best = _most_confident(num_points, np.asarray(point_index, dtype=np.int64), np.asarray(confidence))
+    winners = best[best >= 0]
+    out[point_index[winners]] = values[winners]
+    return out
+
+
 def people_only(result: SegmentResult, members: list[np.ndarray], mask: np.ndarray | None) -> SegmentResult:
     """`result` with the points flagged in `mask` (one bool per point, or None: none) called pedestrian or
-    background only: their car and cyclist labels become background, with confidence 1 less the network's in the
-    class it named; a proposal (of `members`, as segmented) whose points are all flagged loses a car or cyclist
-    class the same way. The flagged points are those of stage 1's `rerun_dropped` parts (Stage1Result.gives_way):
-    person-shaped pieces kept to find people in crowds. Of their points the network called car on the development
-    scans, 230 of 2,027 were cars; of those it called cyclist, none of 970 (docs/experiments/sensors.md, rule R3)."""
+    background only: pedestrian where the network's pedestrian probability is above its background probability
+    (`people_share` above one half), else background, with that class's share of the two as confidence (rule F,
+    docs/experiments/sensors.md); a proposal (of `members`, as segmented) whose points are all flagged takes the
+    majority of their labels (ties: background). From a classifier without probabilities, car and cyclist labels
+    become background instead, with confidence 1 less the classifier's. The flagged points are those of stage 1's
+    `rerun_dropped` parts (Stage1Result.gives_way): person-shaped pieces kept to find people in crowds. Of their
+    points the network called car on the development scans, 230 of 2,027 were cars; of those it called cyclist,
+    none of 970 (rule R3)."""
     if mask is None or not mask.any():
         return result
-    veto = mask & ((result.labels == CAR) | (result.labels == CYCLIST))
     labels, confidence = result.labels.copy(), result.confidence.copy()
-    labels[veto] = BACKGROUND
-    confidence[veto] = 1.0 - confidence[veto]
+    share = result.people_share
+    if share is None:
+        veto = mask & ((labels == CAR) | (labels == CYCLIST))
+        labels[veto] = BACKGROUND
+        confidence[veto] = 1.0 - confidence[veto]
+    else:
+        told = mask & ~np.isnan(share)
+        person = told & (share > 0.5)
+        labels[told] = np.where(person[told], PEDESTRIAN, BACKGROUND)
+        confidence[told] = np.where(person[told], share[told], 1.0 - share[told])
     proposal_class = result.proposal_class.copy()
     for k, m in enumerate(members):
-        if proposal_class[k] in (CAR, CYCLIST) and len(m) and mask[m].all():
-            proposal_class[k] = BACKGROUND
-    return SegmentResult(labels, confidence, proposal_class)
+        if proposal_class[k] >= 0 and len(m) and mask[m].all():
+            if share is None:
+                proposal_class[k] = BACKGROUND if proposal_class[k] in (CAR, CYCLIST) else proposal_class[k]
+            else:
+                people = int(np.count_nonzero(labels[m] == PEDESTRIAN))
+                proposal_class[k] = PEDESTRIAN if 2 * people > len(m) else BACKGROUND
+    return SegmentResult(labels, confidence, proposal_class, share)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -377,7 +407,10 @@ class Segmenter:
         conf = probs[np.arange(len(pred)), pred]
         labels, confidence = scatter_predictions(len(points), batch.query_index, pred.astype(np.uint8), conf)
         proposal_class[chosen] = proposal_majority(batch.query_batch, pred, len(chosen), self.config.num_classes)
-        return SegmentResult(labels, confidence, proposal_class)
+        two = probs[:, PEDESTRIAN] + probs[:, BACKGROUND]
+        share = np.divide(probs[:, PEDESTRIAN], two, out=np.full(len(two), 0.5), where=two > 0)
+        return SegmentResult(labels, confidence, proposal_class,
+                             scatter_values(len(points), batch.query_index, conf, share))
 
     def _averaged_probabilities(self, points: np.ndarray, members: list[np.ndarray]
                                 ) -> tuple[np.ndarray, ProposalBatch]:

@@ -289,6 +289,17 @@ def test_segment_shapes_and_determinism(lite_checkpoint):
     outside = np.setdiff1d(np.arange(len(points)), np.concatenate(members))
     assert np.all(first.labels[outside] == BACKGROUND) and np.all(first.confidence[outside] == 1.0)
     assert np.all((first.confidence[:1020] > 0) & (first.confidence[:1020] <= 1))
+    share = first.people_share  # pedestrian over pedestrian and background, of the winning prediction
+    assert share.shape == (len(points),) and np.all(np.isnan(share[outside]))
+    inside = np.concatenate(members)
+    assert np.all((share[inside] >= 0) & (share[inside] <= 1))
+    batch = prepare_proposals(points, members, segmenter.config, draw=next(iter(segmenter.draw_set())),
+                              sampling=segmenter.sampling)
+    probs = predict_probabilities(segmenter.model, batch, "cpu")
+    once = np.bincount(batch.query_index, minlength=len(points)) == 1  # one prediction: no other wins
+    rows = np.flatnonzero(once[batch.query_index])
+    expected = probs[rows, PEDESTRIAN] / (probs[rows, PEDESTRIAN] + probs[rows, BACKGROUND])
+    np.testing.assert_allclose(share[batch.query_index[rows]], expected, rtol=1e-5)
 
 
 def test_all_point_decoding_matches_sampled_forward(lite_checkpoint):
@@ -462,3 +473,19 @@ def test_people_only_points_are_pedestrian_or_background() -> None:
     assert out.proposal_class.tolist() == [BACKGROUND, CAR]
     assert labels[0] == CAR  # the input result is not changed
     assert people_only(result, members, None) is result
+
+
+def test_people_only_decides_by_the_network_s_pedestrian_and_background_odds() -> None:
+    """With the network's share of pedestrian over pedestrian and background (rule F), a flagged point is pedestrian
+    when that share is above one half, else background, whatever class won the four-class argmax; its confidence is
+    the chosen class's share; a proposal of flagged points only takes their majority (ties: background)."""
+    labels = np.array([CAR, CYCLIST, PEDESTRIAN, BACKGROUND, CAR, CAR, PEDESTRIAN, CAR], dtype=np.uint8)
+    confidence = np.array([0.4, 0.5, 0.8, 0.9, 0.7, 0.7, 0.6, 0.5], dtype=np.float32)
+    share = np.array([0.6, 0.3, 0.9, 0.2, 0.7, 0.7, 0.8, 0.55], dtype=np.float32)
+    result = SegmentResult(labels, confidence, np.array([CAR, CAR, CAR], dtype=np.int16), share)
+    members = [np.array([0, 1, 2, 3]), np.array([3, 4, 5]), np.array([6, 7])]
+    mask = np.array([True, True, True, True, False, False, True, True])
+    out = people_only(result, members, mask)
+    assert out.labels.tolist() == [PEDESTRIAN, BACKGROUND, PEDESTRIAN, BACKGROUND, CAR, CAR, PEDESTRIAN, PEDESTRIAN]
+    np.testing.assert_allclose(out.confidence, [0.6, 0.7, 0.9, 0.8, 0.7, 0.7, 0.8, 0.55], rtol=1e-6)
+    assert out.proposal_class.tolist() == [BACKGROUND, CAR, PEDESTRIAN]  # 2 of 4 is no majority; 2 of 2 is
