@@ -172,27 +172,27 @@ def scatter_predictions(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-point labels (uint8) and confidences (float32) of a frame from possibly repeated predictions:
     the most confident prediction of a point wins (ties: the later one); unpredicted points are background, 1."""
-    out_labels = np.full(num_points, BACKGROUND, dtype=np.uint8)
-    out_conf = np.ones(num_points, dtype=np.float32)
-    if len(point_index) == 0:
-        return out_labels, out_conf
-    best = _most_confident(num_points, np.asarray(point_index, dtype=np.int64), np.asarray(confidence))
-    winners = best[best >= 0]
-    out_labels[point_index[winners]] = labels[winners]
-    out_conf[point_index[winners]] = confidence[winners]
+    out_labels, out_conf, _ = scatter_with_values(num_points, point_index, labels, confidence, None)
     return out_labels, out_conf
 
 
-def scatter_values(num_points: int, point_index: np.ndarray, confidence: np.ndarray, values: np.ndarray
-                   ) -> np.ndarray:
-    """Per point (float32), `values` of the prediction `scatter_predictions` lets win; NaN for unpredicted points."""
-    out = np.full(num_points, np.nan, dtype=np.float32)
+def scatter_with_values(num_points: int, point_index: np.ndarray, labels: np.ndarray, confidence: np.ndarray,
+                        values: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """`scatter_predictions`, and per point (float32) the `values` of the prediction that wins (NaN for unpredicted
+    points; None without `values`), from one pass that finds the winners."""
+    out_labels = np.full(num_points, BACKGROUND, dtype=np.uint8)
+    out_conf = np.ones(num_points, dtype=np.float32)
+    out_values = None if values is None else np.full(num_points, np.nan, dtype=np.float32)
     if len(point_index) == 0:
-        return out
+        return out_labels, out_conf, out_values
     best = _most_confident(num_points, np.asarray(point_index, dtype=np.int64), np.asarray(confidence))
     winners = best[best >= 0]
-    out[point_index[winners]] = values[winners]
-    return out
+    at = point_index[winners]
+    out_labels[at] = labels[winners]
+    out_conf[at] = confidence[winners]
+    if out_values is not None:
+        out_values[at] = values[winners]
+    return out_labels, out_conf, out_values
 
 
 def people_only(result: SegmentResult, members: list[np.ndarray], mask: np.ndarray | None) -> SegmentResult:
@@ -405,12 +405,12 @@ class Segmenter:
         probs, batch = self._averaged_probabilities(points, chosen_members)
         pred = probs.argmax(axis=1)
         conf = probs[np.arange(len(pred)), pred]
-        labels, confidence = scatter_predictions(len(points), batch.query_index, pred.astype(np.uint8), conf)
-        proposal_class[chosen] = proposal_majority(batch.query_batch, pred, len(chosen), self.config.num_classes)
         two = probs[:, PEDESTRIAN] + probs[:, BACKGROUND]
         share = np.divide(probs[:, PEDESTRIAN], two, out=np.full(len(two), 0.5), where=two > 0)
-        return SegmentResult(labels, confidence, proposal_class,
-                             scatter_values(len(points), batch.query_index, conf, share))
+        labels, confidence, people_share = scatter_with_values(len(points), batch.query_index, pred.astype(np.uint8),
+                                                               conf, share)
+        proposal_class[chosen] = proposal_majority(batch.query_batch, pred, len(chosen), self.config.num_classes)
+        return SegmentResult(labels, confidence, proposal_class, people_share)
 
     def _averaged_probabilities(self, points: np.ndarray, members: list[np.ndarray]
                                 ) -> tuple[np.ndarray, ProposalBatch]:
