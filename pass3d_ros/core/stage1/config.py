@@ -239,6 +239,11 @@ class Stage1Config:
         True, "refinement: scale th_num to the scan's angular resolution (pass3d_ros.core.stage1.sensor_params); the "
         "HDL-64E keeps the paper's values", 0, 1,
     )
+    range_scaling: bool = _param(
+        False, "refinement: with sensor_scaling and lasers, th_num's vertical factor per range: the lasers that cross "
+        "a person-tall object there, from the sensor's height above the fitted ground, over KITTI's HDL-64E's "
+        "(a high mount sees near objects with its sparse lower lasers; pass3d_ros.core.stage1.sensor_params)", 0, 1,
+    )
     sensor_height: float | str = _auto_param(
         "ground: sensor height above the road (m; 1.73 on KITTI's car); it bounds the ground seeds from below. auto: "
         "the height above the ground near the sensor, the median over a stream's first 5 scans, then held "

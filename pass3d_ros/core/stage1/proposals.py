@@ -165,11 +165,12 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     n_split, gives_way = 0, None
     # With a local ground the gates read heights above it (it passes through the split as the planes argument).
     surface = fit.local if fit.local is not None else fit.planes
+    gate = _sensor.range_gate(sensor, fit.planes, fit.segment_edges)
     if cfg.split_merged or cfg.split_rerun or cfg.split_protruding:
         boxes, kept, label, n_split, gives_way = _split.select_with_split(work, label, n_clusters, surface,
-                                                                          fit.segment_edges, cfg, work_ring)
+                                                                          fit.segment_edges, cfg, work_ring, gate)
     else:
-        boxes, kept = _refinement.select_proposals(work, label, n_clusters, surface, fit.segment_edges, cfg)
+        boxes, kept = _refinement.select_proposals(work, label, n_clusters, surface, fit.segment_edges, cfg, gate)
     floors = None if fit.local is None else _refinement.ground_floors(boxes, fit.local, cfg.th_dist)
     cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge, floors=floors,
                                                               gives_way=gives_way)

@@ -24,6 +24,7 @@ import numpy as np
 
 from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage1.ground import LocalGround, fit_ground
+from pass3d_ros.core.stage1.sensor_params import RangeGate
 from pass3d_ros.data.frame import Box3D
 
 
@@ -346,11 +347,12 @@ def _cluster_rects(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -
     return out
 
 
-def points_needed(rng: np.ndarray, config: Stage1Config) -> np.ndarray:
+def points_needed(rng: np.ndarray, config: Stage1Config, gate: RangeGate | None = None) -> np.ndarray:
     """The few-points gate: the points a cluster centred `rng` metres away (horizontally) needs, th_num_near up to
-    th_num_range, then falling as 1 / range, never below th_num_floor."""
-    return np.maximum(config.th_num_floor,
-                      config.th_num_near * config.th_num_range / np.maximum(rng, config.th_num_range))
+    th_num_range, then falling as 1 / range, times `gate`'s factor at that range when given, never below
+    th_num_floor."""
+    near = config.th_num_near if gate is None else config.th_num_near * gate.at(rng)
+    return np.maximum(config.th_num_floor, near * config.th_num_range / np.maximum(rng, config.th_num_range))
 
 
 PART_MARGIN_M = 2.0  # `Gated.may_part`: slack on the bottom and top gates for the local ground's offsets at a part's
@@ -379,20 +381,21 @@ def gate_clusters(
     segment_edges: np.ndarray,
     config: Stage1Config,
     fit_all: bool = False,
+    gate: RangeGate | None = None,
 ) -> Gated:
     """The gates of `select_proposals` (see `Gated`).
 
     `planes`: the segment planes (n_seg x 4), or a LocalGround (GroundFit.local), whose offsets around each cluster
     centre move its bottom and top heights (module docstring). Fitted: the clusters that pass every gate but the
     footprint one, less (unless `fit_all`) those whose x-y extent no footprint rectangle can hold, which fail it
-    without a fit.
+    without a fit. `gate`: the few-points gate's factor per range (`points_needed`).
     """
     local = planes if isinstance(planes, LocalGround) else None
     plane_rows = local.planes if local is not None else planes
     count, sums, lo, hi, bottom, top = _cluster_stats(points, label, n_clusters, plane_rows, segment_edges)
     centre = sums / np.maximum(count, 1)[:, None]
     rng = np.hypot(centre[:, 0], centre[:, 1])
-    need = points_needed(rng, config)
+    need = points_needed(rng, config, gate)
     extent = hi - lo
     may_part = ((count >= 2 * need) & (rng <= config.max_range) & (bottom <= config.max_bottom + PART_MARGIN_M)
                 & (top >= config.min_top - PART_MARGIN_M))
@@ -430,13 +433,14 @@ def select_proposals(
     planes: np.ndarray | LocalGround,
     segment_edges: np.ndarray,
     config: Stage1Config,
+    gate: RangeGate | None = None,
 ) -> tuple[list[Box3D], np.ndarray]:
-    """Boxes of the clusters that pass the config's gates (th_num_*, max_*, min_*), and those clusters' ids
-    (index = proposal id)."""
+    """Boxes of the clusters that pass the config's gates (th_num_*, max_*, min_*; `gate`: the few-points gate's
+    factor per range), and those clusters' ids (index = proposal id)."""
     if n_clusters == 0:
         return [], np.zeros(0, dtype=np.int64)
     z_lo, z_hi, candidates, rects, keep, _, _, _ = gate_clusters(points, label, n_clusters, planes, segment_edges,
-                                                                 config)
+                                                                 config, gate=gate)
     kept = candidates[keep]
     return boxes_of(rects[keep], z_lo[kept], z_hi[kept]), kept
 

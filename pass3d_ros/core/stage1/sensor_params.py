@@ -15,6 +15,12 @@ ring recovery found:
   VLP-32C binned by elevation read as 3x denser than they are, and a higher th_num would only lose objects).
 * th_num_near scales by density; th_num_floor too, never below MIN_FLOOR (a cluster needs two points for a
   box) unless configured lower.
+* With `Stage1Config.range_scaling` and lasers (not elevation bins) the vertical part of th_num_near's factor is read
+  per range instead of from the median gap (`RangeGate`): the lasers that cross a person-tall object (OBJECT_HEIGHT_M)
+  standing on the ground at that range, from the sensor's height above the fitted ground, over the same count for
+  KITTI's HDL-64E at 1.73 m. A sensor mounted high sees a near person with its lower lasers, which on most sensors
+  are the sparse ones (a VLP-32C at 3.5 m: 3 lasers on a person 15 m away, the HDL-64E at 1.73 m 20); the median gap
+  (0.33 degrees, denser than the HDL-64E) cannot say so.
 
 Left as configured, measured on a real HDL-32E frame (nuScenes, true rings, th_num scaled): th_prop widened to the
 ring spacing (2 or 3 m instead of 1 m) merged objects with their neighbours (foreground recall 0.73 -> 0.68),
@@ -27,17 +33,24 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
 
-from pass3d_ros.core.stage1.config import Stage1Config
+from pass3d_ros.core.stage1.config import MOUNT_HEIGHT_RANGE_M, Stage1Config
+from pass3d_ros.core.stage1.lasers import LASER_TABLES
 from pass3d_ros.core.stage1.scanline import group_starts, nearer_of_two
 
 REFERENCE_DV_DEG = 0.42  # KITTI's HDL-64E: median elevation gap between neighbouring rings (this module's estimate)
 REFERENCE_DH_DEG = 0.17  # KITTI's HDL-64E at 10 Hz: median azimuth step between neighbouring points of a ring
 SNAP = 0.25  # a resolution ratio within this of 1 counts as 1 (the paper's values, exactly)
 MIN_FLOOR = 2  # th_num_floor never falls below this
+OBJECT_HEIGHT_M = 1.76  # `RangeGate`: the object whose lasers are counted, KITTI's mean pedestrian height
+REFERENCE_HEIGHT_M = 1.73  # KITTI's HDL-64E above the road
+RANGE_STEP_M = 0.5  # `RangeGate`: the factor's range bins
+RANGE_TABLE_M = 150.0  # `RangeGate`: the last bin (farther clusters read it)
+MIN_RING_SAMPLES = 8  # `ring_elevations`: a ring needs this many sampled points at PEAK_MIN_RANGE or farther
 _SAMPLE_STRIDE = 16  # the estimates read every 16th point (and its successor)
 _MIN_RANGE = 2.0  # nearer points are left out of the estimates (m)
 PEAK_BIN_DEG = 0.05  # `laser_spacing`: the elevation histogram's bin
@@ -65,13 +78,74 @@ class SensorScale:
     # compared: it says how vertical_deg was read, not what the frame runs with
     resolution: tuple[float, float] | None = field(default=None, compare=False)  # what `resolutions` read (or was
     # given): a stream's holder may pass it on as `effective_config`'s `resolution`. Not compared, as spacing_deg
+    elevations_deg: np.ndarray | None = field(default=None, compare=False, repr=False)  # with range_scaling, the
+    # lasers' elevations (`ring_elevations`) that `range_gate` counts; None: th_num_near holds the vertical factor
 
     def describe(self) -> str:
         """One line for logs: resolutions, density and the effective values."""
+        per_range = "" if self.elevations_deg is None else " (times the lasers across a person at each range)"
         return (f"{self.n_rings} rings, vertical {self.vertical_deg:.2f} deg, "
                 f"horizontal {self.horizontal_deg:.3f} deg, density {self.density:.3f} x HDL-64E: "
-                f"th_num_near {self.th_num_near:.3g}, "
+                f"th_num_near {self.th_num_near:.3g}{per_range}, "
                 f"th_num_floor {self.th_num_floor}, th_prop {self.th_prop:.3g}")
+
+
+class RangeGate(NamedTuple):
+    """The few-points gate's vertical factor per range (`range_gate`): `factor[i]` for clusters centred
+    [i * RANGE_STEP_M, (i + 1) * RANGE_STEP_M) away, the last bin for any farther."""
+
+    factor: np.ndarray
+
+    def at(self, rng: np.ndarray) -> np.ndarray:
+        """The factor at horizontal ranges `rng` (m)."""
+        index = np.clip((np.asarray(rng) / RANGE_STEP_M).astype(np.int64), 0, len(self.factor) - 1)
+        return self.factor[index]
+
+
+_RANGES_M = (np.arange(int(RANGE_TABLE_M / RANGE_STEP_M) + 1) + 0.5) * RANGE_STEP_M
+
+
+def lasers_across(elevations_deg: np.ndarray, height_m: float) -> np.ndarray:
+    """Per `RangeGate` bin, how many of the lasers (elevations in degrees from the sensor's horizontal plane) cross
+    an OBJECT_HEIGHT_M tall object standing on the ground `height_m` below the sensor at the bin's range."""
+    elevations = np.sort(np.asarray(elevations_deg, dtype=np.float64))
+    low = np.degrees(np.arctan2(-height_m, _RANGES_M))
+    high = np.degrees(np.arctan2(OBJECT_HEIGHT_M - height_m, _RANGES_M))
+    return np.searchsorted(elevations, high, "right") - np.searchsorted(elevations, low, "left")
+
+
+_REFERENCE_ACROSS = lasers_across(np.asarray(LASER_TABLES["hdl64e"]), REFERENCE_HEIGHT_M)
+
+
+def ring_elevations(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """The elevation (degrees) of each ring with MIN_RING_SAMPLES or more sampled points at PEAK_MIN_RANGE or
+    farther: the median over its points of every _SAMPLE_STRIDE-th point (points in the sensor's frame)."""
+    pts = np.asarray(points)[::_SAMPLE_STRIDE]
+    rings = np.asarray(ring)[::_SAMPLE_STRIDE]
+    horizontal = np.hypot(pts[:, 0].astype(np.float64), pts[:, 1].astype(np.float64))
+    far = horizontal >= PEAK_MIN_RANGE
+    elevation = np.degrees(np.arctan2(pts[far, 2].astype(np.float64), horizontal[far]))
+    rings = rings[far]
+    order = np.lexsort((elevation, rings))
+    rings, elevation = rings[order], elevation[order]
+    starts = np.flatnonzero(np.r_[True, rings[1:] != rings[:-1]]) if len(rings) else np.zeros(0, np.int64)
+    ends = np.r_[starts[1:], len(rings)]
+    enough = ends - starts >= MIN_RING_SAMPLES
+    return elevation[(starts[enough] + ends[enough] - 1) // 2]
+
+
+def range_gate(scale: SensorScale | None, planes: np.ndarray, segment_edges: np.ndarray) -> RangeGate | None:
+    """The frame's `RangeGate` from its lasers (`scale.elevations_deg`) and the sensor's height above the fitted
+    ground plane under it (clipped to the mount heights the config accepts); None without lasers. Each factor is
+    the lasers across the object over the HDL-64E's (half a laser added to both: far bins hold none), at most 1 and
+    snapped to 1 within SNAP, so the HDL-64E keeps the paper's gate."""
+    if scale is None or scale.elevations_deg is None or len(planes) == 0:
+        return None
+    segment = int(np.clip(np.searchsorted(segment_edges, 0.0) - 1, 0, len(planes) - 1))
+    a, b, c, d = planes[segment]
+    height = float(np.clip(d / c, *MOUNT_HEIGHT_RANGE_M)) if c > 0 else REFERENCE_HEIGHT_M
+    factor = np.minimum(1.0, (lasers_across(scale.elevations_deg, height) + 0.5) / (_REFERENCE_ACROSS + 0.5))
+    return RangeGate(np.where(factor >= 1.0 - SNAP, 1.0, factor))
 
 
 def resolutions(points: np.ndarray, ring: np.ndarray) -> tuple[float, float]:
@@ -265,14 +339,21 @@ def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
         vertical = spacing if np.isfinite(spacing) else vertical
     else:
         spacing = None
-    density = 1.0
+    density, near_density, elevations = 1.0, 1.0, None
     if config.sensor_scaling:
         density = min(1.0, _ratio(REFERENCE_DV_DEG, vertical) * _ratio(REFERENCE_DH_DEG, horizontal))
+        near_density = density
+        if config.range_scaling and not binned:
+            elevations = ring_elevations(points, ring)
+            if len(elevations) >= MIN_PEAKS:  # the vertical factor is read per range (`range_gate`)
+                near_density = min(1.0, _ratio(REFERENCE_DH_DEG, horizontal))
+            else:
+                elevations = None
     cfg = config
-    if density != 1.0:  # both values stay in their ranges (density <= 1), so the copy is not validated again
+    if density != 1.0 or near_density != 1.0:  # the values stay in their ranges (densities <= 1): not validated again
         cfg = copy.copy(config)
-        cfg.th_num_near = max(1.0, config.th_num_near * density)
+        cfg.th_num_near = max(1.0, config.th_num_near * near_density)
         cfg.th_num_floor = max(min(MIN_FLOOR, config.th_num_floor), round(config.th_num_floor * density))
     scale = SensorScale(n_rings, vertical, horizontal, density, cfg.th_num_near, cfg.th_num_floor, cfg.th_prop, spacing,
-                        resolution)
+                        resolution, elevations)
     return cfg, scale

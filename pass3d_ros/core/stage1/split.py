@@ -37,6 +37,7 @@ from pass3d_ros.core.stage1 import refinement as _refinement
 from pass3d_ros.core.stage1 import scanline as _scanline
 from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage1.ground import LocalGround
+from pass3d_ros.core.stage1.sensor_params import RangeGate
 from pass3d_ros.data.frame import Box3D
 
 PART_MAX_LENGTH_M = 2.0  # `rerun_dropped` keeps a part of a cluster it chose only when this short (KITTI's mean
@@ -199,8 +200,8 @@ def _unique_runs(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _gate_parts(points: np.ndarray, label: np.ndarray, first: int, count: int, surface: np.ndarray | LocalGround,
-                segment_edges: np.ndarray, config: Stage1Config, small_only: np.ndarray | None = None
-                ) -> tuple[list[Box3D], np.ndarray, np.ndarray]:
+                segment_edges: np.ndarray, config: Stage1Config, small_only: np.ndarray | None = None,
+                gate: RangeGate | None = None) -> tuple[list[Box3D], np.ndarray, np.ndarray]:
     """Boxes and ids of the clusters `first` .. `first + count - 1` of `label` that pass every gate on their own;
     those flagged in `small_only` (one bool per part) only with a person- or rider-sized footprint and the shape of
     a person standing there (`_person_shaped`). Third, the ids of the flagged parts that may be groups of people
@@ -209,7 +210,7 @@ def _gate_parts(points: np.ndarray, label: np.ndarray, first: int, count: int, s
     sub = np.ascontiguousarray(points[part_points])
     sub_label = (label[part_points] - first).astype(np.int32)
     z_lo, z_hi, fitted, rects, keep, _, _, may_part = _refinement.gate_clusters(sub, sub_label, count, surface,
-                                                                                segment_edges, config)
+                                                                                segment_edges, config, gate=gate)
     groups = np.zeros(0, dtype=np.int64)
     if small_only is not None:
         sized = ((rects[:, 2] <= PART_MAX_LENGTH_M) & (rects[:, 3] <= PART_MAX_WIDTH_M)
@@ -245,8 +246,8 @@ def _shaped(height: np.ndarray, label: np.ndarray, flagged: np.ndarray) -> np.nd
 
 
 def _people_in_groups(points: np.ndarray, label: np.ndarray, n_total: int, groups: np.ndarray,
-                      surface: np.ndarray | LocalGround, segment_edges: np.ndarray, config: Stage1Config
-                      ) -> tuple[np.ndarray, int, list[Box3D], np.ndarray]:
+                      surface: np.ndarray | LocalGround, segment_edges: np.ndarray, config: Stage1Config,
+                      gate: RangeGate | None = None) -> tuple[np.ndarray, int, list[Box3D], np.ndarray]:
     """(labels, cluster count, boxes, kept ids) of the people found in the clusters `groups` (parts of
     `rerun_dropped` too big for one person, yet of a person's height: pass3d_ros.core.stage1.crowd), each person a new
     cluster id gated again as a part of `rerun_dropped` is."""
@@ -260,7 +261,7 @@ def _people_in_groups(points: np.ndarray, label: np.ndarray, n_total: int, group
     if n_people == 0:
         return label, n_total, [], np.zeros(0, dtype=np.int64)
     boxes, ids, _ = _gate_parts(points, out, n_total, n_people, surface, segment_edges, config,
-                                np.ones(n_people, dtype=bool))
+                                np.ones(n_people, dtype=bool), gate)
     return out, n_after, boxes, ids
 
 
@@ -302,7 +303,8 @@ def _protrusion_candidates(n_total: int, kept: np.ndarray, z_lo: np.ndarray, z_h
 
 
 def _dropped_to_rerun(points: np.ndarray, label: np.ndarray, n_clusters: int, n_total: int, kept: np.ndarray,
-                      count: np.ndarray, may_part: np.ndarray, config: Stage1Config) -> np.ndarray:
+                      count: np.ndarray, may_part: np.ndarray, config: Stage1Config,
+                      gate: RangeGate | None = None) -> np.ndarray:
     """Cluster ids `rerun_dropped` clusters again: not kept, with at most `rerun_max_points` points, and such that a
     part of them could pass the gates no split changes (`may_part` of the `n_clusters` clusters clustering made: at
     least twice the few-points gate's count, within max_range, near enough the ground and tall enough), or, for the
@@ -316,7 +318,7 @@ def _dropped_to_rerun(points: np.ndarray, label: np.ndarray, n_clusters: int, n_
         part_count = np.bincount(which, minlength=n_parts)
         centre = np.stack([np.bincount(which, weights=points[inside, k], minlength=n_parts) for k in (0, 1)], axis=1)
         rng = np.hypot(centre[:, 0], centre[:, 1]) / np.maximum(part_count, 1)
-        need = _refinement.points_needed(rng, config)
+        need = _refinement.points_needed(rng, config, gate)
         chosen[n_clusters:] = ((part_count >= 2 * need) & (part_count <= config.rerun_max_points)
                                & (rng <= config.max_range))
     chosen[kept] = False
@@ -326,6 +328,7 @@ def _dropped_to_rerun(points: np.ndarray, label: np.ndarray, n_clusters: int, n_
 def select_with_split(
     points: np.ndarray, label: np.ndarray, n_clusters: int, planes: np.ndarray | LocalGround,
     segment_edges: np.ndarray, config: Stage1Config, ring: np.ndarray | None = None,
+    gate: RangeGate | None = None,
 ) -> tuple[list[Box3D], np.ndarray, np.ndarray, int, np.ndarray]:
     """`select_proposals` with the splits: (boxes, kept cluster ids, labels with the parts' new ids, clusters split,
     which kept proposals give way). The boxes and ids of `select_proposals` come first, unchanged; kept parts follow,
@@ -333,11 +336,12 @@ def select_with_split(
     needs `ring`, the rings clustering read, else skipped), then those protruding from dropped taller structures
     (`split_protruding`, pass3d_ros.core.stage1.protrusion). `planes`: the segment planes or the local ground, as the
     gates take them. The parts of the clusters only `rerun_dropped` chose give way (one bool per kept id): they hold
-    no point another proposal holds (refinement.enlarged_membership), so the option only adds labels."""
+    no point another proposal holds (refinement.enlarged_membership), so the option only adds labels. `gate`: the
+    few-points gate's factor per range (refinement.points_needed), for every gate here."""
     if n_clusters == 0:
         return [], np.zeros(0, dtype=np.int64), label, 0, np.zeros(0, dtype=bool)
     z_lo, z_hi, fitted, rects, keep, footprint, count, may_part = _refinement.gate_clusters(
-        points, label, n_clusters, planes, segment_edges, config, fit_all=True)
+        points, label, n_clusters, planes, segment_edges, config, fit_all=True, gate=gate)
     kept = fitted[keep]
     boxes = _refinement.boxes_of(rects[keep], z_lo[kept], z_hi[kept])
     out, n_total, n_split = label, n_clusters, 0
@@ -346,7 +350,7 @@ def select_with_split(
         out, n_total, n_split = cut_at_gaps(points, label, n_clusters, fitted[~footprint], rects[~footprint], config)
         if n_split:
             part_boxes, part_ids, _ = _gate_parts(points, out, n_clusters, n_total - n_clusters, planes,
-                                                  segment_edges, config)
+                                                  segment_edges, config, gate=gate)
             boxes += part_boxes
             kept = np.concatenate([kept, part_ids])
     if config.split_rerun and ring is not None:
@@ -354,7 +358,7 @@ def select_with_split(
         chosen = wide
         if config.rerun_dropped:
             chosen = np.union1d(wide, _dropped_to_rerun(points, out, n_clusters, n_total, kept, count, may_part,
-                                                        config))
+                                                        config, gate))
         if n_split:  # only the clusters the gap cut left whole
             chosen = chosen[np.bincount(out[out >= 0], minlength=n_total)[chosen] > 0]
         first, before = n_total, out
@@ -367,7 +371,7 @@ def select_with_split(
                 origin[out[moved] - first] = before[moved]
                 small_only = ~np.isin(origin, wide)
             part_boxes, part_ids, groups = _gate_parts(points, out, first, n_total - first, planes, segment_edges,
-                                                       config, small_only)
+                                                       config, small_only, gate)
             boxes += part_boxes
             kept = np.concatenate([kept, part_ids])
             n_split += n_rerun
@@ -375,7 +379,7 @@ def select_with_split(
                 gives_way = part_ids[small_only[part_ids - first]]
                 if config.split_groups and len(groups):  # a group too big for one person: one part per person
                     out, n_total, people_boxes, people_ids = _people_in_groups(points, out, n_total, groups, planes,
-                                                                               segment_edges, config)
+                                                                               segment_edges, config, gate)
                     boxes += people_boxes
                     kept = np.concatenate([kept, people_ids])
                     gives_way = np.concatenate([gives_way, people_ids])
@@ -386,7 +390,7 @@ def select_with_split(
                                                             config.max_top, config.th_num_floor)
         if n_made:
             part_boxes, part_ids, _ = _gate_parts(points, cut, n_total, n_parts - n_total, planes, segment_edges,
-                                                  config)
+                                                  config, gate=gate)
             boxes += part_boxes
             kept = np.concatenate([kept, part_ids])
             out, n_split = cut, n_split + n_made
