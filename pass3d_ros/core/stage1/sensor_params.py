@@ -142,7 +142,7 @@ def range_gate(scale: SensorScale | None, planes: np.ndarray, segment_edges: np.
     if scale is None or scale.elevations_deg is None or len(planes) == 0:
         return None
     segment = int(np.clip(np.searchsorted(segment_edges, 0.0) - 1, 0, len(planes) - 1))
-    a, b, c, d = planes[segment]
+    c, d = planes[segment, 2:]
     height = float(np.clip(d / c, *MOUNT_HEIGHT_RANGE_M)) if c > 0 else REFERENCE_HEIGHT_M
     factor = np.minimum(1.0, (lasers_across(scale.elevations_deg, height) + 0.5) / (_REFERENCE_ACROSS + 0.5))
     return RangeGate(np.where(factor >= 1.0 - SNAP, 1.0, factor))

@@ -1,0 +1,112 @@
+"""The few-points gate per range (Stage1Config.range_scaling; pass3d_ros.core.stage1.sensor_params.RangeGate): the
+lasers that cross a person-tall object at each range, against KITTI's HDL-64E at 1.73 m."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pass3d_ros.synthetic  # noqa: F401  (registers the synthetic: format)
+from pass3d_ros.classes import PEDESTRIAN
+from pass3d_ros.core.stage1 import Stage1Config, propose
+from pass3d_ros.core.stage1.lasers import LASER_TABLES
+from pass3d_ros.core.stage1.refinement import points_needed
+from pass3d_ros.core.stage1.sensor_params import (
+    RANGE_STEP_M,
+    RangeGate,
+    SensorScale,
+    effective_config,
+    lasers_across,
+    range_gate,
+    ring_elevations,
+)
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.spec import resolve_dataset
+
+EDGES = np.array([-80.0, 80.0])
+
+
+def flat_ground(height: float) -> np.ndarray:
+    """One plane `height` below the sensor (a x + b y + c z + d = 0, normal up)."""
+    return np.array([[0.0, 0.0, 1.0, height]])
+
+
+def scale_of(elevations: np.ndarray | tuple[float, ...]) -> SensorScale:
+    """A frame's SensorScale holding only what range_gate reads."""
+    return SensorScale(len(elevations), float("nan"), float("nan"), 1.0, 30.0, 5, 1.0,
+                       elevations_deg=np.asarray(elevations, dtype=np.float64))
+
+
+def frames(spec: str) -> list[Frame]:
+    return list(resolve_dataset(spec).frames())
+
+
+@pytest.fixture(scope="module")
+def high_vlp32c() -> list[Frame]:
+    return frames("synthetic:sensor=vlp32c,frames=2,seed=11,height=3.5")
+
+
+def test_the_hdl64e_at_its_height_keeps_the_papers_gate_at_every_range() -> None:
+    gate = range_gate(scale_of(LASER_TABLES["hdl64e"]), flat_ground(1.73), EDGES)
+    assert gate is not None and np.all(gate.factor == 1.0)
+
+
+def test_a_high_vlp32c_sees_a_person_with_few_lasers() -> None:
+    vlp32c = LASER_TABLES["vlp32c"]
+    high = range_gate(scale_of(vlp32c), flat_ground(3.5), EDGES)
+    level = range_gate(scale_of(vlp32c), flat_ground(1.73), EDGES)
+    assert high is not None and level is not None
+    at15 = np.array([15.0])
+    assert lasers_across(np.asarray(vlp32c), 3.5)[int(15.0 / RANGE_STEP_M)] == 3  # -7.254, -8.843, -11.31 degrees
+    assert high.at(at15)[0] < 0.25
+    assert level.at(at15)[0] == 1.0  # level, its dense middle lasers cover a person 15 m away as the HDL-64E's do
+    assert np.all((high.factor > 0.0) & (high.factor <= 1.0))
+
+
+def test_the_gate_scales_th_num_near_by_its_factor_and_keeps_the_floor() -> None:
+    config = Stage1Config()
+    rng = np.array([5.0, 15.0, 40.0])
+    gate = RangeGate(np.full(400, 0.1))
+    np.testing.assert_allclose(points_needed(rng, config, gate), np.maximum(5, [3.0, 3.0, 1.5]))
+    np.testing.assert_allclose(points_needed(rng, config), [30.0, 30.0, 15.0])
+
+
+def test_ring_elevations_read_the_lasers(high_vlp32c: list[Frame]) -> None:
+    frame = high_vlp32c[0]
+    read = ring_elevations(frame.points, frame.ring)
+    table = np.sort(np.asarray(LASER_TABLES["vlp32c"]))
+    assert len(read) >= 16
+    nearest = np.abs(read[:, None] - table[None, :]).min(axis=1)
+    assert np.all(nearest < 0.3), nearest
+
+
+def test_effective_config_moves_the_vertical_factor_to_the_gate(high_vlp32c: list[Frame]) -> None:
+    frame = high_vlp32c[0]
+    cfg, scale = effective_config(Stage1Config(range_scaling=True), frame.points, frame.ring, 32)
+    assert scale.elevations_deg is not None and len(scale.elevations_deg) >= 16
+    assert cfg.th_num_near == scale.th_num_near and cfg.th_num_near <= 30.0
+    _, off = effective_config(Stage1Config(), frame.points, frame.ring, 32)
+    assert off.elevations_deg is None
+    _, binned = effective_config(Stage1Config(range_scaling=True), frame.points, frame.ring, 32, binned=True)
+    assert binned.elevations_deg is None, "elevation bins are no lasers: the median-gap factor stays"
+
+
+def test_range_scaling_keeps_the_hdl64e_proposals() -> None:
+    for frame in frames("synthetic:frames=2,seed=11"):
+        on = propose(frame.points, frame.ring, Stage1Config(range_scaling=True))
+        off = propose(frame.points, frame.ring, Stage1Config())
+        assert on.sensor is not None and on.sensor.elevations_deg is not None
+        np.testing.assert_array_equal(on.cluster_id, off.cluster_id)
+
+
+def test_range_scaling_finds_the_people_a_high_vlp32c_sees(high_vlp32c: list[Frame]) -> None:
+    found = {False: 0, True: 0}
+    total = 0
+    for frame in high_vlp32c:
+        people = frame.labels == PEDESTRIAN
+        total += int(people.sum())
+        for on in found:
+            result = propose(frame.points, frame.ring, Stage1Config(range_scaling=on, sensor_height=3.5))
+            found[on] += int(np.count_nonzero(result.cluster_id[people] >= 0))
+    assert total > 0
+    assert found[True] >= found[False] + 0.2 * total, (found, total)
