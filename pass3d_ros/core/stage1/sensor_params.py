@@ -16,11 +16,11 @@ ring recovery found:
 * th_num_near scales by density; th_num_floor too, never below MIN_FLOOR (a cluster needs two points for a
   box) unless configured lower.
 * With `Stage1Config.range_scaling` and lasers (not elevation bins) the vertical part of th_num_near's factor is read
-  per range instead of from the median gap (`RangeGate`): the lasers that cross a person-tall object (OBJECT_HEIGHT_M)
-  standing on the ground at that range, from the sensor's height above the fitted ground, over the same count for
-  KITTI's HDL-64E at 1.73 m. A sensor mounted high sees a near person with its lower lasers, which on most sensors
-  are the sparse ones (a VLP-32C at 3.5 m: 3 lasers on a person 15 m away, the HDL-64E at 1.73 m 20); the median gap
-  (0.33 degrees, denser than the HDL-64E) cannot say so.
+  per range too (`RangeGate`): the lasers that cross a person-tall object (OBJECT_HEIGHT_M) standing on the ground at
+  that range, from the sensor's height above the fitted ground, over the same count for KITTI's HDL-64E at 1.73 m,
+  where that is under half of the median-gap factor. A sensor mounted high sees a near person with its lower lasers,
+  which on most sensors are the sparse ones (a VLP-32C at 3.5 m: 3 lasers on a person 15 m away, the HDL-64E at
+  1.73 m 20); the median gap (0.33 degrees, denser than the HDL-64E) cannot say so.
 
 Left as configured, measured on a real HDL-32E frame (nuScenes, true rings, th_num scaled): th_prop widened to the
 ring spacing (2 or 3 m instead of 1 m) merged objects with their neighbours (foreground recall 0.73 -> 0.68),
@@ -51,6 +51,9 @@ REFERENCE_HEIGHT_M = 1.73  # KITTI's HDL-64E above the road
 RANGE_STEP_M = 0.5  # `RangeGate`: the factor's range bins
 RANGE_TABLE_M = 150.0  # `RangeGate`: the last bin (farther clusters read it)
 MIN_RING_SAMPLES = 8  # `ring_elevations`: a ring needs this many sampled points at PEAK_MIN_RANGE or farther
+RANGE_REPLACES_BELOW = 0.5  # `range_gate`: a range's laser count replaces the median-gap factor only under this share
+# of it: counts of one to a few lasers move with the lasers' exact angles (rule G: a level HDL-32E's per-range factor
+# 0.27-0.38 against its median gap's 0.32, the gate up and down by chance)
 _SAMPLE_STRIDE = 16  # the estimates read every 16th point (and its successor)
 _MIN_RANGE = 2.0  # nearer points are left out of the estimates (m)
 PEAK_BIN_DEG = 0.05  # `laser_spacing`: the elevation histogram's bin
@@ -80,6 +83,8 @@ class SensorScale:
     # given): a stream's holder may pass it on as `effective_config`'s `resolution`. Not compared, as spacing_deg
     elevations_deg: np.ndarray | None = field(default=None, compare=False, repr=False)  # with range_scaling, the
     # lasers' elevations (`ring_elevations`) that `range_gate` counts; None: th_num_near holds the vertical factor
+    vertical_factor: float = field(default=1.0, compare=False)  # with elevations_deg, the median-gap vertical factor
+    # th_num_near leaves out (density = th_num_near's factor x this), which `range_gate` applies where it keeps it
 
     def describe(self) -> str:
         """One line for logs: resolutions, density and the effective values."""
@@ -136,16 +141,18 @@ def ring_elevations(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
 
 def range_gate(scale: SensorScale | None, planes: np.ndarray, segment_edges: np.ndarray) -> RangeGate | None:
     """The frame's `RangeGate` from its lasers (`scale.elevations_deg`) and the sensor's height above the fitted
-    ground plane under it (clipped to the mount heights the config accepts); None without lasers. Each factor is
-    the lasers across the object over the HDL-64E's (half a laser added to both: far bins hold none), at most 1 and
-    snapped to 1 within SNAP, so the HDL-64E keeps the paper's gate."""
+    ground plane under it (clipped to the mount heights the config accepts); None without lasers. At each range the
+    lasers across the object over the HDL-64E's (half a laser added to both: far bins hold none) replace the
+    median-gap factor (`scale.vertical_factor`) where they are under RANGE_REPLACES_BELOW of it; elsewhere the
+    median-gap factor stays. So the gate never rises, and the HDL-64E, read at its own height, keeps the paper's."""
     if scale is None or scale.elevations_deg is None or len(planes) == 0:
         return None
     segment = int(np.clip(np.searchsorted(segment_edges, 0.0) - 1, 0, len(planes) - 1))
     c, d = planes[segment, 2:]
     height = float(np.clip(d / c, *MOUNT_HEIGHT_RANGE_M)) if c > 0 else REFERENCE_HEIGHT_M
-    factor = np.minimum(1.0, (lasers_across(scale.elevations_deg, height) + 0.5) / (_REFERENCE_ACROSS + 0.5))
-    return RangeGate(np.where(factor >= 1.0 - SNAP, 1.0, factor))
+    across = np.minimum(1.0, (lasers_across(scale.elevations_deg, height) + 0.5) / (_REFERENCE_ACROSS + 0.5))
+    median_gap = scale.vertical_factor
+    return RangeGate(np.where(across < RANGE_REPLACES_BELOW * median_gap, across, median_gap))
 
 
 def resolutions(points: np.ndarray, ring: np.ndarray) -> tuple[float, float]:
@@ -355,5 +362,5 @@ def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
         cfg.th_num_near = max(1.0, config.th_num_near * near_density)
         cfg.th_num_floor = max(min(MIN_FLOOR, config.th_num_floor), round(config.th_num_floor * density))
     scale = SensorScale(n_rings, vertical, horizontal, density, cfg.th_num_near, cfg.th_num_floor, cfg.th_prop, spacing,
-                        resolution, elevations)
+                        resolution, elevations, density / near_density)
     return cfg, scale
