@@ -31,10 +31,10 @@ def flat_ground(height: float) -> np.ndarray:
     return np.array([[0.0, 0.0, 1.0, height]])
 
 
-def scale_of(elevations: np.ndarray | tuple[float, ...]) -> SensorScale:
-    """A frame's SensorScale holding only what range_gate reads."""
-    return SensorScale(len(elevations), float("nan"), float("nan"), 1.0, 30.0, 5, 1.0,
-                       elevations_deg=np.asarray(elevations, dtype=np.float64))
+def scale_of(elevations: np.ndarray | tuple[float, ...], median_gap: float = 1.0) -> SensorScale:
+    """A frame's SensorScale holding only what range_gate reads: the lasers and the median-gap vertical factor."""
+    return SensorScale(len(elevations), float("nan"), float("nan"), median_gap, 30.0, 5, 1.0,
+                       elevations_deg=np.asarray(elevations, dtype=np.float64), vertical_factor=median_gap)
 
 
 def frames(spec: str) -> list[Frame]:
@@ -63,6 +63,19 @@ def test_a_high_vlp32c_sees_a_person_with_few_lasers() -> None:
     assert np.all((high.factor > 0.0) & (high.factor <= 1.0))
 
 
+def test_a_level_sensor_keeps_its_median_gap_factor() -> None:
+    """A level HDL-32E's laser counts differ from its median gap's factor (0.32) by quantization only: no range within
+    max_range is replaced, so its gate is today's."""
+    hdl32e = np.asarray(LASER_TABLES["hdl32e"])
+    median_gap = 0.42 / (4.0 / 3.0)  # REFERENCE_DV_DEG over its 1.333-degree gap
+    gate = range_gate(scale_of(hdl32e, median_gap), flat_ground(1.73), EDGES)
+    assert gate is not None
+    within = gate.at(np.arange(0.5, Stage1Config().max_range, RANGE_STEP_M))
+    np.testing.assert_array_equal(within, median_gap)
+    high = range_gate(scale_of(hdl32e, median_gap), flat_ground(3.5), EDGES)
+    assert high is not None and high.at(np.array([3.0]))[0] < 0.5 * median_gap  # 3 m from a 3.5 m mast: one laser
+
+
 def test_the_gate_scales_th_num_near_by_its_factor_and_keeps_the_floor() -> None:
     config = Stage1Config()
     rng = np.array([5.0, 15.0, 40.0])
@@ -85,6 +98,7 @@ def test_effective_config_moves_the_vertical_factor_to_the_gate(high_vlp32c: lis
     cfg, scale = effective_config(Stage1Config(range_scaling=True), frame.points, frame.ring, 32)
     assert scale.elevations_deg is not None and len(scale.elevations_deg) >= 16
     assert cfg.th_num_near == scale.th_num_near and cfg.th_num_near <= 30.0
+    assert scale.vertical_factor * cfg.th_num_near == pytest.approx(30.0 * scale.density)  # the factor split in two
     _, off = effective_config(Stage1Config(), frame.points, frame.ring, 32)
     assert off.elevations_deg is None
     _, binned = effective_config(Stage1Config(range_scaling=True), frame.points, frame.ring, 32, binned=True)
