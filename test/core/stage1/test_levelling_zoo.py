@@ -1,39 +1,63 @@
-"""Stage 1 on sensors as robots mount them: simulated scans (the lasers cast from the tilted, high or upside-down
-sensor, points in its own frame) are levelled by the mounting read from their first scan, and stage 1 finds the
-road users it finds on the level mount (stage-1 foreground recall within 0.05)."""
+"""Stage 1 on sensors as robots mount them and drivers send them: simulated scans of every sensor the simulator knows
+(the lasers cast from the tilted, high or upside-down sensor, points in its own frame, the driver's ring field) are
+levelled by the mounting read from their first scan; stage 1 finds the road users it finds on the level mount
+(stage-1 foreground recall within 0.05), and proposes exactly the same with the ring field as without it."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
 from pass3d_ros.core.metrics import Stage1Metrics
 from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.data.spec import open_dataset
+from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 
-SENSORS = ("vlp16", "hdl32e", "os1-64", "pandarxt32")
 MOUNTS = ("pitch=10", "roll=10", "pitch=-7,roll=4", "height=3.5", "roll=180")
 
 
-def recall(spec: str) -> float:
-    """Stage-1 foreground recall of one stream through the door (stage 1 only)."""
+def proposed(spec: str, ring: bool = True) -> tuple[float, list[np.ndarray]]:
+    """Stage-1 foreground recall of one stream through the door (stage 1 only), and each scan's cluster ids; `ring`:
+    with the driver's ring field, else without one."""
     pipeline = ScanPipeline(intensity_match=False)
     metrics = Stage1Metrics()
+    ids = []
     for frame in open_dataset(spec):
-        proposed = pipeline.propose(frame.points, frame.ring)
-        metrics.update_result(frame.name, proposed.result, proposed.kept_values(frame.labels))
-    return metrics.summary()["stage1"]["foreground_recall"]
+        result = pipeline.propose(frame.points, frame.ring if ring else None)
+        metrics.update_result(frame.name, result.result, result.kept_values(frame.labels))
+        ids.append(result.result.cluster_id)
+    return metrics.summary()["stage1"]["foreground_recall"], ids
 
 
-KNOWN_SHORT = {("vlp16", "height=3.5"): "a VLP-16 3.5 m up meets the road 13 m out and crosses near road users with "
-                                        "few lasers: 0.89 against 0.97 level (docs/experiments/sensors.md)"}
+def spec(sensor: str, mount: str = "") -> str:
+    return f"synthetic:frames=1,seed=97,sensor={sensor}" + (f",{mount}" if mount else "")
+
+
+SEE = "(docs/experiments/sensors.md)"
+KNOWN_SHORT = {
+    ("vlp16", "height=3.5"): f"a VLP-16 3.5 m up meets the road 13 m out and crosses near road users with few lasers: "
+                             f"0.89 against 0.97 level {SEE}",
+    ("vlp32c", "height=3.5"): "a VLP-32C 3.5 m up crosses a person 15 m away with 3 lasers while th_num stays the "
+                              "paper's: 0.62 against 0.96 level; stage1.range_scaling (off by default: rule G2) "
+                              f"reads 0.81 {SEE}",
+    ("pandar40", "height=3.5"): f"0.90 against 0.96 level, with range_scaling too; not yet looked into {SEE}",
+    ("vlp32c", "roll=10"): f"0.90 against 0.96 level, as the zoo's rolled VLP-16 and Pandar40; not yet looked "
+                           f"into {SEE}",
+    ("vlp32c", "roll=180"): f"upside down 0.906 against 0.962 level; not yet looked into {SEE}",
+    ("hdl64e", "roll=180"): "upside down, only the HDL-64E's few lasers above its horizon (+2 degrees at most) point "
+                            "down, meeting the road 50 m out: near road users show their heads alone (0.00; with "
+                            f"stage1.mount given too) {SEE}",
+    ("pandar64", "roll=180"): "its first upside-down scan reads no mounting, so it runs unlevelled (0.03; its second "
+                              f"scan 0.94, with stage1.mount given 0.93) {SEE}",
+}
 CASES = [pytest.param(sensor, mount, marks=pytest.mark.xfail(strict=True, reason=KNOWN_SHORT[sensor, mount]))
-         if (sensor, mount) in KNOWN_SHORT else (sensor, mount) for sensor in SENSORS for mount in MOUNTS]
+         if (sensor, mount) in KNOWN_SHORT else (sensor, mount) for sensor in SENSOR_NAMES for mount in MOUNTS]
 
 
 @pytest.fixture(scope="module")
 def level() -> dict[str, float]:
-    return {sensor: recall(f"synthetic:frames=1,seed=97,sensor={sensor}") for sensor in SENSORS}
+    return {sensor: proposed(spec(sensor))[0] for sensor in SENSOR_NAMES}
 
 
 def test_the_level_mounts_find_the_road_users(level: dict[str, float]) -> None:
@@ -43,4 +67,13 @@ def test_the_level_mounts_find_the_road_users(level: dict[str, float]) -> None:
 @pytest.mark.parametrize(("sensor", "mount"), CASES)
 def test_tilted_high_and_upside_down_mounts_find_what_the_level_one_finds(
         sensor: str, mount: str, level: dict[str, float]) -> None:
-    assert recall(f"synthetic:frames=1,seed=97,sensor={sensor},{mount}") >= level[sensor] - 0.05
+    assert proposed(spec(sensor, mount))[0] >= level[sensor] - 0.05
+
+
+@pytest.mark.parametrize("mount", ("", *MOUNTS))
+@pytest.mark.parametrize("sensor", [s for s in SENSOR_NAMES if s != "hdl64e"])  # KITTI's scans come without one
+def test_the_ring_field_proposes_what_the_scan_alone_does(sensor: str, mount: str) -> None:
+    _, with_field = proposed(spec(sensor, mount))
+    _, without = proposed(spec(sensor, mount), ring=False)
+    for a, b in zip(with_field, without, strict=True):
+        np.testing.assert_array_equal(a, b)
