@@ -22,6 +22,7 @@ from pass3d_ros.core.stage1 import Stage1Config, propose
 from pass3d_ros.core.stage1.config import AUTO, ConfigError, config_from_text, parse_params
 from pass3d_ros.core.stage1.mounting import (
     HEIGHT_DISAGREE_M,
+    HIGH_MOUNT_M,
     MOUNTING_SCANS,
     NO_GROUND_SCANS,
     Mounting,
@@ -123,6 +124,14 @@ def test_problems_name_a_hand_set_height_off_the_estimate_and_an_upside_down_rea
     flipped = problems(Stage1Config(), Mounting(1.73, 180.0, 0.0))
     assert len(flipped) == 1 and "upside down" in flipped[0] and "stage1.mount" in flipped[0]
     assert problems(Stage1Config(sensor_height=0.2), None) == []
+
+
+def test_a_high_mount_hears_of_range_scaling_until_it_is_on() -> None:
+    high = Mounting(3.5, 0.3, -0.2)
+    said = problems(Stage1Config(), high)
+    assert len(said) == 1 and "3.50 m above the ground" in said[0] and "stage1.range_scaling:=true" in said[0]
+    assert problems(Stage1Config(range_scaling=True), high) == []
+    assert problems(Stage1Config(), Mounting(HIGH_MOUNT_M - 0.1, 0.0, 0.0)) == []
 
 
 def test_readings_that_disagree_or_no_ground_at_all_make_the_mounting_unsure(low: list[Frame]) -> None:
