@@ -165,7 +165,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     n_split, gives_way = 0, None
     # With a local ground the gates read heights above it (it passes through the split as the planes argument).
     surface = fit.local if fit.local is not None else fit.planes
-    gate = _sensor.range_gate(sensor, fit.planes, fit.segment_edges)
+    gate = _sensor.range_gate(sensor, fit.planes, fit.segment_edges, level)
     if cfg.split_merged or cfg.split_rerun or cfg.split_protruding:
         boxes, kept, label, n_split, gives_way = _split.select_with_split(work, label, n_clusters, surface,
                                                                           fit.segment_edges, cfg, work_ring, gate)

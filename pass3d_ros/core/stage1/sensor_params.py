@@ -51,6 +51,8 @@ REFERENCE_HEIGHT_M = 1.73  # KITTI's HDL-64E above the road
 RANGE_STEP_M = 0.5  # `RangeGate`: the factor's range bins
 RANGE_TABLE_M = 150.0  # `RangeGate`: the last bin (farther clusters read it)
 MIN_RING_SAMPLES = 8  # `ring_elevations`: a ring needs this many sampled points at PEAK_MIN_RANGE or farther
+AZIMUTH_SECTORS = 16  # `range_gate` of a tilted sensor: level-frame azimuth sectors read apart
+TILT_AZIMUTHS = 360  # `level_elevations`: directions a laser's cone is read at
 RANGE_REPLACES_BELOW = 0.5  # `range_gate`: a range's laser count replaces the median-gap factor only under this share
 # of it: counts of one to a few lasers move with the lasers' exact angles (rule G: a level HDL-32E's per-range factor
 # 0.27-0.38 against its median gap's 0.32, the gate up and down by chance)
@@ -96,15 +98,20 @@ class SensorScale:
 
 
 class RangeGate(NamedTuple):
-    """The few-points gate's vertical factor per range (`range_gate`): `factor[i]` for clusters centred
-    [i * RANGE_STEP_M, (i + 1) * RANGE_STEP_M) away, the last bin for any farther."""
+    """The few-points gate's vertical factor per azimuth sector and range (`range_gate`): `factor[k, i]` for clusters
+    centred in the level frame's azimuth sector k (of `len(factor)` equal sectors from -180 degrees; one for a level
+    sensor) and [i * RANGE_STEP_M, (i + 1) * RANGE_STEP_M) away, the last bin for any farther."""
 
     factor: np.ndarray
 
-    def at(self, rng: np.ndarray) -> np.ndarray:
-        """The factor at horizontal ranges `rng` (m)."""
-        index = np.clip((np.asarray(rng) / RANGE_STEP_M).astype(np.int64), 0, len(self.factor) - 1)
-        return self.factor[index]
+    def at(self, rng: np.ndarray, azimuth: np.ndarray | None = None) -> np.ndarray:
+        """The factor at horizontal ranges `rng` (m) and azimuths (radians, level frame; needed with sectors)."""
+        factor = np.atleast_2d(self.factor)
+        index = np.clip((np.asarray(rng) / RANGE_STEP_M).astype(np.int64), 0, factor.shape[1] - 1)
+        if len(factor) == 1:
+            return factor[0, index]
+        sector = np.floor((np.asarray(azimuth) + np.pi) / (2.0 * np.pi) * len(factor)).astype(np.int64) % len(factor)
+        return factor[sector, index]
 
 
 _RANGES_M = (np.arange(int(RANGE_TABLE_M / RANGE_STEP_M) + 1) + 0.5) * RANGE_STEP_M
@@ -120,6 +127,26 @@ def lasers_across(elevations_deg: np.ndarray, height_m: float) -> np.ndarray:
 
 
 _REFERENCE_ACROSS = lasers_across(np.asarray(LASER_TABLES["hdl64e"]), REFERENCE_HEIGHT_M)
+
+
+def level_elevations(elevations_deg: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """Each laser's elevation (degrees) in the level frame of a tilted sensor (`level`: the rotation from the sensor's
+    frame to the level one), per AZIMUTH_SECTORS sector of the level frame (S x L; a sector no direction reaches
+    keeps the laser's own elevation): a laser's cone, tilted, runs higher on one side than the other."""
+    e = np.radians(np.asarray(elevations_deg, dtype=np.float64))[:, None]
+    a = np.linspace(-np.pi, np.pi, TILT_AZIMUTHS, endpoint=False)[None, :]
+    directions = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e) + 0.0 * a], axis=-1)
+    turned = directions @ np.asarray(level, dtype=np.float64).T  # (L, A, 3)
+    elevation = np.degrees(np.arcsin(np.clip(turned[..., 2], -1.0, 1.0)))
+    sector = (np.floor((np.arctan2(turned[..., 1], turned[..., 0]) + np.pi) / (2.0 * np.pi) * AZIMUTH_SECTORS)
+              .astype(np.int64) % AZIMUTH_SECTORS)
+    laser = np.broadcast_to(np.arange(len(e))[:, None], sector.shape)
+    sums = np.zeros((AZIMUTH_SECTORS, len(e)))
+    counts = np.zeros((AZIMUTH_SECTORS, len(e)))
+    np.add.at(sums, (sector.ravel(), laser.ravel()), elevation.ravel())
+    np.add.at(counts, (sector.ravel(), laser.ravel()), 1.0)
+    own = np.broadcast_to(np.degrees(e[:, 0]), sums.shape)
+    return np.where(counts > 0, sums / np.maximum(counts, 1.0), own)
 
 
 def ring_elevations(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
@@ -139,18 +166,24 @@ def ring_elevations(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
     return elevation[(starts[enough] + ends[enough] - 1) // 2]
 
 
-def range_gate(scale: SensorScale | None, planes: np.ndarray, segment_edges: np.ndarray) -> RangeGate | None:
+def range_gate(scale: SensorScale | None, planes: np.ndarray, segment_edges: np.ndarray,
+               level: np.ndarray | None = None) -> RangeGate | None:
     """The frame's `RangeGate` from its lasers (`scale.elevations_deg`) and the sensor's height above the fitted
     ground plane under it (clipped to the mount heights the config accepts); None without lasers. At each range the
     lasers across the object over the HDL-64E's (half a laser added to both: far bins hold none) replace the
     median-gap factor (`scale.vertical_factor`) where they are under RANGE_REPLACES_BELOW of it; elsewhere the
-    median-gap factor stays. So the gate never rises, and the HDL-64E, read at its own height, keeps the paper's."""
+    median-gap factor stays. So the gate never rises, and the HDL-64E, read at its own height, keeps the paper's.
+    `level` (a tilted sensor's levelling rotation): the lasers are counted per azimuth sector at their elevations in
+    the level frame (`level_elevations`)."""
     if scale is None or scale.elevations_deg is None or len(planes) == 0:
         return None
     segment = int(np.clip(np.searchsorted(segment_edges, 0.0) - 1, 0, len(planes) - 1))
     c, d = planes[segment, 2:]
     height = float(np.clip(d / c, *MOUNT_HEIGHT_RANGE_M)) if c > 0 else REFERENCE_HEIGHT_M
-    across = np.minimum(1.0, (lasers_across(scale.elevations_deg, height) + 0.5) / (_REFERENCE_ACROSS + 0.5))
+    per_sector = [scale.elevations_deg] if level is None else level_elevations(scale.elevations_deg, level)
+    counts = np.stack([lasers_across(elevations, height) for elevations in per_sector])
+    across = (counts + 0.5) / (_REFERENCE_ACROSS + 0.5)  # not capped: vertical_factor may exceed 1 (a dense sensor
+    # spinning slowly keeps the paper's gate by its lasers, density = min(1, vertical x horizontal))
     median_gap = scale.vertical_factor
     return RangeGate(np.where(across < RANGE_REPLACES_BELOW * median_gap, across, median_gap))
 
