@@ -8,7 +8,9 @@ import pytest
 
 import pass3d_ros.synthetic  # noqa: F401  (registers the synthetic: format)
 from pass3d_ros.classes import PEDESTRIAN
+from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config, propose
+from pass3d_ros.core.stage1.mounting import Mounting, level_rotation
 from pass3d_ros.core.stage1.lasers import LASER_TABLES
 from pass3d_ros.core.stage1.refinement import points_needed
 from pass3d_ros.core.stage1.sensor_params import (
@@ -17,6 +19,7 @@ from pass3d_ros.core.stage1.sensor_params import (
     SensorScale,
     effective_config,
     lasers_across,
+    level_elevations,
     range_gate,
     ring_elevations,
 )
@@ -124,3 +127,46 @@ def test_range_scaling_finds_the_people_a_high_vlp32c_sees(high_vlp32c: list[Fra
             found[on] += int(np.count_nonzero(result.cluster_id[people] >= 0))
     assert total > 0
     assert found[True] >= found[False] + 0.2 * total, (found, total)
+
+
+def test_a_tilted_sensors_lasers_are_counted_where_they_point() -> None:
+    """Rolled 10 degrees, a VLP-32C's dense middle lasers run 10 degrees above the horizon on one side and below it on
+    the other: on the high side a person 15 m away is crossed by its sparse lasers and the gate falls there; on the
+    low side its dense lasers cross them and the median-gap factor stays."""
+    vlp32c = np.asarray(LASER_TABLES["vlp32c"])
+    flat = level_elevations(vlp32c, np.eye(3))
+    np.testing.assert_allclose(flat, np.broadcast_to(vlp32c, flat.shape), atol=1e-9)
+    rolled = level_rotation(Mounting(1.73, 10.0, 0.0), given=True)
+    turned = level_elevations(vlp32c, rolled)
+    horizon = turned[:, int(np.argmin(np.abs(vlp32c)))]  # the 0-degree laser, sector by sector
+    assert horizon.max() == pytest.approx(10.0, abs=0.6) and horizon.min() == pytest.approx(-10.0, abs=0.6)
+    gate = range_gate(scale_of(vlp32c), flat_ground(1.73), EDGES, rolled)
+    assert gate is not None and gate.factor.shape[0] == len(turned)
+    at15 = gate.factor[:, int(15.0 / RANGE_STEP_M)]
+    assert at15.min() < 0.5 and at15.max() == 1.0
+    azimuths = np.linspace(-np.pi, np.pi, len(turned), endpoint=False) + np.pi / len(turned)
+    np.testing.assert_array_equal(gate.at(np.full(len(turned), 15.0), azimuths), at15)
+
+
+def test_a_sensor_denser_than_the_hdl64e_keeps_its_gate() -> None:
+    """An OS2-128's lasers are 0.17 degrees apart and its points 0.35: its median-gap factor is 2.5 x 0.48 = 1.2 of
+    the HDL-64E's, capped at 1 as a whole; read per range its lasers are never under half, so its gate stays."""
+    os2 = np.linspace(11.25, -11.25, 128)
+    gate = range_gate(scale_of(os2, median_gap=2.07), flat_ground(1.7), EDGES)
+    assert gate is not None
+    np.testing.assert_array_equal(gate.at(np.arange(0.5, Stage1Config().max_range, RANGE_STEP_M)), 2.07)
+
+
+def test_range_scaling_finds_the_people_a_pitched_vlp32c_sees() -> None:
+    found = {False: 0, True: 0}
+    total = 0
+    for on in found:
+        pipeline = ScanPipeline(Stage1Config(range_scaling=on), intensity_match=False)
+        for frame in frames("synthetic:sensor=vlp32c,frames=2,seed=11,pitch=10"):
+            people = frame.labels == PEDESTRIAN
+            total += int(people.sum()) if on else 0
+            proposed = pipeline.propose(frame.points, frame.ring)
+            ids = proposed.in_input(proposed.result.cluster_id, len(frame.points), -1)
+            found[on] += int(np.count_nonzero(ids[people] >= 0))
+    assert total > 0
+    assert found[True] >= found[False] + 0.15 * total, (found, total)
