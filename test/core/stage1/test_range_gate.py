@@ -10,8 +10,8 @@ import pass3d_ros.synthetic  # noqa: F401  (registers the synthetic: format)
 from pass3d_ros.classes import PEDESTRIAN
 from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config, propose
-from pass3d_ros.core.stage1.mounting import Mounting, level_rotation
 from pass3d_ros.core.stage1.lasers import LASER_TABLES
+from pass3d_ros.core.stage1.mounting import Mounting, level_rotation
 from pass3d_ros.core.stage1.refinement import points_needed
 from pass3d_ros.core.stage1.sensor_params import (
     RANGE_STEP_M,
