@@ -240,10 +240,10 @@ class Stage1Config:
         "HDL-64E keeps the paper's values", 0, 1,
     )
     range_scaling: bool = _param(
-        False, "refinement: with sensor_scaling and lasers, th_num's vertical factor per range: the lasers that cross "
-        "a person-tall object there, from the sensor's height above the fitted ground, over KITTI's HDL-64E's, where "
-        "under half the median-gap factor (a high mount sees near objects with its sparse lower lasers; "
-        "pass3d_ros.core.stage1.sensor_params)", 0, 1,
+        True, "refinement: with sensor_scaling and lasers, th_num's vertical factor per range (and azimuth, tilted): "
+        "the lasers that cross a person-tall object there, from the sensor's height above the fitted ground, over "
+        "KITTI's HDL-64E's, where under half the median-gap factor (a high or tilted mount sees road users with its "
+        "sparse lasers; pass3d_ros.core.stage1.sensor_params; on by rule G3, docs/experiments/sensors.md)", 0, 1,
     )
     sensor_height: float | str = _auto_param(
         "ground: sensor height above the road (m; 1.73 on KITTI's car); it bounds the ground seeds from below. auto: "

@@ -15,12 +15,13 @@ ring recovery found:
   VLP-32C binned by elevation read as 3x denser than they are, and a higher th_num would only lose objects).
 * th_num_near scales by density; th_num_floor too, never below MIN_FLOOR (a cluster needs two points for a
   box) unless configured lower.
-* With `Stage1Config.range_scaling` and lasers (not elevation bins) the vertical part of th_num_near's factor is read
-  per range too (`RangeGate`): the lasers that cross a person-tall object (OBJECT_HEIGHT_M) standing on the ground at
-  that range, from the sensor's height above the fitted ground, over the same count for KITTI's HDL-64E at 1.73 m,
-  where that is under half of the median-gap factor. A sensor mounted high sees a near person with its lower lasers,
-  which on most sensors are the sparse ones (a VLP-32C at 3.5 m: 3 lasers on a person 15 m away, the HDL-64E at
-  1.73 m 20); the median gap (0.33 degrees, denser than the HDL-64E) cannot say so.
+* With `Stage1Config.range_scaling` and lasers (not elevation bins) the vertical part of th_num_near's factor is
+  read per range, and for a tilted sensor per azimuth, too (`RangeGate`): the lasers that cross a person-tall object
+  (OBJECT_HEIGHT_M) standing on the ground there, from the sensor's height above the fitted ground, over the same
+  count for KITTI's HDL-64E at 1.73 m, where that is under half of the median-gap factor. A sensor mounted high sees
+  a near person with its lower lasers, which on most sensors are the sparse ones (a VLP-32C at 3.5 m: 3 lasers on a
+  person 15 m away, the HDL-64E at 1.73 m 20), and a tilted one with its sparse upper lasers on one side; the median
+  gap (0.33 degrees, denser than the HDL-64E) cannot say so.
 
 Left as configured, measured on a real HDL-32E frame (nuScenes, true rings, th_num scaled): th_prop widened to the
 ring spacing (2 or 3 m instead of 1 m) merged objects with their neighbours (foreground recall 0.73 -> 0.68),
@@ -85,12 +86,12 @@ class SensorScale:
     # given): a stream's holder may pass it on as `effective_config`'s `resolution`. Not compared, as spacing_deg
     elevations_deg: np.ndarray | None = field(default=None, compare=False, repr=False)  # with range_scaling, the
     # lasers' elevations (`ring_elevations`) that `range_gate` counts; None: th_num_near holds the vertical factor
-    vertical_factor: float = field(default=1.0, compare=False)  # with elevations_deg, the median-gap vertical factor
-    # th_num_near leaves out (density = th_num_near's factor x this), which `range_gate` applies where it keeps it
+    vertical_factor: float = field(default=1.0, compare=False)  # with elevations_deg, the vertical part of density
+    # (density over its horizontal factor): what `range_gate` compares the per-range laser counts with
 
     def describe(self) -> str:
         """One line for logs: resolutions, density and the effective values."""
-        per_range = "" if self.elevations_deg is None else " (times the lasers across a person at each range)"
+        per_range = "" if self.elevations_deg is None else " (less where few lasers cross a person)"
         return (f"{self.n_rings} rings, vertical {self.vertical_deg:.2f} deg, "
                 f"horizontal {self.horizontal_deg:.3f} deg, density {self.density:.3f} x HDL-64E: "
                 f"th_num_near {self.th_num_near:.3g}{per_range}, "
@@ -98,7 +99,8 @@ class SensorScale:
 
 
 class RangeGate(NamedTuple):
-    """The few-points gate's vertical factor per azimuth sector and range (`range_gate`): `factor[k, i]` for clusters
+    """The few-points gate's factor per azimuth sector and range (`range_gate`; on th_num_near as `effective_config`
+    scaled it, 1 where the median gap holds): `factor[k, i]` for clusters
     centred in the level frame's azimuth sector k (of `len(factor)` equal sectors from -180 degrees; one for a level
     sensor) and [i * RANGE_STEP_M, (i + 1) * RANGE_STEP_M) away, the last bin for any farther."""
 
@@ -172,7 +174,8 @@ def range_gate(scale: SensorScale | None, planes: np.ndarray, segment_edges: np.
     ground plane under it (clipped to the mount heights the config accepts); None without lasers. At each range the
     lasers across the object over the HDL-64E's (half a laser added to both: far bins hold none) replace the
     median-gap factor (`scale.vertical_factor`) where they are under RANGE_REPLACES_BELOW of it; elsewhere the
-    median-gap factor stays. So the gate never rises, and the HDL-64E, read at its own height, keeps the paper's.
+    median-gap factor stays (a factor of 1 on th_num_near, which holds it). So the gate never rises, and the HDL-64E,
+    read at its own height, keeps the paper's.
     `level` (a tilted sensor's levelling rotation): the lasers are counted per azimuth sector at their elevations in
     the level frame (`level_elevations`)."""
     if scale is None or scale.elevations_deg is None or len(planes) == 0:
@@ -185,7 +188,7 @@ def range_gate(scale: SensorScale | None, planes: np.ndarray, segment_edges: np.
     across = (counts + 0.5) / (_REFERENCE_ACROSS + 0.5)  # not capped: vertical_factor may exceed 1 (a dense sensor
     # spinning slowly keeps the paper's gate by its lasers, density = min(1, vertical x horizontal))
     median_gap = scale.vertical_factor
-    return RangeGate(np.where(across < RANGE_REPLACES_BELOW * median_gap, across, median_gap))
+    return RangeGate(np.where(across < RANGE_REPLACES_BELOW * median_gap, across / median_gap, 1.0))
 
 
 def resolutions(points: np.ndarray, ring: np.ndarray) -> tuple[float, float]:
@@ -379,21 +382,20 @@ def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
         vertical = spacing if np.isfinite(spacing) else vertical
     else:
         spacing = None
-    density, near_density, elevations = 1.0, 1.0, None
+    density, vertical_factor, elevations = 1.0, 1.0, None
     if config.sensor_scaling:
         density = min(1.0, _ratio(REFERENCE_DV_DEG, vertical) * _ratio(REFERENCE_DH_DEG, horizontal))
-        near_density = density
         if config.range_scaling and not binned:
             elevations = ring_elevations(points, ring)
-            if len(elevations) >= MIN_PEAKS:  # the vertical factor is read per range (`range_gate`)
-                near_density = min(1.0, _ratio(REFERENCE_DH_DEG, horizontal))
+            if len(elevations) >= MIN_PEAKS:  # `range_gate` may read the vertical factor per range
+                vertical_factor = density / min(1.0, _ratio(REFERENCE_DH_DEG, horizontal))
             else:
                 elevations = None
     cfg = config
-    if density != 1.0 or near_density != 1.0:  # the values stay in their ranges (densities <= 1): not validated again
+    if density != 1.0:  # both values stay in their ranges (density <= 1), so the copy is not validated again
         cfg = copy.copy(config)
-        cfg.th_num_near = max(1.0, config.th_num_near * near_density)
+        cfg.th_num_near = max(1.0, config.th_num_near * density)
         cfg.th_num_floor = max(min(MIN_FLOOR, config.th_num_floor), round(config.th_num_floor * density))
     scale = SensorScale(n_rings, vertical, horizontal, density, cfg.th_num_near, cfg.th_num_floor, cfg.th_prop, spacing,
-                        resolution, elevations, density / near_density)
+                        resolution, elevations, vertical_factor)
     return cfg, scale

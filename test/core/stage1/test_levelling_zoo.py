@@ -38,12 +38,9 @@ SEE = "(docs/experiments/sensors.md)"
 KNOWN_SHORT = {
     ("vlp16", "height=3.5"): f"a VLP-16 3.5 m up meets the road 13 m out and crosses near road users with few lasers: "
                              f"0.89 against 0.97 level {SEE}",
-    ("vlp32c", "height=3.5"): "a VLP-32C 3.5 m up crosses a person 15 m away with 3 lasers while th_num stays the "
-                              "paper's: 0.62 against 0.96 level; stage1.range_scaling (off by default: rule G2) "
-                              f"reads 0.81 {SEE}",
+    ("vlp32c", "height=3.5"): "a VLP-32C 3.5 m up crosses a person 15 m away with 3 lasers: 0.81 against 0.96 level "
+                              f"(0.62 without stage1.range_scaling) {SEE}",
     ("pandar40", "height=3.5"): f"0.90 against 0.96 level, with range_scaling too; not yet looked into {SEE}",
-    ("vlp32c", "roll=10"): f"0.90 against 0.96 level, as the zoo's rolled VLP-16 and Pandar40; not yet looked "
-                           f"into {SEE}",
     ("vlp32c", "roll=180"): f"upside down 0.906 against 0.962 level; not yet looked into {SEE}",
     ("hdl64e", "roll=180"): "upside down, only the HDL-64E's few lasers above its horizon (+2 degrees at most) point "
                             "down, meeting the road 50 m out: near road users show their heads alone (0.00; with "
@@ -70,8 +67,16 @@ def test_tilted_high_and_upside_down_mounts_find_what_the_level_one_finds(
     assert proposed(spec(sensor, mount))[0] >= level[sensor] - 0.05
 
 
-@pytest.mark.parametrize("mount", ("", *MOUNTS))
-@pytest.mark.parametrize("sensor", [s for s in SENSOR_NAMES if s != "hdl64e"])  # KITTI's scans come without one
+RING_SHORT = {("pandar64", "roll=180"): "its first upside-down scan reads no mounting and runs unlevelled (above): "
+                                        "range_scaling then counts its lasers from the ring field on an unlevelled "
+                                        "scan, and the scan without one reads elevation bins, which it leaves alone"}
+RING_CASES = [pytest.param(sensor, mount, marks=pytest.mark.xfail(strict=True, reason=RING_SHORT[sensor, mount]))
+              if (sensor, mount) in RING_SHORT else (sensor, mount)
+              for sensor in SENSOR_NAMES if sensor != "hdl64e"  # KITTI's scans come without a ring field
+              for mount in ("", *MOUNTS)]
+
+
+@pytest.mark.parametrize(("sensor", "mount"), RING_CASES)
 def test_the_ring_field_proposes_what_the_scan_alone_does(sensor: str, mount: str) -> None:
     _, with_field = proposed(spec(sensor, mount))
     _, without = proposed(spec(sensor, mount), ring=False)

@@ -128,10 +128,10 @@ def test_problems_name_a_hand_set_height_off_the_estimate_and_an_upside_down_rea
 
 def test_a_high_mount_hears_of_range_scaling_until_it_is_on() -> None:
     high = Mounting(3.5, 0.3, -0.2)
-    said = problems(Stage1Config(), high)
+    said = problems(Stage1Config(range_scaling=False), high)
     assert len(said) == 1 and "3.50 m above the ground" in said[0] and "stage1.range_scaling:=true" in said[0]
-    assert problems(Stage1Config(range_scaling=True), high) == []
-    assert problems(Stage1Config(), Mounting(HIGH_MOUNT_M - 0.1, 0.0, 0.0)) == []
+    assert problems(Stage1Config(), high) == [], "on by default"
+    assert problems(Stage1Config(range_scaling=False), Mounting(HIGH_MOUNT_M - 0.1, 0.0, 0.0)) == []
 
 
 def test_readings_that_disagree_or_no_ground_at_all_make_the_mounting_unsure(low: list[Frame]) -> None:

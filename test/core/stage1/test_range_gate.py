@@ -74,9 +74,9 @@ def test_a_level_sensor_keeps_its_median_gap_factor() -> None:
     gate = range_gate(scale_of(hdl32e, median_gap), flat_ground(1.73), EDGES)
     assert gate is not None
     within = gate.at(np.arange(0.5, Stage1Config().max_range, RANGE_STEP_M))
-    np.testing.assert_array_equal(within, median_gap)
+    np.testing.assert_array_equal(within, 1.0)  # th_num_near holds the median-gap factor
     high = range_gate(scale_of(hdl32e, median_gap), flat_ground(3.5), EDGES)
-    assert high is not None and high.at(np.array([3.0]))[0] < 0.5 * median_gap  # 3 m from a 3.5 m mast: one laser
+    assert high is not None and high.at(np.array([3.0]))[0] < 0.5  # 3 m from a 3.5 m mast: one laser
 
 
 def test_the_gate_scales_th_num_near_by_its_factor_and_keeps_the_floor() -> None:
@@ -96,13 +96,13 @@ def test_ring_elevations_read_the_lasers(high_vlp32c: list[Frame]) -> None:
     assert np.all(nearest < 0.3), nearest
 
 
-def test_effective_config_moves_the_vertical_factor_to_the_gate(high_vlp32c: list[Frame]) -> None:
+def test_effective_config_reads_the_lasers_for_the_gate(high_vlp32c: list[Frame]) -> None:
     frame = high_vlp32c[0]
     cfg, scale = effective_config(Stage1Config(range_scaling=True), frame.points, frame.ring, 32)
     assert scale.elevations_deg is not None and len(scale.elevations_deg) >= 16
-    assert cfg.th_num_near == scale.th_num_near and cfg.th_num_near <= 30.0
-    assert scale.vertical_factor * cfg.th_num_near == pytest.approx(30.0 * scale.density)  # the factor split in two
-    _, off = effective_config(Stage1Config(), frame.points, frame.ring, 32)
+    assert cfg.th_num_near == scale.th_num_near == pytest.approx(max(1.0, 30.0 * scale.density))  # as before
+    assert scale.vertical_factor >= scale.density  # density's vertical part
+    _, off = effective_config(Stage1Config(range_scaling=False), frame.points, frame.ring, 32)
     assert off.elevations_deg is None
     _, binned = effective_config(Stage1Config(range_scaling=True), frame.points, frame.ring, 32, binned=True)
     assert binned.elevations_deg is None, "elevation bins are no lasers: the median-gap factor stays"
@@ -111,7 +111,7 @@ def test_effective_config_moves_the_vertical_factor_to_the_gate(high_vlp32c: lis
 def test_range_scaling_keeps_the_hdl64e_proposals() -> None:
     for frame in frames("synthetic:frames=2,seed=11"):
         on = propose(frame.points, frame.ring, Stage1Config(range_scaling=True))
-        off = propose(frame.points, frame.ring, Stage1Config())
+        off = propose(frame.points, frame.ring, Stage1Config(range_scaling=False))
         assert on.sensor is not None and on.sensor.elevations_deg is not None
         np.testing.assert_array_equal(on.cluster_id, off.cluster_id)
 
@@ -154,7 +154,7 @@ def test_a_sensor_denser_than_the_hdl64e_keeps_its_gate() -> None:
     os2 = np.linspace(11.25, -11.25, 128)
     gate = range_gate(scale_of(os2, median_gap=2.07), flat_ground(1.7), EDGES)
     assert gate is not None
-    np.testing.assert_array_equal(gate.at(np.arange(0.5, Stage1Config().max_range, RANGE_STEP_M)), 2.07)
+    np.testing.assert_array_equal(gate.at(np.arange(0.5, Stage1Config().max_range, RANGE_STEP_M)), 1.0)
 
 
 def test_range_scaling_finds_the_people_a_pitched_vlp32c_sees() -> None:
