@@ -61,11 +61,11 @@ class Stage2Config:
         "and a third thread encodes and publishes; each frame's arrays cross a pipe, a few ms)",
     )
     tracking: bool = _setting(
-        False, "objects over time: the stream's tracker (pass3d_ros.core.stream.tracks) gives each object a track id "
+        True, "objects over time: the stream's tracker (pass3d_ros.core.stream.tracks) gives each object a track id "
         "that persists and a class voted over its recent sightings; the object's points take the voted class in "
         "/pass3d/labeled (and points stage 2 called background on a confirmed track's footprint, its class: "
         "docs/outputs.md), which gains an int32 track_id field (-1: no confirmed track); /pass3d/detections carry the "
-        "track id, class and score, the markers the id; /diagnostics tracks alive, born and lost. Off by the rule of "
+        "track id, class and score, the markers the id; /diagnostics tracks alive, born and lost. On by rule K of "
         "docs/experiments/tracks.md",
     )
     track_gate_car: float = _setting(
