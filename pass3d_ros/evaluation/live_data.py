@@ -42,12 +42,13 @@ def live_bag(datasets: Sequence[Dataset], workdir: Path, progress: bool) -> tupl
 def evaluate_live(specs: Sequence[str | Dataset], config: Stage1Config, kind: str, weights: str | None, device: str,
                   options: LiveOptions) -> tuple[dict, LiveResult]:
     """Play the data through both live nodes (see the module notes); returns (summary, LiveResult).
-    `options.node_parameters` is replaced by what `config`, `kind`, `weights` and `device` ask."""
+    `options.node_parameters` is replaced by what `config`, `kind`, `weights` and `device` ask, and `tracking` off: the
+    nodes' labels are scored scan by scan, as the offline mode scores them (`--tracking` scores the vote offline)."""
     defaults = Stage1Config().to_dict()
     node_parameters = {
         "cluster_proposal_node": {f"{STAGE1_PREFIX}{key}": value for key, value in config.to_dict().items()
                                   if value != defaults[key]},
-        "segmentation_node": {"classifier": kind, "weights": weights or "", "device": device},
+        "segmentation_node": {"classifier": kind, "weights": weights or "", "device": device, "tracking": False},
     }
     datasets = resolve_datasets(specs)
     with tempfile.TemporaryDirectory(prefix="pass3d_evaluate_") as workdir:

@@ -30,7 +30,8 @@ Modes (one per run):
                   (the nuScenes parking lot's key frames: 2).
   --live          the live path: the data through cluster_proposal_node and segmentation_node running in
                   this process (pass3d_ros.evaluation.live.run_live, private DDS domain), outputs matched to
-                  inputs by header stamp and scored against the bag's `label_gt` field. One `bag:PATH[#/topic]`
+                  inputs by header stamp and scored against the bag's `label_gt` field, the segmentation node's
+                  `tracking` off (scan by scan, as offline; --tracking scores the vote). One `bag:PATH[#/topic]`
                   plays as it is; any other spec (synthetic:, kitti_object:, ..., or several specs) is first
                   converted into a temporary labelled bag, as `pass3d_kitti2bag --with-labels` would, and
                   deleted afterwards. Free-running at --rate x the recorded pace (frames a busy node cannot

@@ -42,7 +42,7 @@ pytestmark = pytest.mark.ros
 
 HEIGHT, WIDTH = 32, 2048
 INPUT_FIELDS = ("x", "y", "z", "t", "reflectivity", "ring", "ambient", "range", "intensity")
-ADDED = ("cluster_id", "confidence", "rgb", "label")
+ADDED = ("cluster_id", "track_id", "confidence", "rgb", "label")  # track_id: tracking is on by default
 Layout = Callable[[Ros, list[Parameter]], None]
 
 
@@ -146,7 +146,7 @@ def test_default_compact_has_only_the_points_stage1_read(beams32: Frame, compact
     cloud = ouster_cloud(beams32)
     rows = returns(cloud)
     assert compact_labels.dtype.names == ("x", "y", "z", "intensity", "ring", "cluster_id", "label", "confidence",
-                                          "rgb")
+                                          "rgb", "track_id")  # track_id: tracking is on by default
     for axis in "xyz":  # compact keeps the input order of the points read: a join by position
         np.testing.assert_array_equal(compact_labels[axis], cloud[axis][rows])
     assert np.isin(compact_labels["label"], FOREGROUND).sum() > 100
