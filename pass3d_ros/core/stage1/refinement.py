@@ -348,11 +348,11 @@ def _cluster_rects(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -
 
 
 def points_needed(rng: np.ndarray, config: Stage1Config, gate: RangeGate | None = None,
-                  azimuth: np.ndarray | None = None) -> np.ndarray:
+                  xy: np.ndarray | None = None) -> np.ndarray:
     """The few-points gate: the points a cluster centred `rng` metres away (horizontally) needs, th_num_near up to
-    th_num_range, then falling as 1 / range, times `gate`'s factor at that range (and `azimuth`, radians) when given,
-    never below th_num_floor."""
-    near = config.th_num_near if gate is None else config.th_num_near * gate.at(rng, azimuth)
+    th_num_range, then falling as 1 / range, times `gate`'s factor at that range (in the direction `xy`: RangeGate.at)
+    when given, never below th_num_floor."""
+    near = config.th_num_near if gate is None else config.th_num_near * gate.at(rng, xy)
     return np.maximum(config.th_num_floor, near * config.th_num_range / np.maximum(rng, config.th_num_range))
 
 
@@ -396,7 +396,7 @@ def gate_clusters(
     count, sums, lo, hi, bottom, top = _cluster_stats(points, label, n_clusters, plane_rows, segment_edges)
     centre = sums / np.maximum(count, 1)[:, None]
     rng = np.hypot(centre[:, 0], centre[:, 1])
-    need = points_needed(rng, config, gate, np.arctan2(centre[:, 1], centre[:, 0]))
+    need = points_needed(rng, config, gate, centre)
     extent = hi - lo
     may_part = ((count >= 2 * need) & (rng <= config.max_range) & (bottom <= config.max_bottom + PART_MARGIN_M)
                 & (top >= config.min_top - PART_MARGIN_M))

@@ -106,13 +106,15 @@ class RangeGate(NamedTuple):
 
     factor: np.ndarray
 
-    def at(self, rng: np.ndarray, azimuth: np.ndarray | None = None) -> np.ndarray:
-        """The factor at horizontal ranges `rng` (m) and azimuths (radians, level frame; needed with sectors)."""
+    def at(self, rng: np.ndarray, xy: np.ndarray | None = None) -> np.ndarray:
+        """The factor at horizontal ranges `rng` (m), for clusters centred in the directions `xy` (level frame, any
+        positive multiple of the centres; needed with sectors)."""
         factor = np.atleast_2d(self.factor)
         index = np.clip((np.asarray(rng) / RANGE_STEP_M).astype(np.int64), 0, factor.shape[1] - 1)
         if len(factor) == 1:
             return factor[0, index]
-        sector = np.floor((np.asarray(azimuth) + np.pi) / (2.0 * np.pi) * len(factor)).astype(np.int64) % len(factor)
+        azimuth = np.arctan2(xy[:, 1], xy[:, 0])
+        sector = np.floor((azimuth + np.pi) / (2.0 * np.pi) * len(factor)).astype(np.int64) % len(factor)
         return factor[sector, index]
 
 
@@ -121,11 +123,13 @@ _RANGES_M = (np.arange(int(RANGE_TABLE_M / RANGE_STEP_M) + 1) + 0.5) * RANGE_STE
 
 def lasers_across(elevations_deg: np.ndarray, height_m: float) -> np.ndarray:
     """Per `RangeGate` bin, how many of the lasers (elevations in degrees from the sensor's horizontal plane) cross
-    an OBJECT_HEIGHT_M tall object standing on the ground `height_m` below the sensor at the bin's range."""
-    elevations = np.sort(np.asarray(elevations_deg, dtype=np.float64))
+    an OBJECT_HEIGHT_M tall object standing on the ground `height_m` below the sensor at the bin's range; with rows
+    of elevations (one set of lasers per row), a row of counts each."""
+    elevations = np.sort(np.atleast_2d(np.asarray(elevations_deg, dtype=np.float64)), axis=1)
     low = np.degrees(np.arctan2(-height_m, _RANGES_M))
     high = np.degrees(np.arctan2(OBJECT_HEIGHT_M - height_m, _RANGES_M))
-    return np.searchsorted(elevations, high, "right") - np.searchsorted(elevations, low, "left")
+    counts = np.stack([np.searchsorted(row, high, "right") - np.searchsorted(row, low, "left") for row in elevations])
+    return counts if np.ndim(elevations_deg) > 1 else counts[0]
 
 
 _REFERENCE_ACROSS = lasers_across(np.asarray(LASER_TABLES["hdl64e"]), REFERENCE_HEIGHT_M)
@@ -142,11 +146,9 @@ def level_elevations(elevations_deg: np.ndarray, level: np.ndarray) -> np.ndarra
     elevation = np.degrees(np.arcsin(np.clip(turned[..., 2], -1.0, 1.0)))
     sector = (np.floor((np.arctan2(turned[..., 1], turned[..., 0]) + np.pi) / (2.0 * np.pi) * AZIMUTH_SECTORS)
               .astype(np.int64) % AZIMUTH_SECTORS)
-    laser = np.broadcast_to(np.arange(len(e))[:, None], sector.shape)
-    sums = np.zeros((AZIMUTH_SECTORS, len(e)))
-    counts = np.zeros((AZIMUTH_SECTORS, len(e)))
-    np.add.at(sums, (sector.ravel(), laser.ravel()), elevation.ravel())
-    np.add.at(counts, (sector.ravel(), laser.ravel()), 1.0)
+    cell = (sector * len(e) + np.arange(len(e))[:, None]).ravel()  # (sector, laser), sector-major
+    sums = np.bincount(cell, weights=elevation.ravel(), minlength=AZIMUTH_SECTORS * len(e)).reshape(AZIMUTH_SECTORS, -1)
+    counts = np.bincount(cell, minlength=AZIMUTH_SECTORS * len(e)).reshape(AZIMUTH_SECTORS, -1)
     own = np.broadcast_to(np.degrees(e[:, 0]), sums.shape)
     return np.where(counts > 0, sums / np.maximum(counts, 1.0), own)
 
@@ -183,8 +185,8 @@ def range_gate(scale: SensorScale | None, planes: np.ndarray, segment_edges: np.
     segment = int(np.clip(np.searchsorted(segment_edges, 0.0) - 1, 0, len(planes) - 1))
     c, d = planes[segment, 2:]
     height = float(np.clip(d / c, *MOUNT_HEIGHT_RANGE_M)) if c > 0 else REFERENCE_HEIGHT_M
-    per_sector = [scale.elevations_deg] if level is None else level_elevations(scale.elevations_deg, level)
-    counts = np.stack([lasers_across(elevations, height) for elevations in per_sector])
+    per_sector = scale.elevations_deg if level is None else level_elevations(scale.elevations_deg, level)
+    counts = np.atleast_2d(lasers_across(per_sector, height))
     across = (counts + 0.5) / (_REFERENCE_ACROSS + 0.5)  # not capped: vertical_factor may exceed 1 (a dense sensor
     # spinning slowly keeps the paper's gate by its lasers, density = min(1, vertical x horizontal))
     median_gap = scale.vertical_factor

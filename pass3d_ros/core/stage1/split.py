@@ -318,7 +318,7 @@ def _dropped_to_rerun(points: np.ndarray, label: np.ndarray, n_clusters: int, n_
         part_count = np.bincount(which, minlength=n_parts)
         centre = np.stack([np.bincount(which, weights=points[inside, k], minlength=n_parts) for k in (0, 1)], axis=1)
         rng = np.hypot(centre[:, 0], centre[:, 1]) / np.maximum(part_count, 1)
-        need = _refinement.points_needed(rng, config, gate, np.arctan2(centre[:, 1], centre[:, 0]))
+        need = _refinement.points_needed(rng, config, gate, centre)  # the summed centres: the same directions
         chosen[n_clusters:] = ((part_count >= 2 * need) & (part_count <= config.rerun_max_points)
                                & (rng <= config.max_range))
     chosen[kept] = False

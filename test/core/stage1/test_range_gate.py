@@ -145,7 +145,8 @@ def test_a_tilted_sensors_lasers_are_counted_where_they_point() -> None:
     at15 = gate.factor[:, int(15.0 / RANGE_STEP_M)]
     assert at15.min() < 0.5 and at15.max() == 1.0
     azimuths = np.linspace(-np.pi, np.pi, len(turned), endpoint=False) + np.pi / len(turned)
-    np.testing.assert_array_equal(gate.at(np.full(len(turned), 15.0), azimuths), at15)
+    xy = np.column_stack([np.cos(azimuths), np.sin(azimuths)])
+    np.testing.assert_array_equal(gate.at(np.full(len(turned), 15.0), xy), at15)
 
 
 def test_a_sensor_denser_than_the_hdl64e_keeps_its_gate() -> None:
