@@ -44,20 +44,21 @@ needs_vision_msgs = pytest.mark.skipif(detections.MISSING is not None,
                                        reason=f"{detections.MISSING}: no PyPI wheel; .ci/colcon-check builds it")
 OBJECT_NAMES = {CLASS_NAMES[k] for k in FOREGROUND}
 SIZE_RULES = [Parameter("classifier", value="size_rules")]
+SCAN_BY_SCAN = [*SIZE_RULES, Parameter("tracking", value=False)]  # each scan's own objects, as offline
 FRAMES = 3
 
 
-def two_nodes(ros: Ros) -> None:
+def two_nodes(ros: Ros, overrides: list[Parameter] = SCAN_BY_SCAN) -> None:
     """cluster_proposal_node and segmentation_node, joined by /pass3d/proposals."""
     ros.add(ClusterProposalNode(context=ros.context))
-    ros.add(SegmentationNode(context=ros.context, parameter_overrides=SIZE_RULES))
+    ros.add(SegmentationNode(context=ros.context, parameter_overrides=overrides))
 
 
-def pipeline(ros: Ros) -> None:
+def pipeline(ros: Ros, overrides: list[Parameter] = SCAN_BY_SCAN) -> None:
     """pass3d_pipeline's two nodes, joined in memory."""
     cluster, segmentation = in_memory_factories()
     ros.add(cluster(context=ros.context))
-    ros.add(segmentation(context=ros.context, parameter_overrides=SIZE_RULES))
+    ros.add(segmentation(context=ros.context, parameter_overrides=overrides))
 
 
 class Latched:
@@ -200,6 +201,42 @@ def test_detections_per_labelled_frame_and_label_info_for_a_late_subscriber(
     info = late.messages[0]
     assert [(c.class_id, c.class_name) for c in info.class_map] == list(enumerate(CLASS_NAMES))
     assert info.threshold == 0.0
+
+
+@needs_vision_msgs
+@pytest.mark.parametrize("layout", [two_nodes, pipeline], ids=["two_nodes", "pipeline"])
+def test_with_tracking_on_by_default_detections_carry_the_confirmed_track_ids_of_the_cloud(
+        ros: Ros, frame: Frame, layout: Callable[[Ros], None]) -> None:
+    """Tracking is on by default: a scan seen once makes tentative tracks (detections without ids, track_id -1 in the
+    cloud); seen again, every object's track is confirmed and keeps its id, and each detection's id is the track_id
+    of its points in /pass3d/labeled, with their class."""
+    layout(ros, SIZE_RULES)
+    labeled = Collector(ros, PointCloud2, "/pass3d/labeled")
+    found = Collector(ros, detections.vision.Detection3DArray, "/pass3d/detections")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, labeled, found)
+    for count in range(1, FRAMES + 1):
+        pub.publish(scan_message(frame, STAMP0 + (count - 1) * 100_000_000))
+        labeled.wait(count)
+        found.wait(count)
+
+    expected = offline_objects(frame)
+    first, *later = found.messages
+    assert len(first.detections) == len(expected) >= 2
+    assert {d.id for d in first.detections} == {""}, "one sighting: every track tentative"
+    assert (columns(labeled.messages[0])["track_id"] == -1).all()
+    ids = [sorted(d.id for d in array.detections) for array in later]
+    assert all(ids) and ids[0] == ids[-1] and len(set(ids[0])) == len(expected), "one kept id per object"
+    assert "" not in ids[0]
+    for cloud_msg, array in zip(labeled.messages[1:], later, strict=True):
+        cloud = columns(cloud_msg)
+        for detection in array.detections:
+            mine = cloud["track_id"] == int(detection.id)
+            assert mine.any(), "a detection's id is its points' track_id"
+            label = CLASS_NAMES.index(detection.results[0].hypothesis.class_id)
+            assert (cloud["label"][mine] == label).all()
+        tracked = cloud["track_id"] >= 0
+        assert set(np.unique(cloud["track_id"][tracked]).astype(str)) == set(ids[0])
 
 
 class MixedClassifier(SizeRuleClassifier):
