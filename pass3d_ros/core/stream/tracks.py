@@ -106,6 +106,8 @@ class TrackerConfig:
     # other end is ahead of it or behind it, never beside it)
     merge_cover: float | None = 0.4  # a detection holding this share of another confirmed track's predicted cells
     # (besides its own track's) covers that track's object too: its points are shared out (None: never)
+    merge_needs_room: bool = False  # a detection of a long class (a car) that fits one object of it (`extent_limit`)
+    # covers no other track: the other is a duplicate of the same car (born of a fragment), not a second car
     youth_penalty_m: float = 0.5  # extra cost of matching a new track, falling to 0 at mature_hits sightings: of two
     # tracks on one object (a duplicate born of a split), the older one wins the object
     mature_hits: int = 10
@@ -243,7 +245,7 @@ class Tracker:
         parts = self._parts(matched, shared, confirmed)
         if self.config.part_extent is not None:
             parts.update(self._ends(matched, parts, labels, world))
-        covered = self._covered(matched, parts, labels, shared, confirmed)
+        covered = self._covered(matched, parts, labels, shared, confirmed, sizes)
         rows, early = self._sightings(centers, sizes, labels, scores, stamp_s, matched, parts, detections)
         out = self._said_all(rows, early)
         seen = {self.tracks[u].track_id for others in covered.values() for u in others}
@@ -329,11 +331,12 @@ class Tracker:
         return Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits)
 
     def _covered(self, matched: dict[int, int], parts: dict[int, int], labels: Sequence[int],
-                 shared: _Shared | None, confirmed: np.ndarray) -> dict[int, list[int]]:
+                 shared: _Shared | None, confirmed: np.ndarray, sizes: np.ndarray) -> dict[int, list[int]]:
         """Matched detections that cover another confirmed track's object too (stage 1 joined two cars parked side
         by side): merge_cover of that track's predicted footprint cells inside the detection's, the track of the
-        detection's class, matched to no other detection that holds more of its cells. detection -> track indices.
-        `confirmed`: whether each track is."""
+        detection's class, matched to no other detection that holds more of its cells; with merge_needs_room, a car
+        detection too big for one car (`sizes`: the detections' boxes). detection -> track indices. `confirmed`:
+        whether each track is."""
         if self.config.merge_cover is None or shared is None or not matched:
             return {}
         det_track = np.full(len(shared.detections), -1, np.int64)
@@ -346,8 +349,17 @@ class Tracker:
                 continue
             if mine >= most or u in taken:
                 continue  # its own detection holds as much of it, or it took a part: not covered here
+            if self.config.merge_needs_room and self._fits_one(int(labels[d]), sizes[d]):
+                continue  # one car's room: the other track is a duplicate of this one's car
             out.setdefault(d, []).append(u)
         return out
+
+    def _fits_one(self, label: int, size: np.ndarray) -> bool:
+        """Whether a detection box of class `label` fits one object of it: a long class's, within `extent_limit`."""
+        limit = self.config.extent_limit(label)
+        if limit is None or not LONG_CLASS[label]:
+            return False
+        return bool(max(size[0], size[1]) <= limit[0] and min(size[0], size[1]) <= limit[1])
 
     def _merged_footprints(self, matched: dict[int, int], covered: dict[int, list[int]],
                            to_world: _Frame) -> dict[int, list[tuple[Tracked, np.ndarray]]]:
