@@ -106,8 +106,9 @@ class TrackerConfig:
     # other end is ahead of it or behind it, never beside it)
     merge_cover: float | None = 0.4  # a detection holding this share of another confirmed track's predicted cells
     # (besides its own track's) covers that track's object too: its points are shared out (None: never)
-    merge_needs_room: bool = False  # a detection of a long class (a car) that fits one object of it (`extent_limit`)
-    # covers no other track: the other is a duplicate of the same car (born of a fragment), not a second car
+    waiting_views: bool = False  # a detection left unmatched may be another view of a confirmed car track no
+    # detection matched this scan (its points with the track's remembered ones fit one car, as `_ends` reads one):
+    # it is that track's sighting, not a new track's (a parked car's box centre jumps by metres past the gate)
     youth_penalty_m: float = 0.5  # extra cost of matching a new track, falling to 0 at mature_hits sightings: of two
     # tracks on one object (a duplicate born of a split), the older one wins the object
     mature_hits: int = 10
@@ -245,8 +246,9 @@ class Tracker:
         parts = self._parts(matched, shared, confirmed)
         if self.config.part_extent is not None:
             parts.update(self._ends(matched, parts, labels, world))
-        covered = self._covered(matched, parts, labels, shared, confirmed, sizes)
-        rows, early = self._sightings(centers, sizes, labels, scores, stamp_s, matched, parts, detections)
+        covered = self._covered(matched, parts, labels, shared, confirmed)
+        rows, early = self._sightings(centers, sizes, labels, scores, stamp_s, matched, parts, detections,
+                                      world if self.config.waiting_views else None)
         out = self._said_all(rows, early)
         seen = {self.tracks[u].track_id for others in covered.values() for u in others}
         seen.update(self.store.track_id[self._live()[rows]].tolist())
@@ -259,16 +261,20 @@ class Tracker:
 
     def _sightings(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
                    stamp_s: float, matched: dict[int, int], parts: dict[int, int],
-                   detections: tuple[np.ndarray, np.ndarray] | None) -> tuple[list[int], dict[int, Tracked]]:
+                   detections: tuple[np.ndarray, np.ndarray] | None,
+                   world: Footprints | None = None) -> tuple[list[int], dict[int, Tracked]]:
         """Each detection's track (its row in `tracks`): a matched track sighted (all at once), a part its object's
-        track, any other a track found again (`_revive`) or born, in detection order. Also what the tracker says of
-        the parts that come before their object's own detection (said before that detection's sighting)."""
+        track, any other (with `world`, its footprint points) another view of a waiting car track (`_waiting_view`),
+        a track found again (`_revive`) or born, in detection order. Also what the tracker says of the parts that come
+        before their object's own detection (said before that detection's sighting)."""
         own = {t: d for d, t in matched.items()}
         early = {d: self._said(self.tracks[t]) for d, t in parts.items() if own[t] > d}
         ds = sorted(matched)
         self._sighted(self._live()[[matched[d] for d in ds]], centers[ds], sizes[ds],
                       np.asarray(labels, dtype=np.int64)[ds], np.asarray(scores, dtype=np.float64)[ds], stamp_s)
         rows = []
+        taken = set(matched.values()) | set(parts.values())
+        points = world.split() if world is not None else None
         for d in range(len(centers)):
             if d in parts:
                 rows.append(parts[d])
@@ -276,6 +282,16 @@ class Tracker:
             if d in matched:
                 rows.append(matched[d])
                 continue
+            if points is not None and len(points[d]):
+                u = self._waiting_view(points[d], int(labels[d]), taken)
+                if u is not None:
+                    taken.add(u)
+                    slot = np.array([self.tracks[u].slot])
+                    self._correct_all(slot, centers[d:d + 1], sizes[d:d + 1])
+                    self._sighted(slot, centers[d:d + 1], sizes[d:d + 1], np.array([int(labels[d])]),
+                                  np.array([float(scores[d])]), stamp_s)
+                    rows.append(u)
+                    continue
             track = self._revive(centers[d], sizes[d], int(labels[d]), stamp_s,
                                  None if detections is None else detections[0][detections[1][d]:detections[1][d + 1]])
             if track is None:
@@ -331,12 +347,11 @@ class Tracker:
         return Tracked(track.track_id, track.label(), track.score(), track.hits >= self.config.min_hits)
 
     def _covered(self, matched: dict[int, int], parts: dict[int, int], labels: Sequence[int],
-                 shared: _Shared | None, confirmed: np.ndarray, sizes: np.ndarray) -> dict[int, list[int]]:
+                 shared: _Shared | None, confirmed: np.ndarray) -> dict[int, list[int]]:
         """Matched detections that cover another confirmed track's object too (stage 1 joined two cars parked side
         by side): merge_cover of that track's predicted footprint cells inside the detection's, the track of the
-        detection's class, matched to no other detection that holds more of its cells; with merge_needs_room, a car
-        detection too big for one car (`sizes`: the detections' boxes). detection -> track indices. `confirmed`:
-        whether each track is."""
+        detection's class, matched to no other detection that holds more of its cells. detection -> track indices.
+        `confirmed`: whether each track is."""
         if self.config.merge_cover is None or shared is None or not matched:
             return {}
         det_track = np.full(len(shared.detections), -1, np.int64)
@@ -349,17 +364,8 @@ class Tracker:
                 continue
             if mine >= most or u in taken:
                 continue  # its own detection holds as much of it, or it took a part: not covered here
-            if self.config.merge_needs_room and self._fits_one(int(labels[d]), sizes[d]):
-                continue  # one car's room: the other track is a duplicate of this one's car
             out.setdefault(d, []).append(u)
         return out
-
-    def _fits_one(self, label: int, size: np.ndarray) -> bool:
-        """Whether a detection box of class `label` fits one object of it: a long class's, within `extent_limit`."""
-        limit = self.config.extent_limit(label)
-        if limit is None or not LONG_CLASS[label]:
-            return False
-        return bool(max(size[0], size[1]) <= limit[0] and min(size[0], size[1]) <= limit[1])
 
     def _merged_footprints(self, matched: dict[int, int], covered: dict[int, list[int]],
                            to_world: _Frame) -> dict[int, list[tuple[Tracked, np.ndarray]]]:
@@ -515,6 +521,32 @@ class Tracker:
             if best >= 0:
                 out[d] = best
         return out
+
+    def _waiting_view(self, points: np.ndarray, label: int, taken: set[int]) -> int | None:
+        """The confirmed track of long class `label` that no detection took this scan (not in `taken`) of which a
+        detection's footprint `points` (tracking frame) is another view, as `_ends` reads another end: within
+        part_gap_m of the track's remembered points (moved with it), all of them together within `extent_limit`, along
+        a moving track's heading; the smallest such union. Its index in `tracks`, or None."""
+        limit = self.config.extent_limit(label)
+        if limit is None or not LONG_CLASS[label]:
+            return None
+        best, best_length = None, np.inf
+        centre = points.mean(axis=0)
+        for u, track in enumerate(self.tracks):
+            if u in taken or track.offsets is None or track.hits < self.config.min_hits or track.label() != label:
+                continue
+            if np.linalg.norm(centre - track.state[:2]) > limit[0]:
+                continue
+            known = track.state[:2] + track.offsets
+            gap = np.sqrt(((known[:, None, :] - points[None, :, :]) ** 2).sum(axis=2).min())
+            if gap > self.config.part_gap_m:
+                continue
+            length, width, axis = extent(np.concatenate([known, points]))
+            speed = float(np.hypot(*track.state[2:]))
+            along = speed < self.config.heading_speed or abs(axis @ track.state[2:]) >= COS_HEADING * speed
+            if along and length <= limit[0] and width <= limit[1] and length < best_length:
+                best, best_length = u, length
+        return best
 
     def _keep_footprints(self, rows: list[int], world: Footprints,
                          merged: dict[int, list[tuple[Tracked, np.ndarray]]] | None = None) -> None:
