@@ -70,7 +70,7 @@ def cell_sets(xy: np.ndarray, counts: Sequence[int] | np.ndarray) -> tuple[np.nd
 def pieces(flat: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
     """`flat` cut into consecutive pieces of `sizes` (a list of views: np.split costs ten times more)."""
     ends = np.cumsum(sizes).tolist()
-    return [flat[start:end] for start, end in zip([0, *ends[:-1]], ends, strict=True)]
+    return [flat[start:end] for start, end in zip([0, *ends[:-1]] if ends else [], ends, strict=True)]
 
 
 MARKS = 1024  # a footprint whose cells' bounding box holds at most this many cells is sorted by marking them

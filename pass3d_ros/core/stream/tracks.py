@@ -18,8 +18,10 @@ the ground plane, `footprints`) and its recent sightings' classes and confidence
    detection that also covers `merge_cover` of another confirmed track's predicted cells joined two objects: its
    points are shared out between the tracks by their footprints (`ScanTracks.merged`).
 4. Matched tracks are corrected (a car's new view, its box edges changed by `reshape_m`, corrects the position and not
-   the velocity); other unmatched detections find again a track that ended less than `reid_misses` scans ago, or
-   start tentative tracks, confirmed after `min_hits` sightings.
+   the velocity); an unmatched car detection that with a confirmed car track no detection took fits one car (as
+   `_ends` reads one) is that track's sighting (`waiting_views`: its box centre jumped past the gate); other
+   unmatched detections find again a track that ended less than `reid_misses` scans ago, or start tentative tracks,
+   confirmed after `min_hits` sightings.
 5. A confirmed track that no detection matched (waiting) may be held by the scan's points that stage 2 called
    background on its predicted footprint (`_hold`): stage 2 missed the object this scan, the track did not.
 6. Tracks unseen (neither matched nor held) for `max_misses` scans end.
@@ -106,7 +108,7 @@ class TrackerConfig:
     # other end is ahead of it or behind it, never beside it)
     merge_cover: float | None = 0.4  # a detection holding this share of another confirmed track's predicted cells
     # (besides its own track's) covers that track's object too: its points are shared out (None: never)
-    waiting_views: bool = False  # a detection left unmatched may be another view of a confirmed car track no
+    waiting_views: bool = True  # a detection left unmatched may be another view of a confirmed car track no
     # detection matched this scan (its points with the track's remembered ones fit one car, as `_ends` reads one):
     # it is that track's sighting, not a new track's (a parked car's box centre jumps by metres past the gate)
     youth_penalty_m: float = 0.5  # extra cost of matching a new track, falling to 0 at mature_hits sightings: of two

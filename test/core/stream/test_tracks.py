@@ -203,3 +203,31 @@ def test_a_moving_car_takes_no_fragment_beside_it() -> None:
     out = tracker.update(np.array([[15.0, 0.0, -1.0], [15.0, 1.5, -1.0]]), np.array([[1.4, 0.6, 1.5]] * 2),
                          [CAR, CAR], [0.9, 0.9], 0.5, footprints=footprint((15.0, 0.0), (15.0, 1.5)))
     assert out[0].track_id == 0 and out[1].track_id != 0
+
+
+def test_another_view_of_a_waiting_car_track_is_its_sighting() -> None:
+    """A parked car tracked by a 0.8 m piece of its rear, then seen only by its side, whose box centre lies 3.1 m away
+    (past the 3 m gate, no cell shared): the side and the remembered piece fit one car, so the side is the waiting
+    track's sighting (without waiting_views, a new track). A car whose points begin 4.2 m beyond is another car."""
+    rng = np.random.default_rng(3)
+
+    def piece(x0: float, x1: float, n: int) -> np.ndarray:
+        return np.column_stack([rng.uniform(x0, x1, n), rng.uniform(-0.8, 0.8, n) + 4.0])
+
+    def run(config: TrackerConfig, side: tuple[float, float]) -> tuple[int, int]:
+        tracker = Tracker(config)
+        for k in range(3):
+            rear = piece(20.0, 20.8, 30)
+            first = tracker.update([[20.4, 4.0, -1.0]], [(0.8, 1.6, 1.5)], [CAR], [0.9], 0.1 * k,
+                                   footprints=Footprints.of([rear]))
+        length = side[1] - side[0]
+        later = tracker.update([[(side[0] + side[1]) / 2, 4.0, -1.0]], [(length, 1.6, 1.5)], [CAR], [0.9], 0.3,
+                               footprints=Footprints.of([piece(*side, 60)]))
+        return first[0].track_id, later[0].track_id
+
+    first, later = run(TrackerConfig(waiting_views=True), (22.2, 24.8))
+    assert later == first
+    first, later = run(TrackerConfig(waiting_views=False), (22.2, 24.8))
+    assert later != first, "without waiting_views the jump starts a new track"
+    first, later = run(TrackerConfig(waiting_views=True), (25.0, 27.6))
+    assert later != first, "a union longer than one car is another car"
