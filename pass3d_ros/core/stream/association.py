@@ -12,14 +12,13 @@ import numpy as np
 def margins(predicted: np.ndarray, centers: np.ndarray, track_labels: np.ndarray, det_labels: np.ndarray,
             shared: np.ndarray, track_cells: np.ndarray, det_cells: np.ndarray, hits: np.ndarray, gates: np.ndarray,
             never: np.ndarray, penalty: float, match_overlap: float, youth: float, mature: float,
-            least: float, of_larger: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            least: float) -> tuple[np.ndarray, np.ndarray]:
     """Each pair's margin (T, K) and whether it may match: its cost is the centre distance of the track's prediction
     (`predicted`, T x 2) from the detection's (`centers`, K x 2+), plus `penalty` for another class, times 1 - the
-    share of footprint cells it shares (`shared` counts over the smaller of `track_cells`, `det_cells`, or for a
-    detection of a class `of_larger` holds over the larger, so that a small track inside a large detection does not
-    cost it nothing; an empty `shared`: no footprints), plus the track's youth (`youth` falling to 0 at `mature`
-    hits). It may match within the detection's class gate or with `match_overlap` of shared cells, never across a
-    `never` class pair; its margin is the gate less its cost, at least `least`, and 0 where it may not match."""
+    share of footprint cells it shares (`shared` counts over the smaller of `track_cells`, `det_cells`; an empty
+    `shared`: no footprints), plus the track's youth (`youth` falling to 0 at `mature` hits). It may match within
+    the detection's class gate or with `match_overlap` of shared cells, never across a `never` class pair; its
+    margin is the gate less its cost, at least `least`, and 0 where it may not match."""
     tracks, detections = len(predicted), len(centers)
     footprints = shared.shape[0] == tracks and shared.shape[1] == detections and tracks * detections > 0
     margin = np.zeros((tracks, detections))
@@ -37,8 +36,6 @@ def margins(predicted: np.ndarray, centers: np.ndarray, track_labels: np.ndarray
             if footprints:
                 share = shared[t, d] / max(min(track_cells[t], det_cells[d]), 1)
                 ok = ok or share >= match_overlap
-                if of_larger[det_labels[d]]:
-                    share = shared[t, d] / max(max(track_cells[t], det_cells[d]), 1)
                 cost = cost * (1.0 - share)
             if never[track_labels[t], det_labels[d]]:
                 ok = False

@@ -108,9 +108,6 @@ class TrackerConfig:
     # other end is ahead of it or behind it, never beside it)
     merge_cover: float | None = 0.4  # a detection holding this share of another confirmed track's predicted cells
     # (besides its own track's) covers that track's object too: its points are shared out (None: never)
-    share_of_larger: bool = False  # for a detection of a short class (a person, a rider), a pair's cost falls by
-    # the footprint cells it shares over the larger footprint of the two, not the smaller (a small track inside a
-    # detection of two people joined would cost it nothing; a car's part is a view of it, read as before)
     waiting_views: bool = True  # a detection left unmatched may be another view of a confirmed car track no
     # detection matched this scan (its points with the track's remembered ones fit one car, as `_ends` reads one):
     # it is that track's sighting, not a new track's (a parked car's box centre jumps by metres past the gate)
@@ -140,12 +137,6 @@ class TrackerConfig:
         for a, b in self.never_match:
             table[a, b] = table[b, a] = True
         return table
-
-    @cached_property
-    def of_larger(self) -> np.ndarray:
-        """(NUM_CLASSES,): whether a detection of this class reads shared cells over the larger footprint
-        (`share_of_larger`: the short classes)."""
-        return ~LONG_CLASS if self.share_of_larger else np.zeros(NUM_CLASSES, bool)
 
     @cached_property
     def gates(self) -> np.ndarray:
@@ -464,7 +455,7 @@ class Tracker:
             none if shared is None else shared.cells, empty if shared is None else shared.tracks,
             empty if shared is None else shared.detections, self.store.hits[slots].astype(np.float64), config.gates,
             config.never, config.class_penalty_m, config.match_overlap, config.youth_penalty_m,
-            float(config.mature_hits), MIN_MARGIN_M, config.of_larger)
+            float(config.mature_hits), MIN_MARGIN_M)
         rows, cols = linear_sum_assignment(margin, maximize=True)
         keep = allowed[rows, cols]
         return rows[keep], cols[keep]
