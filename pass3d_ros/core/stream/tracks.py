@@ -114,10 +114,6 @@ class TrackerConfig:
     youth_penalty_m: float = 0.5  # extra cost of matching a new track, falling to 0 at mature_hits sightings: of two
     # tracks on one object (a duplicate born of a split), the older one wins the object
     mature_hits: int = 10
-    max_speed: tuple[tuple[int, float], ...] = ()  # m/s: with poses (tracks in the world frame), a track of this
-    # class moves no faster than this (its filter's velocity is capped before each prediction: a person's new track
-    # that took a neighbour's detection 1 m away reads 7 m/s and flies into the next person). Without poses a
-    # track's velocity holds the ego's too, and is not capped
     hold_min_confidence: float = 0.8  # the mean confidence of its voted class's sightings a held track needs (a
     # track born of a few unsure sightings of clutter is not held on that clutter)
 
@@ -141,12 +137,6 @@ class TrackerConfig:
         for a, b in self.never_match:
             table[a, b] = table[b, a] = True
         return table
-
-    @cached_property
-    def speed_limits(self) -> np.ndarray:
-        """(NUM_CLASSES,): each class's `max_speed` (infinite without one)."""
-        limits = dict(self.max_speed)
-        return np.array([limits.get(label, np.inf) for label in range(NUM_CLASSES)])
 
     @cached_property
     def gates(self) -> np.ndarray:
@@ -217,7 +207,6 @@ class Tracker:
         self._rows, self._rows_of = np.zeros(0, np.int64), self.tracks  # `_live`
         self.ended: list[Track] = []  # confirmed tracks ended less than reid_misses scans ago (`_revive`)
         self._next_id = 0
-        self._in_world = False
         self.born = 0
         self.lost = 0
 
@@ -242,7 +231,6 @@ class Tracker:
         gives those points (B, 3; sensor frame) within `reach` (T,) metres in x and y of the waiting tracks'
         `centers` (T, 3; sensor frame), and is called only when a track waits."""
         to_world = _Frame(pose)
-        self._in_world = pose is not None  # speeds are the objects' own only in the world frame (max_speed)
         centers = to_world.points(np.asarray(centers, dtype=np.float64).reshape(-1, 3))
         sizes = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
         world = detections = shared = None
@@ -643,12 +631,6 @@ class Tracker:
         """Every track's (or `tracks`') state and covariance carried to `stamp_s` (constant velocity; at most max_dt_s
         ahead)."""
         slots, store = self._live() if tracks is None else self._slots(tracks), self.store
-        if self.config.max_speed and self._in_world and len(slots):
-            limit = self.config.speed_limits[store.voted(slots)[0]]
-            speed = np.hypot(store.state[slots, 2], store.state[slots, 3])
-            over = speed > limit
-            if over.any():
-                store.state[slots[over], 2:4] *= (limit[over] / speed[over])[:, None]
         kalman.predict_rows(slots, store.state, store.cov, store.stamp, stamp_s, self.config.max_dt_s,
                             self.config.process_accel)
 
