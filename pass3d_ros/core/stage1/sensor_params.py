@@ -139,17 +139,19 @@ def level_elevations(elevations_deg: np.ndarray, level: np.ndarray) -> np.ndarra
     """Each laser's elevation (degrees) in the level frame of a tilted sensor (`level`: the rotation from the sensor's
     frame to the level one), per AZIMUTH_SECTORS sector of the level frame (S x L; a sector no direction reaches
     keeps the laser's own elevation): a laser's cone, tilted, runs higher on one side than the other."""
-    e = np.radians(np.asarray(elevations_deg, dtype=np.float64))[:, None]
-    a = np.linspace(-np.pi, np.pi, TILT_AZIMUTHS, endpoint=False)[None, :]
-    directions = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e) + 0.0 * a], axis=-1)
-    turned = directions @ np.asarray(level, dtype=np.float64).T  # (L, A, 3)
-    elevation = np.degrees(np.arcsin(np.clip(turned[..., 2], -1.0, 1.0)))
-    sector = (np.floor((np.arctan2(turned[..., 1], turned[..., 0]) + np.pi) / (2.0 * np.pi) * AZIMUTH_SECTORS)
+    e = np.radians(np.asarray(elevations_deg, dtype=np.float64))
+    a = np.linspace(-np.pi, np.pi, TILT_AZIMUTHS, endpoint=False)
+    r = np.asarray(level, dtype=np.float64)
+    cos_e, sin_e = np.cos(e)[:, None], np.sin(e)[:, None]
+    cos_a, sin_a = np.cos(a)[None, :], np.sin(a)[None, :]
+    turned = [cos_e * (r[k, 0] * cos_a + r[k, 1] * sin_a) + r[k, 2] * sin_e for k in range(3)]  # x, y, z: (L, A) each
+    elevation = np.degrees(np.arcsin(np.clip(turned[2], -1.0, 1.0)))
+    sector = (np.floor((np.arctan2(turned[1], turned[0]) + np.pi) / (2.0 * np.pi) * AZIMUTH_SECTORS)
               .astype(np.int64) % AZIMUTH_SECTORS)
     cell = (sector * len(e) + np.arange(len(e))[:, None]).ravel()  # (sector, laser), sector-major
     sums = np.bincount(cell, weights=elevation.ravel(), minlength=AZIMUTH_SECTORS * len(e)).reshape(AZIMUTH_SECTORS, -1)
     counts = np.bincount(cell, minlength=AZIMUTH_SECTORS * len(e)).reshape(AZIMUTH_SECTORS, -1)
-    own = np.broadcast_to(np.degrees(e[:, 0]), sums.shape)
+    own = np.broadcast_to(np.degrees(e), sums.shape)
     return np.where(counts > 0, sums / np.maximum(counts, 1.0), own)
 
 
