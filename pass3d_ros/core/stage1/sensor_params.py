@@ -113,9 +113,12 @@ class RangeGate(NamedTuple):
         index = np.clip((np.asarray(rng) / RANGE_STEP_M).astype(np.int64), 0, factor.shape[1] - 1)
         if len(factor) == 1:
             return factor[0, index]
-        azimuth = np.arctan2(xy[:, 1], xy[:, 0])
-        sector = np.floor((azimuth + np.pi) / (2.0 * np.pi) * len(factor)).astype(np.int64) % len(factor)
-        return factor[sector, index]
+        return factor[azimuth_sector(xy[:, 0], xy[:, 1], len(factor)), index]
+
+
+def azimuth_sector(x: np.ndarray, y: np.ndarray, sectors: int) -> np.ndarray:
+    """Which of `sectors` equal azimuth sectors from -180 degrees each direction (x, y) lies in."""
+    return np.floor((np.arctan2(y, x) + np.pi) / (2.0 * np.pi) * sectors).astype(np.int64) % sectors
 
 
 _RANGES_M = (np.arange(int(RANGE_TABLE_M / RANGE_STEP_M) + 1) + 0.5) * RANGE_STEP_M
@@ -146,8 +149,7 @@ def level_elevations(elevations_deg: np.ndarray, level: np.ndarray) -> np.ndarra
     cos_a, sin_a = np.cos(a)[None, :], np.sin(a)[None, :]
     turned = [cos_e * (r[k, 0] * cos_a + r[k, 1] * sin_a) + r[k, 2] * sin_e for k in range(3)]  # x, y, z: (L, A) each
     elevation = np.degrees(np.arcsin(np.clip(turned[2], -1.0, 1.0)))
-    sector = (np.floor((np.arctan2(turned[1], turned[0]) + np.pi) / (2.0 * np.pi) * AZIMUTH_SECTORS)
-              .astype(np.int64) % AZIMUTH_SECTORS)
+    sector = azimuth_sector(turned[0], turned[1], AZIMUTH_SECTORS)
     cell = (sector * len(e) + np.arange(len(e))[:, None]).ravel()  # (sector, laser), sector-major
     sums = np.bincount(cell, weights=elevation.ravel(), minlength=AZIMUTH_SECTORS * len(e)).reshape(AZIMUTH_SECTORS, -1)
     counts = np.bincount(cell, minlength=AZIMUTH_SECTORS * len(e)).reshape(AZIMUTH_SECTORS, -1)

@@ -246,11 +246,12 @@ class Tracker:
         self._correct_all(self._live()[rows], centers[cols], sizes[cols])
         confirmed = self.store.hits[self._live()] >= self.config.min_hits
         parts = self._parts(matched, shared, confirmed)
+        split = world.split() if world is not None else None  # each detection's footprint points, once a scan
         if self.config.part_extent is not None:
-            parts.update(self._ends(matched, parts, labels, world))
+            parts.update(self._ends(matched, parts, labels, split))
         covered = self._covered(matched, parts, labels, shared, confirmed)
         rows, early = self._sightings(centers, sizes, labels, scores, stamp_s, matched, parts, detections,
-                                      world if self.config.waiting_views else None)
+                                      split if self.config.waiting_views else None)
         out = self._said_all(rows, early)
         seen = {self.tracks[u].track_id for others in covered.values() for u in others}
         seen.update(self.store.track_id[self._live()[rows]].tolist())
@@ -264,11 +265,11 @@ class Tracker:
     def _sightings(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
                    stamp_s: float, matched: dict[int, int], parts: dict[int, int],
                    detections: tuple[np.ndarray, np.ndarray] | None,
-                   world: Footprints | None = None) -> tuple[list[int], dict[int, Tracked]]:
+                   points: list[np.ndarray] | None = None) -> tuple[list[int], dict[int, Tracked]]:
         """Each detection's track (its row in `tracks`): a matched track sighted (all at once), a part its object's
-        track, any other (with `world`, its footprint points) another view of a waiting car track (`_waiting_view`),
-        a track found again (`_revive`) or born, in detection order. Also what the tracker says of the parts that come
-        before their object's own detection (said before that detection's sighting)."""
+        track, any other (with `points`, each detection's footprint) another view of a waiting car track
+        (`_waiting_view`), a track found again (`_revive`) or born, in detection order. Also what the tracker says of
+        the parts that come before their object's own detection (said before that detection's sighting)."""
         own = {t: d for d, t in matched.items()}
         early = {d: self._said(self.tracks[t]) for d, t in parts.items() if own[t] > d}
         ds = sorted(matched)
@@ -276,7 +277,6 @@ class Tracker:
                       np.asarray(labels, dtype=np.int64)[ds], np.asarray(scores, dtype=np.float64)[ds], stamp_s)
         rows = []
         taken = set(matched.values()) | set(parts.values())
-        points = world.split() if world is not None else None
         for d in range(len(centers)):
             if d in parts:
                 rows.append(parts[d])
@@ -284,24 +284,20 @@ class Tracker:
             if d in matched:
                 rows.append(matched[d])
                 continue
-            if points is not None and len(points[d]):
-                u = self._waiting_view(points[d], int(labels[d]), taken)
-                if u is not None:
-                    taken.add(u)
-                    slot = np.array([self.tracks[u].slot])
-                    self._correct_all(slot, centers[d:d + 1], sizes[d:d + 1])
-                    self._sighted(slot, centers[d:d + 1], sizes[d:d + 1], np.array([int(labels[d])]),
-                                  np.array([float(scores[d])]), stamp_s)
-                    rows.append(u)
-                    continue
-            track = self._revive(centers[d], sizes[d], int(labels[d]), stamp_s,
-                                 None if detections is None else detections[0][detections[1][d]:detections[1][d + 1]])
+            row = None if points is None or not len(points[d]) else self._waiting_view(points[d], int(labels[d]), taken)
+            if row is not None:  # another view of a waiting car: corrected as a matched track is
+                taken.add(row)
+                track = self.tracks[row]
+                self._correct_all(np.array([track.slot]), centers[d:d + 1], sizes[d:d + 1])
+            else:
+                track = self._revive(centers[d], sizes[d], int(labels[d]), stamp_s, None if detections is None
+                                     else detections[0][detections[1][d]:detections[1][d + 1]])
             if track is None:
                 self._birth(centers[d], sizes[d], int(labels[d]), float(scores[d]), stamp_s)
             else:
                 self._sighted(np.array([track.slot]), centers[d:d + 1], sizes[d:d + 1], np.array([int(labels[d])]),
                               np.array([float(scores[d])]), stamp_s)
-            rows.append(len(self.tracks) - 1)
+            rows.append(row if row is not None else len(self.tracks) - 1)
         return rows, early
 
     def _said_all(self, rows: list[int], early: dict[int, Tracked]) -> list[Tracked]:
@@ -479,18 +475,17 @@ class Tracker:
                 if share[best[k], k] >= self.config.part_overlap}
 
     def _ends(self, matched: dict[int, int], parts: dict[int, int], labels: Sequence[int],
-              world: Footprints | None) -> dict[int, int]:
+              points: list[np.ndarray] | None) -> dict[int, int]:
         """Unmatched detections that are another end of a confirmed track's object: of the track's class, and the
         track's last points (moved with it) and its matched detection's points come within part_gap_m of theirs, all
         of them together still fit one object of that class (`extent_limit`: a parked car passed by is seen first by
         its rear, then cut in two as its side comes into view), and, for a track moving heading_speed or faster, the
         union's longer side lies along its heading. The smallest such union wins. detection -> track index."""
-        if world is None:
+        if points is None:
             return {}
-        free = [d for d in range(len(world.counts)) if d not in matched and d not in parts and world.counts[d]]
+        free = [d for d in range(len(points)) if d not in matched and d not in parts and len(points[d])]
         if not free:
             return {}
-        points = world.split()
         by_track: dict[int, list[int]] = {}  # confirmed tracks of a class with a size: their detections this scan
         track_label: dict[int, int] = {}
         for d, t in matched.items():
@@ -511,14 +506,9 @@ class Tracker:
                 if not near:
                     continue
                 remembered = [track.state[:2] + track.offsets] if track.offsets is not None else []
-                known = np.concatenate([*remembered, *(points[k] for k in mine)])
-                gap = np.sqrt(((known[:, None, :] - points[d][None, :, :]) ** 2).sum(axis=2).min())
-                if gap > self.config.part_gap_m:
-                    continue
-                length, width, axis = extent(np.concatenate([known, points[d]]))
-                speed = float(np.hypot(*track.state[2:]))
-                along = speed < self.config.heading_speed or abs(axis @ track.state[2:]) >= COS_HEADING * speed
-                if along and length <= limit[0] and width <= limit[1] and length < best_length:
+                length = self._one_object(track, np.concatenate([*remembered, *(points[k] for k in mine)]),
+                                          points[d], limit)
+                if length is not None and length < best_length:
                     best, best_length = t, length
             if best >= 0:
                 out[d] = best
@@ -539,16 +529,23 @@ class Tracker:
                 continue
             if np.linalg.norm(centre - track.state[:2]) > limit[0]:
                 continue
-            known = track.state[:2] + track.offsets
-            gap = np.sqrt(((known[:, None, :] - points[None, :, :]) ** 2).sum(axis=2).min())
-            if gap > self.config.part_gap_m:
-                continue
-            length, width, axis = extent(np.concatenate([known, points]))
-            speed = float(np.hypot(*track.state[2:]))
-            along = speed < self.config.heading_speed or abs(axis @ track.state[2:]) >= COS_HEADING * speed
-            if along and length <= limit[0] and width <= limit[1] and length < best_length:
+            length = self._one_object(track, track.state[:2] + track.offsets, points, limit)
+            if length is not None and length < best_length:
                 best, best_length = u, length
         return best
+
+    def _one_object(self, track: Track, known: np.ndarray, points: np.ndarray,
+                    limit: tuple[float, float]) -> float | None:
+        """The longer side of `known` (a track's points, tracking frame) and `points` together where they are one
+        object of the track's: within part_gap_m of each other, within `limit` (`extent_limit`), and for a track
+        moving heading_speed or faster the longer side along its heading; else None."""
+        gap = np.sqrt(((known[:, None, :] - points[None, :, :]) ** 2).sum(axis=2).min())
+        if gap > self.config.part_gap_m:
+            return None
+        length, width, axis = extent(np.concatenate([known, points]))
+        speed = float(np.hypot(*track.state[2:]))
+        along = speed < self.config.heading_speed or abs(axis @ track.state[2:]) >= COS_HEADING * speed
+        return length if along and length <= limit[0] and width <= limit[1] else None
 
     def _keep_footprints(self, rows: list[int], world: Footprints,
                          merged: dict[int, list[tuple[Tracked, np.ndarray]]] | None = None) -> None:
