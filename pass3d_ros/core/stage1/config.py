@@ -217,6 +217,11 @@ class Stage1Config:
         "takes the points within 0.6 m, and each such part is kept as rerun_dropped's are "
         "(pass3d_ros.core.stage1.crowd; docs/experiments/sensors.md, rule C1)", 0, 1,
     )
+    cut_canopies: bool = _param(
+        False, "refinement: a part of rerun_dropped centred within 15 m whose points above max_top form a canopy "
+        "(2 m or more across, at most 1 m deep: an awning, a shelter's roof, a covered walkway) loses them before its "
+        "gates: people walking under it (pass3d_ros.core.stage1.canopy; docs/experiments/sensors.md, rule C3)", 0, 1,
+    )
     rerun_max_points: int = _param(
         3000, "refinement: rerun_dropped leaves larger clusters (buildings, long walls) dropped whole", 1, 10_000_000,
     )

@@ -31,6 +31,7 @@ import copy
 import numba as nb
 import numpy as np
 
+from pass3d_ros.core.stage1 import canopy as _canopy
 from pass3d_ros.core.stage1 import crowd as _crowd
 from pass3d_ros.core.stage1 import protrusion as _protrusion
 from pass3d_ros.core.stage1 import refinement as _refinement
@@ -265,6 +266,16 @@ def _people_in_groups(points: np.ndarray, label: np.ndarray, n_total: int, group
     return out, n_after, boxes, ids
 
 
+def _under_canopies(points: np.ndarray, label: np.ndarray, first: int, n_total: int, small_only: np.ndarray,
+                    surface: np.ndarray | LocalGround, segment_edges: np.ndarray, config: Stage1Config) -> np.ndarray:
+    """`cut_canopies`: the labels with the canopies over `rerun_dropped`'s parts (ids `first` on, flagged in
+    `small_only`) taken out of them (pass3d_ros.core.stage1.canopy)."""
+    chosen = np.zeros(n_total, dtype=bool)
+    chosen[first:] = small_only
+    height = heights_above_ground(points, label, chosen, surface, segment_edges)
+    return _canopy.under_canopies(points, label, np.flatnonzero(chosen), height, config.max_top)
+
+
 def heights_above_ground(points: np.ndarray, label: np.ndarray, chosen: np.ndarray, surface: np.ndarray | LocalGround,
                          segment_edges: np.ndarray) -> np.ndarray:
     """Height above the ground of the points of the clusters flagged in `chosen` (one bool per cluster id; NaN for
@@ -370,6 +381,8 @@ def select_with_split(
                 moved = out >= first
                 origin[out[moved] - first] = before[moved]
                 small_only = ~np.isin(origin, wide)
+            if small_only is not None and config.cut_canopies:
+                out = _under_canopies(points, out, first, n_total, small_only, planes, segment_edges, config)
             part_boxes, part_ids, groups = _gate_parts(points, out, first, n_total - first, planes, segment_edges,
                                                        config, small_only, gate)
             boxes += part_boxes
