@@ -218,7 +218,7 @@ class Stage1Config:
         "(pass3d_ros.core.stage1.crowd; docs/experiments/sensors.md, rule C1)", 0, 1,
     )
     cut_canopies: bool = _param(
-        False, "refinement: a part of rerun_dropped centred within 15 m whose points above max_top form a canopy "
+        True, "refinement: a part of rerun_dropped centred within 15 m whose points above max_top form a canopy "
         "(2 m or more across, at most 1 m deep: an awning, a shelter's roof, a covered walkway) loses them before its "
         "gates: people walking under it (pass3d_ros.core.stage1.canopy; docs/experiments/sensors.md, rule C3)", 0, 1,
     )

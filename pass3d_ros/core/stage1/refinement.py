@@ -374,6 +374,15 @@ class Gated(NamedTuple):
     # low and high enough (within PART_MARGIN_M) that a part could pass the bottom and top gates
 
 
+def cluster_heights(points: np.ndarray, label: np.ndarray, n_clusters: int, planes: np.ndarray,
+                    segment_edges: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per cluster id: its point count, its centre (x, y), and its lowest and highest point above the segment planes
+    `planes` (the local ground's offset at the centre, which the gates take off both, not applied; +-inf for a
+    cluster without points)."""
+    count, sums, _, _, bottom, top = _cluster_stats(points, label, n_clusters, planes, segment_edges)
+    return count, sums / np.maximum(count, 1)[:, None], bottom, top
+
+
 def gate_clusters(
     points: np.ndarray,
     label: np.ndarray,

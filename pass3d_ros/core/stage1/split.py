@@ -267,13 +267,24 @@ def _people_in_groups(points: np.ndarray, label: np.ndarray, n_total: int, group
 
 
 def _under_canopies(points: np.ndarray, label: np.ndarray, first: int, n_total: int, small_only: np.ndarray,
-                    surface: np.ndarray | LocalGround, segment_edges: np.ndarray, config: Stage1Config) -> np.ndarray:
+                    surface: np.ndarray | LocalGround, segment_edges: np.ndarray, config: Stage1Config,
+                    gate: RangeGate | None = None) -> np.ndarray:
     """`cut_canopies`: the labels with the canopies over `rerun_dropped`'s parts (ids `first` on, flagged in
-    `small_only`) taken out of them (pass3d_ros.core.stage1.canopy)."""
-    chosen = np.zeros(n_total, dtype=bool)
-    chosen[first:] = small_only
-    height = heights_above_ground(points, label, chosen, surface, segment_edges)
-    return _canopy.under_canopies(points, label, np.flatnonzero(chosen), height, config.max_top)
+    `small_only`) taken out of them (pass3d_ros.core.stage1.canopy). Only parts that a gate could keep once cut are
+    looked at (points for the few-points gate, a person's rise) and only those reaching above max_top near enough
+    (`canopy.looked_at`) are cut: a few of a frame's hundreds."""
+    planes = surface.planes if isinstance(surface, LocalGround) else surface
+    count, centre, bottom, top = _refinement.cluster_heights(points, label - first, n_total - first, planes,
+                                                             segment_edges)  # other points' labels fall below 0
+    read = np.flatnonzero(small_only & (top - bottom >= PART_MIN_RISE_M))
+    read = read[count[read] >= _refinement.points_needed(np.hypot(centre[read, 0], centre[read, 1]), config, gate,
+                                                         centre[read])]
+    offset = np.zeros(len(read))
+    if isinstance(surface, LocalGround) and len(read):
+        offset = surface.offsets(centre[read])
+    looked = _canopy.looked_at(centre[read], top[read] - offset, config.max_top)
+    return _canopy.under_canopies(points, label, first + read[looked], offset[looked], planes, segment_edges,
+                                  config.max_top)
 
 
 def heights_above_ground(points: np.ndarray, label: np.ndarray, chosen: np.ndarray, surface: np.ndarray | LocalGround,
@@ -382,7 +393,7 @@ def select_with_split(
                 origin[out[moved] - first] = before[moved]
                 small_only = ~np.isin(origin, wide)
             if small_only is not None and config.cut_canopies:
-                out = _under_canopies(points, out, first, n_total, small_only, planes, segment_edges, config)
+                out = _under_canopies(points, out, first, n_total, small_only, planes, segment_edges, config, gate)
             part_boxes, part_ids, groups = _gate_parts(points, out, first, n_total - first, planes, segment_edges,
                                                        config, small_only, gate)
             boxes += part_boxes
@@ -421,3 +432,4 @@ def warm_up() -> None:
     config = Stage1Config(th_num_floor=1, th_num_near=1.0)
     select_with_split(pts, label, 1, np.array([[0.0, 0.0, 1.0, 1.73]]), np.array([-80.0, 80.0]), config)
     _protrusion.warm_up()
+    _canopy.warm_up()
