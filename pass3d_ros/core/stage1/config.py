@@ -213,9 +213,9 @@ class Stage1Config:
     )
     split_groups: bool = _param(
         True, "refinement: a part of rerun_dropped of a person's height but too big for one person is a group of "
-        "people: each head found in it (the highest points, 0.45 m or more apart, nothing as high 0.3-0.6 m around) "
+        "people: each head found in it (the highest points, 0.45 m or more apart, nothing as high 0.3-0.45 m around) "
         "takes the points within 0.6 m, and each such part is kept as rerun_dropped's are "
-        "(pass3d_ros.core.stage1.crowd; docs/experiments/sensors.md, rule C1)", 0, 1,
+        "(pass3d_ros.core.stage1.crowd; docs/experiments/sensors.md, rules C1 and C4)", 0, 1,
     )
     cut_canopies: bool = _param(
         True, "refinement: a part of rerun_dropped centred within 15 m whose points above max_top form a canopy "

@@ -6,9 +6,10 @@ group of three or more mostly background (a lone person's points pedestrian 70 %
 group's 2-14 %; docs/experiments/sensors.md, rule C1). Each person's head and shoulders are the highest points
 around them, so the points are taken from the highest down: one that stands SEED_MIN_H or more above the ground,
 PERSON_SPACING or more (in x-y) from every head already found, and alone (no point from HEAD_WIDTH out to
-PERSON_RADIUS around it less than HEAD_DROP lower: the top of a wall, a hedge or a vehicle runs on at one height) is
-another person's head. A group with two heads or more is parted: every point goes to the nearest head in x-y, if
-within PERSON_RADIUS; the rest (a bag, a pole between them) to none.
+PERSON_SPACING around it less than HEAD_DROP lower: the top of a wall, a hedge or a vehicle runs on at one height; a
+neighbour's head 0.45-0.6 m away does not hide it, rule C4) is another person's head. A group with two heads or more
+is parted: every point goes to the nearest head in x-y, if within PERSON_RADIUS; the rest (a bag, a pole between
+them) to none.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 SEED_MIN_H = 1.0  # m above ground: a head or shoulders (a child of 1.1 m has its head there), not a bag or a bonnet
 PERSON_SPACING = 0.45  # m between two heads: adult shoulders are 0.4-0.5 m broad, so side by side they are this apart
 HEAD_WIDTH = 0.3  # m: points nearer a head than this may be as high (the head and the shoulders under it) ...
-HEAD_DROP = 0.15  # ... points from there out to PERSON_RADIUS must be this much lower than the head's top
+HEAD_DROP = 0.15  # ... points from there out to PERSON_SPACING must be this much lower than the head's top
 PERSON_RADIUS = 0.6  # m from the head in x-y: a walking person's feet and arms reach about this far
 
 
@@ -59,7 +60,7 @@ def _people_kernel(x: np.ndarray, y: np.ndarray, h: np.ndarray, start: np.ndarra
                 dx = x[j] - x[i]
                 dy = y[j] - y[i]
                 d2 = dx * dx + dy * dy
-                if inner2 <= d2 < radius2:
+                if inner2 <= d2 < spacing2:
                     apart = False
                     break
             if apart:
