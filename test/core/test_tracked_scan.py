@@ -134,6 +134,20 @@ def test_a_track_holds_the_background_points_stage_2_missed_on_its_footprint() -
     assert [obj.cluster_id for obj in again.voted.objects] == [0] and again.voted.cluster_id[:40].tolist() == [0] * 40
 
 
+def test_a_person_is_not_held_on_a_stream_slower_than_5_hz() -> None:
+    """The same person seen four times and then missed by stage 2, at 2 Hz (nuScenes' key frames): a person walks more
+    than their width between such scans, so the track waits instead of painting its old footprint (rule M2)."""
+    tracker = Tracker()
+    ground = np.array([False] * 40 + [True] * 30)
+    for k in range(4):
+        objects, points = person_scan(10.0, PEDESTRIAN)
+        track_scan(tracker, objects, 0.5 * k, points=points, ground=ground)
+    objects, points = person_scan(10.0, PEDESTRIAN, background=True)
+    missed = track_scan(tracker, objects, 2.0, points=points, ground=ground)
+    assert missed.voted.objects == [] and missed.voted.labels.tolist() == [BACKGROUND] * 70
+    assert tracker.tracks[0].held == 0 and tracker.tracks[0].misses == 1
+
+
 def test_a_track_of_unsure_sightings_is_not_held_and_a_held_track_runs_out() -> None:
     unsure = Tracker()
     for k in range(4):

@@ -23,7 +23,8 @@ the ground plane, `footprints`) and its recent sightings' classes and confidence
    unmatched detections find again a track that ended less than `reid_misses` scans ago, or start tentative tracks,
    confirmed after `min_hits` sightings.
 5. A confirmed track that no detection matched (waiting) may be held by the scan's points that stage 2 called
-   background on its predicted footprint (`_hold`): stage 2 missed the object this scan, the track did not.
+   background on its predicted footprint (`_hold`): stage 2 missed the object this scan, the track did not. A
+   person's or rider's track only on a stream of 5 Hz or more (`hold_people_period_s`).
 6. Tracks unseen (neither matched nor held) for `max_misses` scans end.
 A track's class is the confidence-weighted vote of its last `vote_window` sightings: a new track takes its first
 sighting's class; a change needs the new class to lead the window's vote. Parts and held points do not vote.
@@ -116,6 +117,9 @@ class TrackerConfig:
     mature_hits: int = 10
     hold_min_confidence: float = 0.8  # the mean confidence of its voted class's sightings a held track needs (a
     # track born of a few unsure sightings of clutter is not held on that clutter)
+    hold_people_period_s: float = 0.2  # a pedestrian's or cyclist's waiting track is held only when the scan came at
+    # most this long after the one before (5 Hz or more): at 2 Hz a person walks more than their width between scans,
+    # off the footprint that would hold them (docs/experiments/tracks.md, rule M2)
 
     def extent_limit(self, label: int) -> tuple[float, float] | None:
         """The longer and shorter horizontal edge one object of class `label` fits in (`part_extent` times its
@@ -207,6 +211,7 @@ class Tracker:
         self._rows, self._rows_of = np.zeros(0, np.int64), self.tracks  # `_live`
         self.ended: list[Track] = []  # confirmed tracks ended less than reid_misses scans ago (`_revive`)
         self._next_id = 0
+        self._last_stamp_s: float | None = None  # the last scan's (`_hold` reads the scan period)
         self.born = 0
         self.lost = 0
 
@@ -260,6 +265,7 @@ class Tracker:
             self._keep_footprints(rows, world, merged)
         held_out = self._hold(background, seen, stamp_s, to_world) if background is not None else []
         self._age(seen)
+        self._last_stamp_s = stamp_s
         return ScanTracks(out, held_out, merged)
 
     def _sightings(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
@@ -573,12 +579,15 @@ class Tracker:
         track is corrected by their centre, keeps its class, counts no sighting and no miss, and keeps the footprint
         of its last detection (held points never grow it: a track beside a wall would creep along the wall); it may
         be held at most max_held scans in a row, and a track found again after it ended (`_revive`) only once it is
-        seen min_hits times more. A point holds one track at most."""
+        seen min_hits times more. A person's or rider's track is held only on a stream of scans at most
+        hold_people_period_s apart. A point holds one track at most."""
         ids = self.store.track_id[self._live()].tolist()
         unseen = [t for t, i in zip(self.tracks, ids, strict=True) if i not in seen]
+        period = None if self._last_stamp_s is None else stamp_s - self._last_stamp_s
+        people = period is None or period <= self.config.hold_people_period_s
         waiting = [t for t in unseen if t.offsets is not None and t.hits >= self.config.min_hits
                    and t.held < min(self.config.max_held, t.hits) and t.confidence() >= self.config.hold_min_confidence
-                   and t.hits >= t.hold_from]
+                   and t.hits >= t.hold_from and (people or t.label() not in (PEDESTRIAN, CYCLIST))]
         if not waiting:
             return []
         reach = np.array([np.abs(t.offsets).max() + CELL_M for t in waiting])
