@@ -65,9 +65,9 @@ def under_canopies(points: np.ndarray, label: np.ndarray, parts: np.ndarray, off
                    segment_edges: np.ndarray, max_top: float) -> np.ndarray:
     """Labels where the points higher than `max_top` above the ground of each cluster of `parts` (ids, chosen by
     `looked_at`) belong to no cluster (-1) where they form a canopy (module docstring); `label` itself when none
-    does. Heights as the gates read
-    them: the point's segment plane (`planes`, `segment_edges`), less the local ground's `offset` at its cluster's
-    centre (one per part, 0 without a local ground). Points of other clusters are never touched."""
+    does. Heights as the gates read them: the point's segment plane (`planes`, `segment_edges`), less the local
+    ground's `offset` at its cluster's centre (one per part, 0 without a local ground). Points of other clusters are
+    never touched."""
     if len(parts) == 0:
         return label
     slot = np.full(int(parts.max()) + 1, -1, dtype=np.int64)
@@ -85,6 +85,6 @@ def under_canopies(points: np.ndarray, label: np.ndarray, parts: np.ndarray, off
 
 
 def warm_up() -> None:
-    """Compile the kernel on one point."""
-    _high_points(np.zeros((1, 4), dtype=np.float32), np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64),
+    """Compile the kernel on one point, with stage 1's dtypes (float32 points, int32 labels)."""
+    _high_points(np.zeros((1, 4), dtype=np.float32), np.zeros(1, dtype=np.int32), np.zeros(1, dtype=np.int64),
                  np.zeros(1), np.array([[0.0, 0.0, 1.0, 1.73]]), -80.0, 160.0, 2.3)
