@@ -29,9 +29,8 @@ from pass3d_ros.core.objects import (
 )
 from pass3d_ros.core.point_owners import object_points, paint, take_rows
 from pass3d_ros.core.stream.footprints import MAX_POINTS, Footprints, footprint_members, nearest_owner
-from pass3d_ros.core.stream.tracks import Tracked, Tracker
+from pass3d_ros.core.stream.tracks import NO_TRACK, Tracked, Tracker
 
-NO_TRACK = -1  # the track id of a point or object in no confirmed track
 HELD_SCORE = 0.5  # a held object's score is its track's vote share times this (stage 2 did not see it)
 
 
@@ -70,7 +69,7 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
         footprints = _footprints(points, members, owner, len(objects.objects), back)
         background = Background(objects, points, ground, back)
     said = tracker.scan(centers, sizes, boxes[:, 6].astype(np.int64), boxes[:, 7], stamp_s, pose, footprints,
-                        background)
+                        background, [obj.plausible for obj in objects.objects])
     tracked = said.detections
     voted_class = np.array([t.label for t in tracked], dtype=np.uint8)
     published_id = np.array([t.track_id if t.confirmed else NO_TRACK for t in tracked], dtype=np.int32)

@@ -70,6 +70,7 @@ LONG_M = 3.0  # a class this long on average (a car) moves its box centre by met
 LONG_CLASS = np.array([MEAN_SIZE.get(label, (0.0,))[0] >= LONG_M for label in range(NUM_CLASSES)])  # per class id
 COS_HEADING = float(np.cos(np.radians(30.0)))  # "along the heading": within 30 degrees of it
 MIN_MARGIN_M = 0.05  # the margin of a pair matched beyond its gate by its footprint (`Tracker._associate`)
+NO_TRACK = -1  # the track id of a detection in no track (an implausible box that starts none)
 
 
 @dataclass(frozen=True)
@@ -120,6 +121,9 @@ class TrackerConfig:
     hold_people_period_s: float = 0.2  # a pedestrian's or cyclist's waiting track is held only when the scan came at
     # most this long after the one before (5 Hz or more): at 2 Hz a person walks more than their width between scans,
     # off the footprint that would hold them (docs/experiments/tracks.md, rule M2)
+    implausible_births: bool = False  # a detection whose box cannot be one object of its class (core.objects'
+    # plausible flag: a car 1.2 x 0.2 x 0.01 m, a sliver of a car's roof) may start a track; False: it starts none
+    # (it may still match a track, be a part of one or find an ended one again) and has no track this scan
 
     def extent_limit(self, label: int) -> tuple[float, float] | None:
         """The longer and shorter horizontal edge one object of class `label` fits in (`part_extent` times its
@@ -230,11 +234,13 @@ class Tracker:
 
     def scan(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
              stamp_s: float, pose: np.ndarray | None = None, footprints: Footprints | None = None,
-             background: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> ScanTracks:
+             background: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+             plausible: Sequence[bool] | None = None) -> ScanTracks:
         """`update`, and with `background` each confirmed track no detection matched may be held by the scan's
         points stage 2 called background on its predicted footprint (module docstring): `background(centers, reach)`
         gives those points (B, 3; sensor frame) within `reach` (T,) metres in x and y of the waiting tracks'
-        `centers` (T, 3; sensor frame), and is called only when a track waits."""
+        `centers` (T, 3; sensor frame), and is called only when a track waits. `plausible`: whether each detection's
+        box can be one object of its class (without `implausible_births` one that cannot starts no track)."""
         to_world = _Frame(pose)
         centers = to_world.points(np.asarray(centers, dtype=np.float64).reshape(-1, 3))
         sizes = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
@@ -255,11 +261,12 @@ class Tracker:
         if self.config.part_extent is not None:
             parts.update(self._ends(matched, parts, labels, split))
         covered = self._covered(matched, parts, labels, shared, confirmed)
+        births = None if plausible is None or self.config.implausible_births else plausible
         rows, early = self._sightings(centers, sizes, labels, scores, stamp_s, matched, parts, detections,
-                                      split if self.config.waiting_views else None)
-        out = self._said_all(rows, early)
+                                      split if self.config.waiting_views else None, births)
+        out = self._said_all(rows, early, labels, scores)
         seen = {self.tracks[u].track_id for others in covered.values() for u in others}
-        seen.update(self.store.track_id[self._live()[rows]].tolist())
+        seen.update(self.store.track_id[self._live()[[r for r in rows if r >= 0]]].tolist())
         merged = self._merged_footprints(matched, covered, to_world)
         if footprints is not None:
             self._keep_footprints(rows, world, merged)
@@ -271,11 +278,13 @@ class Tracker:
     def _sightings(self, centers: np.ndarray, sizes: np.ndarray, labels: Sequence[int], scores: Sequence[float],
                    stamp_s: float, matched: dict[int, int], parts: dict[int, int],
                    detections: tuple[np.ndarray, np.ndarray] | None,
-                   points: list[np.ndarray] | None = None) -> tuple[list[int], dict[int, Tracked]]:
+                   points: list[np.ndarray] | None = None,
+                   births: Sequence[bool] | None = None) -> tuple[list[int], dict[int, Tracked]]:
         """Each detection's track (its row in `tracks`): a matched track sighted (all at once), a part its object's
         track, any other (with `points`, each detection's footprint) another view of a waiting car track
-        (`_waiting_view`), a track found again (`_revive`) or born, in detection order. Also what the tracker says of
-        the parts that come before their object's own detection (said before that detection's sighting)."""
+        (`_waiting_view`), a track found again (`_revive`) or born, in detection order; with `births`, a detection
+        it marks False starts no track (row -1). Also what the tracker says of the parts that come before their
+        object's own detection (said before that detection's sighting)."""
         own = {t: d for d, t in matched.items()}
         early = {d: self._said(self.tracks[t]) for d, t in parts.items() if own[t] > d}
         ds = sorted(matched)
@@ -298,6 +307,9 @@ class Tracker:
             else:
                 track = self._revive(centers[d], sizes[d], int(labels[d]), stamp_s, None if detections is None
                                      else detections[0][detections[1][d]:detections[1][d + 1]])
+            if track is None and births is not None and not births[d]:
+                rows.append(-1)
+                continue
             if track is None:
                 self._birth(centers[d], sizes[d], int(labels[d]), float(scores[d]), stamp_s)
             else:
@@ -306,12 +318,17 @@ class Tracker:
             rows.append(row if row is not None else len(self.tracks) - 1)
         return rows, early
 
-    def _said_all(self, rows: list[int], early: dict[int, Tracked]) -> list[Tracked]:
-        """What the tracker says of each detection's track (`rows`), all voted at once; `early` as `_sightings`."""
+    def _said_all(self, rows: list[int], early: dict[int, Tracked], labels: Sequence[int],
+                  scores: Sequence[float]) -> list[Tracked]:
+        """What the tracker says of each detection's track (`rows`), all voted at once; `early` as `_sightings`; a
+        detection in no track (row -1) keeps its own class and score, NO_TRACK, unconfirmed."""
         slots = self._live()[rows]
         label, score = self.store.voted(slots)
         ids, confirmed = self.store.track_id[slots].tolist(), (self.store.hits[slots] >= self.config.min_hits).tolist()
         out = list(map(Tracked, ids, label.tolist(), score.tolist(), confirmed))
+        for d, row in enumerate(rows):
+            if row < 0:
+                out[d] = Tracked(NO_TRACK, int(labels[d]), float(scores[d]), False)
         for d, said in early.items():
             out[d] = said
         return out
@@ -558,7 +575,7 @@ class Tracker:
         """Each seen track's footprint: its detections' points (parts included; tracking frame), at most 2 x
         MAX_POINTS evenly spaced, as offsets from its centre; a merged detection's points go to the track whose
         predicted footprint is nearest (`nearest_owner`); `rows` each detection's track."""
-        owner = np.repeat(np.array(rows, dtype=np.int64), world.counts)
+        owner = np.repeat(np.array(rows, dtype=np.int64), world.counts)  # -1: a detection in no track
         if merged:
             index = {t.track_id: k for k, t in enumerate(self.tracks)}
             starts = np.concatenate([[0], np.cumsum(world.counts)])
@@ -567,7 +584,8 @@ class Tracker:
                 xy = world.xy[starts[d]:starts[d + 1]]
                 near = nearest_owner(xy, [self.tracks[k].state[:2] + self.tracks[k].offsets for k in ids])
                 owner[starts[d]:starts[d + 1]] = ids[near]
-        chosen, kept = evenly_spaced(np.arange(len(owner)), owner, len(self.tracks), FOOTPRINT_POINTS)
+        tracked = np.flatnonzero(owner >= 0)
+        chosen, kept = evenly_spaced(tracked, owner[tracked], len(self.tracks), FOOTPRINT_POINTS)
         keep_rows(world.xy, chosen, kept, self._live(), self.store.state, self.store.offsets,
                   self.store.points)
 
