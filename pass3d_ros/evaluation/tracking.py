@@ -223,7 +223,8 @@ class TrackingEvaluation:
             raise ValueError("TrackingEvaluation.frame: a scan segmented without tracking")
         self.track_ms.append(tracked.ms)
         for obj, said in zip(labelled.published.objects, tracked.tracked, strict=True):
-            history.tracks[said.track_id].append((stamp_s, obj.label, said.label))
+            if said.track_id != NO_TRACK:  # a detection in no track (an implausible box) is no object over time
+                history.tracks[said.track_id].append((stamp_s, obj.label, said.label))
         if not has_labels:
             return
         size = len(frame.points)

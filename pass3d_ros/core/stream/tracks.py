@@ -21,7 +21,8 @@ the ground plane, `footprints`) and its recent sightings' classes and confidence
    the velocity); an unmatched car detection that with a confirmed car track no detection took fits one car (as
    `_ends` reads one) is that track's sighting (`waiting_views`: its box centre jumped past the gate); other
    unmatched detections find again a track that ended less than `reid_misses` scans ago, or start tentative tracks,
-   confirmed after `min_hits` sightings.
+   confirmed after `min_hits` sightings; a detection whose box is implausible for its class starts none
+   (`implausible_births`).
 5. A confirmed track that no detection matched (waiting) may be held by the scan's points that stage 2 called
    background on its predicted footprint (`_hold`): stage 2 missed the object this scan, the track did not. A
    person's or rider's track only on a stream of 5 Hz or more (`hold_people_period_s`).
@@ -322,13 +323,13 @@ class Tracker:
                   scores: Sequence[float]) -> list[Tracked]:
         """What the tracker says of each detection's track (`rows`), all voted at once; `early` as `_sightings`; a
         detection in no track (row -1) keeps its own class and score, NO_TRACK, unconfirmed."""
-        slots = self._live()[rows]
+        tracked = [d for d, row in enumerate(rows) if row >= 0]
+        slots = self._live()[[rows[d] for d in tracked]]
         label, score = self.store.voted(slots)
         ids, confirmed = self.store.track_id[slots].tolist(), (self.store.hits[slots] >= self.config.min_hits).tolist()
-        out = list(map(Tracked, ids, label.tolist(), score.tolist(), confirmed))
-        for d, row in enumerate(rows):
-            if row < 0:
-                out[d] = Tracked(NO_TRACK, int(labels[d]), float(scores[d]), False)
+        out = [Tracked(NO_TRACK, int(labels[d]), float(scores[d]), False) for d in range(len(rows))]
+        for k, said in enumerate(map(Tracked, ids, label.tolist(), score.tolist(), confirmed)):
+            out[tracked[k]] = said
         for d, said in early.items():
             out[d] = said
         return out

@@ -231,3 +231,22 @@ def test_another_view_of_a_waiting_car_track_is_its_sighting() -> None:
     assert later != first, "without waiting_views the jump starts a new track"
     first, later = run(TrackerConfig(waiting_views=True), (25.0, 27.6))
     assert later != first, "a union longer than one car is another car"
+
+
+def test_an_implausible_box_starts_no_track_but_still_matches_one() -> None:
+    """A detection whose box cannot be one object of its class starts no track (rule M4): it has none this scan, no
+    id is spent on it and nothing is born; a plausible detection of the same object later starts one, and an
+    implausible one on a track's place keeps that track."""
+    tracker = Tracker()
+    centers, sizes = np.array([[10.0, 2.0, -1.0]]), np.array([[1.2, 0.2, 0.01]])  # a sliver of a car's roof
+    for k in range(3):
+        said = tracker.scan(centers, sizes, [CAR], [0.9], 0.1 * k, plausible=[False]).detections[0]
+        assert said.track_id == -1 and not said.confirmed and said.label == CAR
+    assert tracker.tracks == [] and tracker.born == 0
+    for k in range(3, 6):
+        said = tracker.scan(centers, np.array([SIZE[CAR]]), [CAR], [0.9], 0.1 * k, plausible=[True]).detections[0]
+    assert said.track_id == 0 and said.confirmed
+    said = tracker.scan(centers, sizes, [CAR], [0.9], 0.6, plausible=[False]).detections[0]
+    assert said.track_id == 0, "an implausible box may still be its track's sighting"
+    born = Tracker(TrackerConfig(implausible_births=True))
+    assert born.scan(centers, sizes, [CAR], [0.9], 0.0, plausible=[False]).detections[0].track_id == 0
