@@ -14,6 +14,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from pass3d_ros.core.stage1.ground import plane_distance
+
 CANOPY_MIN_SPREAD_M = 2.0  # the roof seen over a part spreads at least this far across (x or y) ...
 CANOPY_MAX_DEPTH_M = 1.0  # ... in a layer at most this deep (a crown is 1.5 m deep or more)
 CANOPY_RANGE_M = 15.0  # parts centred farther than this are left whole: a roof's underside is read from near only
@@ -31,7 +33,6 @@ def _high_points(pts: np.ndarray, label: np.ndarray, slot: np.ndarray, offset: n
     """The points of the clusters with a slot (slot[label] >= 0) higher than `max_top` above the ground (their
     segment plane's height less their cluster's `offset`), and per slot their bounds (x lo, x hi, y lo, y hi, height
     lo, height hi)."""
-    n_seg = planes.shape[0]
     n_slots = offset.shape[0]
     bounds = np.empty((n_slots, 6))
     for k in range(n_slots):
@@ -46,8 +47,7 @@ def _high_points(pts: np.ndarray, label: np.ndarray, slot: np.ndarray, offset: n
         k = slot[c]
         x = pts[i, 0]
         y = pts[i, 1]
-        s = min(max(int((x - x0) / width), 0), n_seg - 1)
-        h = planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * pts[i, 2] + planes[s, 3] - offset[k]
+        h = plane_distance(planes, x0, width, x, y, pts[i, 2]) - offset[k]
         if h <= max_top:
             continue
         high[n_high] = i

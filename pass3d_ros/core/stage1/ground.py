@@ -71,9 +71,7 @@ class LocalGround(NamedTuple):
     def heights(self, xy: np.ndarray) -> np.ndarray:
         """z of the local ground at each x-y position: its plane's height there, moved by `offsets`."""
         xy = np.asarray(xy, dtype=np.float64)[:, :2]
-        width = self.segment_edges[1] - self.segment_edges[0]
-        s = np.clip(((xy[:, 0] - self.segment_edges[0]) / width).astype(np.int64), 0, len(self.planes) - 1)
-        a, b, c, d = self.planes[s].T
+        a, b, c, d = self.planes[segments(xy[:, 0], self.segment_edges, len(self.planes))].T
         return (self.offsets(xy) - a * xy[:, 0] - b * xy[:, 1] - d) / c
 
 
@@ -96,6 +94,20 @@ def _segment_of(x: float, x0: float, width: float, n_seg: int) -> int:
     if s >= n_seg:
         return n_seg - 1
     return s
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def plane_distance(planes: np.ndarray, x0: float, width: float, x: float, y: float, z: float) -> float:
+    """Signed distance (m, up) of the point (x, y, z) from its segment's plane (`planes` n_seg x 4, segments of
+    `width` from `x0`): the height above the ground plane that the ground mask and the gates read."""
+    s = _segment_of(x, x0, width, planes.shape[0])
+    return planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * z + planes[s, 3]
+
+
+def segments(x: np.ndarray, segment_edges: np.ndarray, n_seg: int) -> np.ndarray:
+    """Segment index of each x coordinate (`_segment_of` over an array)."""
+    width = segment_edges[1] - segment_edges[0]
+    return np.clip(((x - segment_edges[0]) / width).astype(np.int64), 0, n_seg - 1)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -382,9 +394,7 @@ def _ground_kernel(pts: np.ndarray, sample: np.ndarray, edges: np.ndarray, n_lpr
         planes = _planes_from_sums(acc, edges, fallback_z, min_normal_z, min_points, max_step)
     ground = np.empty(n, dtype=np.bool_)
     for i in range(n):
-        x = pts[i, 0]
-        s = _segment_of(x, x0, width, n_seg)
-        ground[i] = abs(planes[s, 0] * x + planes[s, 1] * pts[i, 1] + planes[s, 2] * pts[i, 2] + planes[s, 3]) < th_dist
+        ground[i] = abs(plane_distance(planes, x0, width, pts[i, 0], pts[i, 1], pts[i, 2])) < th_dist
     if hist.shape[0] > 0:
         _count_heights(grouped, bounds, planes, hist, origin)
     return ground, planes
@@ -472,9 +482,7 @@ def with_local_ground(points: np.ndarray, fit: GroundFit, band: float) -> np.nda
     cells, which = np.unique(key, return_inverse=True)
     centres = local.origin + LOCAL_CELL_M * (np.column_stack([cells // n_cells, cells % n_cells]) + 0.5)
     offsets = local.offsets(centres)[which]
-    width = local.segment_edges[1] - local.segment_edges[0]
-    segment = np.clip(((xyz[:, 0] - local.segment_edges[0]) / width).astype(np.int64), 0, len(local.planes) - 1)
-    a, b, c, d = local.planes[segment].T
+    a, b, c, d = local.planes[segments(xyz[:, 0], local.segment_edges, len(local.planes))].T
     height = (offsets - a * xyz[:, 0] - b * xyz[:, 1] - d) / c
     ground = fit.ground.copy()
     ground[rest[np.abs(xyz[:, 2] - height) < band]] = True

@@ -23,7 +23,7 @@ import numba as nb
 import numpy as np
 
 from pass3d_ros.core.stage1.config import Stage1Config
-from pass3d_ros.core.stage1.ground import LocalGround, fit_ground
+from pass3d_ros.core.stage1.ground import LocalGround, fit_ground, plane_distance
 from pass3d_ros.core.stage1.sensor_params import RangeGate
 from pass3d_ros.data.frame import Box3D
 
@@ -38,7 +38,6 @@ def _cluster_stats(pts: np.ndarray, label: np.ndarray, n_clusters: int, planes: 
     hi = np.full((n_clusters, 3), -np.inf)
     bottom = np.full(n_clusters, np.inf)
     top = np.full(n_clusters, -np.inf)
-    n_seg = planes.shape[0]
     x0 = edges[0]
     width = edges[1] - edges[0]
     for i in range(pts.shape[0]):  # coordinates read once, bounds unrolled: a fifth faster than a loop over axes
@@ -63,9 +62,7 @@ def _cluster_stats(pts: np.ndarray, label: np.ndarray, n_clusters: int, planes: 
             lo[c, 2] = z
         if z > hi[c, 2]:
             hi[c, 2] = z
-        s = int((x - x0) / width)
-        s = min(max(s, 0), n_seg - 1)
-        h = planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * z + planes[s, 3]
+        h = plane_distance(planes, x0, width, x, y, z)
         if h < bottom[c]:
             bottom[c] = h
         if h > top[c]:

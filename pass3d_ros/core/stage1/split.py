@@ -37,7 +37,7 @@ from pass3d_ros.core.stage1 import protrusion as _protrusion
 from pass3d_ros.core.stage1 import refinement as _refinement
 from pass3d_ros.core.stage1 import scanline as _scanline
 from pass3d_ros.core.stage1.config import Stage1Config
-from pass3d_ros.core.stage1.ground import LocalGround
+from pass3d_ros.core.stage1.ground import LocalGround, segments
 from pass3d_ros.core.stage1.sensor_params import RangeGate
 from pass3d_ros.data.frame import Box3D
 
@@ -297,10 +297,8 @@ def heights_above_ground(points: np.ndarray, label: np.ndarray, chosen: np.ndarr
     if len(inside) == 0:
         return height
     planes = surface.planes if isinstance(surface, LocalGround) else surface
-    width = segment_edges[1] - segment_edges[0]
     pts = points[inside].astype(np.float64)
-    s = np.clip(((pts[:, 0] - segment_edges[0]) / width).astype(np.int64), 0, len(planes) - 1)
-    a, b, c, d = planes[s].T
+    a, b, c, d = planes[segments(pts[:, 0], segment_edges, len(planes))].T
     height[inside] = a * pts[:, 0] + b * pts[:, 1] + c * pts[:, 2] + d
     if isinstance(surface, LocalGround):
         where = label[inside]  # cluster ids index the per-cluster sums directly (np.unique's sort not needed)
