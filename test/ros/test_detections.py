@@ -208,8 +208,9 @@ def test_detections_per_labelled_frame_and_label_info_for_a_late_subscriber(
 def test_with_tracking_on_by_default_detections_carry_the_confirmed_track_ids_of_the_cloud(
         ros: Ros, frame: Frame, layout: Callable[[Ros], None]) -> None:
     """Tracking is on by default: a scan seen once makes tentative tracks (detections without ids, track_id -1 in the
-    cloud); seen again, every object's track is confirmed and keeps its id, and each detection's id is the track_id
-    of its points in /pass3d/labeled, with their class."""
+    cloud); seen again, every plausible object's track is confirmed and keeps its id, and each detection's id is the
+    track_id of its points in /pass3d/labeled, with their class. An implausible box starts no track (rule M4): its
+    detection keeps an empty id and its points track_id -1, scan after scan."""
     layout(ros, SIZE_RULES)
     labeled = Collector(ros, PointCloud2, "/pass3d/labeled")
     found = Collector(ros, detections.vision.Detection3DArray, "/pass3d/detections")
@@ -225,18 +226,22 @@ def test_with_tracking_on_by_default_detections_carry_the_confirmed_track_ids_of
     assert len(first.detections) == len(expected) >= 2
     assert {d.id for d in first.detections} == {""}, "one sighting: every track tentative"
     assert (columns(labeled.messages[0])["track_id"] == -1).all()
+    plausible = sum(obj.plausible for obj in expected)
+    assert plausible >= 2
     ids = [sorted(d.id for d in array.detections) for array in later]
-    assert all(ids) and ids[0] == ids[-1] and len(set(ids[0])) == len(expected), "one kept id per object"
-    assert "" not in ids[0]
+    assert ids[0] == ids[-1] and ids[0].count("") == len(expected) - plausible, "no track for an implausible box"
+    assert len(set(ids[0]) - {""}) == plausible, "one kept id per plausible object"
     for cloud_msg, array in zip(labeled.messages[1:], later, strict=True):
         cloud = columns(cloud_msg)
         for detection in array.detections:
+            if not detection.id:
+                continue
             mine = cloud["track_id"] == int(detection.id)
             assert mine.any(), "a detection's id is its points' track_id"
             label = CLASS_NAMES.index(detection.results[0].hypothesis.class_id)
             assert (cloud["label"][mine] == label).all()
         tracked = cloud["track_id"] >= 0
-        assert set(np.unique(cloud["track_id"][tracked]).astype(str)) == set(ids[0])
+        assert set(np.unique(cloud["track_id"][tracked]).astype(str)) == set(ids[0]) - {""}
 
 
 class MixedClassifier(SizeRuleClassifier):
