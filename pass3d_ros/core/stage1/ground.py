@@ -99,9 +99,10 @@ def _segment_of(x: float, x0: float, width: float, n_seg: int) -> int:
 @nb.njit(cache=True, nogil=True, inline="always")
 def plane_distance(planes: np.ndarray, x0: float, width: float, x: float, y: float, z: float) -> float:
     """Signed distance (m, up) of the point (x, y, z) from its segment's plane (`planes` n_seg x 4, segments of
-    `width` from `x0`): the height above the ground plane that the ground mask and the gates read."""
-    s = min(max(int((x - x0) / width), 0), planes.shape[0] - 1)  # `_segment_of`, branch-free: the loops that call
-    return planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * z + planes[s, 3]  # this ran 40 % slower with branches
+    `width` from `x0`): the height above the ground plane that the ground mask and the gates read. The segment is
+    `_segment_of`'s, found by min and max: with its branches the loops that call this ran about 40 % slower."""
+    s = min(max(int((x - x0) / width), 0), planes.shape[0] - 1)
+    return planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * z + planes[s, 3]
 
 
 def segments(x: np.ndarray, segment_edges: np.ndarray, n_seg: int) -> np.ndarray:
