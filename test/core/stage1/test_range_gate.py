@@ -14,6 +14,8 @@ from pass3d_ros.core.stage1.lasers import LASER_TABLES
 from pass3d_ros.core.stage1.mounting import Mounting, level_rotation
 from pass3d_ros.core.stage1.refinement import points_needed
 from pass3d_ros.core.stage1.sensor_params import (
+    MIN_RING_SAMPLES,
+    PEAK_MIN_RANGE,
     RANGE_STEP_M,
     RangeGate,
     SensorScale,
@@ -94,6 +96,30 @@ def test_ring_elevations_read_the_lasers(high_vlp32c: list[Frame]) -> None:
     assert len(read) >= 16
     nearest = np.abs(read[:, None] - table[None, :]).min(axis=1)
     assert np.all(nearest < 0.3), nearest
+
+
+def test_ring_elevations_are_each_rings_lower_median_of_the_far_sample() -> None:
+    """Each ring with MIN_RING_SAMPLES or more sampled points at PEAK_MIN_RANGE or farther gives the lower median of
+    their elevations, in ring order (a reference by sorting); rings with fewer, and near points, give nothing."""
+    rng = np.random.default_rng(5)
+    n = 16 * 400
+    ring = rng.integers(0, 12, n).astype(np.uint16)
+    ring[ring == 7] = 3  # no ring 7
+    ring[np.flatnonzero(ring == 9)[MIN_RING_SAMPLES * 16 - 40:]] = 2  # ring 9 left a few samples only
+    horizontal = rng.uniform(0.5 * PEAK_MIN_RANGE, 4 * PEAK_MIN_RANGE, n)
+    angle = rng.uniform(-np.pi, np.pi, n)
+    z = np.round(horizontal * np.tan(np.radians(-20.0 + 2.0 * ring + rng.normal(0, 0.2, n))), 2)  # ties too
+    points = np.column_stack([horizontal * np.cos(angle), horizontal * np.sin(angle), z, np.zeros(n)])
+    points = points.astype(np.float32)
+    sample, rings = points[::16].astype(np.float64), ring[::16]
+    h = np.hypot(sample[:, 0], sample[:, 1])
+    far = h >= PEAK_MIN_RANGE
+    elevation, rings = np.degrees(np.arctan2(sample[far, 2], h[far])), rings[far]
+    want = [np.sort(elevation[rings == k])[(np.count_nonzero(rings == k) - 1) // 2] for k in range(12)
+            if np.count_nonzero(rings == k) >= MIN_RING_SAMPLES]
+    assert len(want) == 10  # rings 7 and 9 give none
+    np.testing.assert_array_equal(ring_elevations(points, ring), want)
+    assert len(ring_elevations(points[:0], ring[:0])) == 0
 
 
 def test_effective_config_reads_the_lasers_for_the_gate(high_vlp32c: list[Frame]) -> None:

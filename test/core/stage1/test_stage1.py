@@ -164,6 +164,19 @@ def test_ground_fit_reads_the_same_points_in_any_order():
     np.testing.assert_array_equal(np.sort(perm[ground._sample(points[perm], 4)]), sample)
 
 
+def test_plane_distance_reads_each_points_segment_and_the_end_segments_beyond():
+    """The height above the ground plane that the ground mask and the gates read: the point's own segment's plane,
+    the first or last segment's for x beyond the edges; `segments` gives the same segment over an array."""
+    planes = np.array([[0.0, 0.0, 1.0, 1.7], [0.1, 0.0, 0.995, 1.8], [0.0, -0.05, 0.999, 1.6]])
+    edges = np.array([-30.0, -10.0, 10.0, 30.0])
+    xyz = np.array([[-50.0, 1.0, -1.0], [-15.0, 2.0, 0.5], [0.0, 3.0, -1.6], [12.0, -4.0, 0.2], [80.0, 0.0, 0.0]])
+    want_segment = [0, 0, 1, 2, 2]
+    np.testing.assert_array_equal(ground.segments(xyz[:, 0], edges, 3), want_segment)
+    for (x, y, z), s in zip(xyz, want_segment, strict=True):
+        a, b, c, d = planes[s]
+        assert ground.plane_distance(planes, edges[0], edges[1] - edges[0], x, y, z) == a * x + b * y + c * z + d
+
+
 def test_smallest_eigenvector_matches_numpy():
     rng = np.random.default_rng(2)
     for _ in range(50):
