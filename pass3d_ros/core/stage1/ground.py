@@ -68,11 +68,12 @@ class LocalGround(NamedTuple):
         xy = np.ascontiguousarray(np.asarray(xy, dtype=np.float64)[:, :2])
         return _local_offsets(self.hist, self.origin, xy, self.radius, self.min_points, self.band)
 
-    def heights(self, xy: np.ndarray) -> np.ndarray:
-        """z of the local ground at each x-y position: its plane's height there, moved by `offsets`."""
+    def heights(self, xy: np.ndarray, offsets: np.ndarray | None = None) -> np.ndarray:
+        """z of the local ground at each x-y position: its plane's height there, moved by `offsets` (read at the
+        positions themselves unless given: `with_local_ground` reads them once per cell)."""
         xy = np.asarray(xy, dtype=np.float64)[:, :2]
         a, b, c, d = self.planes[segments(xy[:, 0], self.segment_edges, len(self.planes))].T
-        return (self.offsets(xy) - a * xy[:, 0] - b * xy[:, 1] - d) / c
+        return ((self.offsets(xy) if offsets is None else offsets) - a * xy[:, 0] - b * xy[:, 1] - d) / c
 
 
 class GroundFit(NamedTuple):
@@ -482,9 +483,7 @@ def with_local_ground(points: np.ndarray, fit: GroundFit, band: float) -> np.nda
     key = cell[:, 0] * n_cells + cell[:, 1]
     cells, which = np.unique(key, return_inverse=True)
     centres = local.origin + LOCAL_CELL_M * (np.column_stack([cells // n_cells, cells % n_cells]) + 0.5)
-    offsets = local.offsets(centres)[which]
-    a, b, c, d = local.planes[segments(xyz[:, 0], local.segment_edges, len(local.planes))].T
-    height = (offsets - a * xyz[:, 0] - b * xyz[:, 1] - d) / c
+    height = local.heights(xyz, local.offsets(centres)[which])
     ground = fit.ground.copy()
     ground[rest[np.abs(xyz[:, 2] - height) < band]] = True
     return ground
