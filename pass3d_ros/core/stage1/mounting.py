@@ -8,10 +8,11 @@ A reading (`read_mounting`) needs no stage-1 result: the densest plane through t
 planes through three of them, a fixed seed) whose normal lies within MAX_TILT_DEG of the sensor's z axis or of its
 reverse (an upside-down mount), oriented so the sensor lies above it, scored by its points within INLIER_M less those
 more than BELOW_M beneath it (car roofs and bonnets near a sensor can outnumber the road: the road has nothing beneath
-it), refitted by least squares. The height is the sensor's distance from it, the orientation the roll about x and the
-pitch about y (REP-103 signs: a positive pitch points x down; roll 180 is upside down) that take its normal to z. A
-stream holds the median of its first MOUNTING_SCANS readings (pass3d_ros.core.stream.mounting); `stage1.mount` gives it
-instead, as a URDF states it (`parse_mount`).
+it), refitted by least squares; a best plane with more than MAX_BENEATH_SHARE beneath it is no ground, and the search
+looks again among the points beneath it (`_coarse_ground`). The height is the sensor's distance from it, the
+orientation the roll about x and the pitch about y (REP-103 signs: a positive pitch points x down; roll 180 is upside
+down) that take its normal to z. A stream holds the median of its first MOUNTING_SCANS readings
+(pass3d_ros.core.stream.mounting); `stage1.mount` gives it instead, as a URDF states it (`parse_mount`).
 
 A numeric sensor_height is used as it is, and the estimate is still made: `problems` says when the two differ by more
 than HEIGHT_DISAGREE_M, or the sensor reads upside down; a steady tilt is levelled (said, not a problem).
@@ -40,6 +41,7 @@ MIN_HEIGHT_M, MAX_HEIGHT_M = 0.1, 10.0  # a ground candidate lies this far below
 INLIER_M = 0.1  # a point this close to a plane is on it
 BELOW_M = 0.3  # ... and this far under it, beneath it (the ground has points on it and next to none beneath it)
 MAX_BENEATH_SHARE = 0.25  # a plane with more points beneath it than this share of those on it is no ground
+DESCENTS = 3  # times the coarse search looks again among the points beneath a plane that is no ground
 INVERTED_MARGIN = 2.0  # an upside-down reading needs this many times the best upright candidate's score
 HEIGHT_DISAGREE_M = 0.3  # a hand-set sensor_height further than this from the estimate is worth a warning
 SPREAD_WARN_DEG = 3.0  # readings of one stream further apart than this make the held mounting unsure
@@ -153,6 +155,26 @@ def _best_plane(seeds: np.ndarray, xyz: np.ndarray, inlier_m: float) -> np.ndarr
     return candidates[best_down]
 
 
+def _coarse_ground(sample: np.ndarray) -> np.ndarray | None:
+    """The best plane of the whole near field (`_best_plane`) with at most MAX_BENEATH_SHARE of its points' count
+    beneath it; when the best has more, the ground is among the points beneath it, and the search descends to them
+    (at most DESCENTS times). An upside-down sensor's few downward lasers see little road, its many horizon lasers a
+    band of everything at its own height: three random points rarely all lie on the road, and that band wins."""
+    seeds = sample
+    for _ in range(DESCENTS):
+        plane = _best_plane(seeds, sample, COARSE_INLIER_M)
+        if plane is None:
+            return None
+        distance = sample @ plane[:3] + plane[3]
+        beneath = distance < -BELOW_M
+        if np.count_nonzero(beneath) <= MAX_BENEATH_SHARE * np.count_nonzero(np.abs(distance) < COARSE_INLIER_M):
+            return plane
+        seeds = sample[beneath]
+        if len(seeds) < MIN_GROUND_POINTS:
+            return None
+    return None
+
+
 def read_mounting(points: np.ndarray) -> Mounting | None:
     """One scan's reading of the mounting (module docstring), upright or upside down; None when no plane holds
     MIN_GROUND_POINTS points. Two passes: the ground over the whole near field (COARSE_INLIER_M: a crowned or
@@ -165,7 +187,7 @@ def read_mounting(points: np.ndarray) -> Mounting | None:
     sample = xyz[_strided(np.flatnonzero(field), MAX_NEAR_POINTS)]
     if len(sample) < MIN_GROUND_POINTS:
         return None
-    coarse = _best_plane(sample, sample, COARSE_INLIER_M)
+    coarse = _coarse_ground(sample)
     if coarse is None:
         return None
     on_ground = np.flatnonzero(field & (np.abs(xyz @ coarse[:3] + coarse[3]) < COARSE_INLIER_M))

@@ -27,6 +27,7 @@ from pass3d_ros.core.stage1.mounting import (
     NO_GROUND_SCANS,
     Mounting,
     problems,
+    read_mounting,
 )
 from pass3d_ros.core.stream import MountingHolder, ScanStream
 from pass3d_ros.data.frame import Frame
@@ -189,6 +190,18 @@ def test_a_tilted_mount_reads_its_roll_and_pitch(kitti_high: list[Frame]) -> Non
     assert abs((held.pitch_deg - flat.pitch_deg) + 4.0) < TILT_TOLERANCE_DEG, held
     assert abs(held.tilt_deg - 5.0) < 2 * TILT_TOLERANCE_DEG and abs(held.height_m - flat.height_m) < 0.05
     assert problems(Stage1Config(), held) == [], "a steady tilt is levelled, nothing to warn about"
+
+
+def test_one_upside_down_scan_reads_its_mount_where_the_horizon_lasers_outnumber_the_road() -> None:
+    """A Pandar64 upside down sees the road with its few upward lasers and everything at its own height with its dense
+    horizon band: the densest plane is that band, with the road beneath it; the search looks again beneath it."""
+    from pass3d_ros.data.spec import open_dataset
+
+    frame = next(iter(open_dataset("synthetic:frames=1,seed=97,sensor=pandar64,roll=180")))
+    reading = read_mounting(frame.points)
+    assert reading is not None and reading.inverted, reading
+    assert abs(reading.height_m - 1.73) < HEIGHT_TOLERANCE_M, reading
+    assert reading.tilt_deg > 180.0 - TILT_TOLERANCE_DEG, reading
 
 
 def test_the_estimate_is_held_after_the_first_scans_and_a_new_stream_starts_over(low: list[Frame]) -> None:
