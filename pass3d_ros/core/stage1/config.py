@@ -230,6 +230,11 @@ class Stage1Config:
         "mast or a wall) out of it as clusters of their own, and gate each again; off by default: on real KITTI scans "
         "it nearly doubles the proposals (all background) and stage 1's time", 0, 1,
     )
+    join_fragments: bool = _param(
+        True, "refinement: a dropped low fragment beside a kept proposal joins it (a car's boot or bonnet cut off its "
+        "windows and roof a laser step away; pass3d_ros.core.stage1.fragments; docs/experiments/sensors.md, rule J)",
+        0, 1,
+    )
     # Enlargement of kept boxes, added on each side (paper: 0.1, 0.1, 0.4 m).
     enlarge: tuple[float, float, float] = _param(
         (0.1, 0.1, 0.4), "refinement: kept boxes grow by this on each side in x, y, z (m)", 0.0, 5.0

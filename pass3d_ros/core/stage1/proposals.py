@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
+from pass3d_ros.core.stage1 import fragments as _fragments
 from pass3d_ros.core.stage1 import ground as _ground
 from pass3d_ros.core.stage1 import refinement as _refinement
 from pass3d_ros.core.stage1 import ring as _ring
@@ -171,6 +172,8 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
                                                                           fit.segment_edges, cfg, work_ring, gate)
     else:
         boxes, kept = _refinement.select_proposals(work, label, n_clusters, surface, fit.segment_edges, cfg, gate)
+    if cfg.join_fragments:
+        label, boxes = _fragments.join_fragments(work, label, kept, boxes, surface, fit.segment_edges, cfg)
     floors = None if fit.local is None else _refinement.ground_floors(boxes, fit.local, cfg.th_dist)
     cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge, floors=floors,
                                                               gives_way=gives_way)
