@@ -8,9 +8,11 @@ it is background in that scan (docs/experiments/tracks.md, where the ground-trut
 
 A dropped cluster joins a kept proposal when it is such a fragment: at least th_num_floor points, its top
 MIN_FRAGMENT_TOP_M to min_top above the ground, its bottom under max_bottom, MIN_FRAGMENT_SPAN_M long or more (a boot
-or a bonnet; a person's legs are not), its nearest point within JOIN_GAP_M of the proposal's footprint rectangle, the
-proposal MIN_PROPOSAL_LENGTH_M long or more (not a person's), and the two together still within max_length x
-max_width. Of several such proposals the nearest takes it; the proposal's box is fitted again to the union.
+or a bonnet; a person's legs are not), its nearest point within JOIN_GAP_M of the proposal's footprint rectangle, in
+front of the proposal as the sensor sees it (nearer, and mostly within its bearings: `_in_front`; a hedge beside a
+cyclist or a motorbike parked behind one is not), the proposal MIN_PROPOSAL_LENGTH_M long or more (not a person's),
+and the two together still within max_length x max_width. Of several such proposals the nearest takes it; the
+proposal's box is fitted again to the union (docs/experiments/sensors.md, rules J and J2).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from pass3d_ros.data.frame import Box3D
 JOIN_GAP_M = 1.0  # a fragment's nearest point lies at most this far outside the proposal's footprint rectangle
 MIN_FRAGMENT_TOP_M = 0.3  # a fragment's top at least this high above the ground (kerbs and road marks stay out)
 MIN_FRAGMENT_SPAN_M = 0.8  # a fragment's longer x-y extent at least this (a boot or a bonnet; a person's legs are not)
+AZIMUTH_SHARE = 0.5  # ... at least this share of its points within the proposal's bearings, and nearer than it
 MIN_PROPOSAL_LENGTH_M = 1.2  # a proposal's longer footprint side at least this to take a fragment (not a person's)
 
 
@@ -54,7 +57,7 @@ def join_fragments(points: np.ndarray, label: np.ndarray, kept: np.ndarray, boxe
     takers = np.flatnonzero(rects[:, 2:4].max(axis=1) >= MIN_PROPOSAL_LENGTH_M)
     if not len(fragments) or not len(takers):
         return label, boxes
-    owner = _owners(points, label, fragments, lo, hi, rects, takers, config)
+    owner = _owners(points, label, kept, fragments, lo, hi, rects, takers, config)
     if not (owner >= 0).any():
         return label, boxes
     to_proposal = np.full(n_total, -1, dtype=np.int64)
@@ -67,8 +70,8 @@ def join_fragments(points: np.ndarray, label: np.ndarray, kept: np.ndarray, boxe
     return label, _refit(points, label, kept, grown, boxes)
 
 
-def _owners(points: np.ndarray, label: np.ndarray, fragments: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-            rects: np.ndarray, takers: np.ndarray, config: Stage1Config) -> np.ndarray:
+def _owners(points: np.ndarray, label: np.ndarray, kept: np.ndarray, fragments: np.ndarray, lo: np.ndarray,
+            hi: np.ndarray, rects: np.ndarray, takers: np.ndarray, config: Stage1Config) -> np.ndarray:
     """Per fragment, the proposal (row of `rects`, one of `takers`) it joins, -1 for none: the nearest within
     JOIN_GAP_M whose footprint with it stays within max_length x max_width."""
     reach = 0.5 * np.hypot(rects[takers, 2], rects[takers, 3]) + JOIN_GAP_M
@@ -83,6 +86,9 @@ def _owners(points: np.ndarray, label: np.ndarray, fragments: np.ndarray, lo: np
         xy = points[order[starts[c]:starts[c + 1]], :2].astype(np.float64)
         best = JOIN_GAP_M
         for k in near.tolist():
+            host = points[order[starts[kept[k]]:starts[kept[k] + 1]], :2].astype(np.float64)
+            if not _in_front(xy, host):
+                continue
             cx, cy, length, width, yaw = rects[k]
             rel = xy - (cx, cy)
             u = rel @ np.array([np.cos(yaw), np.sin(yaw)])
@@ -95,6 +101,19 @@ def _owners(points: np.ndarray, label: np.ndarray, fragments: np.ndarray, lo: np
             if gap <= best and long_side <= config.max_length and short_side <= config.max_width:
                 owner[f], best = k, gap
     return owner
+
+
+def _in_front(fragment: np.ndarray, host: np.ndarray) -> bool:
+    """Whether the fragment (x, y of its points) lies in front of the host, seen from the sensor: nearer (median range)
+    and behind it in bearing for most of its points (AZIMUTH_SHARE within the host's bearings, taken about the host's
+    median bearing), as the lower part of one object seen from one side is."""
+    bearing = np.arctan2(host[:, 1], host[:, 0])
+    centre = float(np.median(bearing))
+    spread = np.angle(np.exp(1j * (bearing - centre)))
+    mine = np.angle(np.exp(1j * (np.arctan2(fragment[:, 1], fragment[:, 0]) - centre)))
+    within = np.count_nonzero((mine >= spread.min()) & (mine <= spread.max()))
+    nearer = np.median(np.hypot(fragment[:, 0], fragment[:, 1])) < np.median(np.hypot(host[:, 0], host[:, 1]))
+    return bool(nearer and within >= AZIMUTH_SHARE * len(fragment))
 
 
 def _refit(points: np.ndarray, label: np.ndarray, kept: np.ndarray, grown: np.ndarray,

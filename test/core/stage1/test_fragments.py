@@ -75,3 +75,13 @@ def test_a_kerb_or_a_step_stays_dropped() -> None:
     kerb = ((24.0, 25.0), (1.9, 3.5), (0.05, 0.2))
     fragment, _, _ = joined(ROOF, kerb)
     assert np.all(fragment == 1)
+
+
+def test_a_low_thing_beside_or_beyond_the_proposal_stays_dropped() -> None:
+    """A hedge beside a cyclist, a parked motorbike behind one: not the lower part of the same object seen from the
+    sensor (that lies nearer, under the proposal's bearings)."""
+    beside = ((25.5, 26.5), (3.6, 4.4), (0.36, 0.85))
+    beyond = ((26.8, 27.2), (1.9, 3.5), (0.36, 0.85))
+    for fragment_box in (beside, beyond):
+        fragment, _, _ = joined(ROOF, fragment_box)
+        assert np.all(fragment == 1), fragment_box
