@@ -4,11 +4,15 @@ proposal, one too far away and one that would make the proposal too long for any
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from pass3d_ros.core.stage1 import Stage1Config
+import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
+from pass3d_ros.core.stage1 import Stage1Config, propose
 from pass3d_ros.core.stage1.fragments import JOIN_GAP_M, join_fragments
 from pass3d_ros.core.stage1.refinement import _cluster_rects, boxes_of
+from pass3d_ros.data.spec import open_dataset
 
 SENSOR_HEIGHT_M = 1.73
 PLANES = np.array([[0.0, 0.0, 1.0, SENSOR_HEIGHT_M]])  # one flat ground plane under the sensor
@@ -85,3 +89,15 @@ def test_a_low_thing_beside_or_beyond_the_proposal_stays_dropped() -> None:
     for fragment_box in (beside, beyond):
         fragment, _, _ = joined(ROOF, fragment_box)
         assert np.all(fragment == 1), fragment_box
+
+
+def test_on_a_drive_the_option_gives_a_followed_car_its_boot_and_adds_no_proposal() -> None:
+    """Drive 358's car 12 in scan 23, 25 m ahead and seen from behind (docs/experiments/sensors.md, rule J): off, the
+    proposal holds its windows and roof only; on, the whole car. The step adds no proposal, and it is off by default."""
+    frame = list(open_dataset("synthetic:drive=24,seed=358,sensor=hdl64e"))[23]
+    car = frame.instance == 12
+    assert not Stage1Config().join_fragments
+    off = propose(frame.points, frame.ring, Stage1Config())
+    on = propose(frame.points, frame.ring, dataclasses.replace(Stage1Config(), join_fragments=True))
+    assert np.mean(off.cluster_id[car] >= 0) < 0.5 and np.mean(on.cluster_id[car] >= 0) > 0.95
+    assert len(on.boxes) == len(off.boxes)
