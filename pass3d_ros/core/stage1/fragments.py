@@ -73,7 +73,8 @@ def join_fragments(points: np.ndarray, label: np.ndarray, kept: np.ndarray, boxe
 def _owners(points: np.ndarray, label: np.ndarray, kept: np.ndarray, fragments: np.ndarray, lo: np.ndarray,
             hi: np.ndarray, rects: np.ndarray, takers: np.ndarray, config: Stage1Config) -> np.ndarray:
     """Per fragment, the proposal (row of `rects`, one of `takers`) it joins, -1 for none: the nearest within
-    JOIN_GAP_M whose footprint with it stays within max_length x max_width."""
+    JOIN_GAP_M that it lies in front of (`_in_front`) and whose footprint with it stays within max_length x
+    max_width."""
     reach = 0.5 * np.hypot(rects[takers, 2], rects[takers, 3]) + JOIN_GAP_M
     order = np.argsort(label, kind="stable")
     starts = np.searchsorted(label[order], np.arange(int(label.max()) + 2))
@@ -105,8 +106,8 @@ def _owners(points: np.ndarray, label: np.ndarray, kept: np.ndarray, fragments: 
 
 def _in_front(fragment: np.ndarray, host: np.ndarray) -> bool:
     """Whether the fragment (x, y of its points) lies in front of the host, seen from the sensor: nearer (median range)
-    and behind it in bearing for most of its points (AZIMUTH_SHARE within the host's bearings, taken about the host's
-    median bearing), as the lower part of one object seen from one side is."""
+    and within the host's bearings for AZIMUTH_SHARE of its points (bearings taken about the host's median one), as the
+    lower part of one object seen from one side is."""
     bearing = np.arctan2(host[:, 1], host[:, 0])
     centre = float(np.median(bearing))
     spread = np.angle(np.exp(1j * (bearing - centre)))
