@@ -1,9 +1,10 @@
 """Stage 1 speed: per-step medians over repeated runs, and pypatchworkpp ground removal side by side.
 
-`pass3d_benchmark stage1 [--data FORMAT:PATH ...] [--repeat R] [--limit N] [--order ORDER] [--json PATH]`.
-Without --data it times a built-in synthetic scan. `--order column|shuffled|all` also times the same scans
-reordered column by column (one azimuth step, all lasers) or shuffled, and reports each order's median and its
-ratio to the firing order measured in the same run, the ring source, and whether the proposals agree.
+`pass3d_benchmark stage1 [--data FORMAT:PATH ...] [--repeat R] [--limit N] [--order ORDER] [--param KEY=VALUE ...]
+[--json PATH]`. Without --data it times a built-in synthetic scan; --param times stage 1 with a parameter changed (read
+as `pass3d_evaluate --param` reads it: `--param join_fragments=true`). `--order column|shuffled|all` also times the
+same scans reordered column by column (one azimuth step, all lasers) or shuffled, and reports each order's median and
+its ratio to the firing order measured in the same run, the ring source, and whether the proposals agree.
 pypatchworkpp (Patchwork++) is an optional peer, not a dependency:
 when it is importable its ground estimation runs on the same frames, and the time ratio is printed.
 """
@@ -19,13 +20,14 @@ from pathlib import Path
 import numpy as np
 
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, propose, synthetic_scan, warm_up
+from pass3d_ros.core.stage1.config import parse_params
 from pass3d_ros.core.stage1.ring import LaserLines
 from pass3d_ros.core.stream.lines import LineHolder
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
 from pass3d_ros.msgs.errors import UserError
-from pass3d_ros.tools.cli import add_data
+from pass3d_ros.tools.cli import add_data, add_param
 
 PATCHWORK_HINT = "pip install pypatchworkpp"
 REORDERINGS: tuple[str, ...] = ("column", "shuffled")
@@ -65,6 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-patchwork", action="store_true", help="skip the pypatchworkpp comparison")
     parser.add_argument("--order", choices=("firing", *REORDERINGS, "all"), default="firing",
                         help="point order(s) to time besides firing order (default: firing only)")
+    add_param(parser, "time stage 1 with a Stage1Config parameter changed, repeatable (e.g. join_fragments=true)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the numbers as JSON here")
 
 
@@ -198,10 +201,10 @@ def run(args: argparse.Namespace) -> int:
     """Time stage 1 (and pypatchworkpp) and print the medians."""
     if args.repeat < 1 or args.limit < 1:
         raise UserError("--repeat and --limit must be >= 1")
+    config = parse_params(args.param)
     frames, streams = load_frames(args.data, args.limit)
     if not frames:
         raise DatasetError("no frames to time")
-    config = Stage1Config()
     times = time_stage1(frames, args.repeat, config, streams)
     points = int(np.median([len(f.points) for f in frames]))
     medians = {step: statistics.median(values) for step, values in times.items()}
@@ -209,7 +212,8 @@ def run(args: argparse.Namespace) -> int:
     for step in STEPS:
         print(f"  {step:<11} {medians[step]:7.3f}")
     print(f"  {'total CPU':<11} {medians['cpu']:7.3f}  (thread CPU time; wall time also counts waiting for a core)")
-    report = {"frames": len(frames), "points_median": points, "repeat": args.repeat, "stage1_ms_median": medians}
+    report = {"frames": len(frames), "points_median": points, "repeat": args.repeat, "stage1_ms_median": medians,
+              "config": config.to_dict()}
     if not args.no_patchwork:
         patchwork = time_patchwork(frames, args.repeat, config.seed_height)
         if patchwork is None:

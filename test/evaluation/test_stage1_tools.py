@@ -174,3 +174,15 @@ def test_ground_metrics_without_ground_truth_are_null(tmp_path, capsys):
     m = Stage1Metrics()
     row = m.update("f", 0, np.full(3, -1), np.full(3, -1), np.ones(3, bool), TIMINGS, None, np.zeros(3, bool))
     assert "ground_precision" not in row and m.summary()["stage1"]["ground"]["precision"] is None
+
+
+def test_benchmark_times_stage1_with_a_parameter_changed(tmp_path, capsys):
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    out = tmp_path / "bench.json"
+    args = ["--repeat", "1", "--no-patchwork", "--param", "join_fragments=true", "--json", str(out)]
+    assert bench.run(parser.parse_args(args)) == 0
+    report = json.loads(out.read_text())
+    assert report["config"]["join_fragments"] is True and report["stage1_ms_median"]["total"] > 0
+    assert benchmark.main(["stage1", "--param", "no_such_parameter=1"]) == 2
+    assert "no_such_parameter" in capsys.readouterr().err
