@@ -788,10 +788,11 @@ def rings_from_lines(points: np.ndarray, sensor: str = "auto", tilted: bool = Fa
     table, or found in the scan (`sensor` "auto"; None when no line set near a standard count fits the scan). The
     lines are searched and fitted on a sample of the points that does not depend on their order. On a `tilted` scan
     (one stage 1 levels), where an origin motion sharpens the lines, the lines seen from the still origin are searched
-    too and the better fitting set wins: a tilted sensor's uneven scene reads as motion (a scan pitched 10 degrees
-    found no lines from its estimated motion and every laser from the still origin). Level scans keep the motion's
-    lines alone: on the level HDL-32E of the parking lot the still origin's lines lost crowds that elevation bins
-    kept apart (docs/experiments/sensors.md, rule Z)."""
+    too and the better fitting set wins, of two that fit as well the one of fewer lines: a tilted sensor's uneven scene
+    reads as motion (a scan pitched 10 degrees found no lines from its estimated motion and every laser from the still
+    origin; an upside-down Pandar64 113 lines from its motion, fitting as well as its 64 lasers from the still one).
+    Level scans keep the motion's lines alone: on the level HDL-32E of the parking lot the still origin's lines lost
+    crowds that elevation bins kept apart (docs/experiments/sensors.md, rule Z)."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
     sample = search_sample(pts)
     vx, vy = estimate_motion(sample)
@@ -808,8 +809,8 @@ def rings_from_lines(points: np.ndarray, sensor: str = "auto", tilted: bool = Fa
         for half_band in (_HALF_BAND, _N_BINS):
             found = _search_lines(seen, acc, half_band)
             if found is not None:
-                if best is None or found[2] > best[0]:
-                    best = (found[2], found[0], found[1], *motion)
+                if best is None or found[2] > best[0] or (found[2] == best[0] and len(found[0]) < len(best[1])):
+                    best = (found[2], found[0], found[1], *motion)  # of two that fit as well, the fewer lines
                 break
     if best is None:
         return None
