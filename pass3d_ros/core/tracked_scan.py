@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pass3d_ros.classes import BACKGROUND
+from pass3d_ros.classes import BACKGROUND, CAR
 from pass3d_ros.core.objects import (
     IMPLAUSIBLE_SCORE,
     MIN_OBJECT_POINTS,
@@ -77,7 +77,8 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
     voted_objects = [_voted(obj, t, k) for obj, t, k in zip(objects.objects, tracked, published_id.tolist(),
                                                              strict=True)]
     cluster_id = objects.cluster_id
-    if points is not None and (said.held or said.merged):
+    filling = tracker.filling() if points is not None else []
+    if points is not None and (said.held or said.merged or filling):
         cluster_id = cluster_id.copy()
         ids = _PartIds(objects, cluster_id)
         if said.merged:
@@ -86,6 +87,16 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
         if said.held and background is not None:
             voted_objects += _held_objects(points, objects, [(t, background.index[m]) for t, m in said.held],
                                            labels, cluster_id, track_id, ids)
+    if points is not None and tracker.config.fill_shapes:
+        to_tracking = _to_tracking(back, pose)
+        held = [background.index[m] for _, m in said.held] if said.held and background is not None else []
+        road = np.concatenate([members, *held])
+        confirmed_cars = [t.track_id for t, c in zip(tracked, voted_class.tolist(), strict=True)
+                          if t.confirmed and c == CAR] + [t.track_id for t, _ in said.held if t.label == CAR]
+        tracker.shapes.remember(confirmed_cars, stamp_s, points, road, labels, track_id, CAR, to_tracking)
+        if filling:
+            voted_objects += _filled(tracker, filling, road, points, ground, labels, cluster_id, track_id,
+                                     voted_objects, to_tracking, stamp_s, ids)
     voted = FrameObjects(labels, cluster_id, voted_objects, objects.groups_split)
     return TrackedScan(voted, track_id, tracked, 1e3 * (time.perf_counter() - started))
 
@@ -216,6 +227,59 @@ def _shared_out(points: np.ndarray, voted: list[LabelledObject], tracked: list[T
             track_id[share] = published
             cluster_id[share] = box.cluster_id
             out.append(_voted(box, said, published))
+    return out
+
+
+def _to_tracking(back: np.ndarray | None, pose: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(rotation, shift) taking level-frame points into the tracking frame (x @ rotation.T + shift): back to the
+    sensor's frame, then through the pose when known."""
+    rotation = np.eye(3) if back is None else np.asarray(back, dtype=np.float64).T
+    if pose is None:
+        return rotation, np.zeros(3)
+    pose = np.asarray(pose, dtype=np.float64)
+    return pose[:3, :3] @ rotation, pose[:3, 3].copy()
+
+
+def _filled(tracker: Tracker, filling: list, road: np.ndarray, points: np.ndarray,
+            ground: np.ndarray | None, labels: np.ndarray, cluster_id: np.ndarray, track_id: np.ndarray,
+            voted: list[LabelledObject], to_tracking: tuple[np.ndarray, np.ndarray], stamp_s: float,
+            ids: _PartIds) -> list[LabelledObject]:
+    """The scan's points stage 2 left background, in no proposal and off the ground, that fall in a voxel of a
+    filling track's remembered shape (`shapes`) taken by that track: a track with an object this scan (its points
+    among `road`) adds them to its object holding most of its points (its box fitted again, `voted` updated in
+    place); another, with MIN_OBJECT_POINTS of them or more, makes a new object of them, scored as a held one.
+    Returns the new objects."""
+    owner = tracker.shapes.owners(points, labels, cluster_id, ground, to_tracking, [t.track_id for t in filling],
+                                  np.array([t.state[2:4] for t in filling]), stamp_s)
+    taken_all = np.flatnonzero(owner >= 0)
+    if not len(taken_all):
+        return []
+    grown, made = [], []
+    by_track = owner[taken_all]
+    for k in np.unique(by_track).tolist():
+        track, taken = filling[k], taken_all[by_track == k]
+        mine = road[track_id[road] == track.track_id]
+        if len(mine):
+            found, counts = np.unique(cluster_id[mine], return_counts=True)
+            biggest = int(found[np.argmax(counts)])
+            d = next(d for d, obj in enumerate(voted) if obj.cluster_id == biggest)
+            grown.append((d, np.concatenate([mine[cluster_id[mine] == biggest], taken])))
+            labels[taken], cluster_id[taken], track_id[taken] = voted[d].label, biggest, track.track_id
+        elif len(taken) >= MIN_OBJECT_POINTS:
+            made.append((track, taken, ids.next(-1)))
+    ones = np.ones(len(points), np.float32)
+    for (d, _), box in zip(grown, boxed_objects(points, [(voted[d].label, voted[d].cluster_id, m) for d, m in grown],
+                                                ones), strict=True):
+        obj = voted[d]
+        voted[d] = LabelledObject(box.center, box.size, box.yaw, obj.label, obj.score, obj.cluster_id, box.plausible,
+                                  obj.track_id)
+    out = []
+    for (track, taken, object_id), box in zip(made, boxed_objects(points, [(track.label(), object_id, taken)
+                                                                        for track, taken, object_id in made], ones),
+                                               strict=True):
+        labels[taken], cluster_id[taken], track_id[taken] = box.label, object_id, track.track_id
+        out.append(LabelledObject(box.center, box.size, box.yaw, box.label, track.score() * HELD_SCORE, object_id,
+                                  box.plausible, track.track_id))
     return out
 
 

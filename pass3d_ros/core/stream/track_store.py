@@ -112,6 +112,11 @@ class TrackStore:
         vote(slots, self.votes, self.first, self.weight, self.label, self.score)
         return self.label[slots], self.score[slots]
 
+    def confidences_of(self, slots: np.ndarray) -> np.ndarray:
+        """`confidence` of each track of `slots` at once."""
+        self.voted(slots)
+        return _mean_confidences(slots, self.votes, self.confidences, self.first, self.count, self.label)
+
     def confidence(self, slot: int) -> float:
         """The mean confidence of a track's recent sightings of its voted class."""
         label = int(self.voted(np.array([slot]))[0][0])
@@ -119,6 +124,24 @@ class TrackStore:
         mine = [float(c) for v, c in zip(self.votes[slot, ring], self.confidences[slot, ring], strict=True)
                 if v == label]
         return sum(mine) / len(mine) if mine else 0.0
+
+
+@nb.njit(cache=True, nogil=True)
+def _mean_confidences(slots: np.ndarray, votes: np.ndarray, ring: np.ndarray, first: np.ndarray, count: np.ndarray,
+                      label: np.ndarray) -> np.ndarray:
+    """Per track of `slots`, the mean confidence of its window's sightings of its voted class (0 with none)."""
+    out = np.zeros(len(slots))
+    window = votes.shape[1]
+    for i in range(len(slots)):
+        s = slots[i]
+        total, n = 0.0, 0
+        for j in range(count[s]):
+            at = (first[s] + j) % window
+            if votes[s, at] == label[s]:
+                total += ring[s, at]
+                n += 1
+        out[i] = total / n if n else 0.0
+    return out
 
 
 @nb.njit(cache=True, nogil=True)

@@ -64,6 +64,7 @@ from pass3d_ros.core.stream.footprints import (
     rows_cells,
     shared_cells,
 )
+from pass3d_ros.core.stream.shapes import ShapeMemory
 from pass3d_ros.core.stream.track_store import FOOTPRINT_POINTS, Track, TrackStore, new_views
 
 LONG_M = 3.0  # a class this long on average (a car) moves its box centre by metres when seen from another side; a
@@ -125,6 +126,11 @@ class TrackerConfig:
     implausible_births: bool = False  # a detection whose box cannot be one object of its class (core.objects'
     # plausible flag: a car 1.2 x 0.2 x 0.01 m, a sliver of a car's roof) may start a track; False: it starts none
     # (it may still match a track, be a part of one or find an ended one again) and has no track this scan
+    fill_shapes: bool = True  # a confirmed car track's remembered shape (`shapes`: the voxels its objects' points
+    # filled over its last shape_sightings sightings) takes the scan's points stage 2 left background, in no proposal
+    # and off the ground, that fall in it (core.tracked_scan; docs/experiments/tracks.md, rule N)
+    shape_sightings: int = 10  # sightings a car track's shape remembers
+    fill_min_confidence: float = 0.8  # the mean confidence of its voted class's sightings a track filling needs
 
     def extent_limit(self, label: int) -> tuple[float, float] | None:
         """The longer and shorter horizontal edge one object of class `label` fits in (`part_extent` times its
@@ -217,8 +223,24 @@ class Tracker:
         self.ended: list[Track] = []  # confirmed tracks ended less than reid_misses scans ago (`_revive`)
         self._next_id = 0
         self._last_stamp_s: float | None = None  # the last scan's (`_hold` reads the scan period)
+        self.shapes = ShapeMemory(self.config.shape_sightings)  # car tracks' remembered shapes (`fill_shapes`)
         self.born = 0
         self.lost = 0
+
+    def filling(self) -> list[Track]:
+        """The tracks whose remembered shape fills the scan (`fill_shapes`): confirmed car tracks, alive, of mean
+        confidence fill_min_confidence or more, with a shape; the shapes of tracks no longer alive or ended are
+        forgotten."""
+        if not self.config.fill_shapes:
+            return []
+        self.shapes.keep_only({t.track_id for t in self.tracks} | {t.track_id for t in self.ended})
+        if not len(self.shapes):
+            return []
+        slots = self._live()
+        label, _ = self.store.voted(slots)
+        chosen = np.flatnonzero((label == CAR) & (self.store.hits[slots] >= self.config.min_hits))
+        chosen = chosen[self.store.confidences_of(slots[chosen]) >= self.config.fill_min_confidence]
+        return [self.tracks[k] for k in chosen.tolist() if self.tracks[k].track_id in self.shapes]
 
     @property
     def alive(self) -> int:
