@@ -32,6 +32,7 @@ from pass3d_ros.core.stage2.classifier_process import (
 )
 from pass3d_ros.core.stage2.config import Stage2Config, parameter_table
 from pass3d_ros.core.stage2.segmentation import SegmentResult, proposals_cut
+from pass3d_ros.core.stream import shapes
 from pass3d_ros.core.threads import limit_threads
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, header_stamp_ns
 from pass3d_ros.ros import params
@@ -170,6 +171,7 @@ class SegmentationNode(PointCloudNode):
         self.frames_late = 0  # frames whose result came after stage2_timeout, dropped instead of published late
         self._hung: tuple[float, str] | None = None  # when stage 2 was last killed for hanging, and why
         scan_checks.warm_up()
+        shapes.warm_up()
         self.classifier = self._load_classifier()
         # stage 2's share of the one door: the stream's intensity map onto the training scale, then the classifier
         # and, with tracking on, the stream's tracker (objects over time: pass3d_ros.core.tracked_scan)

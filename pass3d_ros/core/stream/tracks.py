@@ -126,9 +126,10 @@ class TrackerConfig:
     implausible_births: bool = False  # a detection whose box cannot be one object of its class (core.objects'
     # plausible flag: a car 1.2 x 0.2 x 0.01 m, a sliver of a car's roof) may start a track; False: it starts none
     # (it may still match a track, be a part of one or find an ended one again) and has no track this scan
-    fill_shapes: bool = True  # a confirmed car track's remembered shape (`shapes`: the voxels its objects' points
+    fill_shapes: bool = False  # a confirmed car track's remembered shape (`shapes`: the voxels its objects' points
     # filled over its last shape_sightings sightings) takes the scan's points stage 2 left background, in no proposal
-    # and off the ground, that fall in it (core.tracked_scan; docs/experiments/tracks.md, rule N)
+    # and off the ground, that fall in it (core.tracked_scan). Off: rule N of docs/experiments/tracks.md (flicker
+    # -12 % on synthetic drives, but 1.24 ms against 0.88 at 60 objects, over issue 54's 1 ms; parking lot car -1.0)
     shape_sightings: int = 10  # sightings a car track's shape remembers
     fill_min_confidence: float = 0.8  # the mean confidence of its voted class's sightings a track filling needs
 
