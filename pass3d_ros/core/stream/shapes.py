@@ -152,6 +152,8 @@ def _owners_kernel(points: np.ndarray, labels: np.ndarray, cluster_id: np.ndarra
             reach[t, 1] = max(reach[t, 1], b[1] + moved[t, k, 0] + voxel)
             reach[t, 2] = min(reach[t, 2], b[2] + moved[t, k, 1] - voxel)
             reach[t, 3] = max(reach[t, 3], b[3] + moved[t, k, 1] + voxel)
+        if not reach[t, 0] <= reach[t, 1]:  # no point in any sighting: a shape of nothing
+            continue
         x0, x1 = min(x0, reach[t, 0]), max(x1, reach[t, 1])
         y0, y1 = min(y0, reach[t, 2]), max(y1, reach[t, 3])
     if not x0 < x1:
@@ -159,6 +161,8 @@ def _owners_kernel(points: np.ndarray, labels: np.ndarray, cluster_id: np.ndarra
     nx, ny = int((x1 - x0) / grid_m) + 1, int((y1 - y0) / grid_m) + 1
     grid = np.full((nx, ny), -1, np.int64)
     for t in range(t_count):
+        if not reach[t, 0] <= reach[t, 1]:
+            continue
         for gx in range(int((reach[t, 0] - x0) / grid_m), int((reach[t, 1] - x0) / grid_m) + 1):
             for gy in range(int((reach[t, 2] - y0) / grid_m), int((reach[t, 3] - y0) / grid_m) + 1):
                 grid[gx, gy] = t if grid[gx, gy] == -1 else _MANY

@@ -133,3 +133,15 @@ def test_a_waiting_car_track_makes_an_object_of_its_unproposed_points() -> None:
 def test_the_node_parameter_sets_the_fill() -> None:
     assert Stage2Config().tracker_config().fill_shapes == TrackerConfig().fill_shapes
     assert Stage2Config(track_fill_shapes=True).tracker_config().fill_shapes is True
+
+
+def test_a_track_remembered_with_no_point_has_no_shape() -> None:
+    memory = ShapeMemory(3)
+    points = car_points()
+    n = len(points)
+    memory.remember([7], 0.0, points, np.arange(n), np.full(n, BACKGROUND, np.uint8), np.full(n, 7, np.int32), CAR,
+                    IDENTITY)  # none of its points is a car's any more (shared out to a neighbour, say)
+    remembered(car_points(x0=30.0), memory, 8, 0.0)
+    found = memory.owners(np.concatenate([points, car_points(x0=30.0)]), np.zeros(2 * n, np.uint8),
+                          np.full(2 * n, -1, np.int32), None, IDENTITY, [7, 8], np.zeros((2, 2)), 0.1)
+    assert (found[:n] == -1).all() and (found[n:] == 1).all()
