@@ -7,8 +7,11 @@ sighting's class; a change needs the new class to lead the confidence-weighted v
 sightings). A part of a tracked object (stage 1 cut it in two) takes that object's track. With the scan's points, a
 confirmed track that no object matched may be held by the points stage 2 called background on its predicted
 footprint (core.stream.tracks): they become one object of the track's class and id, with a cluster id of its own (the
-proposal holding most of them, as its next split part). Cluster ids otherwise stay; an object stays one object. A
-track's id is published once it is confirmed (`min_hits` sightings); before, -1.
+proposal holding most of them, as its next split part). With `fill_shapes` (off by default), a confirmed car track's
+remembered shape (core.stream.shapes) also takes the points stage 2 left background, in no proposal and off the
+ground, that fall in it: into the track's object, or an object of their own as held points are. Cluster ids
+otherwise stay; an object stays one object. A track's id is published once it is confirmed (`min_hits` sightings);
+before, -1.
 """
 from __future__ import annotations
 
@@ -29,6 +32,7 @@ from pass3d_ros.core.objects import (
 )
 from pass3d_ros.core.point_owners import object_points, paint, take_rows
 from pass3d_ros.core.stream.footprints import MAX_POINTS, Footprints, footprint_members, nearest_owner
+from pass3d_ros.core.stream.track_store import Track
 from pass3d_ros.core.stream.tracks import NO_TRACK, Tracked, Tracker
 
 HELD_SCORE = 0.5  # a held object's score is its track's vote share times this (stage 2 did not see it)
@@ -240,7 +244,7 @@ def _to_tracking(back: np.ndarray | None, pose: np.ndarray | None) -> tuple[np.n
     return pose[:3, :3] @ rotation, pose[:3, 3].copy()
 
 
-def _filled(tracker: Tracker, filling: list, road: np.ndarray, points: np.ndarray,
+def _filled(tracker: Tracker, filling: list[Track], road: np.ndarray, points: np.ndarray,
             ground: np.ndarray | None, labels: np.ndarray, cluster_id: np.ndarray, track_id: np.ndarray,
             voted: list[LabelledObject], to_tracking: tuple[np.ndarray, np.ndarray], stamp_s: float,
             ids: _PartIds) -> list[LabelledObject]:
