@@ -192,15 +192,17 @@ class ScanPipeline:
     """One sensor stream's scans through the checks, stage 1 and (with a classifier) stage 2. `clock`: seconds for
     what the stream learns over time (`time.monotonic` live; None offline, each scan one revolution);
     `intensity_match`: map intensities onto stage 2's training scale (never for size rules); `tracking`: the published
-    objects through the stream's tracker (Stage2Config.tracking), each segmented scan's `tracked` and `output`."""
+    objects through the stream's tracker (Stage2Config.tracking), each segmented scan's `tracked` and `output`, with
+    `tracker_config` (None: TrackerConfig's defaults)."""
 
     def __init__(self, config: Stage1Config | None = None, classifier: Classifier | None = None, *,
                  clock: Callable[[], float] | None = None, intensity_match: bool = INTENSITY_MATCH,
-                 tracking: bool = False) -> None:
+                 tracking: bool = False, tracker_config: TrackerConfig | None = None) -> None:
         self.config = config or Stage1Config()  # a node replaces it when its parameters change
         self.stream = ScanStream(clock, intensity_match=matches_intensity(intensity_match, classifier))
         self.segmenter = None if classifier is None else ProposalSegmenter(classifier, intensity_match,
-                                                                           self.stream.match, tracking)
+                                                                           self.stream.match, tracking,
+                                                                           tracker_config)
         self._followed: Hashable | None = None
 
     @property

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from itertools import pairwise
 
 import numpy as np
@@ -40,6 +40,7 @@ from pass3d_ros.core.pipeline import LabelledScan, ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config, warm_up
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
+from pass3d_ros.core.stream.tracks import TrackerConfig
 from pass3d_ros.core.tracked_scan import NO_TRACK
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import DatasetError
@@ -284,13 +285,16 @@ class TrackingEvaluation:
 
 def evaluate_tracking(frames: Iterator[tuple[str, Frame]], config: Stage1Config, classifier: Classifier,
                       intensity_match: bool = INTENSITY_MATCH, scan_rate_hz: float | None = None,
-                      per_frame_instances: bool = False) -> dict:
+                      per_frame_instances: bool = False, tracker_config: TrackerConfig | None = None) -> dict:
     """Both stages with the stream's tracker on every frame, each spec a stream (module docstring): the summary
-    `TrackingEvaluation.summary` gives. `scan_rate_hz`: the scans' rate when the stamps do not tell it;
-    `per_frame_instances`: the data's instance ids name boxes within one frame only (no ground-truth tracks)."""
+    `TrackingEvaluation.summary` gives, with the tracker's settings (`tracker_config`, None: its defaults).
+    `scan_rate_hz`: the scans' rate when the stamps do not tell it; `per_frame_instances`: the data's instance ids
+    name boxes within one frame only (no ground-truth tracks)."""
     warm_up()
     classifier.warm_up()
-    pipeline = ScanPipeline(config, classifier, intensity_match=intensity_match, tracking=True)
+    tracker_config = tracker_config or TrackerConfig()
+    pipeline = ScanPipeline(config, classifier, intensity_match=intensity_match, tracking=True,
+                            tracker_config=tracker_config)
     run = TrackingEvaluation(per_frame_instances)
     current: str | None = None
     history = StreamHistory(0.0)
@@ -310,7 +314,7 @@ def evaluate_tracking(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
         index += 1
     if current is not None:
         _end(run, current, history, stamps, scan_rate_hz)
-    return run.summary()
+    return {**run.summary(), "tracker": asdict(tracker_config)}
 
 
 def _end(run: TrackingEvaluation, spec: str, history: StreamHistory, stamps: list[int],

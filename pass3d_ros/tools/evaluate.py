@@ -82,6 +82,7 @@ from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage1.config import parse_params
 from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
 from pass3d_ros.core.stage2.canonical import SAMPLINGS
+from pass3d_ros.core.stage2.config import tracker_from_params
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
@@ -157,6 +158,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--scan-rate", type=number(float, 0.0, low_open=True), metavar="HZ",
                         help="--tracking: the scans' rate when their stamps do not tell it (default: the stamps' "
                              "median step)")
+    parser.add_argument("--track", action="append", default=[], metavar="KEY=VALUE",
+                        help="--tracking: a tracker setting as the segmentation node names it, repeatable "
+                             "(track_fill_shapes=true, track_gate_car=2.5; docs/parameters.md); the JSON's "
+                             "\"tracker\" holds every setting the run used")
     parser.add_argument("--per-frame-instances", action="store_true",
                         help="--tracking: the data's instance ids name boxes within one frame only, not objects over "
                              "time (nuscenes_parking): no ground-truth flicker, id switches or fragmentations")
@@ -183,8 +188,9 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UserError(f"--max-proposals must be >= 1, got {args.max_proposals}")
     mode = "live" if args.live else "stage1" if args.stage1_only else "view_agreement" if args.view_agreement \
         else "tracking" if args.tracking else "full"
-    if mode != "tracking" and (args.scan_rate is not None or args.per_frame_instances):
-        raise UserError("--scan-rate and --per-frame-instances apply with --tracking only")
+    if mode != "tracking" and (args.scan_rate is not None or args.per_frame_instances or args.track):
+        raise UserError("--scan-rate, --per-frame-instances and --track apply with --tracking only")
+    tracker_from_params(args.track)  # a wrong --track fails now, not after the classifier loads
     live_only = [name for name, given in (("--lockstep", args.lockstep), ("--record-out", args.record_out),
                                           ("--rate", args.rate != 1.0), ("--timeout", args.timeout != 30.0),
                                           ("--force", args.force)) if given]
@@ -248,7 +254,7 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
     if mode == "tracking":
         frames = iter_frames(datasets, args.limit, not args.no_progress)
         return {**evaluate_tracking(frames, config, classifier, args.intensity_match, args.scan_rate,
-                                    args.per_frame_instances), **settings}, 0
+                                    args.per_frame_instances, tracker_from_params(args.track)), **settings}, 0
     if mode in ("full", "view_agreement"):
         coverage = isinstance(classifier, Segmenter) and classifier.sampling == "coverage"
         sampling = args.sampling or ("draw" if args.sample_draws > 1 and coverage else None)  # coverage: no draws

@@ -12,6 +12,8 @@ import pytest
 
 import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
 from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
+from pass3d_ros.core.stage2.config import tracker_from_params
+from pass3d_ros.core.stream.tracks import TrackerConfig
 from pass3d_ros.core.tracked_scan import NO_TRACK
 from pass3d_ros.evaluation.tracking import Flicker, Mot, Sighting, instance_sightings, scan_period
 from pass3d_ros.tools import evaluate
@@ -127,3 +129,28 @@ def test_tracking_options_need_tracking(capsys: pytest.CaptureFixture) -> None:
     assert evaluate.main(["--data", "synthetic:frames=1", "--scan-rate", "2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--tracking only" in err[0]
+    assert evaluate.main(["--data", "synthetic:frames=1", "--track", "track_fill_shapes=true"]) == 2
+    assert "--tracking only" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("item", "says"), [("fill_shapes=true", "track_fill_shapes"),
+                                             ("track_fill_shapes=maybe", "true or false"),
+                                             ("track_gate_car=far", "a number"),
+                                             ("track_gate_car=-1", "outside")])
+def test_a_wrong_track_setting_is_named_before_the_run(item: str, says: str, capsys: pytest.CaptureFixture) -> None:
+    assert evaluate.main(["--tracking", "--data", "synthetic:drive=2,seed=3", "--track", item]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0] and "Traceback" not in err[0]
+
+
+def test_track_settings_reach_the_tracker(tmp_path: Path) -> None:
+    assert tracker_from_params([]) == TrackerConfig()
+    tracker = tracker_from_params(["track_fill_shapes=true", "segmentation_node.track_gate_car=2.5"])
+    assert tracker.fill_shapes is True and tracker.gate(CAR) == 2.5
+    out = tmp_path / "tracking.json"
+    args = ["--tracking", "--data", "synthetic:drive=3,seed=3,sensor=hdl32e", "--classifier", "size_rules",
+            "--no-progress", "--json", str(out)]
+    assert evaluate.main([*args, "--track", "track_fill_shapes=true"]) == 0
+    assert json.loads(out.read_text())["tracker"]["fill_shapes"] is True
+    assert evaluate.main(args) == 0
+    assert json.loads(out.read_text())["tracker"]["fill_shapes"] is False

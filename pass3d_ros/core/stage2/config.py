@@ -9,7 +9,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 from pass3d_ros.classes import CAR, CYCLIST, PEDESTRIAN
-from pass3d_ros.core.stage1.config import refuse_problems, refuse_unknown
+from pass3d_ros.core.stage1.config import ConfigError, refuse_problems, refuse_unknown
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stream.tracks import TrackerConfig
@@ -145,6 +145,31 @@ class Stage2Config:
 
 
 _WANTED = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+TRACK_PREFIX = "track_"
+
+
+def tracker_from_params(items: list[str]) -> TrackerConfig:
+    """The tracker's settings from `KEY=VALUE` items naming Stage2Config's track_* settings as the segmentation node
+    does (`track_fill_shapes=true`, `segmentation_node.track_gate_car=2.5`; the rest its defaults); ConfigError names
+    an item that is no such setting or whose value is not of its type."""
+    values: dict[str, Any] = {}
+    known = {f.name: f for f in fields(Stage2Config) if f.name.startswith(TRACK_PREFIX)}
+    for item in items:
+        key, sep, text = item.partition("=")
+        name = key.strip().removeprefix("segmentation_node.")
+        if not sep or name not in known:
+            raise ConfigError(f"--track {item!r}: expected KEY=VALUE with KEY one of {', '.join(sorted(known))}")
+        kind, text = type(known[name].default), text.strip()
+        try:
+            if kind is bool:
+                if text.lower() not in ("true", "false"):
+                    raise ValueError(text)
+                values[name] = text.lower() == "true"
+            else:
+                values[name] = kind(text)
+        except ValueError:
+            raise ConfigError(f"--track {item!r}: {name} must be {_WANTED[kind]}") from None
+    return Stage2Config(**values).tracker_config()
 
 
 def parameter_table() -> dict[str, ParameterEntry]:
