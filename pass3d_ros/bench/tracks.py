@@ -1,11 +1,11 @@
 """Tracker speed: one stream's tracker and the vote on points per scan with N moving objects, median and 95th
 percentile.
 
-`pass3d_benchmark tracks [--objects 60] [--scans 200] [--points 120000] [--seed 0]`: N objects (half cars, half
-pedestrians) moving at constant velocities through 10 Hz scans, each scan's detections jittered by 0.1 m, in a scan of
-`--points` points of which each object holds 300 (the rest background); per scan `track_scan` with the scan's points
-(the footprints, the tracker's update, then the voted classes and track ids onto the objects and their points: what a
-node or `pass3d_evaluate --tracking` runs; every object is seen, so no track waits to be held) is timed, and the
+`pass3d_benchmark tracks [--objects 60] [--scans 200] [--points 120000] [--seed 0] [--track KEY=VALUE]`: N objects (half
+cars, half pedestrians) moving at constant velocities through 10 Hz scans, each scan's detections jittered by 0.1 m, in
+a scan of `--points` points of which each object holds 300 (the rest background); per scan `track_scan` with the scan's
+points (the footprints, the tracker's update, then the voted classes and track ids onto the objects and their points:
+what a node or `pass3d_evaluate --tracking` runs; every object is seen, so no track waits to be held) is timed, and the
 tracker's update alone (centres only). Issue target: <= 1 ms at 60 objects. Ids used: N when every object kept its
 track.
 """
@@ -19,6 +19,7 @@ import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
 from pass3d_ros.core.objects import FrameObjects, LabelledObject
+from pass3d_ros.core.stage2.config import tracker_from_params
 from pass3d_ros.core.stream.tracks import Tracker
 from pass3d_ros.core.tracked_scan import track_scan
 from pass3d_ros.msgs.errors import UserError
@@ -33,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--points", type=int, default=120_000, metavar="P",
                         help="points a scan (default 120000, a KITTI HDL-64E scan)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--track", action="append", default=[], metavar="KEY=VALUE",
+                        help="a tracker setting as the segmentation node names it, repeatable "
+                             "(track_fill_shapes=true: what the fill costs)")
 
 
 def scan_objects(xy: np.ndarray, labels: np.ndarray, sizes: np.ndarray, owner: np.ndarray, points: np.ndarray
@@ -61,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
         np.arange(args.objects), POINTS_PER_OBJECT)
     points = np.column_stack([rng.uniform(-50.0, 50.0, (args.points, 2)), rng.uniform(-1.7, 0.5, args.points),
                               rng.uniform(-0.5, 0.5, (args.points, 2))])  # x, y, z and each point's place in its box
-    tracker, alone = Tracker(), Tracker()
+    settings = tracker_from_params(args.track)
+    tracker, alone = Tracker(settings), Tracker(settings)
     took, took_alone, ids = [], [], set()
     for k in range(args.scans):
         xy = start + speed * 0.1 * k + rng.normal(0.0, 0.1, (args.objects, 2))
@@ -75,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
         took_alone.append(1e3 * (time.perf_counter() - began))
         ids.update(o.track_id for o in out.tracked)
     both, update = np.array(took[10:]), np.array(took_alone[10:])  # the first scans make the tracks
-    print(f"{args.objects} objects a scan of {args.points} points, {args.scans} scans at 10 Hz:")
+    changed = f" ({', '.join(args.track)})" if args.track else ""
+    print(f"{args.objects} objects a scan of {args.points} points, {args.scans} scans at 10 Hz{changed}:")
     print(f"  tracker + vote on points (track_scan): median {np.median(both):.3f} ms, p95 "
           f"{np.percentile(both, 95):.3f} ms")
     print(f"  tracker update alone: median {np.median(update):.3f} ms, p95 {np.percentile(update, 95):.3f} ms")

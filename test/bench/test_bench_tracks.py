@@ -18,3 +18,11 @@ def test_the_tracks_suite_refuses_a_scan_too_small_for_its_objects(capsys: pytes
     assert benchmark.main(["tracks", "--objects", "12", "--points", "100"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--points >= 300 x --objects" in err[0]
+
+
+def test_the_tracks_suite_times_a_tracker_setting(capsys: pytest.CaptureFixture[str]) -> None:
+    assert benchmark.main(["tracks", "--objects", "12", "--scans", "30", "--track", "track_fill_shapes=true"]) == 0
+    assert "30 scans at 10 Hz (track_fill_shapes=true)" in capsys.readouterr().out
+    assert benchmark.main(["tracks", "--objects", "12", "--scans", "30", "--track", "fill=1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "track_fill_shapes" in err[0]
