@@ -12,6 +12,7 @@ from pass3d_ros.classes import CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.core.stage1.config import ConfigError, refuse_problems, refuse_unknown
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
+from pass3d_ros.core.stream.shapes import VOXEL_M
 from pass3d_ros.core.stream.tracks import TrackerConfig
 from pass3d_ros.core.threads import DEFAULT_THREADS
 
@@ -92,11 +93,11 @@ class Stage2Config:
         _TRACKER.vote_window, "tracking: recent sightings a track's class is voted over", (1, 1000),
     )
     track_fill_shapes: bool = _setting(
-        _TRACKER.fill_shapes, "tracking: a confirmed car track's remembered shape (the 0.4 m voxels its points filled "
-        "over its last 10 sightings, moved with it) takes the points stage 2 left background, in no proposal and off "
-        "the ground, that fall in it: the rest of a car stage 1 proposed only in part (docs/outputs.md). Off by rule N "
-        "of docs/experiments/tracks.md: class changes of cars fewer on synthetic drives, but the tracker's time over "
-        "1 ms at 60 objects and the parking lot's car IoU 1 point lower",
+        _TRACKER.fill_shapes, f"tracking: a confirmed car track's remembered shape (the {VOXEL_M:g} m voxels its "
+        f"points filled over its last {_TRACKER.shape_sightings} sightings, moved with it) takes the points stage 2 "
+        "left background, in no proposal and off the ground, that fall in it: the rest of a car stage 1 proposed only "
+        "in part (docs/outputs.md). Off by rule N of docs/experiments/tracks.md: class changes of cars fewer on "
+        "synthetic drives, but the tracker's time over 1 ms at 60 objects and the parking lot's car IoU 1 point lower",
     )
     stage2_timeout: float = _setting(
         5.0, "seconds a frame may take in stage 2: a child process (process) that answers nothing this long is killed "
@@ -158,7 +159,8 @@ def tracker_from_params(items: list[str]) -> TrackerConfig:
         key, sep, text = item.partition("=")
         name = key.strip().removeprefix("segmentation_node.")
         if not sep or name not in known:
-            raise ConfigError(f"--track {item!r}: expected KEY=VALUE with KEY one of {', '.join(sorted(known))}")
+            raise ConfigError(f"tracker setting {item!r}: expected KEY=VALUE with KEY one of "
+                              f"{', '.join(sorted(known))}")
         kind, text = type(known[name].default), text.strip()
         try:
             if kind is bool:
@@ -168,7 +170,7 @@ def tracker_from_params(items: list[str]) -> TrackerConfig:
             else:
                 values[name] = kind(text)
         except ValueError:
-            raise ConfigError(f"--track {item!r}: {name} must be {_WANTED[kind]}") from None
+            raise ConfigError(f"tracker setting {item!r}: {name} must be {_WANTED[kind]}") from None
     return Stage2Config(**values).tracker_config()
 
 
