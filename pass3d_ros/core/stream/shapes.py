@@ -33,6 +33,15 @@ def _key(x: float, y: float, z: float, voxel: float) -> int:
             | (int(np.floor(z / voxel)) + _OFFSET))
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _moved(points: np.ndarray, i: int, rotation: np.ndarray, shift: np.ndarray) -> tuple[float, float, float]:
+    """Point i of `points` in the tracking frame (p @ rotation.T + shift)."""
+    px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+    return (rotation[0, 0] * px + rotation[0, 1] * py + rotation[0, 2] * pz + shift[0],
+            rotation[1, 0] * px + rotation[1, 1] * py + rotation[1, 2] * pz + shift[1],
+            rotation[2, 0] * px + rotation[2, 1] * py + rotation[2, 2] * pz + shift[2])
+
+
 @nb.njit(cache=True, nogil=True)
 def _remember_kernel(points: np.ndarray, road: np.ndarray, labels: np.ndarray, track_id: np.ndarray, label: int,
                      ids: np.ndarray, rows: np.ndarray, at: np.ndarray, rotation: np.ndarray, shift: np.ndarray,
@@ -61,14 +70,8 @@ def _remember_kernel(points: np.ndarray, road: np.ndarray, labels: np.ndarray, t
         if dense:
             j = table[wanted]
         else:
-            lo, hi = 0, n_ids
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if ids[mid] < track_id[i]:
-                    lo = mid + 1
-                else:
-                    hi = mid
-            j = lo if lo < n_ids and ids[lo] == track_id[i] else -1
+            j = np.searchsorted(ids, track_id[i])
+            j = j if j < n_ids and ids[j] == track_id[i] else -1
         if j >= 0:
             slot[q] = j
             total[j] += 1
@@ -90,11 +93,7 @@ def _remember_kernel(points: np.ndarray, road: np.ndarray, labels: np.ndarray, t
         passed[j] += 1
         if (passed[j] - 1) % stride or filled[j] == start[j + 1] - start[j]:
             continue
-        i = road[q]
-        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-        x = rotation[0, 0] * px + rotation[0, 1] * py + rotation[0, 2] * pz + shift[0]
-        y = rotation[1, 0] * px + rotation[1, 1] * py + rotation[1, 2] * pz + shift[1]
-        z = rotation[2, 0] * px + rotation[2, 1] * py + rotation[2, 2] * pz + shift[2]
+        x, y, z = _moved(points, road[q], rotation, shift)
         box = boxes[rows[j], at[j]]
         box[0] = min(box[0], x)
         box[1] = max(box[1], x)
@@ -114,15 +113,10 @@ def _remember_kernel(points: np.ndarray, road: np.ndarray, labels: np.ndarray, t
 
 
 @nb.njit(cache=True, nogil=True)
-def _found(keys: np.ndarray, m: int, key: int) -> bool:
-    lo, hi = 0, m
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if keys[mid] < key:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo < m and keys[lo] == key
+def _found(keys: np.ndarray, key: int) -> bool:
+    """Whether `key` is among the sorted `keys`."""
+    at = np.searchsorted(keys, key)
+    return at < keys.shape[0] and keys[at] == key
 
 
 @nb.njit(cache=True, nogil=True)
@@ -170,15 +164,12 @@ def _owners_kernel(points: np.ndarray, labels: np.ndarray, cluster_id: np.ndarra
     for i in range(n):
         if labels[i] != 0 or cluster_id[i] >= 0 or (has_ground and ground[i]):
             continue
-        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-        x = rotation[0, 0] * px + rotation[0, 1] * py + rotation[0, 2] * pz + shift[0]
-        y = rotation[1, 0] * px + rotation[1, 1] * py + rotation[1, 2] * pz + shift[1]
+        x, y, z = _moved(points, i, rotation, shift)
         if x < x0 or x >= x1 or y < y0 or y >= y1:
             continue
         cell = grid[int((x - x0) / grid_m), int((y - y0) / grid_m)]
         if cell == -1:
             continue
-        z = rotation[2, 0] * px + rotation[2, 1] * py + rotation[2, 2] * pz + shift[2]
         first, last = (cell, cell + 1) if cell >= 0 else (0, t_count)
         for t in range(first, last):
             if x < reach[t, 0] or x > reach[t, 1] or y < reach[t, 2] or y > reach[t, 3]:
@@ -187,7 +178,7 @@ def _owners_kernel(points: np.ndarray, labels: np.ndarray, cluster_id: np.ndarra
             hit = False
             for k in range(keys.shape[1]):
                 m = counts[r, k]
-                if m and _found(keys[r, k], m, _key(x - moved[t, k, 0], y - moved[t, k, 1], z, voxel)):
+                if m and _found(keys[r, k, :m], _key(x - moved[t, k, 0], y - moved[t, k, 1], z, voxel)):
                     hit = True
                     break
             if hit:
