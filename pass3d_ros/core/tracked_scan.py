@@ -259,6 +259,7 @@ def _filled(tracker: Tracker, filling: list[Track], road: np.ndarray, points: np
     if not len(taken_all):
         return []
     grown, made = [], []
+    object_of = {obj.cluster_id: d for d, obj in enumerate(voted)}
     by_track = owner[taken_all]
     for k in np.unique(by_track).tolist():
         track, taken = filling[k], taken_all[by_track == k]
@@ -266,7 +267,7 @@ def _filled(tracker: Tracker, filling: list[Track], road: np.ndarray, points: np
         if len(mine):
             found, counts = np.unique(cluster_id[mine], return_counts=True)
             biggest = int(found[np.argmax(counts)])
-            d = next(d for d, obj in enumerate(voted) if obj.cluster_id == biggest)
+            d = object_of[biggest]
             grown.append((d, np.concatenate([mine[cluster_id[mine] == biggest], taken])))
             labels[taken], cluster_id[taken], track_id[taken] = voted[d].label, biggest, track.track_id
         elif len(taken) >= MIN_OBJECT_POINTS:
