@@ -85,14 +85,16 @@ def _owners(points: np.ndarray, label: np.ndarray, kept: np.ndarray, fragments: 
     if not any(len(n) for n in near):
         return owner
     xy_of = _points_of(points, label, np.concatenate([fragments, kept[np.concatenate(near)]]))
+    hosts: dict[int, tuple[float, float, float, float]] = {}  # each host's view, read once
     for f, c in enumerate(fragments.tolist()):
         if not len(near[f]):
             continue
         xy = xy_of(c)
         best = JOIN_GAP_M
         for k in near[f].tolist():
-            host = xy_of(int(kept[k]))
-            if not _in_front(xy, host):
+            if k not in hosts:
+                hosts[k] = _seen_from_sensor(xy_of(int(kept[k])))
+            if not _in_front(xy, hosts[k]):
                 continue
             cx, cy, length, width, yaw = rects[k]
             rel = xy - (cx, cy)
@@ -120,16 +122,23 @@ def _points_of(points: np.ndarray, label: np.ndarray, clusters: np.ndarray) -> C
     return lambda c: xy[np.searchsorted(ids, c, "left"):np.searchsorted(ids, c, "right")]
 
 
-def _in_front(fragment: np.ndarray, host: np.ndarray) -> bool:
-    """Whether the fragment (x, y of its points) lies in front of the host, seen from the sensor: nearer (median range)
-    and within the host's bearings for AZIMUTH_SHARE of its points (bearings taken about the host's median one), as the
-    lower part of one object seen from one side is."""
+def _seen_from_sensor(host: np.ndarray) -> tuple[float, float, float, float]:
+    """A host proposal (x, y of its points) as the sensor sees it: its median bearing, its bearings' span about that
+    (lowest, highest) and its median range."""
     bearing = np.arctan2(host[:, 1], host[:, 0])
     centre = float(np.median(bearing))
     spread = np.angle(np.exp(1j * (bearing - centre)))
+    return centre, float(spread.min()), float(spread.max()), float(np.median(np.hypot(host[:, 0], host[:, 1])))
+
+
+def _in_front(fragment: np.ndarray, host: tuple[float, float, float, float]) -> bool:
+    """Whether the fragment (x, y of its points) lies in front of the host (`_seen_from_sensor`): nearer (median
+    range) and within the host's bearings for AZIMUTH_SHARE of its points (bearings taken about the host's median
+    one), as the lower part of one object seen from one side is."""
+    centre, lowest, highest, host_range = host
     mine = np.angle(np.exp(1j * (np.arctan2(fragment[:, 1], fragment[:, 0]) - centre)))
-    within = np.count_nonzero((mine >= spread.min()) & (mine <= spread.max()))
-    nearer = np.median(np.hypot(fragment[:, 0], fragment[:, 1])) < np.median(np.hypot(host[:, 0], host[:, 1]))
+    within = np.count_nonzero((mine >= lowest) & (mine <= highest))
+    nearer = np.median(np.hypot(fragment[:, 0], fragment[:, 1])) < host_range
     return bool(nearer and within >= AZIMUTH_SHARE * len(fragment))
 
 
