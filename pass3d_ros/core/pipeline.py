@@ -19,7 +19,8 @@ import numpy as np
 from pass3d_ros.core.objects import FrameObjects, frame_objects
 from pass3d_ros.core.stage1 import STEPS, Stage1Config, Stage1Result, proposal_members
 from pass3d_ros.core.stage1.proposals import level_points
-from pass3d_ros.core.stage2 import Classifier, segmentation
+from pass3d_ros.core.stage2 import Classifier, groups, segmentation
+from pass3d_ros.core.stage2.groups import DEFAULT_ENABLED as PEOPLE_IN_GROUPS
 from pass3d_ros.core.stage2.segmentation import SegmentResult
 from pass3d_ros.core.stream import PreparedScan, ScanStream
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
@@ -149,8 +150,10 @@ class ProposalSegmenter:
 
     def __init__(self, classifier: Classifier, intensity_match: bool = INTENSITY_MATCH,
                  match: StreamIntensityMatch | None = None, tracking: bool = False,
-                 tracker_config: TrackerConfig | None = None) -> None:
+                 tracker_config: TrackerConfig | None = None, people_in_groups: bool = PEOPLE_IN_GROUPS) -> None:
         self.classifier = classifier
+        self.people_in_groups = people_in_groups
+        self.group_parts_read = 0  # parts the last segmented scan's groups gave the classifier (core.stage2.groups)
         self.intensity_match = matches_intensity(intensity_match, classifier)
         self.match = match if match is not None else StreamIntensityMatch()
         self.tracker = Tracker(tracker_config) if tracking else None
@@ -184,8 +187,14 @@ class ProposalSegmenter:
     def segment(self, points: np.ndarray, members: list[np.ndarray], people_only: np.ndarray | None = None
                 ) -> SegmentResult:
         """The classifier on points already on the training scale (`on_training_scale`); the points flagged in
-        `people_only` (stage 1's `rerun_dropped` parts: ProposedScan.people_only) are pedestrian or background."""
-        return segmentation.people_only(self.classifier.segment(points, members), members, people_only)
+        `people_only` (stage 1's `rerun_dropped` parts: ProposedScan.people_only) are pedestrian or background; with
+        `people_in_groups`, proposals holding a group of people are read again person by person
+        (pass3d_ros.core.stage2.groups)."""
+        result = segmentation.people_only(self.classifier.segment(points, members), members, people_only)
+        self.group_parts_read = 0
+        if self.people_in_groups:
+            result, self.group_parts_read = groups.people_in_groups(points, members, result, self.classifier)
+        return result
 
 
 class ScanPipeline:
@@ -193,16 +202,17 @@ class ScanPipeline:
     what the stream learns over time (`time.monotonic` live; None offline, each scan one revolution);
     `intensity_match`: map intensities onto stage 2's training scale (never for size rules); `tracking`: the published
     objects through the stream's tracker (Stage2Config.tracking), each segmented scan's `tracked` and `output`, with
-    `tracker_config` (None: TrackerConfig's defaults)."""
+    `tracker_config` (None: TrackerConfig's defaults); `people_in_groups`: Stage2Config.people_in_groups."""
 
     def __init__(self, config: Stage1Config | None = None, classifier: Classifier | None = None, *,
                  clock: Callable[[], float] | None = None, intensity_match: bool = INTENSITY_MATCH,
-                 tracking: bool = False, tracker_config: TrackerConfig | None = None) -> None:
+                 tracking: bool = False, tracker_config: TrackerConfig | None = None,
+                 people_in_groups: bool = PEOPLE_IN_GROUPS) -> None:
         self.config = config or Stage1Config()  # a node replaces it when its parameters change
         self.stream = ScanStream(clock, intensity_match=matches_intensity(intensity_match, classifier))
         self.segmenter = None if classifier is None else ProposalSegmenter(classifier, intensity_match,
                                                                            self.stream.match, tracking,
-                                                                           tracker_config)
+                                                                           tracker_config, people_in_groups)
         self._followed: Hashable | None = None
 
     @property
