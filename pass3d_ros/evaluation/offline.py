@@ -18,6 +18,7 @@ from pass3d_ros.core.metrics import ObjectRecall, SegmentationMetrics, Stage1Met
 from pass3d_ros.core.pipeline import ProposedScan, ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config, warm_up
 from pass3d_ros.core.stage2 import Classifier
+from pass3d_ros.core.stage2.groups import DEFAULT_ENABLED as PEOPLE_IN_GROUPS
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, proposals_cut
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.data.frame import Frame
@@ -127,11 +128,11 @@ def background_proposals(points: np.ndarray, truth: np.ndarray, members: list[np
 
 
 def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, classifier: Classifier,
-                  intensity_match: bool = INTENSITY_MATCH) -> dict:
+                  intensity_match: bool = INTENSITY_MATCH, people_in_groups: bool = PEOPLE_IN_GROUPS) -> dict:
     """Stage 1 then stage 2 on every frame, scored against its labels: per-class metrics (car also with the points
     of vans / trucks / buses left out, where the reader marks them), labelled objects found (overall and by range),
     stage times, and the stage-1 summary. Each spec's intensities go to stage 2 on the training scale
-    (`intensity_match`)."""
+    (`intensity_match`); `people_in_groups`: Stage2Config.people_in_groups."""
     warm_up()
     classifier.warm_up()
     segmentation = SegmentationMetrics()
@@ -139,7 +140,7 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
     stage1 = Stage1Metrics()
     background = np.zeros(2, dtype=np.int64)
     budget = BudgetCuts(classifier.max_proposals)
-    pipeline = ScanPipeline(config, classifier, intensity_match=intensity_match)
+    pipeline = ScanPipeline(config, classifier, intensity_match=intensity_match, people_in_groups=people_in_groups)
     for spec, frame in frames:
         if frame.labels is None:
             raise DatasetError(f"{spec}: frame {frame.name} has no point labels; full evaluation needs labelled data")
@@ -190,7 +191,8 @@ def each_draw(classifier: Segmenter, draws: int, run: Callable[[], dict]) -> lis
 
 
 def evaluate_draws(frames: Callable[[], Iterator[tuple[str, Frame]]], config: Stage1Config, classifier: Classifier,
-                   draws: int, intensity_match: bool = INTENSITY_MATCH) -> dict:
+                   draws: int, intensity_match: bool = INTENSITY_MATCH, people_in_groups: bool = PEOPLE_IN_GROUPS
+                   ) -> dict:
     """`evaluate_full` once per N-point sample draw 0..draws-1 (`each_draw`; `frames()` yields the frames afresh
     each time): draw 0's summary, plus "draws": {"count", "classes": {class: spread}, "mean_iou":
     spread} with each draw's IoU, and per frame "confusion_draws", its confusion summed over the draws (what a
@@ -199,7 +201,8 @@ def evaluate_draws(frames: Callable[[], Iterator[tuple[str, Frame]]], config: St
         raise UserError(f"--sample-draws must be >= 1, got {draws}")
     if not isinstance(classifier, Segmenter):
         raise UserError(f"--sample-draws needs the in-process network classifier, not {classifier.kind}")
-    summaries = each_draw(classifier, draws, lambda: evaluate_full(frames(), config, classifier, intensity_match))
+    summaries = each_draw(classifier, draws, lambda: evaluate_full(frames(), config, classifier, intensity_match,
+                                                                   people_in_groups))
     first = summaries[0]
     for rows in zip(*(s["per_frame"] for s in summaries), strict=True):
         rows[0]["confusion_draws"] = np.sum([row["confusion"] for row in rows], axis=0).tolist()

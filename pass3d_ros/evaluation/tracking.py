@@ -39,6 +39,7 @@ from pass3d_ros.core.metrics import SegmentationMetrics, paired_iou_difference
 from pass3d_ros.core.pipeline import LabelledScan, ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config, warm_up
 from pass3d_ros.core.stage2 import Classifier
+from pass3d_ros.core.stage2.groups import DEFAULT_ENABLED as PEOPLE_IN_GROUPS
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stream.tracks import TrackerConfig
 from pass3d_ros.core.tracked_scan import NO_TRACK
@@ -285,16 +286,17 @@ class TrackingEvaluation:
 
 def evaluate_tracking(frames: Iterator[tuple[str, Frame]], config: Stage1Config, classifier: Classifier,
                       intensity_match: bool = INTENSITY_MATCH, scan_rate_hz: float | None = None,
-                      per_frame_instances: bool = False, tracker_config: TrackerConfig | None = None) -> dict:
+                      per_frame_instances: bool = False, tracker_config: TrackerConfig | None = None,
+                      people_in_groups: bool = PEOPLE_IN_GROUPS) -> dict:
     """Both stages with the stream's tracker on every frame, each spec a stream (module docstring): the summary
     `TrackingEvaluation.summary` gives, with the tracker's settings (`tracker_config`, None: its defaults).
     `scan_rate_hz`: the scans' rate when the stamps do not tell it; `per_frame_instances`: the data's instance ids
-    name boxes within one frame only (no ground-truth tracks)."""
+    name boxes within one frame only (no ground-truth tracks); `people_in_groups`: Stage2Config.people_in_groups."""
     warm_up()
     classifier.warm_up()
     tracker_config = tracker_config or TrackerConfig()
     pipeline = ScanPipeline(config, classifier, intensity_match=intensity_match, tracking=True,
-                            tracker_config=tracker_config)
+                            tracker_config=tracker_config, people_in_groups=people_in_groups)
     run = TrackingEvaluation(per_frame_instances)
     current: str | None = None
     history = StreamHistory(0.0)

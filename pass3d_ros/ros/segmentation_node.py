@@ -177,7 +177,8 @@ class SegmentationNode(PointCloudNode):
         # and, with tracking on, the stream's tracker (objects over time: pass3d_ros.core.tracked_scan)
         self.stage2 = ProposalSegmenter(self.classifier, self.settings.intensity_match,
                                         tracking=self.settings.tracking,
-                                        tracker_config=self.settings.tracker_config())
+                                        tracker_config=self.settings.tracker_config(),
+                                        people_in_groups=self.settings.people_in_groups)
         self.odometry = self._subscribe_odometry()
         self.add_on_set_parameters_callback(self._on_set_parameters)
 

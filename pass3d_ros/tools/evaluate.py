@@ -83,6 +83,7 @@ from pass3d_ros.core.stage1.config import parse_params
 from pass3d_ros.core.stage2 import CLASSIFIERS, open_classifier
 from pass3d_ros.core.stage2.canonical import SAMPLINGS
 from pass3d_ros.core.stage2.config import tracker_from_params
+from pass3d_ros.core.stage2.groups import DEFAULT_ENABLED as PEOPLE_IN_GROUPS
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
@@ -133,6 +134,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--intensity-match", action=argparse.BooleanOptionalAction, default=INTENSITY_MATCH,
                         help="map each --data's intensities onto the network's training scale, as the segmentation "
                         "node does (default on; the map is fitted on a spec's first frames, then held)")
+    parser.add_argument("--people-in-groups", action=argparse.BooleanOptionalAction, default=PEOPLE_IN_GROUPS,
+                        help="read a proposal holding a group of people again person by person, as the "
+                        f"segmentation node's people_in_groups does (default {'on' if PEOPLE_IN_GROUPS else 'off'}; "
+                        "full and tracking modes)")
     parser.add_argument("--sample-draws", type=number(int, 1), default=1, metavar="N",
                         help="full and view-agreement modes, network classifier in process: run the evaluation "
                              "once per draw 0..N-1 of each proposal's N-point sample and report each "
@@ -198,6 +203,8 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UserError(f"{', '.join(live_only)} only apply with --live")
     if mode == "live" and args.max_proposals != DEFAULT_MAX_PROPOSALS:
         raise UserError("--max-proposals does not apply with --live (the node's parameter max_proposals)")
+    if mode in ("live", "view_agreement", "stage1") and args.people_in_groups != PEOPLE_IN_GROUPS:
+        raise UserError("--people-in-groups: full and tracking modes only (live: the node's people_in_groups)")
     if mode == "live" and args.intensity_match != INTENSITY_MATCH:
         raise UserError("--no-intensity-match does not apply with --live (the node's parameter intensity_match)")
     if mode == "live" and args.limit is not None:
@@ -250,11 +257,13 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
     classifier = open_classifier(args.weights, args.classifier, device=args.device,
                                  max_proposals=args.max_proposals)  # --live: checked before the run
     kind, weights = classifier.kind, classifier.weights
-    settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads}}
+    settings = {"classifier": {"kind": kind, "weights": weights, "device": args.device, "threads": args.threads},
+                "people_in_groups": args.people_in_groups}
     if mode == "tracking":
         frames = iter_frames(datasets, args.limit, not args.no_progress)
         return {**evaluate_tracking(frames, config, classifier, args.intensity_match, args.scan_rate,
-                                    args.per_frame_instances, tracker_from_params(args.track)), **settings}, 0
+                                    args.per_frame_instances, tracker_from_params(args.track),
+                                    args.people_in_groups), **settings}, 0
     if mode in ("full", "view_agreement"):
         coverage = isinstance(classifier, Segmenter) and classifier.sampling == "coverage"
         sampling = args.sampling or ("draw" if args.sample_draws > 1 and coverage else None)  # coverage: no draws
@@ -269,7 +278,8 @@ def _evaluate_mode(args: argparse.Namespace, mode: str, datasets: list[Dataset],
                 settings["classifier"]["sampling"] = classifier.sampling
                 settings["classifier"]["average_draws"] = args.average_draws
                 settings["classifier"]["average_below"] = args.average_below
-            once, drawn = evaluate_full, evaluate_draws
+            once = functools.partial(evaluate_full, people_in_groups=args.people_in_groups)
+            drawn = functools.partial(evaluate_draws, people_in_groups=args.people_in_groups)
         else:
             if not isinstance(classifier, Segmenter):
                 raise UserError("--view-agreement needs the network classifier in this process")

@@ -16,6 +16,7 @@ from pass3d_ros.bench import live as bench_live
 from pass3d_ros.classes import CLASS_NAMES, FOREGROUND, IGNORE, NUM_CLASSES
 from pass3d_ros.core import stage2
 from pass3d_ros.core.metrics import ObjectRecall, SegmentationMetrics, format_objects
+from pass3d_ros.core.stage2.groups import DEFAULT_ENABLED as PEOPLE_IN_GROUPS
 from pass3d_ros.data.bag import iter_raw, read_bag, select_topic
 from pass3d_ros.data.bag_convert import convert
 from pass3d_ros.evaluation.live import LiveFrame, LiveResult, cdr_stamp_ns, run_live, with_stamp
@@ -48,6 +49,7 @@ def test_full_mode_json_has_every_key_and_true_point_counts(tmp_path: Path, caps
     counts = np.bincount(truth, minlength=NUM_CLASSES)
     assert data["mode"] == "full" and data["frames"] == 2
     assert data["classifier"] == {"kind": "size_rules", "weights": None, "device": "cpu", "threads": 1}
+    assert data["people_in_groups"] is PEOPLE_IN_GROUPS
     assert set(data["classes"]) == set(CLASS_NAMES)
     for c, name in enumerate(CLASS_NAMES):
         row = data["classes"][name]
@@ -158,6 +160,9 @@ def test_user_errors_exit_2(labelled_bag: Path, tmp_path: Path, capsys: pytest.C
         assert f"bag:{unlabelled}" in err and "no point labels" in err
     assert evaluate.main(["--data", SPEC, "--lockstep", "--classifier", "size_rules"]) == 2
     assert "only apply with --live" in capsys.readouterr().err
+    toggled = "--no-people-in-groups" if PEOPLE_IN_GROUPS else "--people-in-groups"
+    assert evaluate.main(["--data", SPEC, "--stage1-only", toggled]) == 2
+    assert "full and tracking modes only" in capsys.readouterr().err
     assert evaluate.main(["--data", SPEC, "--classifier", "size_rules", "--weights", str(garbage)]) == 2
     assert "--weights applies to the network" in capsys.readouterr().err
     assert evaluate.main(["--data", SPEC, "--live", "--limit", "1", "--classifier", "size_rules"]) == 2

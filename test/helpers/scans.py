@@ -56,3 +56,15 @@ def no_laser_lines_scan(points: int = 20000, seed: int = 0) -> np.ndarray:
     rng = np.random.default_rng(seed)
     r, az, z = rng.uniform(5, 50, points), rng.uniform(-np.pi, np.pi, points), rng.uniform(-2, 3, points)
     return np.stack([r * np.cos(az), r * np.sin(az), z, rng.uniform(0, 1, points)], 1).astype(np.float32)
+
+
+def person_points(x: float, y: float, height: float, rng: np.random.Generator) -> np.ndarray:
+    """Points (x, y, height above ground) of a standing person: legs, a torso 0.45 m broad, a head 0.2 m across."""
+    parts = [((0.0, 0.85 * height / 1.75), 0.18, 120), ((0.85 * height / 1.75, height - 0.3), 0.22, 120),
+             ((height - 0.25, height), 0.1, 40)]
+    out = []
+    for (lo, hi), reach, n in parts:
+        angle = rng.uniform(0.0, 2.0 * np.pi, n)
+        radius = reach * np.sqrt(rng.uniform(0.0, 1.0, n))
+        out.append(np.stack([x + radius * np.cos(angle), y + radius * np.sin(angle), rng.uniform(lo, hi, n)], 1))
+    return np.concatenate(out)

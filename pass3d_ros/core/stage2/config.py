@@ -10,6 +10,7 @@ from typing import Any
 
 from pass3d_ros.classes import CAR, CYCLIST, PEDESTRIAN
 from pass3d_ros.core.stage1.config import ConfigError, refuse_problems, refuse_unknown
+from pass3d_ros.core.stage2.groups import DEFAULT_ENABLED as PEOPLE_IN_GROUPS
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stream.shapes import VOXEL_M
@@ -56,6 +57,11 @@ class Stage2Config:
     intensity_match: bool = _setting(
         INTENSITY_MATCH, "map the stream's intensities onto the training scale before the network (a quantile map "
         "fitted on the first scans, then held; a sensor already on that scale is left alone)",
+    )
+    people_in_groups: bool = _setting(
+        PEOPLE_IN_GROUPS, "a proposal stage 2 calls mostly not pedestrian, of a group's height and width, is parted by "
+        "heads and each part read again by the classifier; when it calls every part (two at least) pedestrian, their "
+        "pedestrian points are pedestrian (pass3d_ros.core.stage2.groups; rule C5 of docs/experiments/sensors.md)",
     )
     process: bool = _setting(
         False, "run the classifier in a child process (with overlap: stage 2 beside stage 1 without sharing the GIL, "

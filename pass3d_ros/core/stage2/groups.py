@@ -18,7 +18,7 @@ from pass3d_ros.classes import PEDESTRIAN
 from pass3d_ros.core.stage1.crowd import people_apart
 from pass3d_ros.core.stage2.segmentation import SegmentResult
 
-DEFAULT_ENABLED = True  # Stage2Config.people_in_groups
+DEFAULT_ENABLED = False  # Stage2Config.people_in_groups (off by rule C5: docs/experiments/sensors.md)
 MIN_POINTS = 10  # a proposal with fewer is no group
 RISE_M = (1.0, 2.4)  # a group's lowest to highest point: people's height, the ground ring stage 1 adds below them
 EXTENT_M = (0.7, 3.0)  # a group's longer x-y extent: more than one person, no longer than a few abreast

@@ -5,21 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers.scans import SENSOR_HEIGHT, Solid, raycast
+from helpers.scans import SENSOR_HEIGHT, Solid, person_points, raycast
 
 from pass3d_ros.core.stage1 import Stage1Config, crowd, propose
-
-
-def person_points(x: float, y: float, height: float, rng: np.random.Generator) -> np.ndarray:
-    """Points (x, y, height above ground) of a standing person: legs, a torso 0.45 m broad, a head 0.2 m across."""
-    parts = [((0.0, 0.85 * height / 1.75), 0.18, 120), ((0.85 * height / 1.75, height - 0.3), 0.22, 120),
-             ((height - 0.25, height), 0.1, 40)]
-    out = []
-    for (lo, hi), reach, n in parts:
-        angle = rng.uniform(0.0, 2.0 * np.pi, n)
-        radius = reach * np.sqrt(rng.uniform(0.0, 1.0, n))
-        out.append(np.stack([x + radius * np.cos(angle), y + radius * np.sin(angle), rng.uniform(lo, hi, n)], 1))
-    return np.concatenate(out)
 
 
 def as_group(people: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
