@@ -2,7 +2,7 @@
 
 The default model is KITTI's Velodyne HDL-64E; `sensor_model(name)` gives the others of
 pass3d_ros.core.stage1.lasers (VLP-16, VLP-32C, HDL-32E, OS1-32, OS1-64, OS1-128, Pandar40, Pandar40P, Pandar64,
-PandarXT-32), see SENSOR_SPECS.
+PandarXT-32, RoboSense RS-LiDAR-32), see SENSOR_SPECS.
 
 KITTI geometry measured on KITTI object scans (which lie exactly on 64 cones): laser k fires from (0, 0, v_k)
 at elevation e_k, so its points satisfy z = v_k + r_xy * tan(e_k). The upper block (lasers 0-31) is about
@@ -87,7 +87,7 @@ class LidarModel:
     start_azimuth_deg: float | None = None  # where the scan is cut (None: anywhere, as a packet-count cut)
     ego_shadow: bool = True  # leave out KITTI's ego-car shadow (EGO_SHADOW: only for KITTI's HDL-64E)
     ray_drop: float = 0.0  # share of returns lost at random on top of the signal model
-    driver: str = "kitti"  # "kitti" (float .bin), "velodyne", "ouster" or "hesai": the ROS 2 driver's conventions
+    driver: str = "kitti"  # "kitti" (float .bin), "velodyne", "ouster", "hesai" or "robosense": a driver's conventions
     intensity_max: int = 255  # the driver's intensity scale: Frame intensity 1.0 reads this much
     # Mount attitude (degrees, REP-103: roll about x, then pitch about y; positive pitch points the sensor's x axis
     # down, roll 180 is upside down): the rays are cast rotated by it, the points come back in the sensor's frame.
@@ -130,13 +130,23 @@ _VLP32C_ID_DEG = (
     -1.333,
 )
 _VLP32C_FIRING = tuple(LASER_TABLES["vlp32c"].index(e) for e in _VLP32C_ID_DEG)
+# RoboSense RS-LiDAR-32 channels in the order a block lists them: the rows of the driver's calibration file
+# (pass3d_ros.core.stage1.lasers, _RS32), channel id -> vertical angle.
+_RS32_ID_DEG = (
+    -10.333, 0.333, -6.477, 0.0, 2.3151, -0.333, 3.2795, -0.667, 4.6492, 1.667, 6.9824, 1.333, 10.3503, 1.0, 14.9833,
+    0.667, -25.0294, -2.333, -14.6883, -2.667, -7.9627, -3.0, -5.4425, -3.333, -3.7027, -0.9463, -3.9822, -1.3509,
+    -4.333, -1.667, -4.667, -1.9642,
+)
+_RS32_FIRING = tuple(LASER_TABLES["rs32"].index(e) for e in _RS32_ID_DEG)
 
 # Per-sensor parameters at 10 Hz, all mounted at KITTI's 1.73 m (sensor_model(name, mount_height_m=...) moves it).
 # columns: firings per revolution (VLP-16 / VLP-32C 55.296 us firing cycle -> ~0.2 deg, HDL-32E 46.08 us -> ~0.166
-# deg, OS1 512, 1024 or 2048 columns: 1024, Pandar64 / Pandar40 / Pandar40P 0.2 deg, PandarXT-32 0.18 deg);
+# deg, OS1 512, 1024 or 2048 columns: 1024, Pandar64 / Pandar40 / Pandar40P 0.2 deg, PandarXT-32 0.18 deg, RS-LiDAR-32
+# 55.52 us for all 32 lasers (its user manual, Appendix A) -> ~0.2 deg);
 # range_noise_m: 1 sigma = the data sheet's typical accuracy (VLP-16 +-3 cm, VLP-32C +-3 cm, HDL-32E +-2 cm, OS1
-# +-3..5 cm: 4 cm, Pandar64 / Pandar40 / Pandar40P +-2 cm beyond 0.5 m, PandarXT-32 +-1 cm); max_range_m from the data
-# sheets (Pandar40 / 40P: 200 m at 20 % reflectivity, PandarXT-32: 120 m instrument range, OS1: 120 m); fade_range_m
+# +-3..5 cm: 4 cm, Pandar64 / Pandar40 / Pandar40P +-2 cm beyond 0.5 m, PandarXT-32 +-1 cm; RS-LiDAR-32: 3 cm, taken
+# from the VLP-32C, no data sheet figure read); max_range_m from the data sheets (Pandar40 / 40P: 200 m at 20 %
+# reflectivity, PandarXT-32: 120 m instrument range, OS1: 120 m, RS-LiDAR-32: 200 m); fade_range_m
 # (where returns thin out) scaled from KITTI's 75 of 120 m; ray_drop is a guess (Ouster's dark/far dropouts more than
 # Velodyne's). Approximate throughout: no per-unit calibration, no per-laser azimuth offsets (the Pandar40's
 # -5.2..+3.1 degrees among them), no per-point time. Vertical offsets: VLP-16 manual's vertical correction (+-11.2 mm,
@@ -144,7 +154,9 @@ _VLP32C_FIRING = tuple(LASER_TABLES["vlp32c"].index(e) for e in _VLP32C_ID_DEG)
 # Driver conventions: Hesai (HesaiLidar_General_ROS, and the UDP layout of the Pandar40 / 40P / 64 / XT-32 manuals:
 # each block one azimuth, channels 1..N from the top laser down) publish column after column, each column's lasers
 # top down, ring = the channel index, 0 the top laser, intensity the 1-byte reflectivity 0..255; Ouster (ouster-ros)
-# an organized cloud, row (beam, 0 the top one) after row, intensity 16-bit. The Frame carries ring 0 = the top laser
+# an organized cloud, row (beam, 0 the top one) after row, intensity 16-bit; RoboSense (rslidar_sdk, XYZIRT points)
+# block after block, each block's 32 channels in the calibration file's channel order (not sorted by angle), float32
+# intensity 0..255, a uint16 ring and a float64 timestamp. The Frame carries ring 0 = the top laser
 # for every sensor (the Hesai and Ouster drivers' numbering; velodyne_pointcloud numbers bottom-up).
 SENSOR_SPECS: dict[str, dict] = {
     "hdl64e": {},
@@ -168,6 +180,8 @@ SENSOR_SPECS: dict[str, dict] = {
                      start_azimuth_deg=0.0, driver="hesai", ray_drop=0.01),
     "pandarxt32": dict(columns=2000, max_range_m=120.0, fade_range_m=75.0, range_noise_m=0.01, point_order="column",
                        start_azimuth_deg=0.0, driver="hesai", ray_drop=0.01),
+    "rs32": dict(columns=1800, max_range_m=200.0, fade_range_m=110.0, range_noise_m=0.03, firing_order=_RS32_FIRING,
+                 point_order="column", driver="robosense", ray_drop=0.01),
 }
 SENSOR_NAMES: tuple[str, ...] = tuple(SENSOR_SPECS)
 
@@ -188,7 +202,7 @@ def sensor_model(name: str = "hdl64e", **overrides) -> LidarModel:
 
 
 def driver_intensity(sensor: LidarModel, intensity: np.ndarray) -> np.ndarray:
-    """Intensity in [0, 1] on the driver's scale (velodyne and hesai 0..255, ouster 16-bit reflectivity)."""
+    """Intensity in [0, 1] on the driver's scale (velodyne, hesai and robosense 0..255, ouster 16-bit reflectivity)."""
     return np.round(np.clip(intensity, 0.0, 1.0) * sensor.intensity_max).astype(np.float32)
 
 

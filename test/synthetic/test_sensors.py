@@ -54,7 +54,8 @@ def test_ring_elevations_follow_the_laser_table(frame_per_sensor, name):
             assert abs(np.median(elev[sel]) - sensor.elevation_deg[ring]) < 0.1, (name, ring)
 
 
-@pytest.mark.parametrize("name", ["os1-64", "pandar64", "vlp16", "os1-32", "pandar40", "pandar40p", "pandarxt32"])
+@pytest.mark.parametrize("name", ["os1-64", "pandar64", "vlp16", "os1-32", "pandar40", "pandar40p", "pandarxt32",
+                                  "rs32"])
 def test_driver_point_order(frame_per_sensor, name):
     """Hesai and Velodyne drivers: column after column (firing order); Ouster: an organized cloud, row (ring) after
     row, each sweeping clockwise."""
@@ -76,15 +77,17 @@ def test_driver_point_order(frame_per_sensor, name):
 
 
 # The sensors added from laser tables: (lasers, driver).
-ZOO = {"os1-32": (32, "ouster"), "pandar40": (40, "hesai"), "pandar40p": (40, "hesai"), "pandarxt32": (32, "hesai")}
+ZOO = {"os1-32": (32, "ouster"), "pandar40": (40, "hesai"), "pandar40p": (40, "hesai"), "pandarxt32": (32, "hesai"),
+       "rs32": (32, "robosense")}
 
 
 @pytest.mark.parametrize("name", ZOO)
 def test_zoo_sensor_has_its_tables_lasers_and_its_drivers_rings(frame_per_sensor, name):
     """Every laser of the table gives a ring; the ring field is the driver's numbering (Hesai's channel index and
     Ouster's row: 0 the top laser, so the rings' elevations fall with the number); Hesai columns list their channels
-    1..N top down (the UDP block layout), Ouster rows sweep clockwise from the back (an organized cloud); intensity on
-    the driver's scale (Hesai 0..255, Ouster 16-bit)."""
+    1..N top down (the UDP block layout), RoboSense blocks theirs in the calibration file's channel order (not by
+    angle), Ouster rows sweep clockwise from the back (an organized cloud); intensity on the driver's scale (Hesai and
+    RoboSense 0..255, Ouster 16-bit)."""
     frame, sensor = frame_per_sensor[name], sensor_model(name)
     count, driver = ZOO[name]
     assert sensor.n_lasers == count == len(lasers.LASER_TABLES[name]) and sensor.driver == driver
@@ -97,6 +100,9 @@ def test_zoo_sensor_has_its_tables_lasers_and_its_drivers_rings(frame_per_sensor
     if driver == "hesai":
         same_column = np.diff(ring) > 0
         assert np.mean(same_column) > 0.9  # within a column the channel index only rises: top laser first
+        assert driver_intensity(sensor, np.float32([1.0]))[0] == 255.0
+    elif driver == "robosense":
+        assert np.mean(np.diff(ring) > 0) < 0.7  # a block's channels are not listed top down
         assert driver_intensity(sensor, np.float32([1.0]))[0] == 255.0
     else:
         assert np.all(np.diff(ring) >= 0)  # row after row

@@ -70,6 +70,16 @@ _OS1_32 = (
 # every second one, +15..-15 in 2 degree steps as its user manual's Appendix I lists). Approximate: per-unit
 # calibrations differ.
 _PANDARXT32 = tuple(np.arange(15.0, -16.5, -1.0))
+# RoboSense RS-LiDAR-32: the vertical column of RoboSense's ROS driver calibration file
+# (RoboSense-LiDAR/ros_rslidar, rslidar_pointcloud/data/rs_lidar_32/angle.csv), sorted from the top laser down;
+# +15..-25 degrees, 1/3 degree steps between +1.67 and -4.67 (the user manual's 40 degree field, 0.33 degree finest
+# resolution). Approximate: one unit's calibration. Close to the VLP-32C's layout, but up to a degree away from it
+# below -4 degrees, more than half the gap there.
+_RS32 = (
+    14.9833, 10.3503, 6.9824, 4.6492, 3.2795, 2.3151, 1.667, 1.333, 1.0, 0.667, 0.333, 0.0, -0.333, -0.667, -0.9463,
+    -1.3509, -1.667, -1.9642, -2.333, -2.667, -3.0, -3.333, -3.7027, -3.9822, -4.333, -4.667, -5.4425, -6.477,
+    -7.9627, -10.333, -14.6883, -25.0294,
+)
 
 LASER_TABLES: dict[str, tuple[float, ...]] = {
     "hdl64e": _HDL64E,
@@ -83,6 +93,7 @@ LASER_TABLES: dict[str, tuple[float, ...]] = {
     "pandar40p": _PANDAR40P,
     "pandar64": _PANDAR64,
     "pandarxt32": _PANDARXT32,
+    "rs32": _RS32,
 }
 SENSORS: tuple[str, ...] = ("auto", *LASER_TABLES)
 # Laser counts a line search may end at: Velodyne and Ouster make 16, 32, 64 and 128; Hesai's Pandar40 / 40P / 40M
