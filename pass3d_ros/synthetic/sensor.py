@@ -85,6 +85,9 @@ class LidarModel:
     point_order: str = "kitti"
     firing_order: tuple[int, ...] = ()  # rings in the order a column fires them (empty: top to bottom)
     start_azimuth_deg: float | None = None  # where the scan is cut (None: anywhere, as a packet-count cut)
+    # Each laser's azimuth offset from its column's (degrees, one per ring; empty: none): lasers that fire together
+    # point apart, so a column's points spread over this range of azimuths (a RoboSense RS-32's over 16 degrees)
+    azimuth_offset_deg: tuple[float, ...] = ()
     ego_shadow: bool = True  # leave out KITTI's ego-car shadow (EGO_SHADOW: only for KITTI's HDL-64E)
     ray_drop: float = 0.0  # share of returns lost at random on top of the signal model
     driver: str = "kitti"  # "kitti" (float .bin), "velodyne", "ouster", "hesai" or "robosense": a driver's conventions
@@ -138,6 +141,13 @@ _RS32_ID_DEG = (
     -4.333, -1.667, -4.667, -1.9642,
 )
 _RS32_FIRING = tuple(LASER_TABLES["rs32"].index(e) for e in _RS32_ID_DEG)
+# ... and each channel's horizontal offset (degrees), the file's second column, listed here by ring (0 = top laser)
+_RS32_ID_AZIMUTH = (
+    8.19315, -8.11089, 8.34127, -2.96772, 8.2448, 2.25193, -7.4969, 7.77112, 8.18069, -8.14859, -7.18652, -2.92932,
+    8.3907, 2.24215, -7.04646, 7.70063, -7.2965, -7.91697, -7.25315, -2.89333, -6.89033, 2.45534, -6.90189, 7.73504,
+    -8.00103, -8.12256, -2.75319, -2.97813, 2.56952, 2.38522, 7.94491, 7.65473,
+)
+_RS32_AZIMUTH = tuple(_RS32_ID_AZIMUTH[_RS32_FIRING.index(ring)] for ring in range(32))
 
 # Per-sensor parameters at 10 Hz, all mounted at KITTI's 1.73 m (sensor_model(name, mount_height_m=...) moves it).
 # columns: firings per revolution (VLP-16 / VLP-32C 55.296 us firing cycle -> ~0.2 deg, HDL-32E 46.08 us -> ~0.166
@@ -148,9 +158,10 @@ _RS32_FIRING = tuple(LASER_TABLES["rs32"].index(e) for e in _RS32_ID_DEG)
 # from the VLP-32C, no data sheet figure read); max_range_m from the data sheets (Pandar40 / 40P: 200 m at 20 %
 # reflectivity, PandarXT-32: 120 m instrument range, OS1: 120 m, RS-LiDAR-32: 200 m); fade_range_m
 # (where returns thin out) scaled from KITTI's 75 of 120 m; ray_drop is a guess (Ouster's dark/far dropouts more than
-# Velodyne's). Approximate throughout: no per-unit calibration, no per-laser azimuth offsets (the Pandar40's
-# -5.2..+3.1 degrees among them), no per-point time. Vertical offsets: VLP-16 manual's vertical correction (+-11.2 mm,
-# proportional to the elevation); the others: none modelled (beam origin offsets of a few mm to cm, radial).
+# Velodyne's). Approximate throughout: no per-unit calibration, no per-laser azimuth offsets but the RS-32's (the
+# Pandar40's -5.2..+3.1 degrees among the missing), no per-point time. Vertical offsets: VLP-16 manual's vertical
+# correction (+-11.2 mm, proportional to the elevation); the others: none modelled (beam origin offsets of a few mm to
+# cm, radial).
 # Driver conventions: Hesai (HesaiLidar_General_ROS, and the UDP layout of the Pandar40 / 40P / 64 / XT-32 manuals:
 # each block one azimuth, channels 1..N from the top laser down) publish column after column, each column's lasers
 # top down, ring = the channel index, 0 the top laser, intensity the 1-byte reflectivity 0..255; Ouster (ouster-ros)
@@ -181,7 +192,7 @@ SENSOR_SPECS: dict[str, dict] = {
     "pandarxt32": dict(columns=2000, max_range_m=120.0, fade_range_m=75.0, range_noise_m=0.01, point_order="column",
                        start_azimuth_deg=0.0, driver="hesai", ray_drop=0.01),
     "rs32": dict(columns=1800, max_range_m=200.0, fade_range_m=110.0, range_noise_m=0.03, firing_order=_RS32_FIRING,
-                 point_order="column", driver="robosense", ray_drop=0.01),
+                 point_order="column", driver="robosense", ray_drop=0.01, azimuth_offset_deg=_RS32_AZIMUTH),
 }
 SENSOR_NAMES: tuple[str, ...] = tuple(SENSOR_SPECS)
 
@@ -232,11 +243,14 @@ def ego_shadow_mask(n_lasers: int, azimuth_rad: np.ndarray) -> np.ndarray:
 
 
 def _sweep_azimuths(sensor: LidarModel, rng: np.random.Generator) -> np.ndarray:
-    """Azimuths (radians, lasers x columns) of a clockwise sweep, column 0 at the cut, as real drivers turn."""
+    """Azimuths (radians, lasers x columns) of a clockwise sweep, column 0 at the cut, as real drivers turn, each
+    laser's moved by its azimuth offset."""
     start = sensor.start_azimuth_deg
     start = rng.uniform(0.0, 360.0) if start is None else start
-    az = np.deg2rad(start - 360.0 / sensor.columns * np.arange(sensor.columns))
-    return np.broadcast_to(np.mod(az, 2.0 * np.pi), (sensor.n_lasers, sensor.columns))
+    az = start - 360.0 / sensor.columns * np.arange(sensor.columns)
+    if sensor.azimuth_offset_deg:
+        return np.mod(np.deg2rad(az[None, :] + np.asarray(sensor.azimuth_offset_deg)[:, None]), 2.0 * np.pi)
+    return np.broadcast_to(np.mod(np.deg2rad(az), 2.0 * np.pi), (sensor.n_lasers, sensor.columns))
 
 
 def ray_grid(sensor: LidarModel, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

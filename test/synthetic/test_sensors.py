@@ -57,10 +57,12 @@ def test_ring_elevations_follow_the_laser_table(frame_per_sensor, name):
 @pytest.mark.parametrize("name", ["os1-64", "pandar64", "vlp16", "os1-32", "pandar40", "pandar40p", "pandarxt32",
                                   "rs32"])
 def test_driver_point_order(frame_per_sensor, name):
-    """Hesai and Velodyne drivers: column after column (firing order); Ouster: an organized cloud, row (ring) after
-    row, each sweeping clockwise."""
+    """Hesai, RoboSense and Velodyne drivers: column after column (firing order; a RoboSense column's points spread
+    over its lasers' azimuth offsets); Ouster: an organized cloud, row (ring) after row, each sweeping clockwise."""
     frame, sensor = frame_per_sensor[name], sensor_model(name)
     az = np.arctan2(frame.points[:, 1], frame.points[:, 0])
+    if sensor.azimuth_offset_deg:  # the column's azimuth: each laser points its offset away from it
+        az = az - np.deg2rad(np.asarray(sensor.azimuth_offset_deg))[frame.ring]
     if sensor.point_order == "row":
         assert np.all(np.diff(frame.ring.astype(int)) >= 0)
         first = frame.ring == 0
@@ -103,6 +105,9 @@ def test_zoo_sensor_has_its_tables_lasers_and_its_drivers_rings(frame_per_sensor
         assert driver_intensity(sensor, np.float32([1.0]))[0] == 255.0
     elif driver == "robosense":
         assert np.mean(np.diff(ring) > 0) < 0.7  # a block's channels are not listed top down
+        az = np.degrees(np.arctan2(frame.points[:, 1], frame.points[:, 0]))
+        spread = [np.ptp(np.unwrap(az[k:k + 32], period=360.0)) for k in range(0, 3200, 32)]
+        assert np.median(spread) > 14.0  # a block's points spread over the lasers' azimuth offsets (16 degrees)
         assert driver_intensity(sensor, np.float32([1.0]))[0] == 255.0
     else:
         assert np.all(np.diff(ring) >= 0)  # row after row

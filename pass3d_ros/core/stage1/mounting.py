@@ -29,6 +29,8 @@ from pass3d_ros.core.stage1.config import AUTO, Stage1Config, mount_values
 
 MOUNTING_SCANS = 5  # readings whose median is held
 MIN_GROUND_POINTS = 100  # points of the near ground plane a reading needs
+MIN_SEEDS = 10  # points beneath a plane that is no ground the search may look among for one (three make a plane; the
+# plane they give must still hold MIN_GROUND_POINTS: an upside-down RS-32's road was 60 of its 3,000 sampled returns)
 NEAR_MIN_RANGE_M = 1.0  # the near ground: returns from this range (nearer: the vehicle, the mount) ...
 NEAR_RANGE_M = 10.0  # ... to this, or as far as NEAR_GROUND_POINTS of the coarse ground's returns reach ...
 NEAR_GROUND_POINTS = 500
@@ -170,7 +172,7 @@ def _coarse_ground(sample: np.ndarray) -> np.ndarray | None:
         if np.count_nonzero(beneath) <= MAX_BENEATH_SHARE * np.count_nonzero(np.abs(distance) < COARSE_INLIER_M):
             return plane
         seeds = sample[beneath]
-        if len(seeds) < MIN_GROUND_POINTS:
+        if len(seeds) < MIN_SEEDS:
             return None
     return None
 
