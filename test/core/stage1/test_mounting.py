@@ -204,6 +204,18 @@ def test_one_upside_down_scan_reads_its_mount_where_the_horizon_lasers_outnumber
     assert reading.tilt_deg > 180.0 - TILT_TOLERANCE_DEG, reading
 
 
+def test_an_upside_down_scan_whose_road_is_a_few_dozen_returns_reads_its_mount() -> None:
+    """An RS-32 upside down: 60 of the 3,000 sampled returns lie beneath the densest plane, yet they are the road
+    (the search once gave up under 100 of them, and the stream lost its first scan)."""
+    from pass3d_ros.data.spec import open_dataset
+
+    frame = next(iter(open_dataset("synthetic:frames=1,seed=97,sensor=rs32,roll=180")))
+    reading = read_mounting(frame.points)
+    assert reading is not None and reading.inverted, reading
+    assert abs(reading.height_m - 1.73) < HEIGHT_TOLERANCE_M, reading
+    assert reading.tilt_deg > 180.0 - TILT_TOLERANCE_DEG, reading
+
+
 def test_the_estimate_is_held_after_the_first_scans_and_a_new_stream_starts_over(low: list[Frame]) -> None:
     stream = ScanStream(intensity_match=False)
     stream.follow("robot")
