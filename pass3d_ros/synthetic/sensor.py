@@ -148,6 +148,13 @@ _RS32_ID_AZIMUTH = (
     -8.00103, -8.12256, -2.75319, -2.97813, 2.56952, 2.38522, 7.94491, 7.65473,
 )
 _RS32_AZIMUTH = tuple(_RS32_ID_AZIMUTH[_RS32_FIRING.index(ring)] for ring in range(32))
+# Hesai Pandar40: each channel's azimuth offset (degrees; channel 1 = ring 0, the top laser), the Azimuth column of the
+# angle correction file whose elevations pass3d_ros.core.stage1.lasers uses (HesaiLidar_General_ROS config/Pandar40.csv)
+_PANDAR40_AZIMUTH = (
+    -0.025, -0.025, -0.026, -0.026, -2.54, -2.541, 2.49, -5.042, -2.541, 2.49, -5.042, -2.541, 2.49, -5.042, -0.026,
+    2.49, -5.042, -0.026, 4.998, -2.541, -0.026, 4.998, -2.54, -0.026, 4.997, -2.54, 2.49, 4.997, -2.539, 2.49, 2.49,
+    2.49, -0.024, -0.023, -0.023, -0.022, -2.528, -2.526, -2.523, -2.521,
+)
 
 # Per-sensor parameters at 10 Hz, all mounted at KITTI's 1.73 m (sensor_model(name, mount_height_m=...) moves it).
 # columns: firings per revolution (VLP-16 / VLP-32C 55.296 us firing cycle -> ~0.2 deg, HDL-32E 46.08 us -> ~0.166
@@ -158,10 +165,10 @@ _RS32_AZIMUTH = tuple(_RS32_ID_AZIMUTH[_RS32_FIRING.index(ring)] for ring in ran
 # from the VLP-32C, no data sheet figure read); max_range_m from the data sheets (Pandar40 / 40P: 200 m at 20 %
 # reflectivity, PandarXT-32: 120 m instrument range, OS1: 120 m, RS-LiDAR-32: 200 m); fade_range_m
 # (where returns thin out) scaled from KITTI's 75 of 120 m; ray_drop is a guess (Ouster's dark/far dropouts more than
-# Velodyne's). Approximate throughout: no per-unit calibration, no per-laser azimuth offsets but the RS-32's (the
-# Pandar40's -5.2..+3.1 degrees among the missing), no per-point time. Vertical offsets: VLP-16 manual's vertical
-# correction (+-11.2 mm, proportional to the elevation); the others: none modelled (beam origin offsets of a few mm to
-# cm, radial).
+# Velodyne's). Approximate throughout: no per-unit calibration, no per-laser azimuth offsets but the RS-32's and the
+# Pandar40's (the VLP-32C's, HDL-32E's and Pandar64's are missing), no per-point time. Vertical offsets: VLP-16
+# manual's vertical correction (+-11.2 mm, proportional to the elevation); the others: none modelled (beam origin
+# offsets of a few mm to cm, radial).
 # Driver conventions: Hesai (HesaiLidar_General_ROS, and the UDP layout of the Pandar40 / 40P / 64 / XT-32 manuals:
 # each block one azimuth, channels 1..N from the top laser down) publish column after column, each column's lasers
 # top down, ring = the channel index, 0 the top laser, intensity the 1-byte reflectivity 0..255; Ouster (ouster-ros)
@@ -184,7 +191,7 @@ SENSOR_SPECS: dict[str, dict] = {
     "os1-128": dict(columns=1024, max_range_m=120.0, fade_range_m=75.0, range_noise_m=0.04, point_order="row",
                     start_azimuth_deg=180.0, driver="ouster", intensity_max=65535, ray_drop=0.02),
     "pandar40": dict(columns=1800, max_range_m=200.0, fade_range_m=110.0, range_noise_m=0.02, point_order="column",
-                     start_azimuth_deg=0.0, driver="hesai", ray_drop=0.01),
+                     start_azimuth_deg=0.0, driver="hesai", ray_drop=0.01, azimuth_offset_deg=_PANDAR40_AZIMUTH),
     "pandar40p": dict(columns=1800, max_range_m=200.0, fade_range_m=110.0, range_noise_m=0.02, point_order="column",
                       start_azimuth_deg=0.0, driver="hesai", ray_drop=0.01),
     "pandar64": dict(columns=1800, max_range_m=200.0, fade_range_m=110.0, range_noise_m=0.02, point_order="column",

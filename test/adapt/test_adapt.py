@@ -89,14 +89,21 @@ def test_draw_agreement_counts_proposals_every_draw_gives_one_class():
     assert result == {"all": {"proposals": 4, "share": 0.5}, "objects": {"proposals": 3, "share": pytest.approx(1 / 3)}}
 
 
+# Sensors whose laser layouts lie within a degree of each other: no reading of rings, spacing and span tells them
+# apart, so either is the nearest simulated sensor and no laser table is claimed ("auto": several fit).
+TWINS = ({"vlp32c", "rs32"},)
+
+
 @pytest.mark.parametrize("name", SENSOR_NAMES)
 def test_each_simulated_sensor_is_read_as_itself(name):
-    """A recording of a simulated sensor reads as that sensor and fits its laser table; without its ring field
-    (rings then come from the laser lines) too, for the sensors sent column by column."""
+    """A recording of a simulated sensor reads as that sensor (or its twin) and fits its laser table; without its ring
+    field (rings then come from the laser lines) too, for the sensors sent column by column."""
     frame = generate_frame(seed=11, index=0, sensor=name)
     reading = read_sensor([("synthetic", frame)], Stage1Config())
-    assert reading.nearest_simulated == name and reading.distance < 0.5, reading
-    assert reading.laser_table == name and reading.n_rings == len(np.unique(frame.ring)), reading
+    twins = next((twins for twins in TWINS if name in twins), {name})
+    assert reading.nearest_simulated in twins and reading.distance < 0.5, reading
+    assert reading.laser_table == (name if len(twins) == 1 else "auto"), reading
+    assert reading.n_rings == len(np.unique(frame.ring)), reading
     if name in ("vlp16", "hdl32e", "pandar64"):
         blind = Frame(name=frame.name, points=frame.points)
         reading = read_sensor([("synthetic", blind)], Stage1Config())

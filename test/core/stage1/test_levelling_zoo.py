@@ -41,9 +41,6 @@ KNOWN_SHORT = {
                              f"0.89 against 0.97 level {SEE}",
     ("vlp32c", "height=3.5"): "a VLP-32C 3.5 m up crosses a person 15 m away with 3 lasers: 0.81 against 0.96 level "
                               f"(0.62 without stage1.range_scaling) {SEE}",
-    ("pandar40", "height=3.5"): "0.90 against 0.96 level, with range_scaling too: 3.5 m up it loses a pedestrian 16 m "
-                                "away seen by 12 points on its top 0.8 m, and a car of 10 points at 58 m; a car at 25 "
-                                f"m shows 82 points, not 118 {SEE}",
     ("rs32", "height=3.5"): "a RoboSense RS-32 3.5 m up, like the VLP-32C whose lower lasers it shares within a "
                             "degree: 0.77 against 0.96 level; a car 7.5 m away crossed by 2 lasers (108 points, half "
                             f"proposed), a person 15.7 m away by 2 (7 points), one 13.1 m away by 1 (2 points) {SEE}",
