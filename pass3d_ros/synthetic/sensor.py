@@ -166,7 +166,7 @@ _PANDAR40_AZIMUTH = (
 # reflectivity, PandarXT-32: 120 m instrument range, OS1: 120 m, RS-LiDAR-32: 200 m); fade_range_m
 # (where returns thin out) scaled from KITTI's 75 of 120 m; ray_drop is a guess (Ouster's dark/far dropouts more than
 # Velodyne's). Approximate throughout: no per-unit calibration, no per-laser azimuth offsets but the RS-32's and the
-# Pandar40's (the VLP-32C's, HDL-32E's and Pandar64's are missing), no per-point time. Vertical offsets: VLP-16
+# Pandar40's (the VLP-32C's and Pandar64's are missing), no per-point time. Vertical offsets: VLP-16
 # manual's vertical correction (+-11.2 mm, proportional to the elevation); the others: none modelled (beam origin
 # offsets of a few mm to cm, radial).
 # Driver conventions: Hesai (HesaiLidar_General_ROS, and the UDP layout of the Pandar40 / 40P / 64 / XT-32 manuals:
