@@ -113,17 +113,14 @@ class TrackStore:
         return self.label[slots], self.score[slots]
 
     def confidences_of(self, slots: np.ndarray) -> np.ndarray:
-        """`confidence` of each track of `slots` at once."""
+        """The mean confidence of each track's recent sightings of its voted class (0 with none), for `slots` at
+        once."""
         self.voted(slots)
         return _mean_confidences(slots, self.votes, self.confidences, self.first, self.count, self.label)
 
     def confidence(self, slot: int) -> float:
-        """The mean confidence of a track's recent sightings of its voted class."""
-        label = int(self.voted(np.array([slot]))[0][0])
-        ring = (self.first[slot] + np.arange(self.count[slot])) % self.window
-        mine = [float(c) for v, c in zip(self.votes[slot, ring], self.confidences[slot, ring], strict=True)
-                if v == label]
-        return sum(mine) / len(mine) if mine else 0.0
+        """The mean confidence of a track's recent sightings of its voted class (0 with none)."""
+        return float(self.confidences_of(np.array([slot], np.int64))[0])
 
 
 @nb.njit(cache=True, nogil=True)

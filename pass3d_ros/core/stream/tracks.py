@@ -224,7 +224,8 @@ class Tracker:
         self.ended: list[Track] = []  # confirmed tracks ended less than reid_misses scans ago (`_revive`)
         self._next_id = 0
         self._last_stamp_s: float | None = None  # the last scan's (`_hold` reads the scan period)
-        self.shapes = ShapeMemory(self.config.shape_sightings)  # car tracks' remembered shapes (`fill_shapes`)
+        # car tracks' remembered shapes, only with `fill_shapes` (a stream's few hundred kB of arrays otherwise)
+        self.shapes = ShapeMemory(self.config.shape_sightings) if self.config.fill_shapes else None
         self.born = 0
         self.lost = 0
 
@@ -232,7 +233,7 @@ class Tracker:
         """The tracks whose remembered shape fills the scan (`fill_shapes`): confirmed car tracks, alive, of mean
         confidence fill_min_confidence or more, with a shape; the shapes of tracks no longer alive or ended are
         forgotten."""
-        if not self.config.fill_shapes:
+        if self.shapes is None:
             return []
         self.shapes.keep_only({t.track_id for t in self.tracks} | {t.track_id for t in self.ended})
         if not len(self.shapes):
