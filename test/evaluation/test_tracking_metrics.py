@@ -5,6 +5,7 @@ command line's JSON and errors."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -136,7 +137,8 @@ def test_tracking_options_need_tracking(capsys: pytest.CaptureFixture) -> None:
 @pytest.mark.parametrize(("item", "says"), [("fill_shapes=true", "track_fill_shapes"),
                                              ("track_fill_shapes=maybe", "true or false"),
                                              ("track_gate_car=far", "a number"),
-                                             ("track_gate_car=-1", "outside")])
+                                             ("track_gate_car=-1", "outside"),
+                                             ("track_min_hits=2.5", "an integer")])
 def test_a_wrong_track_setting_is_named_before_the_run(item: str, says: str, capsys: pytest.CaptureFixture) -> None:
     assert evaluate.main(["--tracking", "--data", "synthetic:drive=2,seed=3", "--track", item]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -147,6 +149,8 @@ def test_track_settings_reach_the_tracker(tmp_path: Path) -> None:
     assert tracker_from_params([]) == TrackerConfig()
     tracker = tracker_from_params(["track_fill_shapes=true", "segmentation_node.track_gate_car=2.5"])
     assert tracker.fill_shapes is True and tracker.gate(CAR) == 2.5
+    assert tracker_from_params(["track_fill_shapes=on", "track_min_hits=4"]) == replace(
+        TrackerConfig(), fill_shapes=True, min_hits=4)  # read as --param reads stage 1's values
     out = tmp_path / "tracking.json"
     args = ["--tracking", "--data", "synthetic:drive=3,seed=3,sensor=hdl32e", "--classifier", "size_rules",
             "--no-progress", "--json", str(out)]

@@ -387,11 +387,18 @@ def field_name(key: str) -> str:
 
 
 def parse_value(name: str, text: str) -> Any:
-    """The value of field `name` written as `text`, read by the field's type: a number, true / false, a string
-    without quotes (`pandar64`), three numbers for a tuple (`0.1,0.1,0.4`, `[0.1, 0.1, 0.4]` or `0.1 0.1 0.4`).
-    Python literals ('pandar64', (0.1, 0.1, 0.4), True) are read as before. A value that is no value of the type is
-    returned as written for Stage1Config to name; text that is not one at all is a ConfigError naming it."""
-    kind = next(f.type for f in fields(Stage1Config) if f.name == name)
+    """The value of Stage1Config's field `name` written as `text` (`parse_field`)."""
+    return parse_field(Stage1Config, name, text)
+
+
+def parse_field(config: type, name: str, text: str) -> Any:
+    """The value of field `name` of the dataclass `config` written as `text`, read by the field's type: a number,
+    true / false, a string without quotes (`pandar64`), three numbers for a tuple (`0.1,0.1,0.4`, `[0.1, 0.1, 0.4]`
+    or `0.1 0.1 0.4`). Python literals ('pandar64', (0.1, 0.1, 0.4), True) are read as before. A value that is no
+    value of the type is returned as written for the config to name; text that is not one at all is a ConfigError
+    naming it. One parser for every config read from KEY=VALUE text (Stage1Config, Stage2Config's track_*)."""
+    kind = next(f.type for f in fields(config) if f.name == name)
+    owner = config.__name__
     text = text.strip()
     try:
         literal: Any = ast.literal_eval(text)
@@ -410,10 +417,10 @@ def parse_value(name: str, text: str) -> Any:
         try:
             return tuple(float(p) for p in parts)
         except ValueError:
-            raise ConfigError(f"Stage1Config: {name}={text} must be a list of numbers (e.g. {name}=0.1,0.1,0.4)"
+            raise ConfigError(f"{owner}: {name}={text} must be a list of numbers (e.g. {name}=0.1,0.1,0.4)"
                               ) from None
     what = _TYPE_CHECKS[kind][1] if kind in _TYPE_CHECKS else kind
-    raise ConfigError(f"Stage1Config: {name}={text} must be {what}")
+    raise ConfigError(f"{owner}: {name}={text} must be {what}")
 
 
 _NOT_LITERAL = object()

@@ -9,7 +9,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 from pass3d_ros.classes import CAR, CYCLIST, PEDESTRIAN
-from pass3d_ros.core.stage1.config import ConfigError, refuse_problems, refuse_unknown
+from pass3d_ros.core.stage1.config import ConfigError, parse_field, refuse_problems, refuse_unknown
 from pass3d_ros.core.stage2.groups import DEFAULT_ENABLED as PEOPLE_IN_GROUPS
 from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
@@ -157,26 +157,18 @@ TRACK_PREFIX = "track_"
 
 def tracker_from_params(items: list[str]) -> TrackerConfig:
     """The tracker's settings from `KEY=VALUE` items naming Stage2Config's track_* settings as the segmentation node
-    does (`track_fill_shapes=true`, `segmentation_node.track_gate_car=2.5`; the rest its defaults); ConfigError names
-    an item that is no such setting or whose value is not of its type."""
+    does (`track_fill_shapes=true`, `segmentation_node.track_gate_car=2.5`; the rest its defaults), each value read
+    by its field's type as `--param` reads stage 1's (`parse_field`); ConfigError names an item that is no such
+    setting or whose value is not of its type or range."""
     values: dict[str, Any] = {}
-    known = {f.name: f for f in fields(Stage2Config) if f.name.startswith(TRACK_PREFIX)}
+    known = [f.name for f in fields(Stage2Config) if f.name.startswith(TRACK_PREFIX)]
     for item in items:
         key, sep, text = item.partition("=")
         name = key.strip().removeprefix("segmentation_node.")
         if not sep or name not in known:
             raise ConfigError(f"tracker setting {item!r}: expected KEY=VALUE with KEY one of "
                               f"{', '.join(sorted(known))}")
-        kind, text = type(known[name].default), text.strip()
-        try:
-            if kind is bool:
-                if text.lower() not in ("true", "false"):
-                    raise ValueError(text)
-                values[name] = text.lower() == "true"
-            else:
-                values[name] = kind(text)
-        except ValueError:
-            raise ConfigError(f"tracker setting {item!r}: {name} must be {_WANTED[kind]}") from None
+        values[name] = parse_field(Stage2Config, name, text)
     return Stage2Config(**values).tracker_config()
 
 
