@@ -33,7 +33,7 @@ from pass3d_ros.core.objects import (
 from pass3d_ros.core.point_owners import object_points, paint, take_rows
 from pass3d_ros.core.stream.footprints import MAX_POINTS, Footprints, footprint_members, nearest_owner
 from pass3d_ros.core.stream.track_store import Track
-from pass3d_ros.core.stream.tracks import NO_TRACK, Tracked, Tracker
+from pass3d_ros.core.stream.tracks import NO_TRACK, Tracked, Tracker, TrackingFrame
 
 HELD_SCORE = 0.5  # a held object's score is its track's vote share times this (stage 2 did not see it)
 
@@ -92,7 +92,7 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
             voted_objects += _held_objects(points, objects, [(t, background.index[m]) for t, m in said.held],
                                            labels, cluster_id, track_id, ids)
     if points is not None and tracker.config.fill_shapes:
-        to_tracking = _to_tracking(back, pose)
+        to_tracking = TrackingFrame(pose).after(None if back is None else back.T)  # level -> sensor -> tracking
         held = [background.index[m] for _, m in said.held] if said.held and background is not None else []
         road = np.concatenate([members, *held])
         confirmed_cars = [t.track_id for t, c in zip(tracked, voted_class.tolist(), strict=True)
@@ -232,16 +232,6 @@ def _shared_out(points: np.ndarray, voted: list[LabelledObject], tracked: list[T
             cluster_id[share] = box.cluster_id
             out.append(_voted(box, said, published))
     return out
-
-
-def _to_tracking(back: np.ndarray | None, pose: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """(rotation, shift) taking level-frame points into the tracking frame (x @ rotation.T + shift): back to the
-    sensor's frame, then through the pose when known."""
-    rotation = np.eye(3) if back is None else np.asarray(back, dtype=np.float64).T
-    if pose is None:
-        return rotation, np.zeros(3)
-    pose = np.asarray(pose, dtype=np.float64)
-    return pose[:3, :3] @ rotation, pose[:3, 3].copy()
 
 
 def _filled(tracker: Tracker, filling: list[Track], road: np.ndarray, points: np.ndarray,

@@ -191,7 +191,7 @@ class _Shared(NamedTuple):
     detections: np.ndarray
 
 
-class _Frame:
+class TrackingFrame:
     """Sensor frame -> tracking frame: the pose (world from sensor) when known, else none."""
 
     def __init__(self, pose: np.ndarray | None) -> None:
@@ -206,6 +206,14 @@ class _Frame:
     def xy(self, xy: np.ndarray) -> np.ndarray:
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         return xy if self.pose is None else xy @ self.pose[:2, :2].T + self.pose[:2, 3]
+
+    def after(self, rotation: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(rotation, shift) taking points rotated first by `rotation` (3 x 3; None: none) into the tracking frame,
+        as x @ rotation.T + shift: one matrix product for points given in another frame than the sensor's."""
+        first = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
+        if self.pose is None:
+            return first, np.zeros(3)
+        return self.pose[:3, :3] @ first, self.pose[:3, 3].copy()
 
 
 class Tracker:
@@ -231,12 +239,8 @@ class Tracker:
 
     def filling(self) -> list[Track]:
         """The tracks whose remembered shape fills the scan (`fill_shapes`): confirmed car tracks, alive, of mean
-        confidence fill_min_confidence or more, with a shape; the shapes of tracks no longer alive or ended are
-        forgotten."""
-        if self.shapes is None:
-            return []
-        self.shapes.keep_only({t.track_id for t in self.tracks} | {t.track_id for t in self.ended})
-        if not len(self.shapes):
+        confidence fill_min_confidence or more, with a shape."""
+        if self.shapes is None or not len(self.shapes):
             return []
         slots = self._live()
         label, _ = self.store.voted(slots)
@@ -266,7 +270,7 @@ class Tracker:
         gives those points (B, 3; sensor frame) within `reach` (T,) metres in x and y of the waiting tracks'
         `centers` (T, 3; sensor frame), and is called only when a track waits. `plausible`: whether each detection's
         box can be one object of its class (without `implausible_births` one that cannot starts no track)."""
-        to_world = _Frame(pose)
+        to_world = TrackingFrame(pose)
         centers = to_world.points(np.asarray(centers, dtype=np.float64).reshape(-1, 3))
         sizes = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
         world = detections = shared = None
@@ -376,6 +380,8 @@ class Tracker:
                       + [t.slot for t in ended if not (t.hits >= self.config.min_hits
                                                       and self.config.reid_misses > t.misses)])
         self.ended = kept + found
+        if self.shapes is not None:  # a forgotten track's shape goes with it
+            self.shapes.keep_only({t.track_id for t in self.tracks} | {t.track_id for t in self.ended})
 
     @staticmethod
     def _slots(tracks: Sequence[Track]) -> np.ndarray:
@@ -414,7 +420,7 @@ class Tracker:
         return out
 
     def _merged_footprints(self, matched: dict[int, int], covered: dict[int, list[int]],
-                           to_world: _Frame) -> dict[int, list[tuple[Tracked, np.ndarray]]]:
+                           to_world: TrackingFrame) -> dict[int, list[tuple[Tracked, np.ndarray]]]:
         """Per merged detection, its track and the tracks it covers, each with its predicted footprint points in
         the sensor frame (x, y, the track's height)."""
         out: dict[int, list[tuple[Tracked, np.ndarray]]] = {}
@@ -615,7 +621,7 @@ class Tracker:
                   self.store.points)
 
     def _hold(self, background: Callable[[np.ndarray, np.ndarray], np.ndarray], seen: set[int], stamp_s: float,
-              to_world: _Frame) -> list[tuple[Tracked, np.ndarray]]:
+              to_world: TrackingFrame) -> list[tuple[Tracked, np.ndarray]]:
         """The confirmed tracks no detection matched (waiting), oldest first: each is held
         by the background points in the cells of its predicted footprint when there are at least hold_points of them,
         they cover hold_cover of its cells and their extent is within hold_margin_m of its remembered size. A held
