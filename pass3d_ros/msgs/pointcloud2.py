@@ -11,6 +11,8 @@ Decisions:
 - Big-endian messages are supported: the dtype is byteswapped ('>f4'), values read correctly.
   Encoding always writes the machine's byte order.
 - Fields with an empty name are padding and are skipped (PCL writes such fields).
+- A ring (or channel) field of any type reads as uint16; a value uint16 cannot hold reads NO_RING (65535), past
+  every sensor's lasers, never another laser's index.
 - Decoding requires x, y and z; so does encoding, so every encoded cloud decodes.
 - `Extended` (an input cloud's bytes as they are, columns appended, rows chosen) is encoded straight into the
   message's buffer: outputs in the input's own layout (pass3d_ros.ros.input_layout) cost one copy per point.
@@ -253,8 +255,21 @@ def to_xyzi(cloud: np.ndarray, *, with_ring: bool = True, skip_nans: bool = Fals
     names = cloud.dtype.names or ()
     field = "ring" if "ring" in names else "channel" if "channel" in names else None  # channel: Autoware's drivers
     if with_ring and field is not None:
-        ring = (cloud[field] if keep is None else cloud[field][keep]).astype(np.uint16)
+        ring = _ring_values(cloud[field] if keep is None else cloud[field][keep])
     return XYZI(points, name is not None, ring)
+
+
+NO_RING = np.iinfo(np.uint16).max  # what a ring value uint16 cannot hold reads: past every sensor's lasers
+
+
+def _ring_values(column: np.ndarray) -> np.ndarray:
+    """A ring field as uint16; a value uint16 cannot hold (negative, past 65535, fractional, NaN) reads NO_RING, so
+    stage 1's ring check refuses the frame's field instead of a cast wrapping ring 65539 onto laser 3."""
+    with np.errstate(invalid="ignore"):
+        ring = column.astype(np.uint16)
+    if not np.can_cast(column.dtype, np.uint16, "safe"):
+        ring[ring != column] = NO_RING
+    return ring
 
 
 def decode_xyzi(msg: Any, *, skip_nans: bool = False, with_ring: bool = True) -> XYZI:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import array
 import sys
+import warnings
 from types import SimpleNamespace
 
 import numpy as np
@@ -13,6 +14,7 @@ from rosbags.typesys import Stores, get_typestore
 from pass3d_ros.bench.codec_fuzz import fuzz
 from pass3d_ros.msgs.pointcloud2 import (
     DATATYPES,
+    NO_RING,
     PointCloud2Error,
     columns_to_cloud,
     decode,
@@ -361,3 +363,20 @@ def test_a_channel_field_is_read_as_the_ring_when_there_is_no_ring() -> None:
     np.testing.assert_array_equal(scan.ring, channel)
     both = decode_xyzi(encode({**xyz, "ring": np.zeros(n, np.uint16), "channel": channel}))
     np.testing.assert_array_equal(both.ring, np.zeros(n))
+
+
+WILD_FLOAT_RINGS = [-1, 65539, 2.5, np.nan]
+
+
+@pytest.mark.parametrize(("dtype", "wild"), [(np.int8, [-1]), (np.int32, [-1, 65539]), (np.uint32, [65539]),
+                                           (np.float32, WILD_FLOAT_RINGS), (np.float64, WILD_FLOAT_RINGS)])
+def test_a_ring_value_uint16_cannot_hold_reads_past_every_laser(dtype: type, wild: list[float]) -> None:
+    """A ring field of any integer or float type reads its values; one uint16 cannot hold (negative, past 65535,
+    fractional, NaN) reads NO_RING, which stage 1's ring check refuses, never another laser's index (65539 -> 3)."""
+    ring = np.array([0, 3, 63, *wild], dtype=dtype)
+    xyz = {axis: np.ones(len(ring), np.float32) for axis in "xyz"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scan = decode_xyzi(encode({**xyz, "ring": ring}))
+    assert scan.ring.dtype == np.uint16
+    np.testing.assert_array_equal(scan.ring, [0, 3, 63] + [NO_RING] * len(wild))
