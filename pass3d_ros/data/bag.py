@@ -245,8 +245,21 @@ def cloud_to_frame(name: str, msg: Any, labels: LabelSource = "truth") -> Frame:
     xyzi = to_xyzi(cloud)
     names = cloud.dtype.names or ()
     field = truth_field(names) if labels == "truth" else LABEL_FIELD if LABEL_FIELD in names else None
-    values = cloud[field].astype(np.uint8) if field is not None else None
+    values = label_values(cloud, field) if field is not None else None
     return Frame(name=name, points=xyzi.points, stamp_ns=header_stamp_ns(msg), ring=xyzi.ring, labels=values)
+
+
+def label_values(cloud: np.ndarray, field: str) -> np.ndarray:
+    """A label field as uint8 class ids; a value uint8 cannot hold (negative, past 255, fractional, NaN) makes the
+    message malformed (PointCloud2Error), never another class (a cast read 257 as car)."""
+    column = cloud[field]
+    with np.errstate(invalid="ignore"):
+        labels = column.astype(np.uint8)
+    if not np.can_cast(column.dtype, np.uint8, "safe"):
+        bad = labels != column
+        if bad.any():
+            raise PointCloud2Error(f"field {field!r} holds {column[bad][0]}, expected class ids (uint8)")
+    return labels
 
 
 def read_bag(path: str | Path, labels: LabelSource = "truth") -> Iterator[Frame]:

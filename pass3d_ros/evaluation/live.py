@@ -184,10 +184,10 @@ def _input_frame(raw: bytes, msgtype: str) -> tuple[int, int, np.ndarray | None]
                             "not ground truth; play the input bag (ground truth in `label_gt`)")
     truth = None
     if field is not None:
-        truth = np.ascontiguousarray(cloud[field][keep], dtype=np.uint8)
-        bad = (truth >= NUM_CLASSES) & (truth != IGNORE)
-        if bad.any():
+        values = cloud[field][keep]  # checked before the cast, which would wrap 257 onto car
+        if not np.isin(values, (*range(NUM_CLASSES), IGNORE)).all():
             raise LiveEvalError(f"{field} field holds ids other than 0..{NUM_CLASSES - 1} or {IGNORE} (unknown)")
+        truth = np.ascontiguousarray(values, dtype=np.uint8)
     return header_stamp_ns(msg), int(np.count_nonzero(keep)), truth
 
 

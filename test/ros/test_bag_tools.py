@@ -443,6 +443,33 @@ def test_label_gt_must_be_one_per_point() -> None:
         fields_dtype(fields, 16)
 
 
+
+def label_bag(path: Path, labels: np.ndarray) -> Path:
+    """A one-message bag of a PointCloud2 whose label_gt field is `labels`."""
+    n = len(labels)
+    cloud = {"x": np.arange(n, dtype=np.float32), "y": np.zeros(n, np.float32), "z": np.zeros(n, np.float32),
+             "label_gt": labels}
+    with BagWriter(path) as writer:
+        writer.write("/c", encode(cloud, stamp_ns=9, typestore=TYPESTORE), 9)
+    return path
+
+
+@pytest.mark.parametrize(("dtype", "wild"), [(np.int32, 257), (np.int8, -1), (np.float32, 1.5), (np.float32, np.nan)])
+def test_a_label_gt_uint8_cannot_hold_is_refused_not_wrapped(tmp_path: Path, dtype: type, wild: float) -> None:
+    """label_gt of any type reads its class ids; a value uint8 cannot hold names the message (the bag reader) or the
+    field (live evaluation), where a cast read 257 as car, -1 as unknown, 1.5 as car."""
+    from pass3d_ros.evaluation.live import LiveEvalError, _input_frame
+
+    good = label_bag(tmp_path / "good", np.array([0, 1, 2, 3], dtype=dtype))
+    assert np.array_equal(next(read_bag(str(good))).labels, [0, 1, 2, 3])
+    bad = label_bag(tmp_path / "bad", np.array([0, 1, 2, wild], dtype=dtype))
+    with pytest.raises(DatasetError, match="message 0: field 'label_gt' holds"):
+        next(read_bag(str(bad)))
+    with Reader(bad) as reader:
+        raw = next(iter(reader.messages()))[2]
+    with pytest.raises(LiveEvalError, match="label_gt field holds ids other than"):
+        _input_frame(raw, POINTCLOUD2_TYPE)
+
 # ---- progress bars only on a terminal ----
 
 def test_no_progress_bar_when_stderr_is_not_a_terminal(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
