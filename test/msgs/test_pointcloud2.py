@@ -283,6 +283,8 @@ XYZ = [("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1)]
         (XYZ, 0, {"width": 3, "row_step": 0}, 0, "point_step is 0"),
         ([*XYZ, ("y", 12, 7, 1)], 16, {}, 48, "duplicate field name 'y'"),
         ([("x", -4, 7, 1), *XYZ[1:]], 12, {}, 36, "offset must be >= 0"),
+        (XYZ, 12, {"width": 2**31}, 24, "data has 24 bytes, expected height 1 \\* row_step 25769803776"),
+        (XYZ, 12, {"height": 2**31, "width": 2**31, "row_step": 12 * 2**31}, 24, "data has 24 bytes"),
     ],
 )
 def test_documented_errors(fields, step, kwargs, nbytes, match) -> None:
