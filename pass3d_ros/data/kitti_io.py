@@ -37,6 +37,17 @@ def require_dir(path: Path, what: str) -> Path:
     return path
 
 
+def read_text(path: Path, what: str) -> str:
+    """The text of `path`; DatasetError naming it and `what` it holds when it cannot be read or is not UTF-8 text
+    (a binary or corrupt file would otherwise escape as a UnicodeDecodeError)."""
+    try:
+        return path.read_text()
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot read {what} ({exc.strerror})") from exc
+    except UnicodeDecodeError as exc:
+        raise DatasetError(f"{path}: cannot read {what} (not text: byte {exc.start} is not UTF-8)") from None
+
+
 def sorted_files(directory: Path, suffix: str) -> list[Path]:
     """Files of `directory` ending in `suffix`, in natural order; DatasetError if the folder is missing."""
     require_dir(directory, f"'{suffix}' file")
@@ -129,7 +140,7 @@ def read_stamp_lines(path: Path, parse: Callable[[str], int]) -> list[int]:
     """One stamp (ns) per non-empty line of a KITTI time file; DatasetError naming the file and line on a bad one
     (`parse` raises ValueError with what is wrong)."""
     stamps = []
-    for number, line in enumerate(path.read_text().splitlines(), 1):
+    for number, line in enumerate(read_text(path, "time file").splitlines(), 1):
         if not line.strip():
             continue
         try:

@@ -32,6 +32,7 @@ from pass3d_ros.data.kitti_io import (
     label_points_in_boxes,
     points_in_kinds,
     read_frame_bin,
+    read_text,
     require_dir,
     sorted_files,
     write_bin,
@@ -49,10 +50,7 @@ _CALIB_ALIASES = {"Tr_velo_cam": "Tr_velo_to_cam", "R_rect": "R0_rect"}
 def parse_calib(path: Path) -> np.ndarray:
     """4 x 4 matrix R0_rect * Tr_velo_to_cam (velodyne -> rectified camera) from a KITTI calib file."""
     values: dict[str, np.ndarray] = {}
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise DatasetError(f"{path}: cannot read calibration ({exc.strerror})") from exc
+    text = read_text(path, "calibration")
     for number, line in enumerate(text.splitlines(), 1):
         key, sep, rest = line.partition(":")
         if not sep:
@@ -92,10 +90,7 @@ def velo_box_to_camera(box: Box3D, velo_to_cam: np.ndarray) -> tuple[np.ndarray,
 
 def read_label_file(path: Path, velo_to_cam: np.ndarray) -> list[Box3D]:
     """Velodyne-frame boxes of one label_2 file (DontCare skipped)."""
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise DatasetError(f"{path}: cannot read label file ({exc.strerror})") from exc
+    text = read_text(path, "label file")
     boxes: list[Box3D] = []
     for number, line in enumerate(text.splitlines(), 1):
         fields = line.split()

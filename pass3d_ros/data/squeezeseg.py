@@ -25,7 +25,7 @@ import numpy as np
 
 from pass3d_ros.classes import NUM_CLASSES
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.kitti_io import FRAME_PERIOD_NS, frame_index, require_dir, sorted_files
+from pass3d_ros.data.kitti_io import FRAME_PERIOD_NS, frame_index, read_text, require_dir, sorted_files
 from pass3d_ros.msgs.errors import DatasetError
 
 CHANNELS = 6  # x, y, z, intensity, range, label
@@ -34,10 +34,7 @@ CHANNELS = 6  # x, y, z, intensity, range, label
 def read_split_list(path: str | Path) -> list[str]:
     """Frame names of a SqueezeSeg ImageSet list, in file order, without any `.npy` suffix."""
     path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as exc:
-        raise DatasetError(f"{path}: cannot read split list ({exc.strerror})") from exc
+    lines = read_text(path, "split list").splitlines()
     names = [line.strip().removesuffix(".npy") for line in lines]
     return [name for name in names if name]
 

@@ -191,6 +191,30 @@ def test_kitti_object_missing_labels_and_bad_input(tmp_path: Path) -> None:
         kitti_object.read_kitti_object(tmp_path / "label_2")
 
 
+def test_text_files_that_are_not_text_name_the_file(tmp_path: Path) -> None:
+    """A corrupt (non-UTF-8) label, calibration, time or split file is a DatasetError naming it, never a
+    UnicodeDecodeError escaping the tools as a traceback."""
+    binary = b"Car 0 0 \xff\xfe garbage\n"
+    (tmp_path / "velodyne").mkdir()
+    _scan(50, np.random.default_rng(1)).tofile(tmp_path / "velodyne" / "000000.bin")
+    (tmp_path / "label_2").mkdir()
+    (tmp_path / "label_2" / "000000.txt").write_bytes(binary)
+    _write_permutation_calib(tmp_path / "calib" / "000000.txt")
+    with pytest.raises(DatasetError, match=r"label_2[/\\]000000.txt: cannot read label file \(not text"):
+        list(kitti_object.read_kitti_object(tmp_path))
+    (tmp_path / "label_2" / "000000.txt").write_text("Car 0 0 0 0 0 0 0 1.5 1.8 4 0 1.7 10 0\n")
+    (tmp_path / "calib" / "000000.txt").write_bytes(binary)
+    with pytest.raises(DatasetError, match=r"calib[/\\]000000.txt: cannot read calibration \(not text"):
+        list(kitti_object.read_kitti_object(tmp_path))
+    drive = _write_drive(tmp_path / "raw", with_tracklets=False)
+    (drive / "velodyne_points" / "timestamps.txt").write_bytes(binary)
+    with pytest.raises(DatasetError, match=r"timestamps.txt: cannot read time file \(not text"):
+        kitti_raw.read_kitti_raw(drive)
+    (tmp_path / "split.txt").write_bytes(binary)
+    with pytest.raises(DatasetError, match=r"split.txt: cannot read split list \(not text"):
+        squeezeseg.read_split_list(tmp_path / "split.txt")
+
+
 # ---------------------------------------------------------------- KITTI raw
 
 TRACKLETS_XML = """<?xml version="1.0" encoding="UTF-8" standalone="yes" ?>
