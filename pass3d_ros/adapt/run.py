@@ -29,7 +29,7 @@ from pass3d_ros.core.pipeline import ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage1.config import AUTO as AUTO_RANGE
 from pass3d_ros.core.stage2 import open_classifier
-from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint, read_checkpoint
+from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint
 from pass3d_ros.data.bag import parse_bag_spec, select_topic
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import Dataset, open_dataset, resolve_dataset
@@ -126,6 +126,7 @@ class Adaptation:
         """Read, check, fine-tune, check again and judge; a Ctrl-C during the fine-tune ends the run with the
         weights of the last finished epoch (partial, unchecked) and is raised again once the result is kept. A
         recording too short to hold out stretches gets the sensor's settings and the starting weights' check only."""
+        self._read_weights()
         self._read_recording()
         self._read_sensor_and_split()
         self._check_before()
@@ -141,6 +142,11 @@ class Adaptation:
         return self._finish()
 
     # ------------------------------------------------------------------------------------------------ steps
+
+    def _read_weights(self) -> None:
+        """The starting weights, checked before the recording is read: a file that is no checkpoint of this model is
+        one error naming it, at once rather than after the reading."""
+        _, self.start_checkpoint = load_model(self.options.weights or _shipped())
 
     def _read_recording(self) -> None:
         """At most max_scans scans of the recording, evenly spaced over each spec, in time order."""
@@ -198,7 +204,6 @@ class Adaptation:
         """The starting weights on the held-out scans and on the guard scenes (no guard for settings only: no
         new weights to guard)."""
         t0 = time.monotonic()
-        self.start_checkpoint, _ = read_checkpoint(self.options.weights or _shipped())
         start = self.segmenters["before"] = self._segmenter(self.start_checkpoint)
         self.before = self._check(start)
         self.guard_before = None if self.settings_only is not None else self._guard(start)

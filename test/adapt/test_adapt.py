@@ -18,6 +18,7 @@ from pass3d_ros.classes import CLASS_NAMES
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage2.segmentation import Segmenter
 from pass3d_ros.data.frame import Frame
+from pass3d_ros.data.semantickitti import write_semantickitti_frame
 from pass3d_ros.evaluation.agreement import evaluate_agreement, majority
 from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.synthetic.dataset import generate_frame
@@ -287,6 +288,32 @@ def test_pass3d_adapt_end_to_end_writes_weights_the_nodes_load(tmp_path, capsys)
 
     assert adapt.main([*TINY, "--out", str(out)]) == 2  # exists: --force needed
     assert "--force replaces it" in capsys.readouterr().err
+
+
+def test_pass3d_adapt_names_weights_that_do_not_fit_before_reading(tmp_path, capsys, lite_weights):
+    """--weights of the wrong shape: exit 2 with one line naming the file (not "checkpoint dict"), before the
+    recording is read (here its second scan is truncated: that error must not come first)."""
+    import torch
+
+    from pass3d_ros.tools import adapt
+
+    checkpoint = torch.load(lite_weights, weights_only=True)
+    first = next(iter(checkpoint["state_dict"]))
+    checkpoint["state_dict"][first] = torch.zeros(3, 3)
+    wrong = tmp_path / "wrong_shape.pt"
+    torch.save(checkpoint, wrong)
+    scans = tmp_path / "scans"
+    for k in range(2):
+        write_semantickitti_frame(scans, generate_frame(seed=5, index=k))
+    bad_bin = scans / "velodyne" / "000001.bin"
+    bad_bin.write_bytes(bad_bin.read_bytes()[:1001])
+    args = ["--data", f"semantickitti:{scans}", "--out", str(tmp_path / "out"), "--no-progress"]
+    assert adapt.main([*args, "--weights", str(wrong)]) == 2
+    err = capsys.readouterr().err
+    assert f"pass3d_adapt: error: {wrong}: weights do not fit" in err and "000001.bin" not in err, err
+    assert adapt.main(args) == 2  # the shipped weights fit: the recording's error
+    assert "000001.bin" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 def test_pass3d_adapt_refuses_weights_that_fail_the_guard(tmp_path, capsys, monkeypatch):
