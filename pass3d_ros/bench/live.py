@@ -50,7 +50,7 @@ import numpy as np
 from pass3d_ros.core.threads import limit_threads
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.msgs.errors import UserError
-from pass3d_ros.tools.cli import add_threads, add_weights, number
+from pass3d_ros.tools.cli import add_threads, add_weights, check_writable, number
 
 if TYPE_CHECKING:
     from pass3d_ros.core.stage2 import Classifier
@@ -301,6 +301,8 @@ def run(args: argparse.Namespace) -> int:
         args.rate = args.hz / SENSOR_HZ
     if args.frames < 1 or seconds <= 0 or args.rate <= 0 or args.threads < 1 or args.load < 0:
         raise UserError("--frames, --seconds, --rate, --hz and --threads must be positive, --load >= 0")
+    if args.json:
+        check_writable(args.json, folder=False, what="--json file")
     classifier = open_classifier(args.weights, args.classifier)
     kind, weights = classifier.kind, classifier.weights
     from pass3d_ros.data.bag_convert import convert

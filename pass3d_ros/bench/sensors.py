@@ -18,7 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from pass3d_ros.msgs.errors import UserError
-from pass3d_ros.tools.cli import add_weights
+from pass3d_ros.tools.cli import add_weights, check_writable
 
 # Mount name -> the spec's mount items: level at the model's 1.73 m, pitched down 5 and 10 degrees, rolled 10
 # degrees, high on a bus or mast, low on a small robot, upside down.
@@ -107,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--frames must be at least 1")
     if args.seed < 0:
         raise UserError("--seed must not be negative")
+    if args.json:
+        check_writable(args.json, folder=False, what="--json file")
     sensors = _names(args.sensors, SENSOR_NAMES, "sensors")
     mounts = _names(args.mounts, tuple(MOUNTS), "mounts")
     if args.seed not in UNSEEN_SEEDS:

@@ -27,7 +27,7 @@ from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.spec import DatasetError, resolve_datasets
 from pass3d_ros.msgs.errors import UserError
-from pass3d_ros.tools.cli import add_data, add_param
+from pass3d_ros.tools.cli import add_data, add_param, check_writable
 
 PATCHWORK_HINT = "pip install pypatchworkpp"
 REORDERINGS: tuple[str, ...] = ("column", "shuffled")
@@ -201,6 +201,8 @@ def run(args: argparse.Namespace) -> int:
     """Time stage 1 (and pypatchworkpp) and print the medians."""
     if args.repeat < 1 or args.limit < 1:
         raise UserError("--repeat and --limit must be >= 1")
+    if args.json:
+        check_writable(args.json, folder=False, what="--json file")
     config = parse_params(args.param)
     frames, streams = load_frames(args.data, args.limit)
     if not frames:

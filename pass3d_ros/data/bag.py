@@ -312,6 +312,17 @@ def count_frames(path: str | Path) -> int | None:
         return None
 
 
+def check_bag_target(out: Path, *, force: bool, inputs: Iterable[str | Path] = (), what: str = "--out") -> None:
+    """Refuse a bag output no writer may touch; an existing one needs `force`, and then must be a bag (or empty).
+    BagWriter checks it when made; a tool that makes its writer only later (after discovery) calls it first."""
+    refuse_protected(out, inputs, what)
+    if not (out.exists() or out.is_symlink()):
+        return
+    if not force:
+        raise BagError(f"{out} exists; pass --force to overwrite it")
+    check_force(out, ours=is_bag, kind="a bag", inputs=inputs, what=what)
+
+
 class BagWriter:
     """A rosbag2 writer that builds the bag in a hidden sibling and renames it into place on `close`.
 
@@ -338,13 +349,7 @@ class BagWriter:
         self._connections: dict[str, Connection] = {}
 
     def _check_target(self) -> None:
-        """Refuse a path no writer may touch; an existing one needs force, and then must be a bag (or empty)."""
-        refuse_protected(self.out, self.inputs, self.what)
-        if not (self.out.exists() or self.out.is_symlink()):
-            return
-        if not self.force:
-            raise BagError(f"{self.out} exists; pass --force to overwrite it")
-        check_force(self.out, ours=is_bag, kind="a bag", inputs=self.inputs, what=self.what)
+        check_bag_target(self.out, force=self.force, inputs=self.inputs, what=self.what)
 
     @property
     def temporary_path(self) -> Path | None:

@@ -187,6 +187,14 @@ def check_writable(path: str | Path, *, folder: bool, what: str = "output") -> N
     os.unlink(probe)
 
 
+def check_bag_writable(path: str | Path, what: str = "--out bag") -> None:
+    """`check_writable` for a bag folder about to be written: the folder it is built in when it exists (a --force
+    run replaces it), else the bag itself; so an unwritable place is named before the work, never by the hidden
+    build folder's name after it."""
+    path = Path(path)
+    check_writable(path.parent if path.exists() or path.is_symlink() else path, folder=True, what=what)
+
+
 def run_tool(
     prog: str,
     work: Callable[[], int],

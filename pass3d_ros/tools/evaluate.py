@@ -98,7 +98,16 @@ from pass3d_ros.evaluation.paired import format_paired, paired, read_baseline
 from pass3d_ros.evaluation.report import PRINTERS
 from pass3d_ros.evaluation.tracking import evaluate_tracking
 from pass3d_ros.msgs.errors import UserError
-from pass3d_ros.tools.cli import add_data, add_param, add_threads, add_weights, check_writable, number, run_tool
+from pass3d_ros.tools.cli import (
+    add_data,
+    add_param,
+    add_threads,
+    add_weights,
+    check_bag_writable,
+    check_writable,
+    number,
+    run_tool,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -311,6 +320,8 @@ def main(argv: list[str] | None = None) -> int:
 def _evaluate(args: argparse.Namespace) -> int:
     if args.json:
         check_writable(args.json, folder=False, what="--json file")
+    if args.record_out:
+        check_bag_writable(args.record_out, what="--record-out bag")
     baseline = read_baseline(args.paired_with) if args.paired_with else None
     try:
         mode, summary, status = run(args)

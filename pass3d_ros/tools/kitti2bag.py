@@ -7,12 +7,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from pass3d_ros.data.bag import STORAGES, VERSIONS, topic_name_problem
 from pass3d_ros.data.bag_convert import convert
 from pass3d_ros.data.outputs import OutputError, out_path
-from pass3d_ros.tools.cli import add_data, check_writable, run_tool
+from pass3d_ros.tools.cli import add_data, check_bag_writable, run_tool
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -51,8 +50,7 @@ def check_arguments(args: argparse.Namespace) -> None:
 
 def _convert(args: argparse.Namespace) -> int:
     check_arguments(args)
-    out = Path(args.out)
-    check_writable(out.parent if out.exists() or out.is_symlink() else out, folder=True, what="--out bag")
+    check_bag_writable(args.out)
     stats = convert(
         args.data,
         args.out,

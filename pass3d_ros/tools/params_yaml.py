@@ -17,7 +17,7 @@ import sys
 from pass3d_ros.data.outputs import out_path, write_text_atomic
 from pass3d_ros.ros import cluster_proposal_node, segmentation_node
 from pass3d_ros.ros.params import NodeParameters, params_markdown, params_yaml
-from pass3d_ros.tools.cli import run_tool
+from pass3d_ros.tools.cli import check_writable, run_tool
 
 NODES: tuple[NodeParameters, ...] = (cluster_proposal_node.PARAMETERS, segmentation_node.PARAMETERS)
 HEADER = """Parameters of both nodes with the paper's defaults (PASS3D, IROS 2019; Zermas et al., ICRA 2017).
@@ -64,7 +64,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.out is None:
             sys.stdout.write(text)
         else:
-            write_text_atomic(out_path(args.out), text)
+            out = out_path(args.out)
+            check_writable(out, folder=False, what="--out file")
+            write_text_atomic(out, text)
         return 0
 
     return run_tool("pass3d_params_yaml", work)

@@ -37,7 +37,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
-from pass3d_ros.data.bag import STORAGES, VERSIONS
+from pass3d_ros.data.bag import STORAGES, VERSIONS, check_bag_target
 from pass3d_ros.data.outputs import out_path
 from pass3d_ros.ros.bag_replay import announce, replay
 from pass3d_ros.ros.dds_profile import apply_shipped_profile
@@ -50,7 +50,7 @@ from pass3d_ros.ros.recorder import (
     publishers_note,
     recording_qos,
 )
-from pass3d_ros.tools.cli import EXIT_SIGINT, Interrupted, number, run_tool
+from pass3d_ros.tools.cli import EXIT_SIGINT, Interrupted, check_bag_writable, number, run_tool
 
 EXIT_EMPTY = 1  # a recording that received no message
 WAIT_SUBSCRIBERS = 1  # a replay waits for this many subscribers (--wait-subscribers) ...
@@ -90,7 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _record(args: argparse.Namespace, node: Any, executor: Any) -> int:
-    out_path(args.out)
+    out = out_path(args.out)
+    check_bag_target(out, force=args.force)  # before waiting for the topics: an --out that cannot be used fails now
+    check_bag_writable(out)
     topics = discover_types(node, args.record, args.discovery_timeout)
     qos = {topic: args.qos or recording_qos(node, topic) for topic in topics}
     recorder = Recorder(node, topics, args.out, storage=args.storage, version=args.rosbag_version,

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from pass3d_ros.core.stage2.segmentation import CheckpointError, load_model
-from pass3d_ros.tools import cli, evaluate, kitti2bag, simulate, train
+from pass3d_ros.tools import cli, evaluate, kitti2bag, params_yaml, simulate, train
 
 SPEC = "synthetic:frames=5,seed=1"
 
@@ -273,6 +273,50 @@ def test_evaluate_json_under_proc_fails_before_evaluating(monkeypatch: pytest.Mo
     monkeypatch.setattr(evaluate, "run", lambda _args: pytest.fail("evaluated although the result cannot be saved"))
     assert evaluate.main(["--stage1-only", "--data", SPEC, "--json", "/proc/nowrite/x", "--no-progress"]) == 2
     one_error_line(capsys.readouterr().err, "pass3d_evaluate", "/proc/nowrite/x")
+
+
+def test_evaluate_record_out_under_proc_fails_before_evaluating(monkeypatch: pytest.MonkeyPatch,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(evaluate, "run", lambda _args: pytest.fail("ran live although the recording cannot be saved"))
+    assert evaluate.main(["--live", "--data", SPEC, "--record-out", "/proc/nowrite/x", "--no-progress"]) == 2
+    line = one_error_line(capsys.readouterr().err, "pass3d_evaluate", "/proc/nowrite/x", "--record-out")
+    assert ".partial" not in line
+
+
+def test_params_yaml_out_under_proc_names_it(capsys: pytest.CaptureFixture[str]) -> None:
+    """The error names --out as given, not the hidden file it would have been written through."""
+    assert params_yaml.main(["--out", "/proc/nowrite/x.yaml"]) == 2
+    assert ".partial" not in one_error_line(capsys.readouterr().err, "pass3d_params_yaml", "/proc/nowrite/x.yaml")
+
+
+@pytest.mark.parametrize(("argv", "work"), [
+    (["stage1", "--repeat", "1", "--limit", "1", "--no-patchwork"], "pass3d_ros.bench.stage1.load_frames"),
+    (["sensors", "--frames", "1", "--stage1-only"], "pass3d_ros.bench.sensors._names"),
+    (["live", "--frames", "1"], "pass3d_ros.core.stage2.open_classifier"),
+])
+def test_benchmark_json_under_proc_fails_before_timing(argv: list[str], work: str, monkeypatch: pytest.MonkeyPatch,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    from pass3d_ros.bench import benchmark
+
+    monkeypatch.setattr(work, lambda *_a, **_k: pytest.fail("timed although the numbers cannot be saved"))
+    assert benchmark.main([*argv, "--json", "/proc/nowrite/x.json"]) == 2
+    line = one_error_line(capsys.readouterr().err, "pass3d_benchmark", "/proc/nowrite/x.json", "--json")
+    assert ".partial" not in line
+
+
+@pytest.mark.parametrize("out", ["existing", "/proc/nowrite/bag"])
+def test_replay_record_checks_out_before_waiting_for_topics(out: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """An --out that exists (no --force) or cannot be created fails before the topics are waited for, naming it."""
+    from pass3d_ros.tools import replay
+
+    if out == "existing":
+        out = str(tmp_path / "bag")
+        Path(out).mkdir()
+    monkeypatch.setattr(replay, "discover_types", lambda *_a: pytest.fail("waited for topics with an unusable --out"))
+    assert replay.main(["--record", "/x", "--out", out, "--duration", "1"]) == 2
+    err = "\n".join(line for line in capsys.readouterr().err.splitlines() if "Fast DDS" not in line)
+    assert ".partial" not in one_error_line(err, "pass3d_replay", out)
 
 
 # ------------------------------------------------------------------------------------------------------ pass3d_view
