@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from pass3d_ros.msgs.pointcloud2 import columns_to_cloud, decode, decode_xyzi, encode
+from pass3d_ros.tools.cli import number
 
 
 def sample_cloud(points: int, seed: int = 0) -> np.ndarray:
@@ -44,8 +45,8 @@ def time_ms(func: Callable[[], Any], repeat: int) -> tuple[float, float]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pass3d_benchmark codec`."""
-    parser.add_argument("--points", type=int, default=120_000, help="points per cloud (default 120000)")
-    parser.add_argument("--repeat", type=int, default=50, help="timed repetitions (default 50)")
+    parser.add_argument("--points", type=number(int, 1), default=120_000, help="points per cloud (default 120000)")
+    parser.add_argument("--repeat", type=number(int, 1), default=50, help="timed repetitions (default 50)")
 
 
 def run(args: argparse.Namespace) -> int:

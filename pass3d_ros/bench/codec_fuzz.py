@@ -18,6 +18,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.msgs.pointcloud2 import DATATYPES, PointCloud2Error, decode
+from pass3d_ros.tools.cli import number
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 EXTRA_NAMES = ["intensity", "ring", "t", "label", "extra", "i"]
@@ -187,7 +188,7 @@ def fuzz(messages: int, seed: int) -> dict[str, int]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pass3d_benchmark fuzz`."""
     parser.add_argument("--messages", type=int, default=10_000, help="corrupted messages to try (default 10000)")
-    parser.add_argument("--seed", type=int, default=20240611, help="random seed (default 20240611)")
+    parser.add_argument("--seed", type=number(int, 0), default=20240611, help="random seed (default 20240611)")
 
 
 def run(args: argparse.Namespace) -> int:

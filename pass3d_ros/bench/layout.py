@@ -18,6 +18,7 @@ from pass3d_ros.ros.input_layout import background_cloud, full_proposals_cloud, 
 from pass3d_ros.ros.proposals import ProposalFrame, proposal_frame
 from pass3d_ros.ros.segmentation_node import labeled_cloud
 from pass3d_ros.synthetic.dataset import generate_frame
+from pass3d_ros.tools.cli import number
 
 OUSTER = np.dtype({"names": ["x", "y", "z", "t", "reflectivity", "ring", "ambient", "range", "intensity"],
                    "formats": ["<f4"] * 3 + ["<u4", "<u2", "<u2", "<u2", "<u4", "<u2"],
@@ -26,8 +27,9 @@ OUSTER = np.dtype({"names": ["x", "y", "z", "t", "reflectivity", "ring", "ambien
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pass3d_benchmark layout`."""
-    parser.add_argument("--repeat", type=int, default=50, help="timed repetitions (default 50)")
-    parser.add_argument("--width", type=int, default=2048, help="columns of the organized cloud (default 2048)")
+    parser.add_argument("--repeat", type=number(int, 1), default=50, help="timed repetitions (default 50)")
+    parser.add_argument("--width", type=number(int, 1), default=2048,
+                        help="columns of the organized cloud (default 2048)")
 
 
 def organized(frame: Frame, width: int) -> np.ndarray:

@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from pass3d_ros.msgs.errors import UserError
+from pass3d_ros.tools.cli import number
 
 TARGET_S_PER_FRAME = 0.5
 
@@ -16,7 +17,7 @@ TARGET_S_PER_FRAME = 0.5
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pass3d_benchmark simulate`."""
     parser.add_argument("--frames", type=int, default=10, help="frames to time (default 10)")
-    parser.add_argument("--seed", type=int, default=0, help="sequence seed (default 0)")
+    parser.add_argument("--seed", type=number(int, 0), default=0, help="sequence seed (default 0)")
     from pass3d_ros.synthetic.sensor import SENSOR_NAMES
 
     parser.add_argument("--sensor", type=str.lower, default="hdl64e",

@@ -19,7 +19,7 @@ from pass3d_ros.core.stage2.segmentation import (
     prepare_proposals,
 )
 from pass3d_ros.core.threads import limit_threads
-from pass3d_ros.tools.cli import add_data, add_threads, add_weights, torch_device
+from pass3d_ros.tools.cli import add_data, add_threads, add_weights, number, torch_device
 
 # (length, width, height) of the constructed proposals: car, pedestrian, cyclist, background clutter.
 _SHAPES = np.array([[4.2, 1.7, 1.6], [0.7, 0.6, 1.8], [1.8, 0.7, 1.7], [2.5, 1.5, 2.5]])
@@ -52,13 +52,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", choices=["lite", "paper"], default="lite", help="model configuration")
     add_weights(parser, "checkpoint to time instead of random weights", metavar=None)
     add_data(parser, "use stage-1 proposals of this data", required=False, repeatable=False)
-    parser.add_argument("--frames", type=int, default=3, help="frames of --data to time")
-    parser.add_argument("--proposals", type=int, default=30, help="proposals per constructed frame (cap with --data)")
-    parser.add_argument("--max-points", type=int, default=2000, help="largest proposal (points)")
-    parser.add_argument("--repeats", type=int, default=15, help="timed frames (after 2 warm-up frames)")
+    parser.add_argument("--frames", type=number(int, 1), default=3, help="frames of --data to time")
+    parser.add_argument("--proposals", type=number(int, 1), default=30,
+                        help="proposals per constructed frame (cap with --data)")
+    parser.add_argument("--max-points", type=number(int, 1), default=2000, help="largest proposal (points)")
+    parser.add_argument("--repeats", type=number(int, 1), default=15, help="timed frames (after 2 warm-up frames)")
     add_threads(parser, metavar=None)
     parser.add_argument("--device", type=torch_device, default="cpu", help="cpu or cuda")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=number(int, 0), default=0)
 
 
 def _median_ms(values: list[float]) -> float:

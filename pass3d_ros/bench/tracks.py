@@ -23,6 +23,7 @@ from pass3d_ros.core.stage2.config import tracker_from_params
 from pass3d_ros.core.stream.tracks import Tracker
 from pass3d_ros.core.tracked_scan import track_scan
 from pass3d_ros.msgs.errors import UserError
+from pass3d_ros.tools.cli import number
 
 POINTS_PER_OBJECT = 300
 
@@ -33,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scans", type=int, default=200, metavar="S", help="scans at 10 Hz (default 200)")
     parser.add_argument("--points", type=int, default=120_000, metavar="P",
                         help="points a scan (default 120000, a KITTI HDL-64E scan)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=number(int, 0), default=0, help="random seed (default 0)")
     parser.add_argument("--track", action="append", default=[], metavar="KEY=VALUE",
                         help="a tracker setting as the segmentation node names it, repeatable "
                              "(track_fill_shapes=true: what the fill costs)")

@@ -134,6 +134,20 @@ def test_benchmark_live_refuses_numbers_that_are_not_finite(flag: str, value: st
     refused(capsys, lambda: benchmark.main(["live", flag, value]), flag)
 
 
+@pytest.mark.parametrize(("suite", "flag", "value"), [
+    ("codec", "--points", "-1"), ("codec", "--repeat", "0"), ("layout", "--width", "0"), ("layout", "--repeat", "0"),
+    ("stage2", "--repeats", "0"), ("stage2", "--proposals", "0"), ("stage2", "--max-points", "0"),
+    ("stage2", "--seed", "-1"), ("fuzz", "--seed", "-1"), ("tracks", "--seed", "-1"), ("simulate", "--seed", "-1"),
+])
+def test_benchmark_suites_refuse_counts_they_cannot_run(suite: str, flag: str, value: str,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """Zero repetitions, an empty cloud or a negative seed: one line naming the option (was a traceback: a median of
+    nothing, an empty grid, numpy refusing the seed)."""
+    from pass3d_ros.bench import benchmark
+
+    refused(capsys, lambda: benchmark.main([suite, flag, value]), flag)
+
+
 def test_live_options_name_the_option_not_the_field() -> None:
     """The in-process API refuses the same values, naming the command-line option, never the field `timeout_s`."""
     cases = ((LiveOptions(rate=float("nan")), "--rate"), (LiveOptions(timeout_s=float("inf")), "--timeout"),
