@@ -37,7 +37,7 @@ from pass3d_ros.data.outputs import out_path, refuse_protected, write_text_atomi
 from pass3d_ros.drawing.bev import frame_picture, output_cluster_ids, write_png
 from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES
-from pass3d_ros.tools.cli import add_weights, run_tool
+from pass3d_ros.tools.cli import add_weights, number, run_tool
 from pass3d_ros.weights import DEFAULT_WEIGHTS
 
 MARKER = ".pass3d_demo"
@@ -187,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The command line of the demo."""
     parser = argparse.ArgumentParser(prog="python -m pass3d_ros.tools.demo", description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=20, help="scans of the synthetic drive (default 20: 2 s)")
-    parser.add_argument("--seed", type=int, default=8,
+    parser.add_argument("--seed", type=number(int, 0), default=8,
                         help="synthetic street seed (default 8: the first from 7 whose drive holds all three classes)")
     parser.add_argument("--sensor", choices=SENSOR_NAMES, default="hdl64e",
                         help="simulated LiDAR (default hdl64e, KITTI's); its driver's point order and fields")

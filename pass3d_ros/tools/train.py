@@ -78,7 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="no per-proposal intensity augmentation (gain, offset, gamma, zeroing, constant)")
     p.add_argument("--no-intensity", action="store_true",
                    help="feed intensity as 0 (stored in the checkpoint: inference does the same)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=number(int, 0), default=0)
     p.add_argument("--batch-size", type=number(int, 1), default=32,
                    help="proposals per step (in all, when data-parallel)")
     p.add_argument("--lr", type=number(float, 0.0), default=1e-3)

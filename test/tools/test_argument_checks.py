@@ -89,6 +89,20 @@ def test_train_refuses_numbers_that_are_not_finite(flag: str, value: str, tmp_pa
     assert "finite" in line and not out.exists()
 
 
+@pytest.mark.parametrize("tool", ["train", "demo"])
+def test_a_negative_seed_is_refused_before_any_work(tool: str, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """numpy takes no negative seed: refused by the parser (was a traceback once stage 1 had run, and for the demo a
+    one-line error only after the classifier loaded and --out was made)."""
+    from pass3d_ros.tools import demo, train
+
+    out = tmp_path / "run"
+    argv = ["--out", str(out), "--seed", "-1"]
+    main = {"train": lambda: train.main(["--data", SPEC, *argv]), "demo": lambda: demo.main(argv)}[tool]
+    refused(capsys, main, "--seed")
+    assert not out.exists()
+
+
 @pytest.mark.skipif(torch.cuda.is_available(), reason="this torch has CUDA")
 def test_train_refuses_cuda_on_a_cpu_torch(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from pass3d_ros.bench import benchmark
