@@ -108,7 +108,8 @@ def _open_reader(path: Path) -> Reader:
         reader = Reader(path)
         reader.open()
     except Exception as exc:  # rosbags raises FileNotFoundError, ReaderError, yaml and sqlite errors
-        raise DatasetError(f"{path}: cannot open as a rosbag2 bag ({exc})") from exc
+        why = " ".join(str(exc).split())  # a YAML error spans lines (with a caret line): the tools print one
+        raise DatasetError(f"{path}: cannot open as a rosbag2 bag ({why})") from exc
     return reader
 
 

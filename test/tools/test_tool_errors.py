@@ -319,6 +319,15 @@ def test_replay_record_checks_out_before_waiting_for_topics(out: str, tmp_path: 
     assert ".partial" not in one_error_line(err, "pass3d_replay", out)
 
 
+def test_bag_with_broken_metadata_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """rosbags' YAML error spans several lines (a caret under the column): the tool still prints one."""
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: [\n")
+    assert evaluate.main(["--stage1-only", "--data", f"bag:{bag}", "--no-progress"]) == 2
+    one_error_line(capsys.readouterr().err, "pass3d_evaluate", bag, "metadata.yaml", "cannot open as a rosbag2 bag")
+
+
 # ------------------------------------------------------------------------------------------------------ pass3d_view
 
 
