@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from pass3d_ros.core.stage2.config import CLASSIFIERS, DEFAULT_CLASSIFIER
-from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, SegmentResult
+from pass3d_ros.core.stage2.segmentation import DEFAULT_MAX_PROPOSALS, Segmenter, SegmentResult, no_checkpoint_file
 from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.weights import DEFAULT_WEIGHTS
@@ -61,7 +61,7 @@ def open_classifier(
         return Segmenter(weights, device=device, max_proposals=max_proposals)
     path = Path(weights) if weights else DEFAULT_WEIGHTS
     if not path.is_file():
-        raise ClassifierError(f"{path}: no such checkpoint file" if weights else (
+        raise ClassifierError(no_checkpoint_file(path) if weights else (
             f"shipped stage-2 weights missing: {path} (train them with pass3d_train); pass --weights W or "
             "--classifier size_rules (node parameters: weights, classifier)"))
     return Segmenter(path, device=device, max_proposals=max_proposals)

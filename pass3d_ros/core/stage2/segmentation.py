@@ -283,6 +283,14 @@ def make_checkpoint(model: PointNet2Seg, **info: Any) -> dict:
     }
 
 
+def no_checkpoint_file(path: Path) -> str:
+    """Why `path` cannot be read as a checkpoint file: it is missing, or a folder (e.g. a training's --out given
+    instead of the .pt file in it)."""
+    if path.is_dir():
+        return f"{path}: a folder, not a checkpoint file (name the .pt file in it)"
+    return f"{path}: no such checkpoint file"
+
+
 def read_checkpoint(source: str | os.PathLike | dict) -> tuple[dict, str]:
     """The stored dict and a name for messages; CheckpointError for a missing or unreadable file. Only plain
     tensors and containers are loaded (`weights_only`): anything else is not a pass3d checkpoint."""
@@ -293,7 +301,7 @@ def read_checkpoint(source: str | os.PathLike | dict) -> tuple[dict, str]:
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except (FileNotFoundError, IsADirectoryError):
-        raise CheckpointError(f"{where}: no such checkpoint file") from None
+        raise CheckpointError(no_checkpoint_file(path)) from None
     except Exception:
         raise CheckpointError(f"not a pass3d checkpoint: {where}") from None
     return data, where

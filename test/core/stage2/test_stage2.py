@@ -436,6 +436,12 @@ def test_open_classifier_checks_once_and_names_the_file(tmp_path, lite_checkpoin
         open_classifier("w.pt", "size_rules")
     with pytest.raises(ClassifierError, match=r"none\.pt: no such checkpoint file"):
         open_classifier(tmp_path / "none.pt")
+    run = tmp_path / "run"  # a training's --out named instead of the checkpoint in it
+    run.mkdir()
+    with pytest.raises(ClassifierError, match=r"run: a folder, not a checkpoint file"):
+        open_classifier(run)
+    with pytest.raises(CheckpointError, match=r"run: a folder, not a checkpoint file"):
+        Segmenter(run)
     with pytest.raises(ClassifierError, match="device 'gpu': Expected one of cpu"):
         open_classifier(lite_checkpoint, device="gpu")
     with pytest.raises(ClassifierError, match=r"device 'cuda:\d+': no such CUDA device here"):
