@@ -22,8 +22,9 @@ def read_baseline(path: Path) -> dict:
         raise UserError(f"--paired-with {path}: cannot read it ({exc.strerror or exc})") from None
     except json.JSONDecodeError as exc:
         raise UserError(f"--paired-with {path}: not JSON ({exc.msg}, line {exc.lineno})") from None
-    rows = summary.get("per_frame") if isinstance(summary, dict) else None
-    if summary.get("mode") != "full" or not rows or any("confusion" not in row for row in rows):
+    rows = summary.get("per_frame") if isinstance(summary, dict) else None  # any JSON value may be in the file
+    if (not isinstance(rows, list) or not rows or summary.get("mode") != "full"
+            or any(not isinstance(row, dict) or "confusion" not in row for row in rows)):
         raise UserError(f"--paired-with {path}: not a full evaluation's --json with per-frame confusion matrices "
                         "(written by this version of pass3d_evaluate)")
     return summary

@@ -59,3 +59,17 @@ def test_evaluate_paired_with_another_run(tmp_path, capsys):
     assert "not a full evaluation's --json" in capsys.readouterr().err
     assert evaluate.main([*data, "--stage1-only", "--paired-with", str(rules)]) == 2
     assert "--paired-with applies to the full evaluation only" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text", ["[]", "3", '"full"', '{"mode": "full", "per_frame": [1]}',
+                                  '{"mode": "full", "per_frame": {"confusion": 1}}'])
+def test_a_baseline_that_is_other_json_is_named(text, tmp_path):
+    """Valid JSON of another shape (a list, a number, rows that are no objects) is the one-line UserError naming the
+    file, not an AttributeError / TypeError traceback."""
+    from pass3d_ros.evaluation.paired import read_baseline
+    from pass3d_ros.msgs.errors import UserError
+
+    path = tmp_path / "other.json"
+    path.write_text(text)
+    with pytest.raises(UserError, match=r"--paired-with .*other\.json: not a full evaluation's --json"):
+        read_baseline(path)
