@@ -11,6 +11,7 @@ import ast
 import functools
 import hashlib
 import json
+import zipfile
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -305,7 +306,8 @@ def cache_path(
     return Path(cache_dir) / f"samples_{cache_key(texts, background_keep, seed, keep_frame_labels, name)}.npz"
 
 
-READ_ERRORS = (OSError, ValueError, KeyError, EOFError)  # what SampleSet.load raises on a file it cannot read
+# what SampleSet.load raises on a file it cannot read (a cut-short .npz: BadZipFile, which is no ValueError)
+READ_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile)
 
 
 def load_cached(path: Path) -> SampleSet | None:

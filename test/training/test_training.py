@@ -142,6 +142,25 @@ def test_build_samples_cache_and_background_discard(tmp_path):
     assert isinstance(SampleSet.load(path), SampleSet)
 
 
+def test_a_cut_short_sample_cache_is_rebuilt(tmp_path):
+    """A cache file cut short (a copy or sync interrupted) is rebuilt, as any unreadable cache is, not a BadZipFile
+    traceback; as --consistency-samples it is the one-line error naming the file."""
+    from pass3d_ros.msgs.errors import UserError
+    from pass3d_ros.training.trainer import _read_sample_file
+
+    rng = np.random.default_rng(0)
+    frames = [constructed_frame(rng, f"f{i}") for i in range(2)]
+    kwargs = {"frames": lambda specs: iter(frames), "background_keep": 1.0, "seed": 0, "keep_frame_labels": False,
+              "proposer": instance_proposer, "progress": False}
+    first, path = cached_samples(["constructed:a"], tmp_path, **kwargs)
+    path.write_bytes(path.read_bytes()[:1000])
+    again, _ = cached_samples(["constructed:a"], tmp_path, **kwargs)
+    assert np.array_equal(again.points, first.points) and isinstance(SampleSet.load(path), SampleSet)
+    path.write_bytes(path.read_bytes()[:1000])
+    with pytest.raises(UserError, match=r"--consistency-samples .*\.npz: not a readable sample file"):
+        _read_sample_file(path)
+
+
 def test_cache_name_follows_stage1_and_the_synthetic_world(tmp_path, monkeypatch):
     """A changed stage 1 renames every cache; a changed synthetic generator renames the caches of synthetic data only
     (their frames changed; a real dataset's did not)."""
