@@ -432,6 +432,26 @@ def test_label_gt_beside_an_output_label_is_the_truth(tmp_path: Path) -> None:
         _input_frame(raw, POINTCLOUD2_TYPE)
 
 
+def test_label_gt_of_other_class_ids_names_the_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """label_gt holding ids that are no class here (SemanticKITTI's raw 10 and 40, or corrupt data): a DatasetError
+    naming the bag, the message and the ids, and exit 2 from a tool; it was a ValueError traceback when scoring."""
+    import pass3d_ros.tools.evaluate as evaluate
+    from pass3d_ros.data.spec import DatasetError
+
+    n = 50
+    truth = np.tile(np.array([0, 1, 10, 40, 255], np.uint8), n // 5)
+    cloud = {"x": np.arange(n, dtype=np.float32), "y": np.ones(n, np.float32), "z": np.zeros(n, np.float32),
+             "label_gt": truth}
+    out = tmp_path / "raw_ids"
+    with BagWriter(out) as writer:
+        writer.write("/c", encode(cloud, stamp_ns=9, typestore=TYPESTORE), 9)
+    with pytest.raises(DatasetError, match=r"raw_ids.*: message 0: labels 10, 40 are no class id"):
+        list(read_bag(str(out)))
+    assert evaluate.main(["--data", f"bag:{out}", "--classifier", "size_rules", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "raw_ids" in err and "Traceback" not in err, err
+
+
 def test_label_gt_must_be_one_per_point() -> None:
     from types import SimpleNamespace
 
