@@ -93,18 +93,21 @@ def time_stage1(frames: list[Frame], repeat: int, config: Stage1Config,
     CPU milliseconds per run ("cpu"): on a shared machine wall time also counts waiting for a core.
 
     The frames of one stream (`streams`: one number per frame, default all one) are timed as a live node sees them
-    (pass3d_ros.core.stream.lines): every run of a frame is given the laser lines held after the frames before it
-    (none for a stream's first frame, which searches on every run), never those read off the frame itself."""
+    (pass3d_ros.core.stream.lines): every run of a frame is given the laser lines and the sensor's resolution held
+    after the frames before it (none for a stream's first frame, which searches and reads on every run), never those
+    read off the frame itself."""
     warm_up()
     times: dict[str, list[float]] = {step: [] for step in (*STEPS, "cpu")}
     holder = LineHolder()
     for frame, stream in zip(frames, streams or [0] * len(frames), strict=True):
         holder.follow(stream)
-        given = holder.lines()
-        holder.hold(given, propose(frame.points, frame.ring, config, given).lines)
+        given, scale = holder.lines(), holder.scale()
+        first = propose(frame.points, frame.ring, config, given, scale=scale)
+        holder.hold(given, first.lines)
+        holder.hold_scale(first.sensor)
         for _ in range(repeat):
             cpu = time.thread_time()
-            result = propose(frame.points, frame.ring, config, given)
+            result = propose(frame.points, frame.ring, config, given, scale=scale)
             times["cpu"].append(1e3 * (time.thread_time() - cpu))
             for step in STEPS:
                 times[step].append(result.timings_ms[step])

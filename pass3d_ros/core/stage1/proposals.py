@@ -71,7 +71,7 @@ class Stage1Result:
 def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Config | None = None,
             lines: _ring.LaserLines | None = None,
             ring_order: _ring_field.RingFieldOrder | None = None, level: np.ndarray | None = None,
-            spacing: float | None = None) -> Stage1Result:
+            spacing: float | None = None, scale: SensorScale | None = None) -> Stage1Result:
     """Run stage 1 on one scan: cluster proposals with per-point primary/secondary proposal ids.
 
     Points with a non-finite coordinate (a driver's no-return) take no part: ring 0, not ground, no proposal.
@@ -87,6 +87,9 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
     are read in the sensor's frame, ground, clustering and refinement in the level one.
     `spacing`: the laser spacing a stream read from an earlier scan whose rings were elevation bins (its
     `Stage1Result.sensor.spacing_deg`), used instead of reading this scan's (pass3d_ros.core.stage1.sensor_params).
+    `scale`: an earlier scan's `Stage1Result.sensor` on a stream of one sensor: its angular resolution and laser
+    elevations are used instead of reading this scan's when its rings are of the same kind and number (the sensor's,
+    not the scene's: 0.6 ms a KITTI scan).
     """
     cfg = config or Stage1Config()
     pts = np.ascontiguousarray(points, dtype=np.float32)
@@ -95,10 +98,10 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
     if ring is not None and len(ring) != len(pts):
         raise ValueError(f"ring field has {len(ring)} entries for {len(pts)} points")
     if np.isfinite(pts.sum()) or np.isfinite(pts[:, :3]).all():
-        return _propose_finite(pts, ring, cfg, lines, ring_order, level, spacing)
+        return _propose_finite(pts, ring, cfg, lines, ring_order, level, spacing, scale)
     valid = np.isfinite(pts[:, :3]).all(axis=1)
     part = _propose_finite(np.ascontiguousarray(pts[valid]), None if ring is None else ring[valid], cfg, lines,
-                           ring_order, level, spacing)
+                           ring_order, level, spacing, scale)
     n = len(pts)
     full = {"ring": np.zeros(n, np.uint16), "ground": np.zeros(n, bool), "cluster_id": np.full(n, -1, np.int32),
             "cluster_id2": np.full(n, -1, np.int32)}
@@ -127,7 +130,8 @@ def level_points(points: np.ndarray, level: np.ndarray | None) -> np.ndarray:
 
 def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
                     lines: _ring.LaserLines | None, ring_order: _ring_field.RingFieldOrder | None,
-                    level: np.ndarray | None = None, spacing: float | None = None) -> Stage1Result:
+                    level: np.ndarray | None = None, spacing: float | None = None,
+                    scale: SensorScale | None = None) -> Stage1Result:
     """Stage 1 on float32 points whose coordinates are all finite.
 
     Ground plane fitting reads the points as they come (its sample does not depend on their order), on the ground
@@ -151,8 +155,11 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     order, work, work_ring = None, pts, rings.ring
     if not _in_scan_order(rings):
         order, work, work_ring = _scanline.in_canonical_order(pts, rings.ring)
-    cfg, sensor = _sensor.effective_config(cfg, work, work_ring, rings.n_rings, rings.source == "elevation_bins",
-                                           spacing=spacing)
+    binned = rings.source == "elevation_bins"
+    held = scale is not None and scale.n_rings == rings.n_rings and (scale.spacing_deg is not None) == binned
+    cfg, sensor = _sensor.effective_config(cfg, work, work_ring, rings.n_rings, binned, spacing=spacing,
+                                           resolution=scale.resolution if held else None,
+                                           elevations=scale.elevations_deg if held else None)
     if level is not None:  # the sensor's resolution is read in its own frame, the rest runs level
         work = flat if order is None else np.take(flat, order, axis=0)
     t1 = time.perf_counter()

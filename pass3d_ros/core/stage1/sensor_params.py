@@ -88,6 +88,8 @@ class SensorScale:
     # lasers' elevations (`ring_elevations`) that `range_gate` counts; None: th_num_near holds the vertical factor
     vertical_factor: float = field(default=1.0, compare=False)  # with elevations_deg, the vertical part of density
     # (density over its horizontal factor): what `range_gate` compares the per-range laser counts with
+    read_here: bool = field(default=True, compare=False)  # False: resolution and elevations_deg were an earlier
+    # scan's, given (`effective_config`'s `resolution`); a holder counts the scans since they were read
 
     def describe(self) -> str:
         """One line for logs: resolutions, density and the effective values."""
@@ -389,7 +391,8 @@ def _ratio(reference: float, measured: float) -> float:
 
 def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
                      n_rings: int, binned: bool = False, spacing: float | None = None,
-                     resolution: tuple[float, float] | None = None) -> tuple[Stage1Config, SensorScale]:
+                     resolution: tuple[float, float] | None = None,
+                     elevations: np.ndarray | None = None) -> tuple[Stage1Config, SensorScale]:
     """The config a frame runs with (module docstring) and what it was derived from. `points` and `ring` in scan
     order; `binned`: the rings are elevation bins, not lasers (the vertical resolution is then `laser_spacing`'s
     where it reads one). `spacing`: `laser_spacing` of binned rings read before, on an earlier scan of the same
@@ -397,8 +400,10 @@ def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
     120k-point scan; the lasers' spacing is the sensor's, not the frame's). `resolution`: `resolutions`' (vertical,
     horizontal) read before (an earlier scan's `SensorScale.resolution`), used instead of reading this scan's (0.2-0.4
     ms on a KITTI scan): the frame then runs with the earlier scan's values, the same wherever both snap to the
-    paper's. The config itself is returned (not a copy) when nothing changes."""
-    if resolution is None:
+    paper's. `elevations`: `ring_elevations` read before (an earlier scan's `SensorScale.elevations_deg`), used
+    instead of reading this scan's (0.3 ms). The config itself is returned (not a copy) when nothing changes."""
+    read_here = resolution is None
+    if read_here:
         resolution = resolutions(points, ring)
     vertical, horizontal = (float(v) for v in resolution)
     if binned:
@@ -406,20 +411,20 @@ def effective_config(config: Stage1Config, points: np.ndarray, ring: np.ndarray,
         vertical = spacing if np.isfinite(spacing) else vertical
     else:
         spacing = None
-    density, vertical_factor, elevations = 1.0, 1.0, None
+    density, vertical_factor, lasers = 1.0, 1.0, None
     if config.sensor_scaling:
         density = min(1.0, _ratio(REFERENCE_DV_DEG, vertical) * _ratio(REFERENCE_DH_DEG, horizontal))
         if config.range_scaling and not binned:
-            elevations = ring_elevations(points, ring)
-            if len(elevations) >= MIN_PEAKS:  # `range_gate` may read the vertical factor per range
+            lasers = ring_elevations(points, ring) if elevations is None else elevations
+            if len(lasers) >= MIN_PEAKS:  # `range_gate` may read the vertical factor per range
                 vertical_factor = density / min(1.0, _ratio(REFERENCE_DH_DEG, horizontal))
             else:
-                elevations = None
+                lasers = None
     cfg = config
     if density != 1.0:  # both values stay in their ranges (density <= 1), so the copy is not validated again
         cfg = copy.copy(config)
         cfg.th_num_near = max(1.0, config.th_num_near * density)
         cfg.th_num_floor = max(min(MIN_FLOOR, config.th_num_floor), round(config.th_num_floor * density))
     scale = SensorScale(n_rings, vertical, horizontal, density, cfg.th_num_near, cfg.th_num_floor, cfg.th_prop, spacing,
-                        resolution, elevations, vertical_factor)
+                        resolution, lasers, vertical_factor, read_here)
     return cfg, scale

@@ -15,7 +15,10 @@ benchmark, training's samples) hold their lines through a `LineHolder`, so a str
 A driver's ring field is read in the order of its rings' measured elevations (pass3d_ros.core.stage1.ring_field);
 the order is measured on a stream's first scan with a field and held with the lines, so the stream pays for it once.
 So is the laser spacing of a stream whose rings fall back to elevation bins (pass3d_ros.core.stage1.sensor_params
-.laser_spacing, 6 ms a 120k-point scan): read on its first binned scan, held until the next line search.
+.laser_spacing, 6 ms a 120k-point scan): read on its first binned scan, held until the next line search. And the
+sensor's angular resolution and laser elevations (`SensorScale`, 0.6 ms a KITTI scan): read on a scan, given to the
+next ones, read again every `SCALE_REREAD_SCANS` scans (so an odd first scan is not held for long) and whenever a scan's
+rings differ in kind or number.
 """
 
 from __future__ import annotations
@@ -28,10 +31,12 @@ from pass3d_ros.core import stage1 as _stage1
 from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage1.ring import LaserLines
 from pass3d_ros.core.stage1.ring_field import RingFieldOrder
+from pass3d_ros.core.stage1.sensor_params import SensorScale
 
 SCAN_PERIOD_S = 0.1  # offline (no clock), each scan counts as this long: a 10 Hz sensor's revolution
 LINE_SEARCH_FIRST_RETRY_S = SCAN_PERIOD_S  # after a failed laser-line search, the next one comes this much later ...
 LINE_SEARCH_RETRY_S = 10.0  # ... and after each further failure twice as long, but never longer than this
+SCALE_REREAD_SCANS = 10  # the sensor's resolution and laser elevations are read again after this many scans
 
 
 def retry_wait(failures: int) -> float:
@@ -55,6 +60,8 @@ class LineHolder:
         self._lines: LaserLines | None = None
         self._ring_order: RingFieldOrder | None = None
         self._spacing: float | None = None  # the laser spacing read off elevation-bin rings (nan: none to read)
+        self._scale: SensorScale | None = None  # the sensor's resolution and elevations, read `_scale_age` scans ago
+        self._scale_age = 0
         self._searched_at = 0.0  # when a line search last found none (clock time)
         self._failures = 0  # line searches in a row that found none
         self._key: Hashable = None
@@ -83,6 +90,7 @@ class LineHolder:
         self._lines = None
         self._ring_order = None
         self._spacing = None
+        self._scale = None
         self._searched_at = 0.0
         self._failures = 0
 
@@ -112,6 +120,20 @@ class LineHolder:
         self._lines = found or self._lines
         self._scans += 1
 
+    def scale(self) -> SensorScale | None:
+        """The sensor's resolution and laser elevations to give the next scan (`propose`'s `scale`): those held, until
+        they are SCALE_REREAD_SCANS scans old (None: the scan reads its own)."""
+        return self._scale if self._scale_age < SCALE_REREAD_SCANS else None
+
+    def hold_scale(self, sensor: SensorScale | None) -> None:
+        """Keep what a scan read of its sensor (`Stage1Result.sensor`), or count one scan more on what it was given."""
+        if sensor is None:
+            return
+        if sensor.read_here:
+            self._scale, self._scale_age = sensor, 1
+        else:
+            self._scale_age += 1
+
     def propose(self, points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Config | None = None,
                 level: np.ndarray | None = None) -> _stage1.Stage1Result:
         """`pass3d_ros.core.stage1.propose` on the stream's next scan, given the held lines, holding what it found;
@@ -120,9 +142,10 @@ class LineHolder:
         if given is None:  # a new search: the bins it may fall back to are read afresh too
             self._spacing = None
         result = _stage1.propose(points, ring, config, lines=given, ring_order=self._ring_order, level=level,
-                                 spacing=self._spacing)
+                                 spacing=self._spacing, scale=self.scale())
         if result.ring_source == "elevation_bins" and result.sensor is not None:
             self._spacing = result.sensor.spacing_deg
+        self.hold_scale(result.sensor)
         self.hold(given, result.lines)
         self._ring_order = result.ring_order or self._ring_order
         return result

@@ -214,3 +214,31 @@ def test_a_binned_stream_reads_its_laser_spacing_once_until_it_searches_again(
     holder.reset()
     holder.propose(scans[0])
     assert len(reads) == 4, "a new stream reads its own"
+
+
+def test_a_stream_reads_its_sensors_resolution_every_tenth_scan_and_when_the_rings_change(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The sensor's angular resolution and laser elevations are read on a stream's first scan and given to the next
+    ones (the results run with the values read), read again after SCALE_REREAD_SCANS scans, when a scan's rings differ
+    in number, and on a new stream."""
+    from pass3d_ros.core.stage1 import sensor_params
+
+    reads: list[int] = []
+    resolutions = sensor_params.resolutions
+
+    def counted(points: np.ndarray, ring_field: np.ndarray) -> tuple[float, float]:
+        reads.append(len(points))
+        return resolutions(points, ring_field)
+
+    monkeypatch.setattr(sensor_params, "resolutions", counted)
+    holder, scan = LineHolder(), synthetic_scan()
+    results = [holder.propose(scan) for _ in range(held_lines.SCALE_REREAD_SCANS + 1)]
+    assert len(reads) == 2, "scans 0 and SCALE_REREAD_SCANS read, the others are given scan 0's"
+    assert [r.sensor.read_here for r in results] == [True] + [False] * (held_lines.SCALE_REREAD_SCANS - 1) + [True]
+    assert all(r.sensor.resolution is results[0].sensor.resolution for r in results[1:-1])
+    assert all(r.sensor == results[0].sensor for r in results)  # the same scan runs with the same values
+    fewer = synthetic_scan(n_rings=32)
+    assert holder.propose(fewer).sensor.read_here, "other rings: the scan reads its own"
+    holder.follow("another stream")
+    assert holder.propose(scan).sensor.read_here
+    assert len(reads) == 4
