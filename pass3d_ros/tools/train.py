@@ -113,6 +113,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "its teacher, whose probabilities are the mean of K draws (default 1), so draws must agree "
                         "as well as views")
     p.add_argument("--rebuild-cache", action="store_true", help="rerun stage 1 even if a sample cache exists")
+    p.add_argument("--force", action="store_true",
+                   help="replace a previous run's checkpoints in --out (without it, a fresh run there is refused)")
     p.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
                    help="no progress bars (as in the other tools; --quiet is the old name)")
     return p

@@ -113,6 +113,7 @@ class TrainOptions:
     fit_epochs: bool = False  # with minutes: as many epochs as fit the budget, at most `epochs`: see Trainer
     threads: int = 0  # torch CPU threads (0: torch default)
     rebuild_cache: bool = False  # rerun stage 1 even if a sample cache exists
+    force: bool = False  # a fresh run may replace a previous run's checkpoints in `out` (else it is refused)
     quiet: bool = False  # no progress bars
     param: list[str] = field(default_factory=list)  # stage-1 overrides KEY=VALUE as given (the Trainer's `stage1`)
     consistency: list[str] = field(default_factory=list)  # unlabelled real data specs for view consistency
@@ -257,7 +258,13 @@ class Trainer:
     # ------------------------------------------------------------------------------------------ steps
 
     def _check_checkpoints(self) -> None:
-        """Before any work: with `resume`, last.pt must be there; with `init`, its checkpoint must load."""
+        """Before any work: with `resume`, last.pt must be there; without it (or `force`), no earlier run's
+        checkpoint may be there to be overwritten (hours of training); with `init`, its checkpoint must load."""
+        held = [p.name for p in (self.last_path, self.best_path) if p.exists()]
+        if held and not (self.options.resume or self.options.force):
+            raise TrainingError(f"{self.out} holds a previous run's checkpoints ({', '.join(held)}): --resume to "
+                                "continue it, --force to replace them (its sample caches are reused either way), or "
+                                "another --out")
         if self.options.resume and not self.last_path.is_file():
             raise CheckpointError(f"{self.last_path}: no checkpoint to resume from (--resume)")
         if self.options.resume and self.options.init is not None:

@@ -411,6 +411,21 @@ def test_resume_without_a_checkpoint_is_an_error(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_a_fresh_run_never_overwrites_a_previous_runs_checkpoints(tmp_path, capsys):
+    """A run without --resume into an --out holding last.pt or best.pt stops before any work (exit 2, naming the
+    folder and the way on), the checkpoint untouched; --force replaces them."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "best.pt").write_bytes(b"an earlier run's weights")
+    args = ["--data", "constructed:train", "--out", str(out), "--quiet"]
+    assert train.main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(out) in err and "best.pt" in err and "--force" in err
+    assert (out / "best.pt").read_bytes() == b"an earlier run's weights"
+    assert train.main([*args, "--force"]) == 2  # past the check: then no such format here, as without a checkpoint
+    assert "previous run" not in capsys.readouterr().err
+
+
 def test_init_starts_from_a_checkpoints_weights(tmp_path, capsys):
     """--init (fine-tuning) starts from the named weights with a fresh schedule: epoch 0 of the new run, and with a
     zero learning rate and no weight decay its weights stay the initial ones, not random ones."""
