@@ -3,6 +3,9 @@
     ros2 launch pass3d_ros pass3d.launch.py input_topic:=/velodyne_points rviz:=true
     ros2 launch pass3d_ros pass3d.launch.py namespace:=car1 use_sim_time:=true   # a bag played with --clock
 
+The parameter file comes after the input_topic and weights arguments: a file that sets them (pass3d_adapt's does)
+wins over the arguments; the shipped file leaves them to the arguments.
+
 Every process it starts gets the shipped Fast DDS large-cloud profile unless FASTRTPS_DEFAULT_PROFILES_FILE is set
 (or fastdds_profile:=... names another; fastdds_profile:='' means Fast DDS defaults).
 """
@@ -34,7 +37,8 @@ def generate_launch_description() -> LaunchDescription:
             DeclareLaunchArgument(
                 "params_file",
                 default_value=PathJoinSubstitution([config_dir, "pass3d_params.yaml"]),
-                description="parameter YAML for both nodes",
+                description="parameter YAML for both nodes (its input_topic and weights, if set, win over the "
+                "arguments)",
             ),
             DeclareLaunchArgument("input_topic", default_value="/velodyne_points", description="LiDAR topic"),
             DeclareLaunchArgument("weights", default_value="", description="stage-2 checkpoint; empty = shipped"),
@@ -47,7 +51,7 @@ def generate_launch_description() -> LaunchDescription:
                 name="cluster_proposal_node",
                 namespace=LaunchConfiguration("namespace"),
                 output="screen",
-                parameters=[params_file, {"input_topic": LaunchConfiguration("input_topic")}, sim_time],
+                parameters=[{"input_topic": LaunchConfiguration("input_topic")}, params_file, sim_time],
             ),
             Node(
                 package="pass3d_ros",
@@ -55,7 +59,7 @@ def generate_launch_description() -> LaunchDescription:
                 name="segmentation_node",
                 namespace=LaunchConfiguration("namespace"),
                 output="screen",
-                parameters=[params_file, {"weights": LaunchConfiguration("weights")}, sim_time],
+                parameters=[{"weights": LaunchConfiguration("weights")}, params_file, sim_time],
             ),
             Node(
                 package="rviz2",

@@ -159,14 +159,21 @@ def _yaml_entry(depth: int, name: str, value: Any, description: str) -> str:
     return f"{'  ' * depth}{name}: {_yaml_scalar(value)}  # {' '.join(description.split())}"
 
 
-def params_yaml(nodes: Sequence[NodeParameters], header: str = "") -> str:
+def params_yaml(nodes: Sequence[NodeParameters], header: str = "",
+                left_out: Mapping[str, Sequence[str]] | None = None) -> str:
     """A `--params-file` YAML with every parameter of `nodes` at its default, commented with its description;
     `header` lines become leading comments. A config prefix ("stage1.") becomes one nested key. Nodes are keyed
-    `/**/NAME`, so the file applies in any namespace (`-r __ns:=/car1`, a launch file's `namespace`)."""
+    `/**/NAME`, so the file applies in any namespace (`-r __ns:=/car1`, a launch file's `namespace`). `left_out`:
+    node name -> parameters written only as a comment (a launch file's arguments set them; a value in the file would
+    win over the argument)."""
     lines = [f"# {line}".rstrip() for line in header.splitlines()]
     for spec in nodes:
         lines += [f"/**/{spec.node_name}:", "  ros__parameters:"]
+        skipped = set((left_out or {}).get(spec.node_name, ()))
         for name, (default, description, _) in spec.table.items():
+            if name in skipped:
+                lines.append(f"    # {name}: from the launch argument {name} (a value set here wins over it)")
+                continue
             lines.append(_yaml_entry(2, name, default, description))
         for prefix, config_type in spec.configs.items():
             lines.append(f"    {prefix.removesuffix('.')}:")

@@ -80,7 +80,8 @@ def test_parameter_yaml_is_generated_from_the_code() -> None:
     assert PARAMS_FILE.read_text() == params_yaml.render(), "run pass3d_params_yaml --out " + str(PARAMS_FILE)
     assert set(declared_parameters()["cluster_proposal_node"]) >= {"stage1.th_ring", "stage1.fit_stride"}
     values = flatten(yaml.safe_load(params_yaml.render())["/**/segmentation_node"]["ros__parameters"])
-    assert values == {name: entry[0] for name, entry in segmentation_node.NODE_PARAMETERS.items()}
+    assert values == {name: entry[0] for name, entry in segmentation_node.NODE_PARAMETERS.items()
+                      if name not in params_yaml.LAUNCH_ARGUMENTS["segmentation_node"]}
 
 
 def test_parameter_reference_is_generated_from_the_code() -> None:
@@ -212,3 +213,51 @@ def test_launch_files_give_every_process_the_shipped_fastdds_profile_unless_the_
     shipped = next(n.value for n in ast.walk(tree) if isinstance(n, ast.Assign)
                    and getattr(n.targets[0], "id", "") == "shipped_profile")
     assert ast.unparse(shipped) == f"PathJoinSubstitution([config_dir, '{PROFILE_NAME}'])"
+
+
+def test_a_parameter_file_that_sets_input_topic_or_weights_wins_over_the_launch_arguments() -> None:
+    """Both launch files give the input_topic and weights arguments before the parameter file (launch_ros passes the
+    list in order as --params-file files, the later winning), and the shipped file leaves both to the arguments: so
+    pass3d_adapt's file, which sets them, is not overridden by the arguments' defaults."""
+    launch_yaml = yaml.safe_load((LAUNCH / "pass3d.launch.yaml").read_text())
+    nodes = {e["node"]["name"]: e["node"]["param"] for e in launch_yaml["launch"] if "node" in e}
+    for name, argument in (("cluster_proposal_node", "input_topic"), ("segmentation_node", "weights")):
+        order = [p.get("name", "file" if "from" in p else None) for p in nodes[name]]
+        assert order.index(argument) < order.index("file"), name
+    tree = ast.parse((LAUNCH / "pass3d.launch.py").read_text())
+    for call in (n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "Node"):
+        kw = {k.arg: k.value for k in call.keywords}
+        if kw["package"].value != "pass3d_ros":
+            continue
+        items = kw["parameters"].elts
+        given = next(i for i, item in enumerate(items) if isinstance(item, ast.Dict)
+                     and {k.value for k in item.keys} & {"input_topic", "weights"})
+        file = next(i for i, item in enumerate(items) if isinstance(item, ast.Name) and item.id == "params_file")
+        assert given < file, kw["name"].value
+    shipped = flatten(yaml.safe_load(PARAMS_FILE.read_text()))
+    assert "/**/cluster_proposal_node.ros__parameters.input_topic" not in shipped
+    assert "/**/segmentation_node.ros__parameters.weights" not in shipped
+    assert "/**/segmentation_node.ros__parameters.input_topic" in shipped  # its own input, no launch argument
+
+
+@pytest.mark.ros
+def test_a_later_parameter_file_wins(tmp_path: Path) -> None:
+    """What the launch files' order relies on: of two --params-file files, rclpy keeps the later one's value."""
+    import rclpy
+    from rclpy.context import Context
+
+    argument, file = tmp_path / "argument.yaml", tmp_path / "file.yaml"
+    argument.write_text('/**/segmentation_node:\n  ros__parameters:\n    weights: ""\n')
+    file.write_text('/**/segmentation_node:\n  ros__parameters:\n    weights: "/adapted/weights.pt"\n')
+    context = Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(argument), "--params-file", str(file)], context=context,
+               domain_id=domain())
+    try:
+        node = rclpy.create_node("segmentation_node", context=context,
+                                 automatically_declare_parameters_from_overrides=True)
+        try:
+            assert node.get_parameter("weights").value == "/adapted/weights.pt"
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
