@@ -78,6 +78,8 @@ class ClusterProposalNode(PointCloudNode):
         # scale (pass3d_ros.core.stream)
         self._pipeline = ScanPipeline(params.read_config(self, Stage1Config, STAGE1_PREFIX), clock=time.monotonic,
                                       intensity_match=False)
+        self._next_config = self._pipeline.config  # the stage-1 values set last, for the worker (_take_changes)
+        self._intensity_scale: float | None = None  # the intensity_scale the stream's full scale was read under
         self._noted: dict[str, float] = {}  # when each topic of the input checks was last logged
         # proposals in the input's layout (pass3d_ros.ros.input_layout), for segmentation_node's as_input / background
         self._full = (check_layout(self.get_parameter("output_layout").value) == AS_INPUT
@@ -99,7 +101,7 @@ class ClusterProposalNode(PointCloudNode):
     @property
     def config(self) -> Stage1Config:
         """The stage-1 parameters the next scan runs with."""
-        return self._pipeline.config
+        return self._next_config
 
     @property
     def stream(self) -> ScanStream:
@@ -107,7 +109,7 @@ class ClusterProposalNode(PointCloudNode):
         return self._pipeline.stream
 
     def _on_set_parameters(self, changed: list[Parameter]) -> Any:
-        """Refuse invalid stage-1 values; apply valid ones to the next frame."""
+        """Refuse invalid stage-1 values; hand valid ones to the worker for the next frame (`_take_changes`)."""
         start_up_only = ("input_topic", "proposals_topic", "boxes_topic", "input_qos", "output_qos", "output_layout",
                          "publish_background")
         fixed = [p.name for p in changed if p.name in start_up_only]
@@ -116,9 +118,25 @@ class ClusterProposalNode(PointCloudNode):
         config, reason = params.validate_changes(self, Stage1Config, changed, STAGE1_PREFIX)
         if config is None:
             return params.result(False, reason)
-        self._pipeline.config = config
-        self.stream.lines.reset()
+        if config != self._next_config:
+            self._next_config = config
         return params.result(True)
+
+    def _take_changes(self) -> float:
+        """Before a frame, on the worker's thread: take up the stage-1 values and the intensity_scale set since the
+        last frame, and return that intensity_scale. New stage-1 values forget the held laser lines (the mounting,
+        body and full scale stay: the sensor did not move); a new intensity_scale forgets the stream's full scale,
+        read afresh from the next scans (else a corrected 1/255 stays divided by the 255 held for FRAMES_TO_LOWER
+        scans). Done here, not in the parameter callback, so a frame in hand ends with the values it began with and
+        cannot hold its lines again after the reset."""
+        if self._next_config is not self._pipeline.config:
+            self._pipeline.config = self._next_config
+            self.stream.lines.reset()
+        scale = self.get_parameter("intensity_scale").value
+        if self._intensity_scale is not None and scale != self._intensity_scale:
+            self.stream.restart_scale()
+        self._intensity_scale = scale
+        return scale
 
     def _report_sensor(self, result: Stage1Result) -> None:
         """Log the stream's ring source and effective stage-1 values when they first appear or the source changes
@@ -230,8 +248,7 @@ class ClusterProposalNode(PointCloudNode):
         except PointCloud2Error as exc:
             self.get_logger().warning(f"skipping malformed PointCloud2: {exc}", throttle_duration_sec=LOG_PERIOD_S)
             return self.skipped("malformed")
-        prepared = self._pipeline.prepare(scan.points, scan.ring,
-                                          intensity_scale=self.get_parameter("intensity_scale").value,
+        prepared = self._pipeline.prepare(scan.points, scan.ring, intensity_scale=self._take_changes(),
                                           use_ring=self.get_parameter("use_ring_field").value)
         self._log_notes(prepared.notes)
         if len(prepared.points) == 0:

@@ -76,9 +76,13 @@ class ScanStream:
         self.lines.reset()
         self.mounting.reset()
         self.body.reset()
-        self.scale = StreamIntensityScale()
+        self.restart_scale()
         self.match.reset()
         self._noted.clear()
+
+    def restart_scale(self) -> None:
+        """Forget the intensities' full scale (the caller's intensity_scale changed): the next scans read it afresh."""
+        self.scale = StreamIntensityScale()
 
     def follow(self, key: Hashable) -> None:
         """The next scan belongs to stream `key` (a dataset spec): a new key starts over."""

@@ -1,0 +1,110 @@
+"""Parameters changed on a running node: a stage-1 change or a new intensity_scale reaches the next scan with the
+stream's held state reset where it must be (and only there)."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import rclpy
+from helpers.ros import STAMP0, WAIT_S, domain, scan_message, wait_until
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+
+from pass3d_ros.core import stage1
+from pass3d_ros.data.frame import Frame
+from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
+from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+
+pytestmark = pytest.mark.ros
+
+PERIOD_NS = 100_000_000
+
+
+@pytest.fixture
+def context() -> Iterator[Context]:
+    """A private rclpy context on a domain of its own; nodes made in it are fed through `submit`, not spun."""
+    context = Context()
+    rclpy.init(context=context, domain_id=domain())
+    yield context
+    rclpy.try_shutdown(context=context)
+
+
+class Stage1Calls:
+    """Records what each scan's stage 1 was given (the held lines, ring order and scale, and the points); with
+    `hold` set, the next call waits until `release` is set (a scan in hand while a parameter changes)."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.calls: list[dict] = []
+        self.entered = threading.Event()
+        self.release = threading.Event()
+        self.hold = False
+        propose = stage1.propose
+
+        def recorded(points: np.ndarray, ring: np.ndarray | None, config: stage1.Stage1Config, **given):
+            self.calls.append({**given, "points": points.copy(), "config": config})
+            if self.hold:
+                self.hold = False
+                self.entered.set()
+                assert self.release.wait(WAIT_S)
+            return propose(points, ring, config, **given)
+
+        monkeypatch.setattr(stage1, "propose", recorded)
+
+
+def feed(node: ClusterProposalNode, msg) -> None:
+    """Submit one scan and wait until the node has finished it."""
+    done = node.worker.counters.processed + 1
+    node.submit(msg, header_stamp_ns(msg))
+    assert wait_until(lambda: node.worker.counters.processed >= done and node.idle())
+
+
+def test_a_stage1_change_during_a_scan_resets_the_lines_for_the_next(context: Context, frame: Frame,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    calls = Stage1Calls(monkeypatch)
+    node = ClusterProposalNode(context=context)
+    try:
+        feed(node, scan_message(frame, STAMP0))
+        assert node.stream.lines.ring_order is not None and node.stream.lines.scale() is not None
+        assert node.set_parameters([Parameter("publish_boxes", value=False)])[0].successful
+        assert node.stream.lines.ring_order is not None, "a change of no stage-1 value keeps what the stream learned"
+
+        calls.hold = True
+        msg = scan_message(frame, STAMP0 + PERIOD_NS)
+        node.submit(msg, header_stamp_ns(msg))
+        assert calls.entered.wait(WAIT_S)
+        assert node.set_parameters([Parameter("stage1.th_ring", value=0.25)])[0].successful
+        assert node.config.th_ring == 0.25
+        calls.release.set()
+        assert wait_until(lambda: node.worker.counters.processed == 2 and node.idle())
+        assert calls.calls[1]["config"].th_ring == 0.5, "the scan in hand finishes with what it began with"
+
+        feed(node, scan_message(frame, STAMP0 + 2 * PERIOD_NS))
+        third = calls.calls[2]
+        assert third["config"].th_ring == 0.25
+        assert (third["ring_order"], third["scale"], third["lines"]) == (None, None, None), \
+            "the next scan starts with the lines reset, not with those the scan in hand held after the reset"
+    finally:
+        node.destroy_node()
+
+
+def test_a_new_intensity_scale_applies_to_the_next_scan(context: Context, frame: Frame,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    calls = Stage1Calls(monkeypatch)
+    node = ClusterProposalNode(context=context)
+    bytes_frame = Frame(frame.name, frame.points * np.array([1, 1, 1, 255], np.float32), ring=frame.ring)
+    try:
+        for k in range(4):  # a 0..255 driver with intensity_scale 1: the stream holds a full scale of 255
+            feed(node, scan_message(bytes_frame, STAMP0 + k * PERIOD_NS))
+        assert node.stream.scale.divisor == 255.0
+        expected = float(frame.points[:, 3].max())
+        assert calls.calls[-1]["points"][:, 3].max() == pytest.approx(expected, rel=1e-5)
+
+        assert node.set_parameters([Parameter("intensity_scale", value=1 / 255)])[0].successful
+        feed(node, scan_message(bytes_frame, STAMP0 + 4 * PERIOD_NS))
+        assert calls.calls[-1]["points"][:, 3].max() == pytest.approx(expected, rel=1e-5), \
+            "the corrected intensity_scale must not be divided by the full scale held before it"
+    finally:
+        node.destroy_node()
