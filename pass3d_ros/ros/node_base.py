@@ -15,10 +15,13 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.exceptions import ParameterNotDeclaredException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from sensor_msgs.msg import PointCloud2
 
+from pass3d_ros.core.stage1.config import closest
 from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
 from pass3d_ros.ros.dds_profile import shipped_profile
 from pass3d_ros.ros.diagnostics import (
@@ -65,6 +68,7 @@ class PointCloudNode(Node):
     def __init__(self, parameters: NodeParameters, **kwargs: Any) -> None:
         super().__init__(parameters.node_name, **kwargs)
         parameters.declare(self)
+        self.add_pre_set_parameters_callback(self._refuse_undeclared)
         for name, allowed in QOS_PARAMETERS.items():
             if self.get_parameter(name).value not in allowed:
                 raise ValueError(f"parameter {name} must be one of {allowed}")
@@ -74,6 +78,16 @@ class PointCloudNode(Node):
         self._warned: set[str] = set()  # the keys of the once-only warnings given (warn_once)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+
+    def _refuse_undeclared(self, changed: list[Parameter]) -> list[Parameter]:
+        """Refuse a change of a parameter this node does not declare, naming it and the nearest declared one (rclpy
+        7.1.6's own refusal names none: `ros2 param set` said "Invalid access to undeclared parameter(s): []")."""
+        unknown = [p.name for p in changed if not self.has_parameter(p.name)]
+        if unknown:
+            near = {name: closest(name, self._parameters) for name in unknown}
+            raise ParameterNotDeclaredException(", ".join(
+                f"{name!r}" + (f" (did you mean {near[name]!r}?)" if near[name] else "") for name in unknown))
+        return changed
 
     def warn_once(self, key: str, text: str) -> None:
         """Log `text` as a warning the first time `key` comes up (a setting that stays wrong, said once)."""

@@ -1,5 +1,5 @@
-"""Parameters changed on a running node: a stage-1 change or a new intensity_scale reaches the next scan with the
-stream's held state reset where it must be (and only there)."""
+"""Parameters changed on running nodes: a stage-1 change or a new intensity_scale reaches the next scan with the
+stream's held state reset where it must be (and only there); an unknown name is refused naming it."""
 
 from __future__ import annotations
 
@@ -9,14 +9,17 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 import rclpy
-from helpers.ros import STAMP0, WAIT_S, domain, scan_message, wait_until
+from helpers.ros import STAMP0, WAIT_S, Ros, domain, scan_message, wait_until
 from rclpy.context import Context
+from rclpy.exceptions import ParameterNotDeclaredException
 from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 
 from pass3d_ros.core import stage1
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
+from pass3d_ros.ros.segmentation_node import SegmentationNode
 
 pytestmark = pytest.mark.ros
 
@@ -108,3 +111,22 @@ def test_a_new_intensity_scale_applies_to_the_next_scan(context: Context, frame:
             "the corrected intensity_scale must not be divided by the full scale held before it"
     finally:
         node.destroy_node()
+
+
+def test_an_unknown_name_is_refused_naming_it(ros: Ros, context: Context) -> None:
+    node = ros.add(ClusterProposalNode(context=ros.context))
+    client = AsyncParameterClient(ros.probe, node.get_name())
+    assert client.wait_for_services(timeout_sec=WAIT_S)
+    future = client.set_parameters([Parameter("stage1.th_rnig", value=0.3)])  # as `ros2 param set` asks
+    assert wait_until(future.done)
+    result = future.result().results[0]
+    assert not result.successful
+    assert "'stage1.th_rnig' (did you mean 'stage1.th_ring'?)" in result.reason, result.reason
+    assert node.config.th_ring == 0.5
+
+    segmentation = SegmentationNode(context=context, parameter_overrides=[Parameter("classifier", value="size_rules")])
+    try:
+        with pytest.raises(ParameterNotDeclaredException, match=r"'min_confidance' \(did you mean 'min_confidence'"):
+            segmentation.set_parameters([Parameter("min_confidance", value=0.5)])
+    finally:
+        segmentation.destroy_node()
