@@ -321,8 +321,9 @@ class SegmentationNode(PointCloudNode):
             self.classifier.close()
 
     def _on_set_parameters(self, changed: list[Parameter]) -> Any:
-        """Only max_proposals, min_confidence and stage2_timeout change at run time; the rest need a restart."""
-        live = {"max_proposals", "min_confidence", "stage2_timeout"}
+        """Only max_proposals, min_confidence, stage2_timeout and use_sim_time (rclpy's clock takes it) change at run
+        time; the rest need a restart."""
+        live = {"max_proposals", "min_confidence", "stage2_timeout", "use_sim_time"}
         fixed = [p.name for p in changed if p.name not in live]
         if fixed:
             return params.result(False, f"{', '.join(fixed)} can only be set at start-up")

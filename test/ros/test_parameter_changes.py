@@ -1,5 +1,6 @@
 """Parameters changed on running nodes: a stage-1 change or a new intensity_scale reaches the next scan with the
-stream's held state reset where it must be (and only there); an unknown name is refused naming it."""
+stream's held state reset where it must be (and only there), an unknown name is refused naming it, and
+use_sim_time is taken by both nodes."""
 
 from __future__ import annotations
 
@@ -130,3 +131,29 @@ def test_an_unknown_name_is_refused_naming_it(ros: Ros, context: Context) -> Non
             segmentation.set_parameters([Parameter("min_confidance", value=0.5)])
     finally:
         segmentation.destroy_node()
+
+
+def test_both_nodes_take_use_sim_time_at_run_time(context: Context) -> None:
+    nodes = [ClusterProposalNode(context=context),
+             SegmentationNode(context=context, parameter_overrides=[Parameter("classifier", value="size_rules")])]
+    try:
+        for node in nodes:
+            result = node.set_parameters([Parameter("use_sim_time", value=True)])[0]
+            assert result.successful, (node.get_name(), result.reason)
+            assert node.get_clock().ros_time_is_active
+    finally:
+        for node in nodes:
+            node.destroy_node()
+
+
+def test_segmentation_node_refuses_start_up_parameters_and_changes_none(context: Context) -> None:
+    node = SegmentationNode(context=context, parameter_overrides=[Parameter("classifier", value="size_rules")])
+    try:
+        refused = node.set_parameters_atomically([Parameter("min_confidence", value=0.3),
+                                                  Parameter("weights", value="other.pt")])
+        assert not refused.successful and refused.reason == "weights can only be set at start-up"
+        assert node.get_parameter("min_confidence").value == 0.0
+        assert node.set_parameters([Parameter("max_proposals", value=12)])[0].successful
+        assert node.classifier.max_proposals == 12
+    finally:
+        node.destroy_node()
