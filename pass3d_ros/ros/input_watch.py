@@ -23,6 +23,7 @@ ON_PERIOD = 1.5  # an interval within this factor of the period (either way) is 
 MULTIPLE_TOLERANCE = 0.15  # an interval this close (in periods) to a whole multiple of a period is that multiple
 RATE_CHANGE_INTERVALS = 8  # this many off-period intervals in a row that one new period explains: a rate change
 REGULAR_SHARE = 0.75  # ... when at least this share of them is that period itself (loss leaves many lengths)
+MAX_PENDING = 100  # off-period intervals held pending at most (10 s at 10 Hz): older ones are confirmed as loss
 
 
 class Cadence:
@@ -32,7 +33,10 @@ class Cadence:
     first interval of a slower rate, so its missing frames stay pending until the stream tells which. An on-period
     interval again, or later intervals no single new period explains (3, then 2 periods), confirm them as loss;
     RATE_CHANGE_INTERVALS off-period intervals in a row that one new period explains (20 -> 5 Hz: 4, 4, 4 ...;
-    5 -> 10 Hz: 0.5, 0.5 ...) are a rate change: the period is re-learnt and nothing is counted lost.
+    5 -> 10 Hz: 0.5, 0.5 ...) are a rate change: the period is re-learnt and nothing is counted lost. At most
+    MAX_PENDING intervals stay pending (a stream that never comes back on period nor settles on a new one, such as a
+    slower rate with irregular loss, would otherwise hold every interval for hours, each scan costing more): the
+    oldest beyond it are confirmed as loss at the learned period.
     """
 
     def __init__(self) -> None:
@@ -67,7 +71,7 @@ class Cadence:
             self.period_ns = float(np.median(self._samples))
             return self._confirm(len(self._run))
         self._run.append(interval)
-        lost = self._confirm(self._explained_from())
+        lost = self._confirm(max(self._explained_from(), len(self._run) - MAX_PENDING))
         if len(self._run) >= RATE_CHANGE_INTERVALS and self._regular():
             self.period_ns = _base_period(self._run)
             self._samples.clear()

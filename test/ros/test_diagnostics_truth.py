@@ -22,7 +22,7 @@ from sensor_msgs.msg import PointCloud2
 from pass3d_ros.msgs.pointcloud2 import encode, header_stamp_ns
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
 from pass3d_ros.ros.diagnostics import NO_OUTPUT_WARN_S, NodeStats, OutputWatch, status_values, to_status
-from pass3d_ros.ros.input_watch import InputWatch
+from pass3d_ros.ros.input_watch import MAX_PENDING, Cadence, InputWatch
 from pass3d_ros.ros.qos import qos_profile
 from pass3d_ros.ros.segmentation_node import SegmentationNode
 
@@ -205,3 +205,17 @@ def test_a_slower_rate_is_pending_not_lost_until_the_stream_says_which() -> None
     assert stats.snapshot()["frames_missed_upstream"] == 0, "not yet known to be loss"
     stats.input(stamps[-1] + PERIOD_NS)  # back on the 10 Hz cadence: those were lost
     assert stats.snapshot()["frames_missed_upstream"] == 9 and stats.snapshot()["input_gaps"] == 3
+
+
+def test_a_stream_that_never_settles_holds_a_bounded_number_of_intervals_pending() -> None:
+    """10 Hz learnt, then 5 Hz with irregular loss for 3000 scans: no interval comes back on period and no new period
+    is regular enough to be a rate change, so without a bound every interval stayed pending (5 minutes at 10 Hz: 3000
+    of them, each scan's cost growing with them); the oldest are confirmed as loss instead."""
+    cadence = Cadence()
+    for _ in range(50):
+        cadence.add(PERIOD_NS)
+    rng = np.random.default_rng(0)
+    for multiple in rng.choice([2, 4, 6], 3000, p=[0.6, 0.3, 0.1]):
+        cadence.add(int(multiple) * PERIOD_NS)
+        assert cadence.pending() <= 5 * MAX_PENDING
+    assert cadence.missed > 0
