@@ -83,7 +83,9 @@ class OdometryPoses:
         self.missing = 0  # scans that asked and got no pose
 
     def add(self, stamp_ns: int, position: tuple[float, float, float], orientation: tuple[float, ...]) -> bool:
-        """Hold one odometry pose (world from base); False (and counted) for a non-finite or degenerate one."""
+        """Hold one odometry pose (world from base); False (and counted) for a non-finite or degenerate one. A stamp
+        already held takes the newer pose: a source whose stamp does not move (left unset, a stalled clock) would
+        otherwise pile up every message, none older than hold_s."""
         p = np.asarray(position, dtype=float)
         q = np.asarray(orientation, dtype=float)
         norm = float(np.linalg.norm(q)) if np.all(np.isfinite(q)) else 0.0
@@ -91,9 +93,12 @@ class OdometryPoses:
             self.rejected += 1
             return False
         with self._lock:
-            k = bisect.bisect_right(self._stamps, stamp_ns)
-            self._stamps.insert(k, stamp_ns)
-            self._poses.insert(k, (p, q / norm))
+            k = bisect.bisect_left(self._stamps, stamp_ns)
+            if k < len(self._stamps) and self._stamps[k] == stamp_ns:
+                self._poses[k] = (p, q / norm)
+            else:
+                self._stamps.insert(k, stamp_ns)
+                self._poses.insert(k, (p, q / norm))
             cut = bisect.bisect_left(self._stamps, self._stamps[-1] - self.hold_ns)
             del self._stamps[:cut], self._poses[:cut]
         return True

@@ -61,6 +61,16 @@ def test_only_the_last_seconds_are_held() -> None:
     assert poses.pose_at(49 * S // 10) is not None
 
 
+def test_a_stamp_that_does_not_move_holds_one_pose_the_newest() -> None:
+    """A source that leaves its stamps unset sends every message at one stamp: no message is ever hold_s older than
+    the newest, so each one was held (3,000 after 30 s at 100 Hz); the newest pose at a stamp replaces the one held."""
+    poses = OdometryPoses(hold_s=2.0)
+    for k in range(3000):
+        poses.add(0, (float(k), 0.0, 0.0), yaw_quaternion(0.0))
+    assert len(poses._stamps) == len(poses._poses) == 1
+    np.testing.assert_allclose(poses.pose_at(0)[:3, 3], [2999.0, 0.0, 0.0])
+
+
 @pytest.mark.parametrize("text", ["1 2 3", "a b c d e f", "0 0 0 0 0 nan"])
 def test_a_bad_sensor_in_base_names_itself(text: str) -> None:
     with pytest.raises(ValueError, match="sensor_in_base"):
