@@ -85,7 +85,9 @@ class OdometryPoses:
     def add(self, stamp_ns: int, position: tuple[float, float, float], orientation: tuple[float, ...]) -> bool:
         """Hold one odometry pose (world from base); False (and counted) for a non-finite or degenerate one. A stamp
         already held takes the newer pose: a source whose stamp does not move (left unset, a stalled clock) would
-        otherwise pile up every message, none older than hold_s."""
+        otherwise pile up every message, none older than hold_s. A stamp more than hold_s before the newest held (a bag
+        played again from its start, a restarted source) starts the buffer over: else every pose of the new pass would
+        be dropped as too old until its stamps passed the old ones."""
         p = np.asarray(position, dtype=float)
         q = np.asarray(orientation, dtype=float)
         norm = float(np.linalg.norm(q)) if np.all(np.isfinite(q)) else 0.0
@@ -93,6 +95,9 @@ class OdometryPoses:
             self.rejected += 1
             return False
         with self._lock:
+            if self._stamps and stamp_ns < self._stamps[-1] - self.hold_ns:
+                self._stamps.clear()
+                self._poses.clear()
             k = bisect.bisect_left(self._stamps, stamp_ns)
             if k < len(self._stamps) and self._stamps[k] == stamp_ns:
                 self._poses[k] = (p, q / norm)

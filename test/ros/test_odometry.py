@@ -71,6 +71,19 @@ def test_a_stamp_that_does_not_move_holds_one_pose_the_newest() -> None:
     np.testing.assert_allclose(poses.pose_at(0)[:3, 3], [2999.0, 0.0, 0.0])
 
 
+def test_a_bag_played_again_from_its_start_gets_its_poses() -> None:
+    """Stamps that jump back by more than hold_s (a looped bag, a restarted source) start the buffer over; the new
+    pass's scans get their poses at once, not after its stamps pass the old ones."""
+    poses = OdometryPoses(hold_s=2.0)
+    for k in range(1000):  # the first pass: 10 s at 100 Hz
+        poses.add(k * 10_000_000, (float(k), 0.0, 0.0), yaw_quaternion(0.0))
+    for k in range(50):  # the second pass, from the start
+        poses.add(k * 10_000_000, (100.0 + k, 0.0, 0.0), yaw_quaternion(0.0))
+    pose = poses.pose_at(250_000_000)
+    assert pose is not None and pose[0, 3] == pytest.approx(125.0)
+    assert len(poses._stamps) == 50
+
+
 @pytest.mark.parametrize("text", ["1 2 3", "a b c d e f", "0 0 0 0 0 nan"])
 def test_a_bad_sensor_in_base_names_itself(text: str) -> None:
     with pytest.raises(ValueError, match="sensor_in_base"):

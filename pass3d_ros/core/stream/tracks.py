@@ -473,6 +473,7 @@ class Tracker:
         best.misses = 0
         best.hold_from = best.hits + self.config.min_hits  # this sighting the first of min_hits
         self.tracks.append(best)
+        self.lost -= 1  # found again: not lost (so alive = born - lost, however often a track comes back)
         return best
 
     def _footprints(self) -> tuple[np.ndarray, np.ndarray] | None:

@@ -84,6 +84,7 @@ def test_an_ended_track_is_found_again_only_by_an_object_no_live_track_takes() -
     assert [t.track_id for t in out] == [1] and tracker.lost == 1
     out = scan(tracker, [(5.0, 0.0, PEDESTRIAN, 0.9), (6.2, 0.0, PEDESTRIAN, 0.9)], 0.8)
     assert [t.track_id for t in out] == [0, 1]
+    assert tracker.lost == 0 and tracker.alive == tracker.born - tracker.lost == 2, "found again: not lost"
 
 
 def test_one_good_pair_beats_two_poor_ones() -> None:
