@@ -11,6 +11,16 @@ NUM_CLASSES = len(CLASS_NAMES)
 # Ground-truth label of a point nobody annotated (e.g. outside KITTI's camera view): scored and trained on by no one.
 IGNORE = 255
 
+TRUTH_IDS: np.ndarray = np.array([*range(NUM_CLASSES), IGNORE])  # what a ground-truth label may hold
+
+
+def foreign_ids(values: np.ndarray) -> np.ndarray:
+    """The distinct values of ground-truth labels `values` (any numeric type) that are neither a class id nor IGNORE:
+    another scheme's ids, or corrupt data."""
+    values = np.asarray(values)
+    return np.unique(values[~np.isin(values, TRUTH_IDS)])
+
+
 # Each class's mean box (length, width, height; metres) in KITTI's object labels as Frustum-PointNets tabulates them
 # (docs: /work/shared/DESIGN.md, "KITTI object label statistics"): one object of the class, for the plausible sizes
 # (core.objects) and the tracker's parts (core.stream.tracks).

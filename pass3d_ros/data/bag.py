@@ -36,7 +36,7 @@ from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from pass3d_ros.classes import IGNORE, NUM_CLASSES
+from pass3d_ros.classes import IGNORE, foreign_ids
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.outputs import check_force, refuse_protected, writing
 from pass3d_ros.data.partials import partial_prefix, process_gone, remove_stale
@@ -303,7 +303,7 @@ def _message_frame(bag: BagFile, index: int, msgtype: str, raw: bytes, labels: L
 def _check_class_ids(bag: BagFile, index: int, labels: np.ndarray) -> None:
     """DatasetError naming the bag and message when its labels hold ids that are no class of this package (e.g. a
     label_gt field of another scheme's ids, or corrupt data), which scoring would otherwise meet as a bug."""
-    wrong = np.unique(labels[(labels >= NUM_CLASSES) & (labels != IGNORE)])
+    wrong = foreign_ids(labels)
     if wrong.size:
         shown = ", ".join(str(int(v)) for v in wrong[:5]) + (" ..." if wrong.size > 5 else "")
         raise DatasetError(f"{bag}: message {index}: labels {shown} are no class id (0 background, 1 car, "

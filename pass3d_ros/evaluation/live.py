@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from pass3d_ros.classes import IGNORE, NUM_CLASSES
+from pass3d_ros.classes import IGNORE, NUM_CLASSES, foreign_ids
 from pass3d_ros.core.metrics import ConfusionAccumulator
 from pass3d_ros.core.stage1.config import ConfigError
 from pass3d_ros.data.bag import (
@@ -185,7 +185,7 @@ def _input_frame(raw: bytes, msgtype: str) -> tuple[int, int, np.ndarray | None]
     truth = None
     if field is not None:
         values = cloud[field][keep]  # checked before the cast, which would wrap 257 onto car
-        if not np.isin(values, (*range(NUM_CLASSES), IGNORE)).all():
+        if foreign_ids(values).size:
             raise LiveEvalError(f"{field} field holds ids other than 0..{NUM_CLASSES - 1} or {IGNORE} (unknown)")
         truth = np.ascontiguousarray(values, dtype=np.uint8)
     return header_stamp_ns(msg), int(np.count_nonzero(keep)), truth
