@@ -65,15 +65,19 @@ class Ros:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes: list[Any] = []
         self._probe: Any = None
+        self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
 
     def _spin(self) -> None:
-        """Spin until closed; a context shut down under it (Ctrl-C) ends the spin, as in the executables."""
+        """Spin until closed; a context shut down under it (Ctrl-C) ends the spin, as in the executables. Spun a
+        step at a time so that close() stops the thread before it shuts the executor down: shut down under a running
+        spin(), the executor raised in this thread now and then (a warning in the test run)."""
         from rclpy.executors import ExternalShutdownException
 
         with contextlib.suppress(ExternalShutdownException):
-            self.executor.spin()
+            while not self._stop.is_set() and self.context.ok():
+                self.executor.spin_once(timeout_sec=0.05)
 
     def add(self, node: Any) -> Any:
         """Spin `node` (made with context=self.context) here; it is destroyed on close."""
@@ -99,8 +103,9 @@ class Ros:
     def close(self) -> None:
         import rclpy
 
-        self.executor.shutdown()
+        self._stop.set()
         self.thread.join(timeout=5)
+        self.executor.shutdown()
         for node in reversed(self.nodes):
             node.destroy_node()
         rclpy.try_shutdown(context=self.context)
