@@ -37,7 +37,7 @@ from pass3d_ros.core.stage1 import protrusion as _protrusion
 from pass3d_ros.core.stage1 import refinement as _refinement
 from pass3d_ros.core.stage1 import scanline as _scanline
 from pass3d_ros.core.stage1.config import Stage1Config
-from pass3d_ros.core.stage1.ground import LocalGround, segments
+from pass3d_ros.core.stage1.ground import LocalGround
 from pass3d_ros.core.stage1.sensor_params import RangeGate
 from pass3d_ros.data.frame import Box3D
 
@@ -157,21 +157,14 @@ def rerun_runs(points: np.ndarray, ring: np.ndarray, label: np.ndarray, n_cluste
     tight = copy.copy(config)  # two thresholds changed, both smaller: still in range, not validated again
     tight.th_ring = config.th_ring * config.rerun_scale
     tight.th_prop = config.th_prop * config.rerun_scale
-    runs, n_runs = _scanline.cluster_scanlines(points[members], ring[members], np.ones(len(members), dtype=bool),
-                                               tight)
-    key = label[members].astype(np.int64) * max(n_runs, 1) + runs
-    pairs, part = _unique_runs(key)
-    owner = pairs // max(n_runs, 1)
-    parts_of = np.bincount(owner, minlength=n_clusters)
-    cut = parts_of[owner] > 1  # per part: its cluster fell apart
-    if not cut.any():
+    runs, n_runs = _scanline.cluster_scanlines(np.take(points, members, axis=0), ring[members],
+                                               np.ones(len(members), dtype=bool), tight)
+    new_id, n_new, n_cut = _new_part_ids(label[members], runs, n_clusters, max(n_runs, 1))
+    if n_cut == 0:
         return label, n_clusters, 0
-    new_id = np.full(len(pairs), -1, dtype=np.int64)
-    new_id[cut] = n_clusters + np.arange(int(cut.sum()))
     out = label.copy()
-    moved = new_id[part] >= 0
-    out[members[moved]] = new_id[part[moved]]
-    return out, n_clusters + int(cut.sum()), int(np.count_nonzero(parts_of > 1))
+    _move_parts(out, members, new_id)
+    return out, n_clusters + n_new, n_cut
 
 
 @nb.njit(cache=True, nogil=True)
@@ -187,17 +180,66 @@ def _members_of(label: np.ndarray, chosen: np.ndarray) -> np.ndarray:
     return out[:found]
 
 
-def _unique_runs(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """np.unique(key, return_inverse=True) for keys that come in runs (a cluster's points follow each other in scan
-    order): a stable sort, which finds the runs, then the firsts of each key; a tenth of np.unique's time here."""
-    order = np.argsort(key, kind="stable")
-    ordered = key[order]
-    first = np.empty(len(ordered), dtype=bool)
-    first[:1] = True
-    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
-    inverse = np.empty(len(key), dtype=np.int64)
-    inverse[order] = np.cumsum(first) - 1
-    return ordered[first], inverse
+@nb.njit(cache=True, nogil=True)
+def _new_part_ids(label: np.ndarray, runs: np.ndarray, n_clusters: int, n_runs: int) -> tuple[np.ndarray, int, int]:
+    """For `rerun_runs`: per point (a cluster id in `label` and a run of the second clustering in `runs`), the new id
+    of its part (cluster id and run together) where its cluster fell apart into more than one part, else -1; the new
+    ids count up from `n_clusters` in the order of the parts' keys (cluster id, then run). Also the count of new ids
+    and of clusters that fell apart. A two-pass counting sort by run, then by cluster: the parts' order of a sort of
+    their keys, without a comparison sort (np.argsort and np.unique took a tenth of a millisecond and more here)."""
+    m = label.shape[0]
+    by_run = np.zeros(n_runs + 1, dtype=np.int64)
+    for i in range(m):
+        by_run[runs[i] + 1] += 1
+    for r in range(n_runs):
+        by_run[r + 1] += by_run[r]
+    order = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        order[by_run[runs[i]]] = i
+        by_run[runs[i]] += 1
+    by_cluster = np.zeros(n_clusters + 1, dtype=np.int64)
+    for i in range(m):
+        by_cluster[label[i] + 1] += 1
+    for c in range(n_clusters):
+        by_cluster[c + 1] += by_cluster[c]
+    ordered = np.empty(m, dtype=np.int64)
+    for t in range(m):
+        i = order[t]
+        ordered[by_cluster[label[i]]] = i
+        by_cluster[label[i]] += 1
+    part = np.empty(m, dtype=np.int64)  # per point: its part, numbered in key order
+    parts_of = np.zeros(n_clusters, dtype=np.int64)
+    owner = np.empty(m, dtype=np.int64)  # per part: its cluster
+    n_parts = 0
+    for t in range(m):
+        i = ordered[t]
+        if t == 0 or label[i] != label[ordered[t - 1]] or runs[i] != runs[ordered[t - 1]]:
+            owner[n_parts] = label[i]
+            parts_of[label[i]] += 1
+            n_parts += 1
+        part[i] = n_parts - 1
+    new_of_part = np.full(n_parts, -1, dtype=np.int64)
+    n_new = 0
+    n_cut = 0
+    for q in range(n_parts):
+        if parts_of[owner[q]] > 1:
+            new_of_part[q] = n_clusters + n_new
+            n_new += 1
+    for c in range(n_clusters):
+        if parts_of[c] > 1:
+            n_cut += 1
+    new_id = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        new_id[i] = new_of_part[part[i]]
+    return new_id, n_new, n_cut
+
+
+@nb.njit(cache=True, nogil=True)
+def _move_parts(out: np.ndarray, members: np.ndarray, new_id: np.ndarray) -> None:
+    """Give the points `members` their new part id where they have one (>= 0)."""
+    for j in range(members.shape[0]):
+        if new_id[j] >= 0:
+            out[members[j]] = new_id[j]
 
 
 def _gate_parts(points: np.ndarray, label: np.ndarray, first: int, count: int, surface: np.ndarray | LocalGround,
@@ -238,12 +280,24 @@ def _person_shaped(points: np.ndarray, label: np.ndarray, flagged: np.ndarray, s
 
 def _shaped(height: np.ndarray, label: np.ndarray, flagged: np.ndarray) -> np.ndarray:
     """`_person_shaped` from the points' heights above the ground (NaN for points of clusters not flagged)."""
-    inside = np.flatnonzero(~np.isnan(height))
-    top = np.full(len(flagged), -np.inf)
-    bottom = np.full(len(flagged), np.inf)
-    np.maximum.at(top, label[inside], height[inside])
-    np.minimum.at(bottom, label[inside], height[inside])
-    return flagged & (top - bottom >= PART_MIN_RISE_M)
+    return flagged & (_rise(height, label, len(flagged)) >= PART_MIN_RISE_M)
+
+
+@nb.njit(cache=True, nogil=True)
+def _rise(height: np.ndarray, label: np.ndarray, n_clusters: int) -> np.ndarray:
+    """Per cluster id, its highest point's height less its lowest's over the points with a height (not NaN);
+    -inf for a cluster without one. One pass, where np.maximum.at and np.minimum.at took two and a mask."""
+    top = np.full(n_clusters, -np.inf)
+    bottom = np.full(n_clusters, np.inf)
+    for i in range(height.shape[0]):
+        h = height[i]
+        if h == h:
+            c = label[i]
+            if h > top[c]:
+                top[c] = h
+            if h < bottom[c]:
+                bottom[c] = h
+    return top - bottom
 
 
 def _people_in_groups(points: np.ndarray, label: np.ndarray, n_total: int, groups: np.ndarray,
@@ -299,23 +353,49 @@ def heights_above_ground(points: np.ndarray, label: np.ndarray, chosen: np.ndarr
     """Height above the ground of the points of the clusters flagged in `chosen` (one bool per cluster id; NaN for
     every other point), as the gates read it: the point's segment plane, moved by the local ground's offset at its
     cluster's centre when `surface` is a LocalGround."""
-    height = np.full(len(points), np.nan)
-    inside = np.flatnonzero((label >= 0) & chosen[np.maximum(label, 0)])
-    if len(inside) == 0:
-        return height
     planes = surface.planes if isinstance(surface, LocalGround) else surface
-    pts = points[inside].astype(np.float64)
-    a, b, c, d = planes[segments(pts[:, 0], segment_edges, len(planes))].T
-    height[inside] = a * pts[:, 0] + b * pts[:, 1] + c * pts[:, 2] + d
-    if isinstance(surface, LocalGround):
-        where = label[inside]  # cluster ids index the per-cluster sums directly (np.unique's sort not needed)
-        counts = np.bincount(where)
-        present = np.flatnonzero(counts)
-        centre = np.stack([np.bincount(where, weights=pts[:, k])[present] / counts[present] for k in (0, 1)], axis=1)
-        offset = np.zeros(len(counts))
-        offset[present] = surface.offsets(centre)
-        height[inside] -= offset[where]
+    height, count, sums = _plane_heights(points, label, chosen, planes, float(segment_edges[0]),
+                                         float(segment_edges[1] - segment_edges[0]))
+    if isinstance(surface, LocalGround) and count.any():
+        present = np.flatnonzero(count)
+        offset = np.zeros(len(count))
+        offset[present] = surface.offsets(sums[present] / count[present, None])
+        _take_offsets(height, label, offset)
     return height
+
+
+@nb.njit(cache=True, nogil=True)
+def _plane_heights(points: np.ndarray, label: np.ndarray, chosen: np.ndarray, planes: np.ndarray, x0: float,
+                   width: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`heights_above_ground` over the segment planes in one pass over the scan (numpy's masks took five): the
+    heights (NaN outside the chosen clusters) and, per cluster id, its chosen points' count and x-y sums (summed in
+    point order, as np.bincount sums)."""
+    n = points.shape[0]
+    height = np.full(n, np.nan)
+    count = np.zeros(chosen.shape[0], dtype=np.int64)
+    sums = np.zeros((chosen.shape[0], 2))
+    last = planes.shape[0] - 1
+    for i in range(n):
+        c = label[i]
+        if c < 0 or not chosen[c]:
+            continue
+        x = np.float64(points[i, 0])
+        y = np.float64(points[i, 1])
+        z = np.float64(points[i, 2])
+        s = min(max(int((x - x0) / width), 0), last)
+        height[i] = planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * z + planes[s, 3]
+        count[c] += 1
+        sums[c, 0] += x
+        sums[c, 1] += y
+    return height, count, sums
+
+
+@nb.njit(cache=True, nogil=True)
+def _take_offsets(height: np.ndarray, label: np.ndarray, offset: np.ndarray) -> None:
+    """Take each point's cluster's local-ground offset off its height, where it has one."""
+    for i in range(height.shape[0]):
+        if height[i] == height[i]:
+            height[i] -= offset[label[i]]
 
 
 def _protrusion_candidates(n_total: int, kept: np.ndarray, z_lo: np.ndarray, z_hi: np.ndarray,
