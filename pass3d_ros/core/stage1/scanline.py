@@ -57,6 +57,13 @@ def _sort_ring(keys: np.ndarray, idx: np.ndarray) -> None:
     m = keys.shape[0]
     if m < 2:
         return
+    ordered = True  # most rings come in azimuth order (KITTI's firing order): one pass, no search for the wrap
+    for j in range(1, m):
+        if keys[j] < keys[j - 1]:
+            ordered = False
+            break
+    if ordered:
+        return
     cut = 0
     biggest = 2.0
     for j in range(1, m):
@@ -122,11 +129,11 @@ def _union(parent: np.ndarray, a: int, b: int) -> int:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _gap2(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, a: int, b: int) -> float:
-    """Squared distance between sorted positions a and b."""
-    dx = xs[a] - xs[b]
-    dy = ys[a] - ys[b]
-    dz = zs[a] - zs[b]
+def _gap2(q: np.ndarray, a: int, b: int) -> float:
+    """Squared distance between sorted positions a and b (rows of `q`: x, y, z, x^2 + y^2)."""
+    dx = q[a, 0] - q[b, 0]
+    dy = q[a, 1] - q[b, 1]
+    dz = q[a, 2] - q[b, 2]
     return dx * dx + dy * dy + dz * dz
 
 
@@ -143,7 +150,7 @@ def _lower_bound(keys: np.ndarray, lo: int, hi: int, key: float) -> int:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _nearest_in_ring(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, r2s: np.ndarray, k: int, lo: int, hi: int,
+def _nearest_in_ring(q: np.ndarray, k: int, lo: int, hi: int,
                      start: int, best2: float, enough2: float) -> int:
     """Sorted position (lo..hi-1) nearest to position k if closer than sqrt(best2), else -1.
 
@@ -155,9 +162,9 @@ def _nearest_in_ring(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, r2s: np.nda
     m = hi - lo
     if m == 0:
         return -1
-    px = xs[k]
-    py = ys[k]
-    rp2 = r2s[k]
+    px = q[k, 0]
+    py = q[k, 1]
+    rp2 = q[k, 3]
     found = -1
     for direction in (1, -1):
         j = start if direction == 1 else start - 1
@@ -166,15 +173,15 @@ def _nearest_in_ring(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, r2s: np.nda
                 j = lo
             elif j < lo:
                 j = hi - 1
-            qx = xs[j]
-            qy = ys[j]
+            qx = q[j, 0]
+            qy = q[j, 1]
             if px * qx + py * qy > 0.0:
                 cross = px * qy - py * qx
-                if cross * cross >= best2 * r2s[j]:
+                if cross * cross >= best2 * q[j, 3]:
                     break
             elif rp2 >= best2:
                 break
-            d2 = _gap2(xs, ys, zs, k, j)
+            d2 = _gap2(q, k, j)
             if d2 < best2:
                 best2 = d2
                 found = j
@@ -207,16 +214,15 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
             fill[r] += 1
     for r in range(n_rings):
         _sort_ring(keys[start[r]:start[r + 1]], idx[start[r]:start[r + 1]])
-    xs = np.empty(m, dtype=np.float64)
-    ys = np.empty(m, dtype=np.float64)
-    zs = np.empty(m, dtype=np.float64)
-    r2s = np.empty(m, dtype=np.float64)
+    q = np.empty((m, 4), dtype=np.float64)  # x, y, z and x^2 + y^2 side by side: a visit reads one cache line
     for k in range(m):
         i = idx[k]
-        xs[k] = pts[i, 0]
-        ys[k] = pts[i, 1]
-        zs[k] = pts[i, 2]
-        r2s[k] = xs[k] * xs[k] + ys[k] * ys[k]
+        x = np.float64(pts[i, 0])
+        y = np.float64(pts[i, 1])
+        q[k, 0] = x
+        q[k, 1] = y
+        q[k, 2] = pts[i, 2]
+        q[k, 3] = x * x + y * y
 
     run_of = np.empty(m, dtype=np.int64)  # run label per sorted position
     parent = np.empty(m, dtype=np.int64)
@@ -226,7 +232,7 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
     # that vectorises: the run walk below then reads a flag instead of computing each gap (5% of the kernel's time)
     joins = np.empty(m, dtype=np.bool_)
     for k in range(1, m):
-        joins[k] = _gap2(xs, ys, zs, k - 1, k) < th_ring2
+        joins[k] = _gap2(q, k - 1, k) < th_ring2
     th_prop2 = th_prop * th_prop
     enough2 = 0.25 * th_ring2
     for r in range(n_rings):
@@ -253,7 +259,7 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
                     if pr < 0:
                         break
                     at = ptr if back == 1 else _lower_bound(keys, start[pr], start[pr + 1], keys[k])
-                    near = _nearest_in_ring(xs, ys, zs, r2s, k, start[pr], start[pr + 1], at, th_prop2, enough2)
+                    near = _nearest_in_ring(q, k, start[pr], start[pr + 1], at, th_prop2, enough2)
                     if near >= 0:
                         if run_of[near] != joined:  # a run's points mostly meet one run above: union once
                             joined = run_of[near]
@@ -262,15 +268,18 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
             for k in range(run_lo, j):
                 run_of[k] = label
         if run_skip > 0 and n_runs - first_run > 2:
-            _bridge_runs(xs, ys, zs, run_of, parent, lo, hi, run_skip, th_ring2)
-        if n_runs - first_run > 1 and _gap2(xs, ys, zs, lo, hi - 1) < th_ring2:
+            _bridge_runs(q, run_of, parent, lo, hi, run_skip, th_ring2)
+        if n_runs - first_run > 1 and _gap2(q, lo, hi - 1) < th_ring2:
             _union(parent, run_of[lo], run_of[hi - 1])
 
     labels = np.full(n, -1, dtype=np.int32)
     compact = np.full(n_runs, -1, dtype=np.int64)
+    root_of = np.empty(n_runs, dtype=np.int64)  # each run's root found once, not once per point
+    for run in range(n_runs):
+        root_of[run] = _find(parent, run)
     n_clusters = 0
     for k in range(m):
-        root = _find(parent, run_of[k])
+        root = root_of[run_of[k]]
         if compact[root] < 0:
             compact[root] = n_clusters
             n_clusters += 1
@@ -279,7 +288,7 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
 
 
 @nb.njit(cache=True, nogil=True)
-def _bridge_runs(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, run_of: np.ndarray, parent: np.ndarray, lo: int,
+def _bridge_runs(q: np.ndarray, run_of: np.ndarray, parent: np.ndarray, lo: int,
                  hi: int, run_skip: int, th_ring2: float) -> None:
     """Join the runs of one ring (sorted positions lo..hi-1, read as a circle: the ring's start lies straight
     ahead on KITTI) whose facing ends are within th_ring with at most `run_skip` points of other runs between them
@@ -293,7 +302,7 @@ def _bridge_runs(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, run_of: np.ndar
             ahead = lo + (k - lo + step) % m
             if ahead == end:
                 break
-            if _gap2(xs, ys, zs, end, ahead) < th_ring2:
+            if _gap2(q, end, ahead) < th_ring2:
                 _union(parent, run_of[end], run_of[ahead])
                 break
 
