@@ -50,23 +50,15 @@ def _cluster_stats(pts: np.ndarray, label: np.ndarray, n_clusters: int, planes: 
         count[c] += 1
         sums[c, 0] += x
         sums[c, 1] += y
-        if x < lo[c, 0]:
-            lo[c, 0] = x
-        if x > hi[c, 0]:
-            hi[c, 0] = x
-        if y < lo[c, 1]:
-            lo[c, 1] = y
-        if y > hi[c, 1]:
-            hi[c, 1] = y
-        if z < lo[c, 2]:
-            lo[c, 2] = z
-        if z > hi[c, 2]:
-            hi[c, 2] = z
+        lo[c, 0] = min(lo[c, 0], x)  # min and max, not branches: no misprediction on a cluster's first points
+        hi[c, 0] = max(hi[c, 0], x)
+        lo[c, 1] = min(lo[c, 1], y)
+        hi[c, 1] = max(hi[c, 1], y)
+        lo[c, 2] = min(lo[c, 2], z)
+        hi[c, 2] = max(hi[c, 2], z)
         h = plane_distance(planes, x0, width, x, y, z)
-        if h < bottom[c]:
-            bottom[c] = h
-        if h > top[c]:
-            top[c] = h
+        bottom[c] = min(bottom[c], h)
+        top[c] = max(top[c], h)
     return count, sums, lo, hi, bottom, top
 
 
