@@ -453,10 +453,10 @@ def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: n
     n = pts.shape[0]
     k = boxes.shape[0]
     primary = np.empty(n, dtype=np.int32)
-    for i in range(n):
-        primary[i] = own_of[label[i]] if label[i] >= 0 else -1
     secondary = np.full(n, -1, dtype=np.int32)
     if k == 0:
+        for i in range(n):
+            primary[i] = own_of[label[i]] if label[i] >= 0 else -1
         return primary, secondary
     half = np.empty((k, 3))
     cos_y = np.cos(boxes[:, 6])
@@ -502,7 +502,8 @@ def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: n
         fy = (pts[i, 1] - gy0) * inv
         inside = (fx >= 0.0) & (fy >= 0.0) & (fx < nx) & (fy < ny)
         cells[i] = np.int64(min(max(fx, 0.0), nx - 1)) * ny + np.int64(min(max(fy, 0.0), ny - 1)) if inside else nx * ny
-    for i in range(n):
+    for i in range(n):  # one pass: the point's own proposal, the boxes it falls in, then who gives way
+        primary[i] = own_of[label[i]] if label[i] >= 0 else -1
         c = cells[i]
         if not occupied[c]:
             continue
@@ -526,7 +527,7 @@ def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: n
             elif not gives_way[b] and gives_way[primary[i]]:
                 primary[i] = secondary[i]
                 secondary[i] = b
-    for i in range(n):  # a flagged proposal beside an unflagged one leaves the point to it
+        # a flagged proposal beside an unflagged one leaves the point to it
         if primary[i] >= 0 and secondary[i] >= 0 and gives_way[primary[i]] != gives_way[secondary[i]]:
             if gives_way[primary[i]]:
                 primary[i] = secondary[i]
