@@ -419,17 +419,28 @@ def _dropped_to_rerun(points: np.ndarray, label: np.ndarray, n_clusters: int, n_
     chosen = np.zeros(n_total, dtype=bool)
     chosen[:n_clusters] = may_part & (count <= config.rerun_max_points)
     if n_total > n_clusters:
-        inside = label >= n_clusters
-        which = label[inside] - n_clusters
-        n_parts = n_total - n_clusters
-        part_count = np.bincount(which, minlength=n_parts)
-        centre = np.stack([np.bincount(which, weights=points[inside, k], minlength=n_parts) for k in (0, 1)], axis=1)
+        part_count, centre = _part_sums(points, label, n_clusters, n_total - n_clusters)
         rng = np.hypot(centre[:, 0], centre[:, 1]) / np.maximum(part_count, 1)
         need = _refinement.points_needed(rng, config, gate, centre)  # the summed centres: the same directions
         chosen[n_clusters:] = ((part_count >= 2 * need) & (part_count <= config.rerun_max_points)
                                & (rng <= config.max_range))
     chosen[kept] = False
     return np.flatnonzero(chosen)
+
+
+@nb.njit(cache=True, nogil=True)
+def _part_sums(points: np.ndarray, label: np.ndarray, first: int, n_parts: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per part (cluster ids `first` .. `first + n_parts - 1`): its point count and x-y sums, summed in point order
+    as np.bincount sums; one pass over the scan, where the masks and bincounts took five."""
+    count = np.zeros(n_parts, dtype=np.int64)
+    sums = np.zeros((n_parts, 2))
+    for i in range(label.shape[0]):
+        c = label[i] - first
+        if c >= 0:
+            count[c] += 1
+            sums[c, 0] += points[i, 0]
+            sums[c, 1] += points[i, 1]
+    return count, sums
 
 
 def select_with_split(
