@@ -283,7 +283,8 @@ class Stage1Config:
         1, 64,
     )
     ground_thread: bool = _param(
-        True, "ground: fit the ground planes on a second thread while rings are recovered (same result)", 0, 1,
+        True, "ground: fit the ground planes on a second thread while rings are recovered, then cluster the upper "
+        "rings of a scan there beside the lower ones (the same result)", 0, 1,
     )
     local_ground_as_ground: bool = _param(
         False, "ground: points within th_dist of the local ground (the height gates' surface) are ground too, so a "

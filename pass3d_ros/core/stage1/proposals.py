@@ -168,7 +168,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
         fit = fit._replace(ground=_ground.with_local_ground(flat, fit, cfg.th_dist))
     work_ground = fit.ground if order is None else np.take(fit.ground, order)
     t2 = time.perf_counter()
-    label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~work_ground, cfg)
+    label, n_clusters = _scanline.cluster_scanlines(work, work_ring, ~work_ground, cfg, pool)
     t3 = time.perf_counter()
     n_split, gives_way = 0, None
     # With a local ground the gates read heights above it (it passes through the split as the planes argument).
@@ -176,7 +176,8 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     gate = _sensor.range_gate(sensor, fit.planes, fit.segment_edges, level)
     if cfg.split_merged or cfg.split_rerun or cfg.split_protruding:
         boxes, kept, label, n_split, gives_way = _split.select_with_split(work, label, n_clusters, surface,
-                                                                          fit.segment_edges, cfg, work_ring, gate)
+                                                                          fit.segment_edges, cfg, work_ring, gate,
+                                                                          pool)
     else:
         boxes, kept = _refinement.select_proposals(work, label, n_clusters, surface, fit.segment_edges, cfg, gate)
     if cfg.join_fragments:

@@ -20,10 +20,15 @@ the point-count gate one by one (stage-1 recall with and without: docs/results.m
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
+
 import numba as nb
 import numpy as np
 
 from pass3d_ros.core.stage1.config import Stage1Config
+
+TWO_THREADS_MIN_POINTS = 8_000  # used points: below this a second thread's start costs more than it saves
+LOWER_SHARE = 0.45  # of the used points searched on the calling thread: the lower rings' points cost more (KITTI)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -192,9 +197,10 @@ def _nearest_in_ring(q: np.ndarray, k: int, lo: int, hi: int,
 
 
 @nb.njit(cache=True, nogil=True)
-def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings: int, th_ring: float,
-                    th_prop: float, n_prev_rings: int, run_skip: int = 0) -> tuple:
-    """Labels (compact 0..C-1, -1 where unused) and C; the steps of the module docstring."""
+def _prepare(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings: int, th_ring: float) -> tuple:
+    """The used points sorted ring by ring by pseudo-azimuth: their indices, keys, the rings' starts, their
+    coordinates (rows x, y, z, x^2 + y^2: a visit of the nearest-point walk reads one cache line) and whether each
+    lies within th_ring of the one before (its own pass, which vectorises: the run walk reads a flag)."""
     n = pts.shape[0]
     start = np.zeros(n_rings + 1, dtype=np.int64)
     for i in range(n):
@@ -214,7 +220,7 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
             fill[r] += 1
     for r in range(n_rings):
         _sort_ring(keys[start[r]:start[r + 1]], idx[start[r]:start[r + 1]])
-    q = np.empty((m, 4), dtype=np.float64)  # x, y, z and x^2 + y^2 side by side: a visit reads one cache line
+    q = np.empty((m, 4), dtype=np.float64)
     for k in range(m):
         i = idx[k]
         x = np.float64(pts[i, 0])
@@ -223,24 +229,57 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
         q[k, 1] = y
         q[k, 2] = pts[i, 2]
         q[k, 3] = x * x + y * y
+    th_ring2 = th_ring * th_ring
+    joins = np.empty(m, dtype=np.bool_)
+    for k in range(1, m):
+        joins[k] = _gap2(q, k - 1, k) < th_ring2
+    return idx, keys, start, q, joins
 
+
+@nb.njit(cache=True, nogil=True)
+def _search_rings(q: np.ndarray, keys: np.ndarray, start: np.ndarray, r0: int, r1: int, near: np.ndarray,
+                  th_ring: float, th_prop: float, n_prev_rings: int) -> None:
+    """For each position of rings r0 .. r1 - 1, the position whose run it takes (the nearest within th_prop in the
+    previous ring, or failing that up to `n_prev_rings` rings back; -1 for none), written to `near`. It reads
+    positions alone, never labels, so two calls on disjoint ring ranges may run side by side."""
+    th_prop2 = th_prop * th_prop
+    enough2 = 0.25 * th_ring * th_ring
+    for r in range(r0, r1):
+        lo = start[r]
+        hi = start[r + 1]
+        ptr = start[r - 1] if r > 0 else 0
+        for k in range(lo, hi):
+            near[k] = -1
+            if r > 0:
+                while ptr < lo and keys[ptr] < keys[k]:
+                    ptr += 1
+            for back in range(1, n_prev_rings + 1):
+                pr = r - back
+                if pr < 0:
+                    break
+                at = ptr if back == 1 else _lower_bound(keys, start[pr], start[pr + 1], keys[k])
+                found = _nearest_in_ring(q, k, start[pr], start[pr + 1], at, th_prop2, enough2)
+                if found >= 0:
+                    near[k] = found
+                    break
+
+
+@nb.njit(cache=True, nogil=True)
+def _join_runs(idx: np.ndarray, n: int, q: np.ndarray, start: np.ndarray, joins: np.ndarray, near: np.ndarray,
+               th_ring: float, run_skip: int) -> tuple:
+    """Runs, their unions with the runs `near` names, bridges and closed rings, ring by ring in order (the module
+    docstring's steps after the nearest-point search); labels (compact 0..C-1, -1 where unused) and C."""
+    m = idx.shape[0]
+    n_rings = start.shape[0] - 1
     run_of = np.empty(m, dtype=np.int64)  # run label per sorted position
     parent = np.empty(m, dtype=np.int64)
     n_runs = 0
     th_ring2 = th_ring * th_ring
-    # joins[k]: position k lies within th_ring of k - 1 (in the same run when in the same ring), in a pass of its own
-    # that vectorises: the run walk below then reads a flag instead of computing each gap (5% of the kernel's time)
-    joins = np.empty(m, dtype=np.bool_)
-    for k in range(1, m):
-        joins[k] = _gap2(q, k - 1, k) < th_ring2
-    th_prop2 = th_prop * th_prop
-    enough2 = 0.25 * th_ring2
     for r in range(n_rings):
         lo = start[r]
         hi = start[r + 1]
         j = lo
         first_run = n_runs
-        ptr = start[r - 1] if r > 0 else 0
         while j < hi:
             run_lo = j
             j += 1
@@ -251,27 +290,15 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
             n_runs += 1
             joined = -1
             for k in range(run_lo, j):
-                if r > 0:
-                    while ptr < lo and keys[ptr] < keys[k]:
-                        ptr += 1
-                for back in range(1, n_prev_rings + 1):
-                    pr = r - back
-                    if pr < 0:
-                        break
-                    at = ptr if back == 1 else _lower_bound(keys, start[pr], start[pr + 1], keys[k])
-                    near = _nearest_in_ring(q, k, start[pr], start[pr + 1], at, th_prop2, enough2)
-                    if near >= 0:
-                        if run_of[near] != joined:  # a run's points mostly meet one run above: union once
-                            joined = run_of[near]
-                            label = _union(parent, label, joined)
-                        break
+                if near[k] >= 0 and run_of[near[k]] != joined:  # a run's points mostly meet one run above
+                    joined = run_of[near[k]]
+                    label = _union(parent, label, joined)
             for k in range(run_lo, j):
                 run_of[k] = label
         if run_skip > 0 and n_runs - first_run > 2:
             _bridge_runs(q, run_of, parent, lo, hi, run_skip, th_ring2)
         if n_runs - first_run > 1 and _gap2(q, lo, hi - 1) < th_ring2:
             _union(parent, run_of[lo], run_of[hi - 1])
-
     labels = np.full(n, -1, dtype=np.int32)
     compact = np.full(n_runs, -1, dtype=np.int64)
     root_of = np.empty(n_runs, dtype=np.int64)  # each run's root found once, not once per point
@@ -285,6 +312,16 @@ def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings:
             n_clusters += 1
         labels[idx[k]] = compact[root]
     return labels, n_clusters
+
+
+@nb.njit(cache=True, nogil=True)
+def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings: int, th_ring: float,
+                    th_prop: float, n_prev_rings: int, run_skip: int = 0) -> tuple:
+    """Labels (compact 0..C-1, -1 where unused) and C on one thread; the steps of the module docstring."""
+    idx, keys, start, q, joins = _prepare(pts, ring, use, n_rings, th_ring)
+    near = np.empty(idx.shape[0], dtype=np.int64)
+    _search_rings(q, keys, start, 0, n_rings, near, th_ring, th_prop, n_prev_rings)
+    return _join_runs(idx, pts.shape[0], q, start, joins, near, th_ring, run_skip)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -401,17 +438,36 @@ def in_canonical_order(points: np.ndarray, ring: np.ndarray) -> tuple[np.ndarray
 
 
 def cluster_scanlines(
-    points: np.ndarray, ring: np.ndarray, use: np.ndarray, config: Stage1Config
+    points: np.ndarray, ring: np.ndarray, use: np.ndarray, config: Stage1Config, pool: Executor | None = None
 ) -> tuple[np.ndarray, int]:
     """Cluster id per point ((N,) int32, -1 where `use` is False) and the cluster count, with `th_ring`, `th_prop`,
-    `n_prev_rings` and `run_skip` from `config`; see the module docstring."""
+    `n_prev_rings` and `run_skip` from `config`; see the module docstring. With `pool` (an executor whose thread
+    is free), a scan of TWO_THREADS_MIN_POINTS used points or more has its nearest-point search (most of the time)
+    split between two threads, the upper rings on the pool's; runs are joined on one thread in ring order, so the
+    labels are the same."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if len(pts) == 0 or not np.any(use):
         return np.full(len(pts), -1, dtype=np.int32), 0
     ring = np.ascontiguousarray(ring, dtype=np.uint16)
     n_rings = int(ring.max()) + 1
-    return _cluster_kernel(pts, ring, np.ascontiguousarray(use, dtype=np.bool_), n_rings, float(config.th_ring),
-                           float(config.th_prop), int(config.n_prev_rings), int(config.run_skip))
+    use = np.ascontiguousarray(use, dtype=np.bool_)
+    args = (float(config.th_ring), float(config.th_prop), int(config.n_prev_rings), int(config.run_skip))
+    if pool is None or n_rings < 2:
+        return _cluster_kernel(pts, ring, use, n_rings, *args)
+    th_ring, th_prop, n_prev_rings, run_skip = args
+    idx, keys, start, q, joins = _prepare(pts, ring, use, n_rings, th_ring)
+    m = len(idx)
+    near = np.empty(m, dtype=np.int64)
+    split = int(np.clip(np.searchsorted(start, round(LOWER_SHARE * m)), 1, n_rings - 1))
+    if m < TWO_THREADS_MIN_POINTS:
+        split = n_rings
+    upper = None
+    if split < n_rings:
+        upper = pool.submit(_search_rings, q, keys, start, split, n_rings, near, th_ring, th_prop, n_prev_rings)
+    _search_rings(q, keys, start, 0, split, near, th_ring, th_prop, n_prev_rings)
+    if upper is not None:
+        upper.result()
+    return _join_runs(idx, len(pts), q, start, joins, near, th_ring, run_skip)
 
 
 def warm_up() -> None:

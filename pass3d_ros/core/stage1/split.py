@@ -27,6 +27,7 @@ structure (pass3d_ros.core.stage1.protrusion, `split_protruding`).
 from __future__ import annotations
 
 import copy
+from concurrent.futures import Executor
 
 import numba as nb
 import numpy as np
@@ -143,12 +144,12 @@ def cut_at_gaps(points: np.ndarray, label: np.ndarray, n_clusters: int, clusters
 
 
 def rerun_runs(points: np.ndarray, ring: np.ndarray, label: np.ndarray, n_clusters: int, clusters: np.ndarray,
-               config: Stage1Config) -> tuple[np.ndarray, int, int]:
+               config: Stage1Config, pool: Executor | None = None) -> tuple[np.ndarray, int, int]:
     """(labels, cluster count, clusters cut): the points of `clusters` clustered again by scan-line runs
     (pass3d_ros.core.stage1.scanline) with th_ring and th_prop times `config.rerun_scale`, each cluster on its own
     (a part is a cluster id and a new run label together); every part of a cluster that falls apart gets a new id from
     `n_clusters` on. Labels are `label` itself when nothing was cut. `points` and `ring` in scan order, as clustering
-    read them."""
+    read them. `pool`: a free thread for clustering's search (scanline.cluster_scanlines)."""
     if len(clusters) == 0:
         return label, n_clusters, 0
     chosen = np.zeros(n_clusters, dtype=bool)
@@ -158,7 +159,7 @@ def rerun_runs(points: np.ndarray, ring: np.ndarray, label: np.ndarray, n_cluste
     tight.th_ring = config.th_ring * config.rerun_scale
     tight.th_prop = config.th_prop * config.rerun_scale
     runs, n_runs = _scanline.cluster_scanlines(np.take(points, members, axis=0), ring[members],
-                                               np.ones(len(members), dtype=bool), tight)
+                                               np.ones(len(members), dtype=bool), tight, pool)
     new_id, n_new, n_cut = _new_part_ids(label[members], runs, n_clusters, max(n_runs, 1))
     if n_cut == 0:
         return label, n_clusters, 0
@@ -446,7 +447,7 @@ def _part_sums(points: np.ndarray, label: np.ndarray, first: int, n_parts: int) 
 def select_with_split(
     points: np.ndarray, label: np.ndarray, n_clusters: int, planes: np.ndarray | LocalGround,
     segment_edges: np.ndarray, config: Stage1Config, ring: np.ndarray | None = None,
-    gate: RangeGate | None = None,
+    gate: RangeGate | None = None, pool: Executor | None = None,
 ) -> tuple[list[Box3D], np.ndarray, np.ndarray, int, np.ndarray]:
     """`select_proposals` with the splits: (boxes, kept cluster ids, labels with the parts' new ids, clusters split,
     which kept proposals give way). The boxes and ids of `select_proposals` come first, unchanged; kept parts follow,
@@ -455,7 +456,8 @@ def select_with_split(
     (`split_protruding`, pass3d_ros.core.stage1.protrusion). `planes`: the segment planes or the local ground, as the
     gates take them. The parts of the clusters only `rerun_dropped` chose give way (one bool per kept id): they hold
     no point another proposal holds (refinement.enlarged_membership), so the option only adds labels. `gate`: the
-    few-points gate's factor per range (refinement.points_needed), for every gate here."""
+    few-points gate's factor per range (refinement.points_needed), for every gate here. `pool`: a free thread for
+    `rerun_runs`' clustering."""
     if n_clusters == 0:
         return [], np.zeros(0, dtype=np.int64), label, 0, np.zeros(0, dtype=bool)
     z_lo, z_hi, fitted, rects, keep, footprint, count, may_part = _refinement.gate_clusters(
@@ -480,7 +482,7 @@ def select_with_split(
         if n_split:  # only the clusters the gap cut left whole
             chosen = chosen[np.bincount(out[out >= 0], minlength=n_total)[chosen] > 0]
         first, before = n_total, out
-        out, n_total, n_rerun = rerun_runs(points, ring, out, n_total, chosen, config)
+        out, n_total, n_rerun = rerun_runs(points, ring, out, n_total, chosen, config, pool)
         if n_rerun:
             small_only = None
             if config.rerun_dropped:  # parts of the clusters only rerun_dropped chose: people-sized ones only
