@@ -145,13 +145,13 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     if ring is not None:
         ring, ring_order = _ring_field.field_rings(pts, np.asarray(ring), ring_order)
     flat = level_points(pts, level)
-    # Under held laser lines the ground thread first assigns half of the points to them, then fits the ground.
+    # Under held laser lines the ground thread first assigns half of the points to them; the ground is then fitted
+    # on both threads (a stream whose points come in no firing order).
     pool = _ground_pool() if cfg.ground_thread else None
     split = pool is not None and ring is None and lines is not None and not lines.empty
     beside = pool.submit(_ground.fit_ground, flat, cfg) if pool is not None and not split else None
+    ground_cfg = cfg  # the ground reads no field that effective_config changes
     rings = _ring.rings_for(pts, ring, cfg, lines, pool if split else None, tilted=level is not None)
-    if split:  # held lines: a stream whose points come in no firing order
-        beside = pool.submit(_ground.fit_ground, flat, cfg, in_scan_order=False)
     order, work, work_ring = None, pts, rings.ring
     if not _in_scan_order(rings):
         order, work, work_ring = _scanline.in_canonical_order(pts, rings.ring)
@@ -163,7 +163,10 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     if level is not None:  # the sensor's resolution is read in its own frame, the rest runs level
         work = flat if order is None else np.take(flat, order, axis=0)
     t1 = time.perf_counter()
-    fit = beside.result() if beside is not None else _ground.fit_ground(flat, cfg)
+    if beside is not None:
+        fit = beside.result()
+    else:
+        fit = _ground.fit_ground(flat, ground_cfg, in_scan_order=not split, pool=pool if split else None)
     if cfg.local_ground_as_ground:
         fit = fit._replace(ground=_ground.with_local_ground(flat, fit, cfg.th_dist))
     work_ground = fit.ground if order is None else np.take(fit.ground, order)
