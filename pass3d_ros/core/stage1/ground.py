@@ -48,7 +48,6 @@ LOCAL_BAND_M = 2.5  # local ground: signed plane distances within +-this are bin
 LOCAL_MIN_POINTS = 24  # local ground: points (of the whole scan) a dense layer needs; half of it, the plane band
 LOCAL_SHARE = 0.1  # local ground: ... and this share of the fullest pair (stray returns below the road are not it)
 LOCAL_GROWTH = 0.05  # local ground: window half-width grows by this per metre of range
-TEST_LOWER_SHARE = 0.6  # of the points the caller tests when the ground thread tests the rest and counts the sample
 
 
 class LocalGround(NamedTuple):
@@ -447,51 +446,31 @@ def _count_heights(grouped: np.ndarray, bounds: np.ndarray, planes: np.ndarray, 
             flat[slot[i]] += 1
 
 
-class GroundPlanes(NamedTuple):
-    """A ground fit before its final test (`ground_planes`): the scan, its planes, the sample by segment and the
-    local ground's histograms to count it into."""
-
-    points: np.ndarray  # (N, >=3) float32
-    planes: np.ndarray  # (n_seg, 4)
-    edges: np.ndarray  # (n_seg + 1,)
-    grouped: np.ndarray  # the sample's points by segment (`_by_segment`)
-    bounds: np.ndarray  # their segments' bounds
-    hist: np.ndarray  # (nx, ny, n_bins) uint16, empty without a local ground
-    origin: float
-
-
 def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = True,
                pool: Executor | None = None) -> GroundFit:
     """Ground mask and planes of a scan (N x >=3, sensor frame, z up) under `config`; see the module docstring.
     `in_scan_order` False: the points are likely in no scan order (the same result, drawn without branches the CPU
     would mispredict on them). `pool`: an executor whose thread is free (never the caller's own): the sample and the
-    final test are then split between it and the caller, the same result in less time.
+    final test are then split between it and the caller, the same result in about two thirds of the time.
 
     Segments span x in [-ground_x_extent, ground_x_extent] (points beyond fall into the end segments); a plane
     steeper than `ground_max_slope_deg` or stepping more than `ground_max_step` at its inner edge takes its inner
     neighbour's plane (the centre segment's falls back to a horizontal plane at its LPR).
     """
-    return finish_ground(ground_planes(points, config, in_scan_order, pool), config, pool)
-
-
-def ground_planes(points: np.ndarray, config: Stage1Config, in_scan_order: bool = True,
-                  pool: Executor | None = None) -> GroundPlanes:
-    """`fit_ground` up to its planes (the sample, the LPR, the plane fits); `finish_ground` does the rest. `pool`: as
-    `fit_ground`'s, for the sample."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
     n_seg = int(config.n_seg)
     width = 2.0 * config.ground_x_extent / n_seg
     edges = -config.ground_x_extent + width * np.arange(n_seg + 1)
+    if len(pts) == 0:
+        planes = np.tile([0.0, 0.0, 1.0, config.seed_height], (n_seg, 1))
+        local = _local_ground(planes, edges, np.zeros((0, 0, 0), dtype=np.uint16), 0.0, config)
+        return GroundFit(np.zeros(0, dtype=bool), planes, edges, local)
     # The local ground's grid covers every cluster centre the range gate keeps and its widest window.
     half = config.max_range + config.local_ground_radius + LOCAL_GROWTH * config.max_range
-    n_cells = int(np.ceil(2.0 * half / LOCAL_CELL_M)) if config.local_ground and len(pts) else 0
+    n_cells = int(np.ceil(2.0 * half / LOCAL_CELL_M)) if config.local_ground else 0
     n_bins = round(2.0 * LOCAL_BAND_M / LOCAL_BIN_M) if n_cells else 0
     hist = np.zeros((n_cells, n_cells, n_bins), dtype=np.uint16)
     origin = -0.5 * n_cells * LOCAL_CELL_M
-    if len(pts) == 0:
-        planes = np.tile([0.0, 0.0, 1.0, config.seed_height], (n_seg, 1))
-        return GroundPlanes(pts, planes, edges, np.zeros((0, 3), dtype=np.float32), np.zeros(n_seg + 1, np.int64),
-                            hist, 0.0)
     stride = int(config.fit_stride)
     n = len(pts)
     middle = n // 2 if pool is not None and n >= TWO_THREADS_MIN_POINTS else n
@@ -504,29 +483,15 @@ def ground_planes(points: np.ndarray, config: Stage1Config, in_scan_order: bool 
         -(config.seed_height + config.below_ground_margin), float(np.cos(np.deg2rad(config.ground_max_slope_deg))),
         config.ground_seed_band, config.ground_lpr_outlier_share, config.ground_max_step, stride,
     )
-    return GroundPlanes(pts, planes, edges, grouped, bounds, hist, origin)
-
-
-def finish_ground(fitted: GroundPlanes, config: Stage1Config, pool: Executor | None = None) -> GroundFit:
-    """The final ground test of every point and the local ground's counts (`fit_ground`'s last steps). `pool`: as
-    `fit_ground`'s: it tests the upper points and counts the sample while the caller tests the lower
-    TEST_LOWER_SHARE."""
-    pts, planes, edges = fitted.points, fitted.planes, fitted.edges
-    n = len(pts)
-    if n == 0:
-        return GroundFit(np.zeros(0, dtype=bool), planes, edges,
-                         _local_ground(planes, edges, np.zeros((0, 0, 0), dtype=np.uint16), 0.0, config))
-    middle = round(TEST_LOWER_SHARE * n) if pool is not None and n >= TWO_THREADS_MIN_POINTS else n
     ground = np.empty(n, dtype=np.bool_)
     test = (pts, planes, float(edges[0]), float(edges[1] - edges[0]), float(config.th_dist), ground)
-    counts = (fitted.grouped, fitted.bounds, fitted.hist, fitted.origin)
-    counted = pool.submit(_test_and_count, *test, middle, n, *counts) if middle < n else None
+    counted = pool.submit(_test_and_count, *test, middle, n, grouped, bounds, hist, origin) if middle < n else None
     if counted is None:
-        _test_and_count(*test, 0, n, *counts)
+        _test_and_count(*test, 0, n, grouped, bounds, hist, origin)
     else:
         _ground_test(*test, 0, middle)
         counted.result()
-    return GroundFit(ground, planes, edges, _local_ground(planes, edges, fitted.hist, fitted.origin, config))
+    return GroundFit(ground, planes, edges, _local_ground(planes, edges, hist, origin, config))
 
 
 def with_local_ground(points: np.ndarray, fit: GroundFit, band: float) -> np.ndarray:

@@ -145,12 +145,11 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     if ring is not None:
         ring, ring_order = _ring_field.field_rings(pts, np.asarray(ring), ring_order)
     flat = level_points(pts, level)
-    # The ground thread fits the ground planes beside ring recovery, then both threads test every point against
-    # them. Under held laser lines it first assigns half of the points to them, and the ground is then fitted on both
-    # threads (a stream whose points come in no firing order).
+    # Under held laser lines the ground thread first assigns half of the points to them; the ground is then fitted
+    # on both threads (a stream whose points come in no firing order).
     pool = _ground_pool() if cfg.ground_thread else None
     split = pool is not None and ring is None and lines is not None and not lines.empty
-    beside = pool.submit(_ground.ground_planes, flat, cfg) if pool is not None and not split else None
+    beside = pool.submit(_ground.fit_ground, flat, cfg) if pool is not None and not split else None
     ground_cfg = cfg  # the ground reads no field that effective_config changes
     rings = _ring.rings_for(pts, ring, cfg, lines, pool if split else None, tilted=level is not None)
     order, work, work_ring = None, pts, rings.ring
@@ -165,7 +164,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
         work = flat if order is None else np.take(flat, order, axis=0)
     t1 = time.perf_counter()
     if beside is not None:
-        fit = _ground.finish_ground(beside.result(), ground_cfg, pool)
+        fit = beside.result()
     else:
         fit = _ground.fit_ground(flat, ground_cfg, in_scan_order=not split, pool=pool if split else None)
     if cfg.local_ground_as_ground:
@@ -209,8 +208,7 @@ _GROUND_POOL_LOCK = threading.Lock()
 def _ground_pool() -> ThreadPoolExecutor:
     """The ground thread (`Stage1Config.ground_thread`): ground plane fitting reads the points in any order and
     releases the GIL, so it runs beside ring recovery and the canonical ordering. It reads no field that
-    `effective_config` changes, so it starts before that config is known. Once the planes are fitted, the thread
-    takes half of the final ground test and of clustering's nearest-point search (rule P2)."""
+    `effective_config` changes, so it starts before that config is known."""
     global _GROUND_POOL
     with _GROUND_POOL_LOCK:
         if _GROUND_POOL is None:
