@@ -187,7 +187,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
         label, boxes = _fragments.join_fragments(work, label, kept, boxes, surface, fit.segment_edges, cfg)
     floors = None if fit.local is None else _refinement.ground_floors(boxes, fit.local, cfg.th_dist)
     cluster_id, cluster_id2 = _refinement.enlarged_membership(work, label, kept, boxes, cfg.enlarge, floors=floors,
-                                                              gives_way=gives_way, pool=pool)
+                                                              gives_way=gives_way)
     if order is not None:
         cluster_id, cluster_id2 = _in_input_order(order, cluster_id, cluster_id2)
     t4 = time.perf_counter()

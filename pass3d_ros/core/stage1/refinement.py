@@ -17,7 +17,6 @@ in the ground band; with a local ground a box also reaches down to the ground ba
 
 from __future__ import annotations
 
-from concurrent.futures import Executor
 from typing import NamedTuple
 
 import numba as nb
@@ -25,7 +24,6 @@ import numpy as np
 
 from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage1.ground import LocalGround, fit_ground, plane_distance
-from pass3d_ros.core.stage1.scanline import TWO_THREADS_MIN_POINTS
 from pass3d_ros.core.stage1.sensor_params import RangeGate
 from pass3d_ros.data.frame import Box3D
 
@@ -322,9 +320,8 @@ def grouped_by_slot(label: np.ndarray, slot: np.ndarray, n_slots: int) -> tuple[
 
 
 @nb.njit(cache=True, nogil=True)
-def _grouped_xy(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -> tuple:
-    """The x and y of the candidate clusters' points, grouped by candidate (in candidate order), and the groups'
-    bounds."""
+def _cluster_rects(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """Minimal-area rectangle (cx, cy, length, width, yaw) of each candidate cluster (rows in candidate order)."""
     n_clusters = label.max() + 1 if label.shape[0] > 0 else 0
     slot = np.full(max(n_clusters, 1), -1, dtype=np.int64)
     for t in range(candidates.shape[0]):
@@ -336,14 +333,8 @@ def _grouped_xy(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -> t
     for j in range(start[k]):
         xs[j] = pts[members[j], 0]
         ys[j] = pts[members[j], 1]
-    return xs, ys, start
-
-
-@nb.njit(cache=True, nogil=True)
-def _rects_of(xs: np.ndarray, ys: np.ndarray, start: np.ndarray, t0: int, t1: int, out: np.ndarray) -> None:
-    """Minimal-area rectangles (cx, cy, length, width, yaw) of the groups t0 .. t1 - 1, written to their rows of
-    `out`; each group is read alone, so two calls on disjoint ranges may run side by side."""
-    for t in range(t0, t1):
+    out = np.zeros((k, 5))
+    for t in range(k):
         if start[t + 1] > start[t]:
             cx, cy, length, width, yaw = _min_area_rect(xs[start[t]:start[t + 1]], ys[start[t]:start[t + 1]])
             out[t, 0] = cx
@@ -351,31 +342,6 @@ def _rects_of(xs: np.ndarray, ys: np.ndarray, start: np.ndarray, t0: int, t1: in
             out[t, 2] = length
             out[t, 3] = width
             out[t, 4] = yaw
-
-
-@nb.njit(cache=True, nogil=True)
-def _cluster_rects(pts: np.ndarray, label: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """Minimal-area rectangle (cx, cy, length, width, yaw) of each candidate cluster (rows in candidate order)."""
-    xs, ys, start = _grouped_xy(pts, label, candidates)
-    out = np.zeros((candidates.shape[0], 5))
-    _rects_of(xs, ys, start, 0, candidates.shape[0], out)
-    return out
-
-
-def cluster_rects(points: np.ndarray, label: np.ndarray, candidates: np.ndarray,
-                  pool: Executor | None = None) -> np.ndarray:
-    """`_cluster_rects`; with `pool` (an executor whose thread is free) and TWO_THREADS_MIN_POINTS points in the
-    candidates or more, the clusters holding the upper half of those points are fitted on the pool's thread."""
-    if pool is None:
-        return _cluster_rects(points, label, candidates)
-    xs, ys, start = _grouped_xy(points, label, candidates)
-    k = len(candidates)
-    out = np.zeros((k, 5))
-    middle = int(np.searchsorted(start, start[k] // 2)) if start[k] >= TWO_THREADS_MIN_POINTS else k
-    upper = pool.submit(_rects_of, xs, ys, start, middle, k, out) if middle < k else None
-    _rects_of(xs, ys, start, 0, middle, out)
-    if upper is not None:
-        upper.result()
     return out
 
 
@@ -424,15 +390,13 @@ def gate_clusters(
     config: Stage1Config,
     fit_all: bool = False,
     gate: RangeGate | None = None,
-    pool: Executor | None = None,
 ) -> Gated:
     """The gates of `select_proposals` (see `Gated`).
 
     `planes`: the segment planes (n_seg x 4), or a LocalGround (GroundFit.local), whose offsets around each cluster
     centre move its bottom and top heights (module docstring). Fitted: the clusters that pass every gate but the
     footprint one, less (unless `fit_all`) those whose x-y extent no footprint rectangle can hold, which fail it
-    without a fit. `gate`: the few-points gate's factor per range (`points_needed`). `pool`: a free thread for the
-    rectangles (`cluster_rects`).
+    without a fit. `gate`: the few-points gate's factor per range (`points_needed`).
     """
     local = planes if isinstance(planes, LocalGround) else None
     plane_rows = local.planes if local is not None else planes
@@ -456,7 +420,7 @@ def gate_clusters(
     if len(candidates) == 0:
         empty = np.zeros(0, dtype=bool)
         return Gated(lo[:, 2], hi[:, 2], candidates, np.zeros((0, 5)), empty, empty, count, may_part)
-    rects = cluster_rects(points, label, candidates, pool)
+    rects = _cluster_rects(points, label, candidates)
     footprint = (rects[:, 2] <= config.max_length) & (rects[:, 3] <= config.max_width) & fits[candidates]
     keep = footprint & (np.maximum(rects[:, 2], extent[candidates, 2]) >= config.min_extent)
     return Gated(lo[:, 2], hi[:, 2], candidates, rects, keep, footprint, count, may_part)
@@ -490,11 +454,19 @@ def select_proposals(
 
 
 @nb.njit(cache=True, nogil=True)
-def _box_grid(boxes: np.ndarray, margin: np.ndarray, cell: float) -> tuple:
-    """The enlarged boxes' half sizes, yaw cosines and sines, and a grid of `cell` squares over their footprints:
-    its origin, size, and per square the boxes whose footprint's axis-aligned bounds reach it (counting-sorted ids
-    and their bounds), and whether it holds any (one more square, always empty, for "outside")."""
+def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: np.ndarray, margin: np.ndarray,
+                cell: float, floors: np.ndarray, gives_way: np.ndarray) -> tuple:
+    """Primary and secondary proposal of every point inside an enlarged box (see `enlarged_membership`);
+    `own_of` maps a cluster id to its proposal id or -1; a box reaches down to z = floors[b] where that is lower
+    than its enlarged bottom; a box flagged in `gives_way` keeps no point that an unflagged one takes."""
+    n = pts.shape[0]
     k = boxes.shape[0]
+    primary = np.empty(n, dtype=np.int32)
+    secondary = np.full(n, -1, dtype=np.int32)
+    if k == 0:
+        for i in range(n):
+            primary[i] = own_of[label[i]] if label[i] >= 0 else -1
+        return primary, secondary
     half = np.empty((k, 3))
     cos_y = np.cos(boxes[:, 6])
     sin_y = np.sin(boxes[:, 6])
@@ -514,7 +486,6 @@ def _box_grid(boxes: np.ndarray, margin: np.ndarray, cell: float) -> tuple:
     nx = int((box_hi[:, 0].max() - gx0) / cell) + 1
     ny = int((box_hi[:, 1].max() - gy0) / cell) + 1
     start = np.zeros(nx * ny + 1, dtype=np.int64)
-    ids = np.empty(0, dtype=np.int64)
     for rep in range(2):
         if rep == 1:
             for c in range(nx * ny):
@@ -530,34 +501,19 @@ def _box_grid(boxes: np.ndarray, margin: np.ndarray, cell: float) -> tuple:
                     else:
                         ids[fill[c]] = b
                         fill[c] += 1
-    occupied = np.zeros(nx * ny + 1, dtype=np.bool_)
+    inv = 1.0 / cell
+    occupied = np.zeros(nx * ny + 1, dtype=np.bool_)  # the extra last cell stands for "outside the grid"
     for c in range(nx * ny):
         occupied[c] = start[c + 1] > start[c]
-    return half, cos_y, sin_y, gx0, gy0, nx, ny, start, ids, occupied
-
-
-@nb.njit(cache=True, nogil=True)
-def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: np.ndarray, grid: tuple,
-                cell: float, floors: np.ndarray, gives_way: np.ndarray, primary: np.ndarray, secondary: np.ndarray,
-                lo: int, hi: int) -> None:
-    """Primary and secondary proposal of the points lo .. hi - 1 inside an enlarged box (see `enlarged_membership`;
-    `grid`: `_box_grid`'s), written to `primary` and `secondary`; `own_of` maps a cluster id to its proposal id or
-    -1; a box reaches down to z = floors[b] where that is lower than its enlarged bottom; a box flagged in
-    `gives_way` keeps no point that an unflagged one takes. Each point is read alone: two calls on disjoint ranges
-    may run side by side."""
-    half, cos_y, sin_y, gx0, gy0, nx, ny, start, ids, occupied = grid
-    inv = 1.0 / cell
-    cells = np.empty(hi - lo, dtype=np.int64)
-    for t in range(hi - lo):  # branch-free, so it vectorises
-        i = lo + t
+    cells = np.empty(n, dtype=np.int64)
+    for i in range(n):  # branch-free, so it vectorises
         fx = (pts[i, 0] - gx0) * inv
         fy = (pts[i, 1] - gy0) * inv
         inside = (fx >= 0.0) & (fy >= 0.0) & (fx < nx) & (fy < ny)
-        cells[t] = np.int64(min(max(fx, 0.0), nx - 1)) * ny + np.int64(min(max(fy, 0.0), ny - 1)) if inside else nx * ny
-    for i in range(lo, hi):  # one pass: the point's own proposal, the boxes it falls in, then who gives way
+        cells[i] = np.int64(min(max(fx, 0.0), nx - 1)) * ny + np.int64(min(max(fy, 0.0), ny - 1)) if inside else nx * ny
+    for i in range(n):  # one pass: the point's own proposal, the boxes it falls in, then who gives way
         primary[i] = own_of[label[i]] if label[i] >= 0 else -1
-        secondary[i] = -1
-        c = cells[i - lo]
+        c = cells[i]
         if not occupied[c]:
             continue
         x = pts[i, 0]
@@ -585,15 +541,7 @@ def _membership(pts: np.ndarray, label: np.ndarray, own_of: np.ndarray, boxes: n
             if gives_way[primary[i]]:
                 primary[i] = secondary[i]
             secondary[i] = -1
-
-
-@nb.njit(cache=True, nogil=True)
-def _own_proposals(label: np.ndarray, own_of: np.ndarray) -> tuple:
-    """Each point's own cluster's proposal (or -1), and no second one: the membership without boxes."""
-    primary = np.empty(label.shape[0], dtype=np.int32)
-    for i in range(label.shape[0]):
-        primary[i] = own_of[label[i]] if label[i] >= 0 else -1
-    return primary, np.full(label.shape[0], -1, dtype=np.int32)
+    return primary, secondary
 
 
 def boxes_array(boxes: list[Box3D]) -> np.ndarray:
@@ -612,7 +560,6 @@ def enlarged_membership(
     cell: float = 2.0,
     floors: np.ndarray | None = None,
     gives_way: np.ndarray | None = None,
-    pool: Executor | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(cluster_id, cluster_id2) per point: its own kept cluster's proposal first, then the enlarged boxes it
     falls in (lowest id first); -1 where there is none. `margin` (Stage1Config.enlarge) is added on each side, as
@@ -621,8 +568,7 @@ def enlarged_membership(
     it). `gives_way` (one bool per box, or None): a flagged proposal (a part of `rerun_dropped`) holds no point
     that an unflagged one holds, its own cluster's points included, so the proposals without the flag keep exactly
     the points they would hold without the flagged ones, and stage 2's label of a flagged part never overwrites
-    theirs (an enlarged part box beside a car took in the car's edge). `pool`: an executor whose thread is free: it
-    reads the upper half of the points (each point is read alone: the same result)."""
+    theirs (an enlarged part box beside a car took in the car's edge)."""
     label = np.ascontiguousarray(label, dtype=np.int32)
     own_of = np.full(max(int(label.max()) + 1, 1) if len(label) else 1, -1, dtype=np.int32)
     own_of[kept] = np.arange(len(kept), dtype=np.int32)
@@ -632,19 +578,8 @@ def enlarged_membership(
     gives_way = np.zeros(len(boxes), dtype=np.bool_) if gives_way is None else np.asarray(gives_way, dtype=np.bool_)
     if len(gives_way) != len(boxes):
         raise ValueError(f"{len(gives_way)} gives_way flags for {len(boxes)} boxes")
-    if not boxes:
-        return _own_proposals(label, own_of)
-    rows = boxes_array(boxes)
-    grid = _box_grid(rows, np.asarray(margin, dtype=np.float64), float(cell))
-    n = len(points)
-    primary, secondary = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
-    middle = n // 2 if pool is not None and n >= TWO_THREADS_MIN_POINTS else n
-    work = (points, label, own_of, rows, grid, float(cell), floors, gives_way, primary, secondary)
-    upper = pool.submit(_membership, *work, middle, n) if middle < n else None
-    _membership(*work, 0, middle)
-    if upper is not None:
-        upper.result()
-    return primary, secondary
+    return _membership(points, label, own_of, boxes_array(boxes), np.asarray(margin, dtype=np.float64), float(cell),
+                       floors, gives_way)
 
 
 def ground_floors(boxes: list[Box3D], local: LocalGround, band: float) -> np.ndarray:

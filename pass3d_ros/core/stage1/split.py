@@ -457,11 +457,11 @@ def select_with_split(
     gates take them. The parts of the clusters only `rerun_dropped` chose give way (one bool per kept id): they hold
     no point another proposal holds (refinement.enlarged_membership), so the option only adds labels. `gate`: the
     few-points gate's factor per range (refinement.points_needed), for every gate here. `pool`: a free thread for
-    `rerun_runs`' clustering and the clusters' rectangles."""
+    `rerun_runs`' clustering."""
     if n_clusters == 0:
         return [], np.zeros(0, dtype=np.int64), label, 0, np.zeros(0, dtype=bool)
     z_lo, z_hi, fitted, rects, keep, footprint, count, may_part = _refinement.gate_clusters(
-        points, label, n_clusters, planes, segment_edges, config, fit_all=True, gate=gate, pool=pool)
+        points, label, n_clusters, planes, segment_edges, config, fit_all=True, gate=gate)
     kept = fitted[keep]
     boxes = _refinement.boxes_of(rects[keep], z_lo[kept], z_hi[kept])
     out, n_total, n_split = label, n_clusters, 0
