@@ -33,7 +33,7 @@ window's sparse ground returns are easily outnumbered by car bodies, walls and h
 
 from __future__ import annotations
 
-from concurrent.futures import Executor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from typing import NamedTuple
 
 import numba as nb
@@ -591,3 +591,6 @@ def warm_up() -> None:
     pts[:100, 2] = -1.73
     fit = fit_ground(pts, Stage1Config())
     fit.local.offsets(pts[:4, :2])
+    many = np.tile(pts, (TWO_THREADS_MIN_POINTS // len(pts) + 1, 1))  # big enough for the two-thread fit
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        fit_ground(many, Stage1Config(), in_scan_order=False, pool=pool)

@@ -274,5 +274,8 @@ def warm_up() -> None:
     _scanline.warm_up()
     _refinement.warm_up()
     _split.warm_up()
-    result = propose(synthetic_scan(n_rings=16, points_per_ring=90), config=Stage1Config(n_rings=16))
+    scan = synthetic_scan(n_rings=16, points_per_ring=90)
+    result = propose(scan, config=Stage1Config(n_rings=16))
     proposal_members(result.cluster_id, result.cluster_id2)
+    shuffled = np.random.default_rng(0).permutation(len(scan))  # in no scan order: the canonical order and back
+    propose(scan[shuffled], result.ring[shuffled], Stage1Config(n_rings=16))

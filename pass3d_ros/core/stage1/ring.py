@@ -938,3 +938,5 @@ def warm_up() -> None:
     _motion_scores(pts, np.zeros(1), np.zeros(1), np.zeros(1))
     _moved_origin(pts, 0.1, 0.0)
     measure_ring_order(pts, (np.arange(64) // 32).astype(np.uint16))
+    ring, resid, a, _ = fit_laser_lines(pts, np.array([0.0, -0.1]), np.zeros(2), 1)
+    line_quality(pts, ring, resid, a)

@@ -20,7 +20,7 @@ the point-count gate one by one (stage-1 recall with and without: docs/results.m
 
 from __future__ import annotations
 
-from concurrent.futures import Executor
+from concurrent.futures import Executor, ThreadPoolExecutor
 
 import numba as nb
 import numpy as np
@@ -479,4 +479,6 @@ def warm_up() -> None:
     pts[32:, 2] = -0.1
     ring = np.repeat(np.arange(2), 32).astype(np.uint16)
     cluster_scanlines(pts, ring, np.ones(64, dtype=bool), Stage1Config())
+    with ThreadPoolExecutor(max_workers=1) as pool:  # the two-thread path's kernels (a scan this small stays on one)
+        cluster_scanlines(pts, ring, np.ones(64, dtype=bool), Stage1Config(), pool)
     canonical_order(pts[::-1], ring)

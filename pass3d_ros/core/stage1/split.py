@@ -39,6 +39,7 @@ from pass3d_ros.core.stage1 import refinement as _refinement
 from pass3d_ros.core.stage1 import scanline as _scanline
 from pass3d_ros.core.stage1.config import Stage1Config
 from pass3d_ros.core.stage1.ground import LocalGround
+from pass3d_ros.core.stage1.ground import fit_ground as _fit_ground
 from pass3d_ros.core.stage1.sensor_params import RangeGate
 from pass3d_ros.data.frame import Box3D
 
@@ -517,7 +518,8 @@ def select_with_split(
 
 
 def warm_up() -> None:
-    """Compile the split kernel on two short walls 1 m apart in one cluster."""
+    """Compile the split kernels on two short walls 1 m apart in one cluster, and the other kernels of this module
+    and of the crowd split on the same points: the first scan a node labels then runs compiled code."""
     x = np.concatenate([np.linspace(5.0, 9.0, 80), np.linspace(10.0, 14.0, 80)])
     pts = np.zeros((160, 4), dtype=np.float32)
     pts[:, 0] = x
@@ -525,6 +527,20 @@ def warm_up() -> None:
     pts[:, 2] = np.tile([-1.6, -0.4], 80)
     label = np.zeros(160, dtype=np.int32)
     config = Stage1Config(th_num_floor=1, th_num_near=1.0)
-    select_with_split(pts, label, 1, np.array([[0.0, 0.0, 1.0, 1.73]]), np.array([-80.0, 80.0]), config)
+    planes, edges = np.array([[0.0, 0.0, 1.0, 1.73]]), np.array([-80.0, 80.0])
+    select_with_split(pts, label, 1, planes, edges, config)
     _protrusion.warm_up()
     _canopy.warm_up()
+    # The kernels the wall above does not reach (parts, heights, crowds), with stage 1's dtypes: float32 points,
+    # int32 labels, int64 ids.
+    two = np.repeat(np.arange(2, dtype=np.int32), 80)
+    chosen = np.ones(2, dtype=bool)
+    local = _fit_ground(pts, config).local
+    for surface in (planes, local):
+        _shaped(heights_above_ground(pts, two, chosen, surface, edges), two, chosen)
+    ring = np.tile(np.arange(2, dtype=np.uint16), 80)
+    out, n_total, _ = rerun_runs(pts, ring, two, 2, np.arange(2, dtype=np.int64), config)
+    _move_parts(two.copy(), np.arange(160, dtype=np.int64), np.full(160, -1, dtype=np.int64))
+    _part_sums(pts, out, 2, max(n_total - 2, 1))
+    height = np.where(np.arange(160) % 2 == 0, 1.6, 0.2)
+    _crowd.people_apart(pts, two, 2, np.arange(2, dtype=np.int64), height)
