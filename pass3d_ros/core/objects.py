@@ -276,3 +276,8 @@ def _rounded(value: Any) -> Any:
     if isinstance(value, dict):
         return {k: _rounded(v) for k, v in value.items()}
     return value
+
+
+def warm_up() -> None:
+    """Compile the person split's kernel (x-y as `_people` gives it: float64, contiguous)."""
+    _components_2d(np.zeros((4, 2)), PERSON_GAP)

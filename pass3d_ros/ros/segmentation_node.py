@@ -19,8 +19,9 @@ from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
 from pass3d_ros.classes import BACKGROUND, CAR, CYCLIST, PEDESTRIAN, packed_rgb
-from pass3d_ros.core import scan_checks
+from pass3d_ros.core import scan_checks, tracked_scan
 from pass3d_ros.core.objects import FrameObjects, LabelledObject, frame_objects
+from pass3d_ros.core.objects import warm_up as warm_up_objects
 from pass3d_ros.core.pipeline import ProposalSegmenter
 from pass3d_ros.core.stage1 import proposal_members
 from pass3d_ros.core.stage1.proposals import level_points
@@ -172,6 +173,8 @@ class SegmentationNode(PointCloudNode):
         self._hung: tuple[float, str] | None = None  # when stage 2 was last killed for hanging, and why
         scan_checks.warm_up()
         shapes.warm_up()
+        warm_up_objects()
+        tracked_scan.warm_up()
         self.classifier = self._load_classifier()
         # stage 2's share of the one door: the stream's intensity map onto the training scale, then the classifier
         # and, with tracking on, the stream's tracker (objects over time: pass3d_ros.core.tracked_scan)

@@ -279,3 +279,4 @@ def warm_up() -> None:
     proposal_members(result.cluster_id, result.cluster_id2)
     shuffled = np.random.default_rng(0).permutation(len(scan))  # in no scan order: the canonical order and back
     propose(scan[shuffled], result.ring[shuffled], Stage1Config(n_rings=16))
+    _sensor.laser_spacing(scan)  # rings from elevation bins (no ring field, no laser lines found)

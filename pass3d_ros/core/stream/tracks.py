@@ -204,8 +204,8 @@ class TrackingFrame:
         return xyz if self.pose is None else (xyz - self.pose[:3, 3]) @ self.pose[:3, :3]
 
     def xy(self, xy: np.ndarray) -> np.ndarray:
-        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-        return xy if self.pose is None else xy @ self.pose[:2, :2].T + self.pose[:2, 3]
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)  # contiguous either way: one kernel signature
+        return np.ascontiguousarray(xy) if self.pose is None else xy @ self.pose[:2, :2].T + self.pose[:2, 3]
 
     def after(self, rotation: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """(rotation, shift) taking points rotated first by `rotation` (3 x 3; None: none) into the tracking frame,
