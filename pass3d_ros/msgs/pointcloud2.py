@@ -280,8 +280,15 @@ def decode_xyzi(msg: Any, *, skip_nans: bool = False, with_ring: bool = True) ->
 
 
 def warm_up() -> None:
-    """Compile the codec's kernel."""
-    _copy_xyzi(np.zeros((1, 4), np.float32), np.empty((1, 4), np.float32))
+    """Compile the codec's kernel for the views decoding gives: x, y, z, intensity alone (contiguous rows), beside
+    other fields (strided rows, as a driver's ring and time make them), and those read-only (a message's bytes)."""
+    out = np.empty((2, 4), np.float32)  # two rows: numpy calls one strided row contiguous
+    _copy_xyzi(np.zeros((2, 4), np.float32), out)
+    wider = np.zeros(2, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("ring", "<u2")])
+    view = _xyzi_view(wider, "intensity")
+    _copy_xyzi(view, out)
+    view.setflags(write=False)
+    _copy_xyzi(view, out)
 
 
 def stamp_to_ns(stamp: Any) -> int:

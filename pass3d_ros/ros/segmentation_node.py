@@ -36,6 +36,7 @@ from pass3d_ros.core.stage2.segmentation import SegmentResult, proposals_cut
 from pass3d_ros.core.stream import shapes
 from pass3d_ros.core.threads import limit_threads
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, encode, header_stamp_ns
+from pass3d_ros.msgs.pointcloud2 import warm_up as warm_up_codec
 from pass3d_ros.ros import params
 from pass3d_ros.ros.detections import DetectionOutputs
 from pass3d_ros.ros.diagnostics import StepClock
@@ -174,6 +175,7 @@ class SegmentationNode(PointCloudNode):
         scan_checks.warm_up()
         shapes.warm_up()
         warm_up_objects()
+        warm_up_codec()  # the proposals cloud is decoded here too (two processes: a cache of its own to fill)
         tracked_scan.warm_up()
         self.classifier = self._load_classifier()
         # stage 2's share of the one door: the stream's intensity map onto the training scale, then the classifier

@@ -406,3 +406,20 @@ def test_a_ring_value_uint16_cannot_hold_reads_past_every_laser(dtype: type, wil
         scan = decode_xyzi(encode({**xyz, "ring": ring}))
     assert scan.ring.dtype == np.uint16
     np.testing.assert_array_equal(scan.ring, [0, 3, 63] + [NO_RING] * len(wild))
+
+
+def test_warm_up_compiles_what_decoding_runs() -> None:
+    """The codec's kernel compiled by warm_up for every view a decode gives (x, y, z, intensity alone or beside a
+    ring, in a writable array or read-only bytes): a node's first message runs compiled code."""
+    from pass3d_ros.msgs import pointcloud2
+
+    pointcloud2.warm_up()
+    compiled = list(pointcloud2._copy_xyzi.signatures)
+    xyzi = np.random.default_rng(0).random((50, 4)).astype(np.float32)
+    alone = {"x": xyzi[:, 0], "y": xyzi[:, 1], "z": xyzi[:, 2], "intensity": xyzi[:, 3]}
+    for fields in (alone, {**alone, "ring": np.zeros(50, np.uint16)}):
+        msg = pointcloud2.encode(fields, frame_id="lidar")
+        np.testing.assert_array_equal(pointcloud2.decode_xyzi(msg).points, xyzi)
+        msg.data = bytes(msg.data)
+        np.testing.assert_array_equal(pointcloud2.decode_xyzi(msg).points, xyzi)
+    assert [s for s in pointcloud2._copy_xyzi.signatures if s not in compiled] == []
