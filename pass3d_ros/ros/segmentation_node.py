@@ -175,7 +175,7 @@ class SegmentationNode(PointCloudNode):
         scan_checks.warm_up()
         shapes.warm_up()
         warm_up_objects()
-        warm_up_codec()  # the proposals cloud is decoded here too (two processes: a cache of its own to fill)
+        warm_up_codec()  # the proposals cloud is decoded here too, maybe in a process of its own
         tracked_scan.warm_up()
         self.classifier = self._load_classifier()
         # stage 2's share of the one door: the stream's intensity map onto the training scale, then the classifier
