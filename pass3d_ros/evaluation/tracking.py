@@ -36,6 +36,7 @@ import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CLASS_NAMES, FOREGROUND, NUM_CLASSES
 from pass3d_ros.core.metrics import SegmentationMetrics, paired_iou_difference
+from pass3d_ros.core.objects import warm_up as warm_up_objects
 from pass3d_ros.core.pipeline import LabelledScan, ScanPipeline
 from pass3d_ros.core.stage1 import Stage1Config, warm_up
 from pass3d_ros.core.stage2 import Classifier
@@ -43,6 +44,7 @@ from pass3d_ros.core.stage2.groups import DEFAULT_ENABLED as PEOPLE_IN_GROUPS
 from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_MATCH
 from pass3d_ros.core.stream.tracks import TrackerConfig
 from pass3d_ros.core.tracked_scan import NO_TRACK
+from pass3d_ros.core.tracked_scan import warm_up as warm_up_tracker
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.data.spec import DatasetError
 from pass3d_ros.evaluation.offline import proposed_frame
@@ -294,6 +296,8 @@ def evaluate_tracking(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
     name boxes within one frame only (no ground-truth tracks); `people_in_groups`: Stage2Config.people_in_groups."""
     warm_up()
     classifier.warm_up()
+    warm_up_objects()
+    warm_up_tracker()  # the tracker's time a scan (track_ms) then counts no kernel's compiling or loading
     tracker_config = tracker_config or TrackerConfig()
     pipeline = ScanPipeline(config, classifier, intensity_match=intensity_match, tracking=True,
                             tracker_config=tracker_config, people_in_groups=people_in_groups)
