@@ -451,7 +451,7 @@ def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = T
     """Ground mask and planes of a scan (N x >=3, sensor frame, z up) under `config`; see the module docstring.
     `in_scan_order` False: the points are likely in no scan order (the same result, drawn without branches the CPU
     would mispredict on them). `pool`: an executor whose thread is free (never the caller's own): the sample and the
-    final test are then split between it and the caller, the same result in about two thirds of the time.
+    final test are then split between it and the caller: the same result, about 0.2 ms sooner on a KITTI scan.
 
     Segments span x in [-ground_x_extent, ground_x_extent] (points beyond fall into the end segments); a plane
     steeper than `ground_max_slope_deg` or stepping more than `ground_max_step` at its inner edge takes its inner
