@@ -8,6 +8,7 @@ order, a ring field, or the scan's laser lines (see `_propose_finite`). Every pa
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -214,6 +215,18 @@ def _ground_pool() -> ThreadPoolExecutor:
         if _GROUND_POOL is None:
             _GROUND_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pass3d-ground")
     return _GROUND_POOL
+
+
+def _forget_ground_pool() -> None:
+    """In a forked child: the parent's ground thread is not there (work given to its pool would wait for ever, and
+    its lock may have been held at the fork), so the child starts a pool of its own on its first scan."""
+    global _GROUND_POOL, _GROUND_POOL_LOCK
+    _GROUND_POOL = None
+    _GROUND_POOL_LOCK = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):  # POSIX only: nothing forks elsewhere
+    os.register_at_fork(after_in_child=_forget_ground_pool)
 
 
 @nb.njit(cache=True, nogil=True)

@@ -3,6 +3,7 @@ the ground fit split between the calling thread and the ground thread, the joins
 
 from __future__ import annotations
 
+import multiprocessing as mp
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -85,3 +86,25 @@ def test_small_scans_stay_on_one_thread() -> None:
         scanline.cluster_scanlines(points, ring, np.ones(2000, dtype=bool), Stage1Config(), pool)
         ground_module.fit_ground(points, Stage1Config(), pool=pool)
         assert pool.submitted == []
+
+
+def _propose_in_child(points: np.ndarray, ring: np.ndarray, out) -> None:
+    """A forked child's stage 1 on the ground thread: its proposal count, sent back."""
+    out.put(propose(points, ring, Stage1Config()).n_proposals)
+
+
+def test_a_forked_child_runs_stage_1_on_its_own_ground_thread(street) -> None:
+    """The ground thread does not survive a fork: a child given the parent's pool waited on it for ever."""
+    points, ring = street
+    expected = propose(points, ring, Stage1Config()).n_proposals  # the parent's ground thread is started
+    context = mp.get_context("fork")
+    out = context.Queue()
+    child = context.Process(target=_propose_in_child, args=(points, ring, out))
+    child.start()
+    child.join(60)
+    if child.is_alive():
+        child.kill()
+        child.join()
+        pytest.fail("stage 1 hung in a forked child")
+    assert child.exitcode == 0
+    assert out.get(timeout=10) == expected
