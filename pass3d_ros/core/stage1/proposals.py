@@ -30,6 +30,7 @@ from pass3d_ros.core.stage1.sensor_params import SensorScale
 from pass3d_ros.data.frame import Box3D
 
 STEPS: tuple[str, ...] = ("ring", "ground", "clustering", "refinement", "total")
+MAX_RING = int(np.iinfo(np.uint16).max)  # rings are read as uint16: a larger index would wrap onto another laser
 
 
 @dataclass
@@ -96,8 +97,14 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if pts.ndim != 2 or pts.shape[1] < 3:
         raise ValueError(f"points must be N x 4 (x, y, z, intensity), got shape {pts.shape}")
-    if ring is not None and len(ring) != len(pts):
-        raise ValueError(f"ring field has {len(ring)} entries for {len(pts)} points")
+    if ring is not None:
+        ring = np.asarray(ring)
+        if len(ring) != len(pts):
+            raise ValueError(f"ring field has {len(ring)} entries for {len(pts)} points")
+        if not np.issubdtype(ring.dtype, np.integer):
+            raise ValueError(f"ring field must hold laser indices (integers), got {ring.dtype}")
+        if len(ring) and int(ring.max()) > MAX_RING:
+            raise ValueError(f"ring field holds {int(ring.max())}: laser indices go up to {MAX_RING}")
     if np.isfinite(pts.sum()) or np.isfinite(pts[:, :3]).all():
         return _propose_finite(pts, ring, cfg, lines, ring_order, level, spacing, scale)
     valid = np.isfinite(pts[:, :3]).all(axis=1)

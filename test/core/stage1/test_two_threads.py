@@ -108,3 +108,13 @@ def test_a_forked_child_runs_stage_1_on_its_own_ground_thread(street) -> None:
         pytest.fail("stage 1 hung in a forked child")
     assert child.exitcode == 0
     assert out.get(timeout=10) == expected
+
+
+@pytest.mark.parametrize(("ring", "problem"), [(np.float32, "integers"), (bool, "integers"), (70000, "up to 65535")])
+def test_a_ring_field_stage_1_cannot_read_is_refused(street, ring, problem: str) -> None:
+    """A float or bool ring field crashed deep in the ring-field reader (IndexError); an index past 65535 wrapped onto
+    another laser silently. Both are refused, naming the problem."""
+    points, field = street
+    bad = field.astype(ring) if isinstance(ring, type) else field.astype(np.int64) + ring
+    with pytest.raises(ValueError, match=problem):
+        propose(points, bad)
