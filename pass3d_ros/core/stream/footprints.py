@@ -96,22 +96,22 @@ def _group_cells(columns: np.ndarray, rows: np.ndarray, n: int, out: np.ndarray,
     """The sorted unique keys of the cells (columns[:n], rows[:n]) written to `out` from `written`; the new end. The
     cells are marked in their bounding box (`marks`, all False, left so) and read back in key order: a footprint's
     box holds a few dozen cells, and marking has none of an insertion sort's unforeseeable branches; a larger box
-    is insertion sorted."""
+    (or one whose size overflows: a non-finite or far-flung point) is insertion sorted."""
     if n == 0:
         return written
     c0, c1, r0, r1 = columns[0], columns[0], rows[0], rows[0]
     for m in range(1, n):
         c0, c1 = min(c0, columns[m]), max(c1, columns[m])
         r0, r1 = min(r0, rows[m]), max(r1, rows[m])
-    height = r1 - r0 + 1
-    if (c1 - c0 + 1) * height > len(marks):
+    width, height = c1 - c0 + 1, r1 - r0 + 1  # either wraps below 1 for cells of a non-finite point or far apart
+    if not (0 < width <= len(marks) and 0 < height <= len(marks) and width * height <= len(marks)):
         first = written
         for m in range(n):
             written = _insert(out, first, written, (columns[m] + _OFFSET) * _ROW + rows[m] + _OFFSET)
         return written
     for m in range(n):
         marks[(columns[m] - c0) * height + rows[m] - r0] = True
-    for c in range(c1 - c0 + 1):
+    for c in range(width):
         for r in range(height):
             if marks[c * height + r]:
                 marks[c * height + r] = False
