@@ -21,6 +21,8 @@ import numpy as np
 VOXEL_M = 0.4  # the side of a shape's voxels
 SHAPE_POINTS = 128  # voxels of one sighting kept at most (its points strided evenly in scan order down to this)
 GRID_M = 1.0  # the coarse grid that finds the shapes a point may fall in
+GRID_CELLS = 512  # ... at most this many cells along x or y: shapes far apart (a stamp or a pose that jumps moves a
+# sighting by its velocity times hours, or tracks by kilometres) get coarser cells, never a grid of gigabytes
 _OFFSET = 1 << 20  # voxel indices shifted positive (any position within +-400 km)
 _FIRST_ROWS = 32
 _MANY = -2  # a grid cell two shapes or more reach
@@ -150,8 +152,9 @@ def _owners_kernel(points: np.ndarray, labels: np.ndarray, cluster_id: np.ndarra
             continue
         x0, x1 = min(x0, reach[t, 0]), max(x1, reach[t, 1])
         y0, y1 = min(y0, reach[t, 2]), max(y1, reach[t, 3])
-    if not x0 < x1:
+    if not x0 < x1 or not np.isfinite(x1 - x0 + y1 - y0):
         return out
+    grid_m = max(grid_m, (x1 - x0) / GRID_CELLS, (y1 - y0) / GRID_CELLS)  # the grid only narrows the search
     nx, ny = int((x1 - x0) / grid_m) + 1, int((y1 - y0) / grid_m) + 1
     grid = np.full((nx, ny), -1, np.int64)
     for t in range(t_count):
