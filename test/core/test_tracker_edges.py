@@ -36,3 +36,11 @@ def test_shapes_a_stamp_jump_carries_far_apart_are_searched_in_bounded_memory() 
     owner = memory.owners(points, np.zeros(3, np.uint8), np.full(3, -1, np.int32), None, (np.eye(3), np.zeros(3)),
                           [0, 1], np.array([[10.0, 0.0], [0.0, 10.0]]), hours)
     assert owner.tolist() == [0, 1, -1]
+
+
+def test_shapes_skip_points_not_finite() -> None:
+    memory = two_moving_shapes()
+    points = np.array([[np.nan, np.nan, np.nan], [np.inf, 1.0, 0.0], [1.0, 1.0, 0.0]], np.float32)
+    owner = memory.owners(points, np.zeros(3, np.uint8), np.full(3, -1, np.int32), None, (np.eye(3), np.zeros(3)),
+                          [0, 1], np.zeros((2, 2)), 0.1)
+    assert owner.tolist() == [-1, -1, 0]

@@ -168,7 +168,7 @@ def _owners_kernel(points: np.ndarray, labels: np.ndarray, cluster_id: np.ndarra
         if labels[i] != 0 or cluster_id[i] >= 0 or (has_ground and ground[i]):
             continue
         x, y, z = _moved(points, i, rotation, shift)
-        if x < x0 or x >= x1 or y < y0 or y >= y1:
+        if not (x0 <= x < x1 and y0 <= y < y1):  # NaN too: it would index the grid anywhere
             continue
         cell = grid[int((x - x0) / grid_m), int((y - y0) / grid_m)]
         if cell == -1:
