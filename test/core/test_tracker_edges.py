@@ -4,10 +4,49 @@ leave the tracker running, its tracks finite and its memory bounded."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+import pytest
 from pass3d_ros.classes import CAR
+from pass3d_ros.core.objects import FrameObjects, LabelledObject
 from pass3d_ros.core.stream.footprints import cell_sets, cells
 from pass3d_ros.core.stream.shapes import ShapeMemory
+from pass3d_ros.core.stream.tracks import NO_TRACK, Tracker
+from pass3d_ros.core.tracked_scan import track_scan
+
+
+def car_scan(x: float) -> tuple[FrameObjects, np.ndarray]:
+    """Forty points of a car at (x, 2) (cluster 0) and ten of background, and the car's object."""
+    rng = np.random.default_rng(int(10 * x))
+    car = np.array([x, 2.0, -0.9]) + rng.uniform(-0.5, 0.5, (40, 3)) * [4.0, 1.8, 1.5]
+    points = np.vstack([car, rng.uniform(-20.0, 20.0, (10, 3))]).astype(np.float32)
+    labels = np.array([CAR] * 40 + [0] * 10, np.uint8)
+    cluster_id = np.array([0] * 40 + [-1] * 10, np.int32)
+    low, high = car.min(axis=0), car.max(axis=0)
+    obj = LabelledObject(tuple((0.5 * (low + high)).tolist()), tuple((high - low).tolist()), 0.0, CAR, 0.9, 0)
+    return FrameObjects(labels, cluster_id, [obj]), points
+
+
+@pytest.mark.parametrize("field, value", [("center", (np.nan, 2.0, -0.9)), ("center", (np.inf, 2.0, -0.9)),
+                                          ("size", (np.nan, 1.8, 1.5)), ("size", (4.0, np.inf, 1.5)),
+                                          ("score", np.nan), ("score", np.inf)])
+def test_a_detection_not_finite_is_in_no_track_and_the_track_goes_on(field: str, value: object) -> None:
+    tracker = Tracker()
+    for k in range(4):
+        objects, points = car_scan(8.0 + 0.5 * k)
+        seen = track_scan(tracker, objects, 0.1 * k, points=points)
+    track = seen.voted.objects[0].track_id
+    assert track >= 0
+    objects, points = car_scan(10.0)
+    bad = FrameObjects(objects.labels, objects.cluster_id, [dataclasses.replace(objects.objects[0], **{field: value})])
+    out = track_scan(tracker, bad, 0.4, points=points)
+    assert out.tracked[0].track_id == NO_TRACK and out.voted.objects[0].track_id == NO_TRACK
+    assert np.isfinite(tracker.store.state[tracker._live()]).all() and np.isfinite(tracker.store.box).all()
+    objects, points = car_scan(10.5)
+    after = track_scan(tracker, objects, 0.5, points=points)
+    assert after.voted.objects[0].track_id == track, "the scan after one bad object finds its track again"
+    assert np.isfinite(after.voted.objects[0].score)
 
 
 def test_footprint_cells_of_points_not_finite_or_far_apart_are_found_without_a_crash() -> None:

@@ -269,10 +269,14 @@ class Tracker:
         points stage 2 called background on its predicted footprint (module docstring): `background(centers, reach)`
         gives those points (B, 3; sensor frame) within `reach` (T,) metres in x and y of the waiting tracks'
         `centers` (T, 3; sensor frame), and is called only when a track waits. `plausible`: whether each detection's
-        box can be one object of its class (without `implausible_births` one that cannot starts no track)."""
+        box can be one object of its class (without `implausible_births` one that cannot starts no track). A
+        detection whose centre, size or score is not finite is in no track (NO_TRACK): it would make a track's filter,
+        box or vote NaN for good."""
         to_world = TrackingFrame(pose)
         centers = to_world.points(np.asarray(centers, dtype=np.float64).reshape(-1, 3))
         sizes = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
+        usable = (np.isfinite(centers).all(axis=1) & np.isfinite(sizes).all(axis=1)
+                  & np.isfinite(np.asarray(scores, dtype=np.float64)))
         world = detections = shared = None
         if footprints is not None:
             world = Footprints(to_world.xy(footprints.xy), footprints.counts)
@@ -281,7 +285,7 @@ class Tracker:
         tracks = self._footprints()
         if tracks is not None and detections is not None:
             shared = _Shared(shared_cells(tracks, detections), np.diff(tracks[1]), np.diff(detections[1]))
-        rows, cols = self._associate(centers, labels, shared)
+        rows, cols = self._associate(centers, labels, shared, usable)
         matched = dict(zip(cols.tolist(), rows.tolist(), strict=True))
         self._correct_all(self._live()[rows], centers[cols], sizes[cols])
         confirmed = self.store.hits[self._live()] >= self.config.min_hits
@@ -292,7 +296,7 @@ class Tracker:
         covered = self._covered(matched, parts, labels, shared, confirmed)
         births = None if plausible is None or self.config.implausible_births else plausible
         rows, early = self._sightings(centers, sizes, labels, scores, stamp_s, matched, parts, detections,
-                                      split if self.config.waiting_views else None, births)
+                                      split if self.config.waiting_views else None, births, usable)
         out = self._said_all(rows, early, labels, scores)
         seen = {self.tracks[u].track_id for others in covered.values() for u in others}
         seen.update(self.store.track_id[self._live()[[r for r in rows if r >= 0]]].tolist())
@@ -308,12 +312,14 @@ class Tracker:
                    stamp_s: float, matched: dict[int, int], parts: dict[int, int],
                    detections: tuple[np.ndarray, np.ndarray] | None,
                    points: list[np.ndarray] | None = None,
-                   births: Sequence[bool] | None = None) -> tuple[list[int], dict[int, Tracked]]:
+                   births: Sequence[bool] | None = None,
+                   usable: np.ndarray | None = None) -> tuple[list[int], dict[int, Tracked]]:
         """Each detection's track (its row in `tracks`): a matched track sighted (all at once), a part its object's
         track, any other (with `points`, each detection's footprint) another view of a waiting car track
         (`_waiting_view`), a track found again (`_revive`) or born, in detection order; with `births`, a detection
-        it marks False starts no track (row -1). Also what the tracker says of the parts that come before their
-        object's own detection (said before that detection's sighting)."""
+        it marks False starts no track (row -1); one `usable` marks False (not finite) is in none but a part. Also
+        what the tracker says of the parts that come before their object's own detection (said before that
+        detection's sighting)."""
         own = {t: d for d, t in matched.items()}
         early = {d: self._said(self.tracks[t]) for d, t in parts.items() if own[t] > d}
         ds = sorted(matched)
@@ -327,6 +333,9 @@ class Tracker:
                 continue
             if d in matched:
                 rows.append(matched[d])
+                continue
+            if usable is not None and not usable[d]:
+                rows.append(-1)
                 continue
             row = None if points is None or not len(points[d]) else self._waiting_view(points[d], int(labels[d]), taken)
             if row is not None:  # another view of a waiting car: corrected as a matched track is
@@ -488,8 +497,8 @@ class Tracker:
         """The footprint cells of the tracks of `slots` where their points are predicted now (`cell_sets`)."""
         return rows_cells(self.store.offsets, self.store.points, slots, self.store.state)
 
-    def _associate(self, centers: np.ndarray, labels: Sequence[int],
-                   shared: _Shared | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _associate(self, centers: np.ndarray, labels: Sequence[int], shared: _Shared | None = None,
+                   usable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The matched pairs' track indices and detection indices: a pair's cost is its centre distance (plus
         class_penalty_m for another class) times 1 - the share of footprint cells it shares; a pair may match within
         the detection's gate, or beyond it when its footprints share match_overlap of their cells. The pairs chosen
@@ -507,6 +516,9 @@ class Tracker:
             empty if shared is None else shared.detections, self.store.hits[slots].astype(np.float64), config.gates,
             config.never, config.class_penalty_m, config.match_overlap, config.youth_penalty_m,
             float(config.mature_hits), MIN_MARGIN_M)
+        if usable is not None and not usable.all():  # a detection not finite matches nothing
+            allowed[:, ~usable] = False
+            margin[:, ~usable] = 0.0
         rows, cols = linear_sum_assignment(margin, maximize=True)
         keep = allowed[rows, cols]
         return rows[keep], cols[keep]
