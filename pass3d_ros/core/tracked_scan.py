@@ -59,7 +59,13 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
     4 x 4) when known; return the objects, labels and per-point track ids with the vote applied. With the scan's
     `points` (level frame, as the objects were fitted; `ground`: stage 1's ground mask, when known) the tracker also
     matches by footprints, takes parts of a tracked object as that object, and lets a confirmed track no object
-    matched be held by the points stage 2 called background on its footprint (module docstring)."""
+    matched be held by the points stage 2 called background on its footprint (module docstring). Points or a ground
+    mask of another length than the objects' labels are refused (ValueError) before the tracker is touched: they
+    would be read out of bounds, or fail half way through its update."""
+    n = len(objects.labels)
+    if points is not None and (len(points) != n or (ground is not None and len(ground) != n)):
+        raise ValueError(f"{n} labels but {len(points)} points and {'no' if ground is None else len(ground)} ground "
+                         "flags")
     started = time.perf_counter()
     boxes = np.array([(*obj.center, *obj.size, obj.label, obj.score) for obj in objects.objects],
                      dtype=np.float64).reshape(-1, 8)  # one pass over the objects: centre, size, class, score

@@ -8,6 +8,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+
 from pass3d_ros.classes import CAR
 from pass3d_ros.core.objects import FrameObjects, LabelledObject
 from pass3d_ros.core.stream.footprints import cell_sets, cells
@@ -83,3 +84,21 @@ def test_shapes_skip_points_not_finite() -> None:
     owner = memory.owners(points, np.zeros(3, np.uint8), np.full(3, -1, np.int32), None, (np.eye(3), np.zeros(3)),
                           [0, 1], np.zeros((2, 2)), 0.1)
     assert owner.tolist() == [-1, -1, 0]
+
+
+@pytest.mark.parametrize("points_kept, ground_kept", [(50, 5), (50, 49), (45, None)])
+def test_points_or_ground_of_another_length_are_refused_before_the_tracker_is_touched(
+        points_kept: int, ground_kept: int | None) -> None:
+    tracker = Tracker()
+    for k in range(4):
+        objects, points = car_scan(8.0 + 0.5 * k)
+        track_scan(tracker, objects, 0.1 * k, points=points)
+    state = tracker.store.state.copy()
+    objects, points = car_scan(30.0)  # the car missed: its track waits on the background points
+    missed = FrameObjects(np.zeros(50, np.uint8), np.full(50, -1, np.int32), [])
+    ground = None if ground_kept is None else np.zeros(ground_kept, bool)
+    with pytest.raises(ValueError, match="50 labels"):
+        track_scan(tracker, missed, 0.4, points=points[:points_kept], ground=ground)
+    assert np.array_equal(tracker.store.state, state)
+    objects, points = car_scan(10.0)
+    assert track_scan(tracker, objects, 0.4, points=points).voted.objects[0].track_id >= 0
