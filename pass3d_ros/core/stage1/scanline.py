@@ -20,7 +20,7 @@ the point-count gate one by one (stage-1 recall with and without: docs/results.m
 
 from __future__ import annotations
 
-from concurrent.futures import Executor, ThreadPoolExecutor
+from concurrent.futures import Executor
 
 import numba as nb
 import numpy as np
@@ -315,16 +315,6 @@ def _join_runs(idx: np.ndarray, n: int, q: np.ndarray, start: np.ndarray, joins:
 
 
 @nb.njit(cache=True, nogil=True)
-def _cluster_kernel(pts: np.ndarray, ring: np.ndarray, use: np.ndarray, n_rings: int, th_ring: float,
-                    th_prop: float, n_prev_rings: int, run_skip: int = 0) -> tuple:
-    """Labels (compact 0..C-1, -1 where unused) and C on one thread; the steps of the module docstring."""
-    idx, keys, start, q, joins = _prepare(pts, ring, use, n_rings, th_ring)
-    near = np.empty(idx.shape[0], dtype=np.int64)
-    _search_rings(q, keys, start, 0, n_rings, near, th_ring, th_prop, n_prev_rings)
-    return _join_runs(idx, pts.shape[0], q, start, joins, near, th_ring, run_skip)
-
-
-@nb.njit(cache=True, nogil=True)
 def _bridge_runs(q: np.ndarray, run_of: np.ndarray, parent: np.ndarray, lo: int,
                  hi: int, run_skip: int, th_ring2: float) -> None:
     """Join the runs of one ring (sorted positions lo..hi-1, read as a circle: the ring's start lies straight
@@ -450,24 +440,21 @@ def cluster_scanlines(
         return np.full(len(pts), -1, dtype=np.int32), 0
     ring = np.ascontiguousarray(ring, dtype=np.uint16)
     n_rings = int(ring.max()) + 1
-    use = np.ascontiguousarray(use, dtype=np.bool_)
-    args = (float(config.th_ring), float(config.th_prop), int(config.n_prev_rings), int(config.run_skip))
-    if pool is None or n_rings < 2:
-        return _cluster_kernel(pts, ring, use, n_rings, *args)
-    th_ring, th_prop, n_prev_rings, run_skip = args
-    idx, keys, start, q, joins = _prepare(pts, ring, use, n_rings, th_ring)
+    th_ring, th_prop = float(config.th_ring), float(config.th_prop)
+    idx, keys, start, q, joins = _prepare(pts, ring, np.ascontiguousarray(use, dtype=np.bool_), n_rings, th_ring)
     m = len(idx)
     near = np.empty(m, dtype=np.int64)
-    split = int(np.clip(np.searchsorted(start, round(LOWER_SHARE * m)), 1, n_rings - 1))
-    if m < TWO_THREADS_MIN_POINTS:
-        split = n_rings
+    search = (q, keys, start)
+    split = n_rings  # the rings from `split` on are searched on the pool's thread
+    if pool is not None and m >= TWO_THREADS_MIN_POINTS and n_rings >= 2:
+        split = int(np.clip(np.searchsorted(start, round(LOWER_SHARE * m)), 1, n_rings - 1))
     upper = None
     if split < n_rings:
-        upper = pool.submit(_search_rings, q, keys, start, split, n_rings, near, th_ring, th_prop, n_prev_rings)
-    _search_rings(q, keys, start, 0, split, near, th_ring, th_prop, n_prev_rings)
+        upper = pool.submit(_search_rings, *search, split, n_rings, near, th_ring, th_prop, int(config.n_prev_rings))
+    _search_rings(*search, 0, split, near, th_ring, th_prop, int(config.n_prev_rings))
     if upper is not None:
         upper.result()
-    return _join_runs(idx, len(pts), q, start, joins, near, th_ring, run_skip)
+    return _join_runs(idx, len(pts), q, start, joins, near, th_ring, int(config.run_skip))
 
 
 def warm_up() -> None:
@@ -479,6 +466,4 @@ def warm_up() -> None:
     pts[32:, 2] = -0.1
     ring = np.repeat(np.arange(2), 32).astype(np.uint16)
     cluster_scanlines(pts, ring, np.ones(64, dtype=bool), Stage1Config())
-    with ThreadPoolExecutor(max_workers=1) as pool:  # the two-thread path's kernels (a scan this small stays on one)
-        cluster_scanlines(pts, ring, np.ones(64, dtype=bool), Stage1Config(), pool)
     canonical_order(pts[::-1], ring)
