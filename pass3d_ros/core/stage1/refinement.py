@@ -302,21 +302,12 @@ def grouped_points(first: np.ndarray, second: np.ndarray, k: int) -> tuple[np.nd
 @nb.njit(cache=True, nogil=True)
 def grouped_by_slot(label: np.ndarray, slot: np.ndarray, n_slots: int) -> tuple[np.ndarray, np.ndarray]:
     """The points of the clusters that have a slot (slot[cluster] >= 0), grouped by slot in point order (a counting
-    sort), and the n_slots + 1 bounds of the groups. The slots are read twice rather than written to a scan-long
-    array of groups first."""
-    bounds = np.zeros(n_slots + 1, dtype=np.int64)
+    sort), and the n_slots + 1 bounds of the groups."""
+    group = np.full(label.shape[0], -1, dtype=np.int64)
     for i in range(label.shape[0]):
-        if label[i] >= 0 and slot[label[i]] >= 0:
-            bounds[slot[label[i]] + 1] += 1
-    for j in range(n_slots):
-        bounds[j + 1] += bounds[j]
-    fill = bounds[:n_slots].copy()
-    index = np.empty(bounds[n_slots], dtype=np.int64)
-    for i in range(label.shape[0]):
-        if label[i] >= 0 and slot[label[i]] >= 0:
-            index[fill[slot[label[i]]]] = i
-            fill[slot[label[i]]] += 1
-    return index, bounds
+        if label[i] >= 0:
+            group[i] = slot[label[i]]
+    return grouped_points(group, np.empty(0, dtype=np.int64), n_slots)
 
 
 @nb.njit(cache=True, nogil=True)

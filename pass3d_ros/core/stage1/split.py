@@ -38,7 +38,7 @@ from pass3d_ros.core.stage1 import protrusion as _protrusion
 from pass3d_ros.core.stage1 import refinement as _refinement
 from pass3d_ros.core.stage1 import scanline as _scanline
 from pass3d_ros.core.stage1.config import Stage1Config
-from pass3d_ros.core.stage1.ground import LocalGround
+from pass3d_ros.core.stage1.ground import LocalGround, plane_distance
 from pass3d_ros.core.stage1.ground import fit_ground as _fit_ground
 from pass3d_ros.core.stage1.sensor_params import RangeGate
 from pass3d_ros.data.frame import Box3D
@@ -373,16 +373,13 @@ def _plane_heights(points: np.ndarray, label: np.ndarray, chosen: np.ndarray, pl
     height = np.full(n, np.nan)
     count = np.zeros(chosen.shape[0], dtype=np.int64)
     sums = np.zeros((chosen.shape[0], 2))
-    last = planes.shape[0] - 1
     for i in range(n):
         c = label[i]
         if c < 0 or not chosen[c]:
             continue
         x = np.float64(points[i, 0])
         y = np.float64(points[i, 1])
-        z = np.float64(points[i, 2])
-        s = min(max(int((x - x0) / width), 0), last)
-        height[i] = planes[s, 0] * x + planes[s, 1] * y + planes[s, 2] * z + planes[s, 3]
+        height[i] = plane_distance(planes, x0, width, x, y, np.float64(points[i, 2]))
         count[c] += 1
         sums[c, 0] += x
         sums[c, 1] += y
