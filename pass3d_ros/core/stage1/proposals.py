@@ -103,7 +103,7 @@ def propose(points: np.ndarray, ring: np.ndarray | None = None, config: Stage1Co
             raise ValueError(f"ring field has {len(ring)} entries for {len(pts)} points")
         if not np.issubdtype(ring.dtype, np.integer):
             raise ValueError(f"ring field must hold laser indices (integers), got {ring.dtype}")
-        if len(ring) and int(ring.max()) > MAX_RING:
+        if ring.dtype.itemsize > 2 and len(ring) and int(ring.max()) > MAX_RING:  # uint16 rings: no pass
             raise ValueError(f"ring field holds {int(ring.max())}: laser indices go up to {MAX_RING}")
     if np.isfinite(pts.sum()) or np.isfinite(pts[:, :3]).all():
         return _propose_finite(pts, ring, cfg, lines, ring_order, level, spacing, scale)
