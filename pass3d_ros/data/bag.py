@@ -170,12 +170,27 @@ def select_topic(path: Path, topic: str | None, msgtype: str = POINTCLOUD2_TYPE)
         reader.close()
 
 
+def _all_read(messages: Iterable[tuple[Connection, int, bytes]], expected: int, where: str
+              ) -> Iterator[tuple[Connection, int, bytes]]:
+    """`messages`, then a DatasetError naming `where` when fewer came than the `expected` its metadata lists: rosbags
+    skips a corrupt record of an MCAP file without a word, which would otherwise read as a shorter bag."""
+    got = 0
+    for message in messages:
+        got += 1
+        yield message
+    if got < expected:
+        raise DatasetError(f"{where}: only {got} of the {expected} messages its metadata lists could be read "
+                           "(the storage file is corrupt or truncated)")
+
+
 def iter_raw(path: Path, topic: str) -> Iterator[tuple[Connection, int, bytes]]:
-    """(connection, bag time ns, CDR bytes) of every message on `topic`, in bag order."""
+    """(connection, bag time ns, CDR bytes) of every message on `topic`, in bag order; DatasetError after the last
+    when fewer read back than the metadata lists."""
     reader = _open_reader(path)
     try:
         connections = [conn for conn in reader.connections if conn.topic == topic]
-        yield from reader.messages(connections=connections)
+        expected = sum(conn.msgcount for conn in connections)
+        yield from _all_read(reader.messages(connections=connections), expected, f"{path}#{topic}")
     finally:
         reader.close()
 
@@ -199,8 +214,9 @@ class BagFile:
         return f"{self.path}#{self.topic}"
 
     def messages(self) -> Iterator[tuple[Connection, int, bytes]]:
-        """(connection, bag time ns, CDR bytes) of every message on the topic, in bag order."""
-        return self._reader.messages(connections=self._connections)
+        """(connection, bag time ns, CDR bytes) of every message on the topic, in bag order; DatasetError after the
+        last when fewer read back than the metadata lists."""
+        return _all_read(self._reader.messages(connections=self._connections), self.count, str(self))
 
     def close(self) -> None:
         """Release the file; closing twice is harmless."""

@@ -191,6 +191,27 @@ def test_real_frames_round_trip(kitti_dev: Path, tmp_path: Path) -> None:
     assert all(b > a for a, b in itertools.pairwise(stamps))
 
 
+def test_messages_a_corrupt_mcap_loses_are_an_error_not_a_shorter_bag(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """rosbags silently skips a message record whose channel id is corrupt: reading and converting such a bag name
+    it and say how many of the messages its metadata lists were lost, rather than go on with fewer frames."""
+    seq = write_sequence(tmp_path, frames=4)
+    out = tmp_path / "bag"
+    stats = bag_convert.convert([f"semantickitti:{seq}"], out, progress=False, log=lambda _: None)
+    mcap = out / "bag.mcap"
+    data = bytearray(mcap.read_bytes())
+    stamp = stats.first_stamp_ns + 2 * bag_convert.FRAME_GAP_NS  # the third message: log time = publish time
+    at = data.index(stamp.to_bytes(8, "little") * 2)
+    data[at - 6:at - 4] = b"\xff\xff"  # its channel id, just before its sequence number
+    mcap.write_bytes(bytes(data))
+    with pytest.raises(DatasetError, match=r"bag.*3 of the 4 messages"):
+        list(read_bag(str(out)))
+    assert kitti2bag.main([f"--data=bag:{out}", f"--out={tmp_path / 'copy'}", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "3 of the 4 messages" in err and "Traceback" not in err
+    assert not (tmp_path / "copy").exists()
+
+
 # ---- live ROS: replay to a real subscriber, record what is published ----
 
 def small_bag(tmp_path: Path, frames: int = 8) -> Path:
