@@ -56,9 +56,12 @@ def parse_calib(path: Path) -> np.ndarray:
         if not sep:
             continue
         try:
-            values[_CALIB_ALIASES.get(key.strip(), key.strip())] = np.array(rest.split(), dtype=np.float64)
+            entry = np.array(rest.split(), dtype=np.float64)
         except ValueError as exc:
             raise DatasetError(f"{path}:{number}: non-numeric calibration entry {key.strip()!r}") from exc
+        if not np.isfinite(entry).all():
+            raise DatasetError(f"{path}:{number}: non-finite calibration entry {key.strip()!r}")
+        values[_CALIB_ALIASES.get(key.strip(), key.strip())] = entry
     for key, size in (("Tr_velo_to_cam", 12), ("R0_rect", 9)):
         if key not in values or values[key].size != size:
             raise DatasetError(f"{path}: calibration needs {key} with {size} numbers")
@@ -66,7 +69,10 @@ def parse_calib(path: Path) -> np.ndarray:
     tr[:3, :] = values["Tr_velo_to_cam"].reshape(3, 4)
     r0 = np.eye(4)
     r0[:3, :3] = values["R0_rect"].reshape(3, 3)
-    return r0 @ tr
+    velo_to_cam = r0 @ tr
+    if np.linalg.matrix_rank(velo_to_cam) < 4:
+        raise DatasetError(f"{path}: R0_rect * Tr_velo_to_cam is singular, so boxes cannot be mapped to the velodyne")
+    return velo_to_cam
 
 
 def camera_box_to_velo(dims_hwl: np.ndarray, bottom_xyz: np.ndarray, rotation_y: float,
@@ -102,6 +108,8 @@ def read_label_file(path: Path, velo_to_cam: np.ndarray) -> list[Box3D]:
             numbers = np.array(fields[8:15], dtype=np.float64)
         except ValueError as exc:
             raise DatasetError(f"{path}:{number}: non-numeric box dimensions / location / rotation") from exc
+        if not np.isfinite(numbers).all():
+            raise DatasetError(f"{path}:{number}: non-finite box dimensions / location / rotation")
         dims, location, rotation_y = numbers[0:3], numbers[3:6], float(numbers[6])
         centre, yaw = camera_box_to_velo(dims, location, rotation_y, velo_to_cam)
         kind = fields[0]

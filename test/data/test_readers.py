@@ -191,6 +191,32 @@ def test_kitti_object_missing_labels_and_bad_input(tmp_path: Path) -> None:
         kitti_object.read_kitti_object(tmp_path / "label_2")
 
 
+@pytest.mark.parametrize(
+    ("label", "calib", "problem"),
+    [
+        ("Car 0 0 0 0 0 0 0 1.5 1.8 4 0 1.7 10 inf", None, r"label_2[/\\]000000.txt:1: non-finite"),
+        ("Car 0 0 0 0 0 0 0 nan 1.8 4 0 1.7 10 0", None, r"label_2[/\\]000000.txt:1: non-finite"),
+        (None, "R0_rect: 0 0 0 0 0 0 0 0 0\nTr_velo_to_cam: 0 -1 0 0 0 0 -1 0 1 0 0 0\n",
+         r"calib[/\\]000000.txt: .*singular"),
+        (None, "R0_rect: 1 0 0 0 1 0 0 0 1\nTr_velo_to_cam: 0 -1 0 0 0 0 -1 0 1 0 0 nan\n",
+         r"calib[/\\]000000.txt:2: non-finite"),
+    ],
+)
+def test_kitti_object_non_finite_or_singular_input_names_the_file(tmp_path: Path, label: str | None,
+                                                                  calib: str | None, problem: str) -> None:
+    """A label with inf / NaN numbers or a calibration that cannot be inverted is a DatasetError naming the file,
+    never a `math domain error` or LinAlgError traceback, nor boxes at NaN."""
+    (tmp_path / "velodyne").mkdir()
+    _scan(50, np.random.default_rng(1)).tofile(tmp_path / "velodyne" / "000000.bin")
+    _write_permutation_calib(tmp_path / "calib" / "000000.txt")
+    if calib is not None:
+        (tmp_path / "calib" / "000000.txt").write_text(calib)
+    (tmp_path / "label_2").mkdir()
+    (tmp_path / "label_2" / "000000.txt").write_text((label or "Car 0 0 0 0 0 0 0 1.5 1.8 4 0 1.7 10 0") + "\n")
+    with pytest.raises(DatasetError, match=problem):
+        list(kitti_object.read_kitti_object(tmp_path))
+
+
 def test_text_files_that_are_not_text_name_the_file(tmp_path: Path) -> None:
     """A corrupt (non-UTF-8) label, calibration, time or split file is a DatasetError naming it, never a
     UnicodeDecodeError escaping the tools as a traceback."""
