@@ -18,6 +18,7 @@ Conventions:
 from __future__ import annotations
 
 import calendar
+import math
 import re
 import time
 import xml.etree.ElementTree as ET
@@ -68,9 +69,12 @@ def _child_float(node: ET.Element, tag: str, path: Path) -> float:
     if child is None or child.text is None:
         raise DatasetError(f"{path}: tracklet entry lacks <{tag}>")
     try:
-        return float(child.text)
+        value = float(child.text)
     except ValueError as exc:
         raise DatasetError(f"{path}: <{tag}> is not a number: {child.text.strip()!r}") from exc
+    if not math.isfinite(value):
+        raise DatasetError(f"{path}: <{tag}> is not a finite number: {child.text.strip()!r}")
+    return value
 
 
 def read_tracklets(path: Path) -> dict[int, list[Box3D]]:

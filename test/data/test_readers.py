@@ -348,6 +348,19 @@ def test_kitti_raw_without_tracklets_and_bad_input(tmp_path: Path) -> None:
         kitti_raw.read_kitti_raw(tmp_path / "2011_09_26_drive_0002_sync")
 
 
+@pytest.mark.parametrize("value", ["inf", "nan", "1e400"])
+@pytest.mark.parametrize("tag", ["first_frame", "h", "rz"])
+def test_kitti_raw_non_finite_tracklet_number_names_the_file(tmp_path: Path, tag: str, value: str) -> None:
+    """inf / NaN in a tracklet is a DatasetError naming the file and the element, never an OverflowError traceback
+    (first_frame) nor a box at NaN (size, pose)."""
+    drive = _write_drive(tmp_path)
+    start = TRACKLETS_XML.index(f"<{tag}>")
+    end = TRACKLETS_XML.index(f"</{tag}>", start)
+    (drive / "tracklet_labels.xml").write_text(TRACKLETS_XML[:start] + f"<{tag}>{value}" + TRACKLETS_XML[end:])
+    with pytest.raises(DatasetError, match=rf"tracklet_labels\.xml: <{tag}> is not a finite number"):
+        list(kitti_raw.read_kitti_raw(drive))
+
+
 def test_kitti_raw_timestamp_parse_is_exact() -> None:
     assert kitti_raw.parse_timestamp_ns("1970-01-01 00:00:01.000000001") == 1_000_000_001
     assert kitti_raw.parse_timestamp_ns("1970-01-01 00:00:00.5") == 500_000_000
