@@ -86,9 +86,16 @@ def encode_labels(labels: np.ndarray, ground: np.ndarray | None, instance: np.nd
 
 def _seconds_to_ns(line: str) -> int:
     try:
-        return int((Decimal(line.strip()) * 1_000_000_000).to_integral_value())
+        seconds = Decimal(line.strip())
     except InvalidOperation:
         raise ValueError(f"not a time in seconds: {line.strip()!r}") from None
+    problem = f"not a finite time in seconds: {line.strip()!r}"
+    if not seconds.is_finite():
+        raise ValueError(problem)
+    try:
+        return int((seconds * 1_000_000_000).to_integral_value())
+    except ArithmeticError:  # an exponent past what decimal holds (decimal.Overflow)
+        raise ValueError(problem) from None
 
 
 def read_times(path: Path) -> list[int]:

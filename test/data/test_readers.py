@@ -403,6 +403,17 @@ def test_semantickitti_write_read_round_trip(tmp_path: Path) -> None:
         np.testing.assert_array_equal(read.instance, original.instance)
 
 
+@pytest.mark.parametrize("value", ["inf", "-Infinity", "nan", "1e999999999"])
+def test_semantickitti_non_finite_time_names_the_line(tmp_path: Path, value: str) -> None:
+    """A times.txt entry that is no finite time is a DatasetError naming the file and line, never an OverflowError
+    or decimal.Overflow traceback."""
+    seq = tmp_path / "00"
+    semantickitti.write_semantickitti_frame(seq, Frame("000000", _scan(20, np.random.default_rng(2))))
+    (seq / "times.txt").write_text(f"{value}\n")
+    with pytest.raises(DatasetError, match=rf"times.txt:1: not a finite time in seconds: '{value}'"):
+        list(semantickitti.read_semantickitti(seq))
+
+
 def test_semantickitti_missing_labels_and_bad_sizes(tmp_path: Path) -> None:
     seq = tmp_path / "00"
     semantickitti.write_semantickitti_frame(seq, Frame("000000", _scan(20, np.random.default_rng(2))))
