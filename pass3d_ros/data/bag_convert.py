@@ -26,6 +26,7 @@ from pass3d_ros.msgs.pointcloud2 import POINTCLOUD2_TYPE, columns_to_cloud, enco
 
 SYNTHETIC_START_NS = 1_577_836_800 * 1_000_000_000  # 2020-01-01T00:00:00Z
 FRAME_GAP_NS = 100_000_000  # 10 Hz
+MAX_STAMP_NS = 2**31 * 1_000_000_000 - 1  # a ROS header's stamp: int32 seconds, not before 1970 in a bag
 
 
 @dataclass
@@ -96,6 +97,9 @@ def convert(
                         offset = stats.last_stamp_ns + FRAME_GAP_NS if stats.frames else SYNTHETIC_START_NS
                         synthesized.append(str(dataset))
                 stamp = frame.stamp_ns + offset
+                if not 0 <= stamp <= MAX_STAMP_NS:
+                    raise DatasetError(f"{dataset}: frame {frame.name}: stamp {stamp / 1e9:.9g} s is outside what a "
+                                       f"ROS header holds (0 to {MAX_STAMP_NS // 1_000_000_000} s)")
                 try:
                     cloud = frame_cloud(frame, with_labels)
                 except DatasetError as exc:

@@ -155,6 +155,19 @@ def test_bad_input_file_is_named_and_cleaned_up(tmp_path: Path, capsys: pytest.C
     assert kitti2bag.main([f"--data=nope:{seq}", f"--out={tmp_path / 'bag'}"]) == 2
 
 
+@pytest.mark.parametrize(("times", "frame"), [("-5\n-4.9", "000000"), ("0\n1e30", "000001")])
+def test_stamp_a_ros_header_cannot_hold_names_the_frame(tmp_path: Path, times: str, frame: str,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """A frame time before 1970 or past a header's int32 seconds is refused naming the dataset and frame, never a
+    struct.error traceback from the serializer nor a message that names neither."""
+    seq = write_sequence(tmp_path, frames=2)
+    (seq / "times.txt").write_text(f"{times}\n")
+    assert kitti2bag.main([f"--data=semantickitti:{seq}", f"--out={tmp_path / 'bag'}", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"semantickitti:{seq}: frame {frame}" in err and "ROS header" in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]
+
+
 def test_bag_topic_selection(tmp_path: Path) -> None:
     out = tmp_path / "two"
     with BagWriter(out, storage="sqlite3") as writer:
