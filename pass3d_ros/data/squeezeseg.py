@@ -68,6 +68,8 @@ def load_image(path: Path) -> np.ndarray:
         raise DatasetError(f"{path}: not a readable .npy file ({exc})") from exc
     if image.ndim != 3 or image.shape[2] != CHANNELS:
         raise DatasetError(f"{path}: expected an H x W x {CHANNELS} array, got shape {image.shape}")
+    if image.dtype.kind not in "fiu":
+        raise DatasetError(f"{path}: expected real numbers, got {image.dtype}")
     return image
 
 
@@ -91,7 +93,7 @@ def image_to_frame(image: np.ndarray, name: str, stamp_ns: int = 0, source: str 
     rows = np.broadcast_to(np.arange(image.shape[0])[:, None], valid.shape)
     pixels = image[valid]
     labels = np.rint(pixels[:, 5])
-    if labels.size and (labels.min() < 0 or labels.max() >= NUM_CLASSES):
+    if not np.all((labels >= 0) & (labels < NUM_CLASSES)):  # NaN fails both tests
         raise DatasetError(f"{source or name}: label channel outside 0..{NUM_CLASSES - 1}")
     return Frame(name=name, points=pixels[:, :4].astype(np.float32), stamp_ns=stamp_ns,
                  ring=rows[valid].astype(np.uint16), labels=labels.astype(np.uint8))

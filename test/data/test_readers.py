@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -530,6 +531,22 @@ def test_squeezeseg_bad_file_names_it(tmp_path: Path) -> None:
     image[1, 1, 5] = 7
     np.save(tmp_path / "bad.npy", image)
     with pytest.raises(DatasetError, match=r"bad\.npy"):
+        list(squeezeseg.read_squeezeseg(tmp_path))
+
+
+@pytest.mark.parametrize(("spoil", "problem"), [
+    (lambda image: image.__setitem__((1, 1, 5), np.nan), r"bad\.npy: label channel"),
+    (lambda image: image.astype(np.complex64), r"bad\.npy: expected real numbers, got complex64"),
+    (lambda image: image.astype(str), r"bad\.npy: expected real numbers, got <U"),
+])
+def test_squeezeseg_nan_label_or_non_real_image_names_the_file(tmp_path: Path, spoil: Callable,
+                                                                problem: str) -> None:
+    """A NaN label is refused like any label outside 0..3 (not read as background), and an image of complex numbers
+    or text is a DatasetError naming the file, not a TypeError traceback."""
+    image = _squeezeseg_image(np.random.default_rng(4))
+    spoiled = spoil(image)
+    np.save(tmp_path / "bad.npy", image if spoiled is None else spoiled)
+    with pytest.raises(DatasetError, match=problem):
         list(squeezeseg.read_squeezeseg(tmp_path))
 
 
