@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.spatial import ConvexHull
 from helpers.scans import SENSOR_HEIGHT, Solid, raycast
 
 from pass3d_ros.core import stage1
@@ -279,6 +280,39 @@ def test_min_area_rectangle_recovers_rotated_rectangles():
         assert box.contains(np.column_stack([xy, np.zeros(len(xy))]), margin=(1e-6, 1e-6, 0.0)).all()
     assert refinement.min_area_rectangle(np.ones((4, 2)))[2:4] == (0.0, 0.0)
 
+
+
+def _large_clusters() -> dict[str, np.ndarray]:
+    """Large clusters of the shapes stage 1 meets: a long noisy wall, a ring round the sensor, a car-sized blob with
+    exact duplicates, points on a few x values, and a vertical line (one x: no inner hull)."""
+    rng = np.random.default_rng(11)
+    wall = np.column_stack([rng.uniform(-12.0, 12.0, 30000), 4.0 + rng.normal(0.0, 0.4, 30000)])
+    angle = rng.uniform(0.0, 2.0 * np.pi, 20000)
+    radius = rng.uniform(8.0, 9.0, 20000)
+    blob = rng.normal(0.0, 1.0, (5000, 2)) * [2.0, 0.8]
+    blob[::5] = blob[1::5][: len(blob[::5])]
+    columns = np.column_stack([rng.integers(0, 4, 4000) * 0.5, rng.uniform(-2.0, 2.0, 4000)])
+    line = np.column_stack([np.full(3000, 3.0), rng.uniform(-5.0, 5.0, 3000)])
+    shapes = {"wall": wall, "ring": np.column_stack([radius * np.cos(angle), radius * np.sin(angle)]),
+              "blob": blob, "columns": columns, "line": line}
+    return {name: xy.astype(np.float32).astype(np.float64) for name, xy in shapes.items()}
+
+
+@pytest.mark.parametrize("shape", ["wall", "ring", "blob", "columns", "line"])
+def test_binned_candidates_keep_every_hull_vertex_and_the_rectangle(shape: str):
+    """A large cluster's binned inner-hull filter keeps every vertex of its convex hull, so its rectangle is the one
+    the hull's vertices alone give (the octagon's path, under BINNED_MIN_POINTS points), bit for bit."""
+    xy = _large_clusters()[shape]
+    assert len(xy) >= refinement.BINNED_MIN_POINTS
+    x, y = xy[:, 0].copy(), xy[:, 1].copy()
+    kept = refinement._binned_candidates(x, y)
+    if shape != "line":
+        hull = ConvexHull(xy).vertices
+        assert np.isin(hull, kept).all()
+        if shape in ("wall", "blob"):
+            assert len(kept) < len(xy) // 4  # the filter is worth its pass
+        assert refinement._min_area_rect(x, y) == refinement._min_area_rect(x[np.sort(hull)], y[np.sort(hull)])
+    assert refinement._min_area_rect(x, y) == refinement._min_area_rect(x[kept], y[kept])
 
 
 def test_hull_order_is_argsorts_permutation_for_large_clusters():
