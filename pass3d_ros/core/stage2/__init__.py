@@ -76,3 +76,9 @@ def _check_device(device: str) -> None:
     if chosen.type == "cuda" and (chosen.index or 0) >= torch.cuda.device_count():
         raise ClassifierError(f"device {device!r}: no such CUDA device here (torch {torch.__version__} sees "
                               f"{torch.cuda.device_count()}); use cpu")
+    if chosen.type not in ("cpu", "cuda"):
+        try:  # mps, xpu, hip ...: a build without them fails here; meta holds no data to copy back
+            torch.empty(1, device=chosen).cpu()
+        except Exception:
+            raise ClassifierError(f"device {device!r}: torch {torch.__version__} cannot run on it here; use cpu or "
+                                  "cuda") from None

@@ -446,6 +446,9 @@ def test_open_classifier_checks_once_and_names_the_file(tmp_path, lite_checkpoin
         open_classifier(lite_checkpoint, device="gpu")
     with pytest.raises(ClassifierError, match=r"device 'cuda:\d+': no such CUDA device here"):
         open_classifier(lite_checkpoint, device=f"cuda:{torch.cuda.device_count()}")
+    for device in ("meta", "hip"):  # a device type this build lacks, and one that holds no data
+        with pytest.raises(ClassifierError, match=rf"device '{device}': torch .* cannot run on it here; use cpu"):
+            open_classifier(lite_checkpoint, device=device)
     monkeypatch.setattr(stage2, "DEFAULT_WEIGHTS", tmp_path / "pass3d_lite.pt")
     for default in (None, ""):
         with pytest.raises(ClassifierError, match=r"shipped stage-2 weights missing: .*pass3d_lite\.pt.*--classifier "
