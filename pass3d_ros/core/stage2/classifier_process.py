@@ -166,13 +166,16 @@ def _start(args: tuple, give_up: threading.Event) -> _Child:
 
 
 def _stop(process: BaseProcess, conn: Connection) -> None:
-    """Stop a child (politely, then by force) and close its pipe."""
+    """Stop a child (politely, then by SIGTERM, then by SIGKILL, which also ends a stopped one) and close its pipe."""
     if process.is_alive():
         with contextlib.suppress(OSError, ValueError):  # a pipe already broken: the child is going anyway
             conn.send(("stop",))
         process.join(STOP_TIMEOUT_S)
         if process.is_alive():
             process.terminate()
+            process.join(STOP_TIMEOUT_S)
+        if process.is_alive():  # stopped (SIGSTOP): SIGTERM waits for a SIGCONT, and exit would wait for the child
+            process.kill()
             process.join(STOP_TIMEOUT_S)
     conn.close()
 

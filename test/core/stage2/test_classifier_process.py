@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pass3d_ros.core.stage1 import proposal_members, propose
-from pass3d_ros.core.stage2 import ClassifierError, open_classifier
+from pass3d_ros.core.stage2 import ClassifierError, classifier_process, open_classifier
 from pass3d_ros.core.stage2.classifier_process import (
     ClassifierProcessDownError,
     ClassifierProcessError,
@@ -118,3 +118,17 @@ def test_closing_during_a_restart_leaves_no_child() -> None:
     assert child.restarts == 0 and not [p for p in mp.active_children() if p.name == "pass3d-stage2"]
     with pytest.raises(ClassifierProcessDownError, match="closed"):
         child.segment(np.zeros((1, 4), np.float32), [])
+
+
+def test_closing_ends_a_stopped_idle_child(monkeypatch: pytest.MonkeyPatch) -> None:
+    child = ProcessClassifier("", "size_rules", timeout_s=5.0)
+    process = next(p for p in mp.active_children() if p.pid == child.pid)
+    monkeypatch.setattr(classifier_process, "STOP_TIMEOUT_S", 0.5)
+    os.kill(child.pid, signal.SIGSTOP)  # no frame in hand: nothing for the supervisor's timeout to kill
+    try:
+        child.close()
+        assert not process.is_alive(), "a stopped child outlives close, and the interpreter's exit waits for it"
+    finally:
+        if process.is_alive():
+            process.kill()
+            process.join()
