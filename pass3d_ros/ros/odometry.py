@@ -90,8 +90,10 @@ class OdometryPoses:
         be dropped as too old until its stamps passed the old ones."""
         p = np.asarray(position, dtype=float)
         q = np.asarray(orientation, dtype=float)
-        norm = float(np.linalg.norm(q)) if np.all(np.isfinite(q)) else 0.0
-        if not np.all(np.isfinite(p)) or norm < 1e-6:
+        scale = float(np.max(np.abs(q))) if np.all(np.isfinite(q)) else 0.0
+        q = q / scale if scale > 0.0 else q  # scaled first: components near 1e308 would overflow the norm
+        length = float(np.linalg.norm(q))
+        if not np.all(np.isfinite(p)) or scale * length < 1e-6:
             self.rejected += 1
             return False
         with self._lock:
@@ -100,10 +102,10 @@ class OdometryPoses:
                 self._poses.clear()
             k = bisect.bisect_left(self._stamps, stamp_ns)
             if k < len(self._stamps) and self._stamps[k] == stamp_ns:
-                self._poses[k] = (p, q / norm)
+                self._poses[k] = (p, q / length)
             else:
                 self._stamps.insert(k, stamp_ns)
-                self._poses.insert(k, (p, q / norm))
+                self._poses.insert(k, (p, q / length))
             cut = bisect.bisect_left(self._stamps, self._stamps[-1] - self.hold_ns)
             del self._stamps[:cut], self._poses[:cut]
         return True

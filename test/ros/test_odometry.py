@@ -53,6 +53,14 @@ def test_bad_messages_are_counted_and_never_held() -> None:
     assert poses.pose_at(S) is None
 
 
+def test_a_quaternion_with_huge_components_is_normalised_not_zeroed() -> None:
+    poses = OdometryPoses()
+    assert poses.add(S, (0.0, 0.0, 0.0), (0.0, 0.0, 1e200, 1e200))  # 90 degrees about z, its norm overflows
+    np.testing.assert_allclose(poses.pose_at(S)[:3, :3], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-9)
+    assert not poses.add(S, (0.0, 0.0, 0.0), (0.0, 0.0, 1e-200, 1e-200))  # too small to be a rotation
+    assert poses.rejected == 1
+
+
 def test_only_the_last_seconds_are_held() -> None:
     poses = OdometryPoses(hold_s=2.0)
     for k in range(50):
