@@ -214,8 +214,16 @@ class SegmentationNode(PointCloudNode):
             return None
         poses = OdometryPoses(sensor_in_base(self.get_parameter("sensor_in_base").value),
                               float(self.get_parameter("odometry_max_gap").value))
-        self.create_subscription(Odometry, topic, poses.add_message, qos_profile("reliable"))
+        self.create_subscription(Odometry, topic, self._on_odometry, qos_profile("reliable"))
         return poses
+
+    def _on_odometry(self, msg: Odometry) -> None:
+        """Hold the message's pose; one with a non-finite position or a zero quaternion is skipped, counted and
+        warned about (throttled)."""
+        if self.odometry is not None and not self.odometry.add_message(msg):
+            self.get_logger().warning(
+                f"skipping odometry message: non-finite position or zero quaternion ({self.odometry.rejected} so far)",
+                throttle_duration_sec=LOG_PERIOD_S)
 
     def submit_proposals(self, frame: ProposalFrame) -> None:
         """The in-memory input: stage 1's result for one frame, segmented at once on the caller's thread, or with

@@ -146,3 +146,20 @@ def test_odometry_gives_the_tracker_the_sensors_pose(monkeypatch: pytest.MonkeyP
     for pose, frame in zip(given[:2], scans[:2], strict=True):
         np.testing.assert_allclose(pose, frame.pose, atol=1e-6)
     assert given[2] is None and node.odometry.missing == 1
+
+
+def test_a_bad_odometry_message_is_skipped_and_warned_about(capfd: pytest.CaptureFixture[str]) -> None:
+    with ros_session() as ros:
+        node = ros.add(SegmentationNode(context=ros.context, parameter_overrides=[
+            Parameter("classifier", value="size_rules"), Parameter("odometry_topic", value="/odom")]))
+        odom = ros.probe.create_publisher(Odometry, "/odom", qos_profile("reliable"))
+        assert wait_until(lambda: odom.get_subscription_count() > 0, timeout=5.0)
+        msg = Odometry()
+        msg.header.stamp.sec = STAMP0 // 1_000_000_000
+        msg.pose.pose.position.x = float("nan")
+        odom.publish(msg)
+        assert wait_until(lambda: node.odometry.rejected == 1, timeout=5.0)
+        err: list[str] = []
+        assert wait_until(lambda: err.append(capfd.readouterr().err) or "skipping odometry message: non-finite "
+                          "position or zero quaternion (1 so far)" in "".join(err), timeout=5.0)
+    assert not node.odometry._stamps
