@@ -142,6 +142,7 @@ def proposal_frame(msg: PointCloud2) -> ProposalFrame:
     missing = [name for name in REQUIRED_FIELDS if name not in names]
     if missing:
         raise PointCloud2Error(f"no {', '.join(missing)} field: is this a /pass3d/proposals cloud?")
+    _refuse_wide(cloud, ("ring", "ground", *WIRE_COLUMNS))
     first, second = proposal_ids(cloud)
     points = to_xyzi(cloud, with_ring=False).points
     ground = cloud["ground"].astype(bool) if "ground" in names else None
@@ -156,9 +157,7 @@ def _full_frame(msg: PointCloud2, cloud: np.ndarray) -> ProposalFrame:
     missing = [name for name in STAGE1_COLUMNS if name not in names]
     if missing:
         raise PointCloud2Error(f"a {STAGE1_INTENSITY} field without {', '.join(missing)}: is this /pass3d/proposals?")
-    wide = [name for name in STAGE1_COLUMNS if cloud[name].ndim != 1]
-    if wide:
-        raise PointCloud2Error(f"field(s) {', '.join(wide)} with count > 1, expected 1")
+    _refuse_wide(cloud, WIRE_COLUMNS)
     if cloud[STAGE1_INTENSITY].dtype.kind != "f":
         raise PointCloud2Error(f"field {STAGE1_INTENSITY!r} has dtype {cloud[STAGE1_INTENSITY].dtype}, expected float")
     if cloud[STAGE1_RING].dtype.kind not in "iu":
@@ -176,6 +175,14 @@ def _full_frame(msg: PointCloud2, cloud: np.ndarray) -> ProposalFrame:
     people_only = cloud[STAGE1_PEOPLE_ONLY][rows] != 0 if STAGE1_PEOPLE_ONLY in names else None
     return ProposalFrame(msg.header, points, ring, first, second, source, _level(cloud, points, rows), ground,
                          people_only)
+
+
+def _refuse_wide(cloud: np.ndarray, columns: tuple[str, ...]) -> None:
+    """PointCloud2Error naming those of `columns` the cloud has with count > 1: stage 2 reads one value a point."""
+    names = cloud.dtype.names or ()
+    wide = [name for name in columns if name in names and cloud[name].ndim != 1]
+    if wide:
+        raise PointCloud2Error(f"field(s) {', '.join(wide)} with count > 1, expected 1")
 
 
 LEVEL_FIT_POINTS = 2000  # points the level frame's rotation is read back from

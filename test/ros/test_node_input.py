@@ -23,7 +23,8 @@ from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.msgs.pointcloud2 import PointCloud2Error, decode, encode
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
-from pass3d_ros.ros.proposals import members_from_cloud, proposal_ids, proposals_cloud
+from pass3d_ros.ros.input_layout import LEVEL_COLUMNS, STAGE1_PEOPLE_ONLY
+from pass3d_ros.ros.proposals import members_from_cloud, proposal_frame, proposal_ids, proposals_cloud
 from pass3d_ros.ros.qos import qos_profile
 from pass3d_ros.ros.segmentation_node import SegmentationNode
 from pass3d_ros.synthetic.dataset import generate_frame
@@ -69,6 +70,7 @@ def malformed_clouds(base: dict[str, np.ndarray], stamp: int) -> dict[str, Point
         if field.name == "cluster_xx":
             field.name = "cluster_id"
     msgs["count_2"] = wide
+    msgs["people_only_count_2"] = encode({**base, STAGE1_PEOPLE_ONLY: np.ones((n, 2), np.uint8)}, stamp_ns=stamp)
     noise = encode(base, stamp_ns=stamp)
     noise.data = np.random.default_rng(0).integers(0, 256, len(noise.data), dtype=np.uint8).tobytes()
     msgs["random_bytes"] = noise
@@ -116,6 +118,16 @@ def test_codec_rejects_wide_id_and_label_fields(name: str) -> None:
     msg.fields[-1].name = name
     with pytest.raises(PointCloud2Error, match=rf"field '{name}': count 2 not supported, must be 1"):
         decode(msg)
+
+
+@pytest.mark.parametrize("name", ["ground", STAGE1_PEOPLE_ONLY, LEVEL_COLUMNS[0]])
+def test_a_wide_stage1_column_is_malformed(proposal_columns: dict[str, np.ndarray], name: str) -> None:
+    n = len(proposal_columns["x"])
+    cols = {k: v for k, v in proposal_columns.items() if k not in LEVEL_COLUMNS}
+    cols.update({k: np.zeros(n, np.float32) for k in LEVEL_COLUMNS})
+    cols[name] = np.ones((n, 2), np.float32 if name in LEVEL_COLUMNS else np.uint8)
+    with pytest.raises(PointCloud2Error, match=rf"field\(s\) {name} with count > 1, expected 1"):
+        proposal_frame(encode(cols))
 
 
 def test_codec_names_a_point_step_numpy_cannot_hold() -> None:
