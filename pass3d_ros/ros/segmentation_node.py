@@ -401,8 +401,16 @@ class SegmentationNode(PointCloudNode):
 
     def _plausible(self, frame: ProposalFrame) -> ProposalFrame:
         """The frame without points whose coordinates no LiDAR returns (as the cluster node drops them), warned
-        about (throttled) and counted."""
-        if scan_checks.scan_summary(frame.points).plausible:
+        about (throttled) and counted; a non-finite intensity reads 0, as the cluster node reads it (warned about,
+        throttled), so that it does not blank its proposal."""
+        summary = scan_checks.scan_summary(frame.points)
+        if summary.nonfinite_intensity:
+            points = frame.points.copy()
+            points[:, 3] = np.nan_to_num(points[:, 3], nan=0.0, posinf=0.0, neginf=0.0)
+            frame = dataclasses.replace(frame, points=points)
+            self.get_logger().warning(f"intensity: {summary.intensity_problem()}, read as 0",
+                                      throttle_duration_sec=LOG_PERIOD_S)
+        if summary.plausible:
             return frame
         keep = scan_checks.plausible_points(frame.points)
         dropped = int(np.count_nonzero(~keep))

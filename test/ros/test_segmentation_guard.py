@@ -81,6 +81,29 @@ def test_a_point_at_1e20_m_is_dropped_and_the_frame_labeled(
     assert "x/y/z: dropping 1 points with non-finite or absurd coordinates" in capfd.readouterr().err
 
 
+def test_a_nan_intensity_reads_0_and_its_proposal_is_labeled(
+    ros: Ros, proposal_columns: dict[str, np.ndarray], lite_weights: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    bad = {k: v.copy() for k, v in proposal_columns.items()}
+    inside = int(np.flatnonzero(bad["cluster_id"] >= 0)[0])  # a point of a proposal: it reaches the network
+    bad["intensity"][inside] = np.nan
+    node, labeled, pub = start(ros, classifier="network", weights=str(lite_weights), intensity_match=False,
+                               tracking=False)
+    pub.publish(encode(bad, stamp_ns=STAMP0))
+    cloud = decode(labeled.wait(1)[0])
+
+    points = points_of(bad)
+    points[inside, 3] = 0.0
+    first = proposal_columns["cluster_id"].astype(np.int64)
+    expected = open_classifier(str(lite_weights), "network").segment(
+        points, members_from_ids(first, proposal_columns["cluster_id2"].astype(np.int64)))
+    published = frame_objects(points, first, expected.proposal_class, expected.labels, expected.confidence)
+    np.testing.assert_array_equal(cloud["label"], published.labels)
+    assert np.isfinite(cloud["confidence"]).all() and cloud["intensity"][inside] == 0.0
+    assert node.counters().failed == 0
+    assert "intensity: 1 values are not finite, read as 0" in capfd.readouterr().err
+
+
 def test_every_point_its_own_proposal_is_cut_to_max_proposals(
     ros: Ros, proposal_columns: dict[str, np.ndarray], capfd: pytest.CaptureFixture[str]
 ) -> None:
