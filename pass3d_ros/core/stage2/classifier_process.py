@@ -308,6 +308,8 @@ class ProcessClassifier:
         child, self._child = self._child, None
         if locked:
             self._lock.release()
+        elif child is not None:  # a frame still in hand: the child may be stopped on a full pipe, where "stop"
+            child.process.kill()  # would block this send as it blocks the frame's
         if child is not None:
             _stop(child.process, child.conn)
         if self._supervisor is not threading.current_thread():

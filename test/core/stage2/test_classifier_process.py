@@ -7,6 +7,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import signal
+import threading
 import time
 
 import numpy as np
@@ -132,3 +133,28 @@ def test_closing_ends_a_stopped_idle_child(monkeypatch: pytest.MonkeyPatch) -> N
         if process.is_alive():
             process.kill()
             process.join()
+
+
+def test_closing_ends_a_child_stopped_mid_frame(frame_and_members, monkeypatch: pytest.MonkeyPatch) -> None:
+    points, members = frame_and_members
+    big = np.tile(points, (20, 1))  # megabytes: the pipe fills while the stopped child reads none of it
+    child = ProcessClassifier("", "size_rules", timeout_s=600.0)
+    monkeypatch.setattr(classifier_process, "STOP_TIMEOUT_S", 0.5)
+    os.kill(child.pid, signal.SIGSTOP)
+    errors: list[BaseException] = []
+
+    def frame() -> None:
+        try:
+            child.segment(big, members)
+        except ClassifierProcessDownError as exc:
+            errors.append(exc)
+
+    worker = threading.Thread(target=frame, daemon=True)
+    worker.start()
+    time.sleep(0.5)
+    closer = threading.Thread(target=child.close, daemon=True)
+    closer.start()
+    closer.join(10.0)
+    worker.join(5.0)
+    assert not closer.is_alive(), "close blocks on the stopped child's full pipe"
+    assert not worker.is_alive() and len(errors) == 1
