@@ -22,9 +22,9 @@ from pathlib import Path
 from types import FrameType
 from typing import NoReturn
 
-import torch
 from rosbags.rosbag2 import ReaderError, WriterError
 
+from pass3d_ros.core.stage2 import ClassifierError, check_device
 from pass3d_ros.core.threads import DEFAULT_THREADS
 from pass3d_ros.data.outputs import OutputError, error_text, is_disk_full
 from pass3d_ros.msgs.errors import Pass3dError
@@ -105,17 +105,12 @@ def number(kind: type[int] | type[float] = float, low: float | None = None, high
 
 
 def torch_device(text: str) -> str:
-    """An argparse type for --device: a torch device name this machine has, so `cuda` on a CPU-only torch is one line
-    before any work rather than a traceback once the work started."""
+    """An argparse type for --device: a torch device name this machine has (core.stage2.check_device), so `cuda` on a
+    CPU-only torch is one line before any work rather than a traceback once the work started."""
     try:
-        chosen = torch.device(text)
-    except RuntimeError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a torch device (cpu, cuda or cuda:N)") from None
-    if chosen.type == "cuda" and (chosen.index or 0) >= torch.cuda.device_count():
-        seen = torch.cuda.device_count()
-        build = "built without CUDA" if torch.version.cuda is None else f"sees {seen} CUDA device(s)"
-        raise argparse.ArgumentTypeError(f"{text!r}: no such CUDA device here (torch {torch.__version__} {build}); "
-                                         "use cpu")
+        check_device(text)
+    except ClassifierError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     return text
 
 

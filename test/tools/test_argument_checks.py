@@ -73,6 +73,9 @@ def test_torch_device_refuses_cuda_without_it() -> None:
         torch_device("cuda")
     with pytest.raises(argparse.ArgumentTypeError, match="not a torch device"):
         torch_device("gpu0")
+    for other in ("mps", "meta"):  # the nodes' check: a device type this torch cannot run on is one line too
+        with pytest.raises(argparse.ArgumentTypeError, match="cannot run on it here"):
+            torch_device(other)
 
 
 # ----------------------------------------------------------------------------------------------- the tools

@@ -18,8 +18,9 @@ from pass3d_ros.core.stage2.size_rules import SizeRuleClassifier
 from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.weights import DEFAULT_WEIGHTS
 
-__all__ = ["CLASSIFIERS", "DEFAULT_CLASSIFIER", "Classifier", "ClassifierError", "open_classifier"]  # names defined
-# in config.py are re-exported here, where the node and the tools have always found them
+# CLASSIFIERS and DEFAULT_CLASSIFIER, defined in config.py, are re-exported here, where the node and the tools have
+# always found them
+__all__ = ["CLASSIFIERS", "DEFAULT_CLASSIFIER", "Classifier", "ClassifierError", "check_device", "open_classifier"]
 
 
 class ClassifierError(UserError):
@@ -56,7 +57,7 @@ def open_classifier(
                 "--weights applies to the network classifier, not size_rules (node parameter: weights)"
             )
         return SizeRuleClassifier(max_proposals=max_proposals)
-    _check_device(device)
+    check_device(device)
     if isinstance(weights, dict):
         return Segmenter(weights, device=device, max_proposals=max_proposals)
     path = Path(weights) if weights else DEFAULT_WEIGHTS
@@ -67,15 +68,18 @@ def open_classifier(
     return Segmenter(path, device=device, max_proposals=max_proposals)
 
 
-def _check_device(device: str) -> None:
-    """ClassifierError for a torch device name that is malformed or names hardware this machine lacks."""
+def check_device(device: str) -> None:
+    """ClassifierError for a torch device name that is malformed or names hardware this machine lacks (the nodes'
+    `device` parameter and the tools' --device, one check)."""
     try:
         chosen = torch.device(device)
-    except RuntimeError as exc:
-        raise ClassifierError(f"device {device!r}: {exc} (option --device, node parameter device)") from None
+    except RuntimeError:
+        raise ClassifierError(f"device {device!r} is not a torch device (cpu, cuda or cuda:N)") from None
     if chosen.type == "cuda" and (chosen.index or 0) >= torch.cuda.device_count():
-        raise ClassifierError(f"device {device!r}: no such CUDA device here (torch {torch.__version__} sees "
-                              f"{torch.cuda.device_count()}); use cpu")
+        seen = torch.cuda.device_count()
+        build = "built without CUDA" if torch.version.cuda is None else f"sees {seen} CUDA device(s)"
+        raise ClassifierError(f"device {device!r}: no such CUDA device here (torch {torch.__version__} {build}); "
+                              "use cpu")
     if chosen.type not in ("cpu", "cuda"):
         try:  # mps, xpu, hip ...: a build without them fails here; meta holds no data to copy back
             torch.empty(1, device=chosen).cpu()

@@ -7,8 +7,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy.spatial import ConvexHull
 from helpers.scans import SENSOR_HEIGHT, Solid, raycast
+from scipy.spatial import ConvexHull
 
 from pass3d_ros.core import stage1
 from pass3d_ros.core.stage1 import Stage1Config, ground, proposal_members, propose, refinement, ring, scanline

@@ -442,7 +442,7 @@ def test_open_classifier_checks_once_and_names_the_file(tmp_path, lite_checkpoin
         open_classifier(run)
     with pytest.raises(CheckpointError, match=r"run: a folder, not a checkpoint file"):
         Segmenter(run)
-    with pytest.raises(ClassifierError, match="device 'gpu': Expected one of cpu"):
+    with pytest.raises(ClassifierError, match=r"device 'gpu' is not a torch device \(cpu, cuda or cuda:N\)"):
         open_classifier(lite_checkpoint, device="gpu")
     with pytest.raises(ClassifierError, match=r"device 'cuda:\d+': no such CUDA device here"):
         open_classifier(lite_checkpoint, device=f"cuda:{torch.cuda.device_count()}")
