@@ -186,11 +186,14 @@ def _refuse_wide(cloud: np.ndarray, columns: tuple[str, ...]) -> None:
 
 
 LEVEL_FIT_POINTS = 2000  # points the level frame's rotation is read back from
+LEVEL_TOLERANCE_M = 0.01  # the level coordinates' median distance from the points turned by that rotation (float32
+# rounding: a few micrometres; all zeros, or another cloud's columns: metres)
 
 
 def _level(cloud: np.ndarray, points: np.ndarray, rows: np.ndarray | None) -> np.ndarray | None:
     """The rotation into the level frame a proposals message carries as its points' level coordinates (None without
-    LEVEL_COLUMNS): the least-squares rotation (Kabsch) taking the points' xyz onto them."""
+    LEVEL_COLUMNS): the least-squares rotation (Kabsch) taking the points' xyz onto them; PointCloud2Error when no
+    rotation does (all zeros, another cloud's columns), which would turn every box the wrong way."""
     names = cloud.dtype.names or ()
     if not all(name in names for name in LEVEL_COLUMNS):
         return None
@@ -202,7 +205,11 @@ def _level(cloud: np.ndarray, points: np.ndarray, rows: np.ndarray | None) -> np
         raise PointCloud2Error(f"{LEVEL_COLUMNS[0]}..z: fewer than 3 finite rows to read the level frame from")
     u, _, vt = np.linalg.svd(a[good].T @ b[good])
     fix = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    return (u @ fix @ vt).T
+    rotation = (u @ fix @ vt).T
+    off = float(np.median(np.linalg.norm(a[good] @ rotation.T - b[good], axis=1)))
+    if not off <= LEVEL_TOLERANCE_M:
+        raise PointCloud2Error(f"{LEVEL_COLUMNS[0]}..z: no rotation of the points' x, y, z (median {off:.3g} m off)")
+    return rotation
 
 
 def members_from_cloud(cloud: np.ndarray) -> list[np.ndarray]:

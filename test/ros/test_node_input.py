@@ -130,6 +130,24 @@ def test_a_wide_stage1_column_is_malformed(proposal_columns: dict[str, np.ndarra
         proposal_frame(encode(cols))
 
 
+@pytest.mark.parametrize("kind", ["zeros", "shuffled"])
+def test_level_columns_that_are_no_rotation_are_malformed(proposal_columns: dict[str, np.ndarray], kind: str) -> None:
+    """Level coordinates must be the points turned by one rotation (read back by Kabsch): all zeros, or rows of other
+    points, would give an arbitrary level frame."""
+    n = len(proposal_columns["x"])
+    xyz = np.column_stack([proposal_columns[k] for k in "xyz"]).astype(np.float64)
+    tilt = np.radians(5.0)
+    turn = np.array([[np.cos(tilt), 0.0, np.sin(tilt)], [0.0, 1.0, 0.0], [-np.sin(tilt), 0.0, np.cos(tilt)]])
+    level = (xyz @ turn.T).astype(np.float32)
+    cols = {k: v for k, v in proposal_columns.items() if k not in LEVEL_COLUMNS}
+    cols.update({k: level[:, i] for i, k in enumerate(LEVEL_COLUMNS)})
+    assert np.allclose(proposal_frame(encode(cols)).level, turn, atol=1e-4)  # a true rotation is read back
+    bad = np.zeros((n, 3), np.float32) if kind == "zeros" else level[np.random.default_rng(3).permutation(n)]
+    cols.update({k: bad[:, i] for i, k in enumerate(LEVEL_COLUMNS)})
+    with pytest.raises(PointCloud2Error, match=r"no rotation of the points' x, y, z"):
+        proposal_frame(encode(cols))
+
+
 def test_codec_names_a_point_step_numpy_cannot_hold() -> None:
     msg = encode({"x": np.zeros(1, np.float32), "y": np.zeros(1, np.float32), "z": np.zeros(1, np.float32)})
     msg.point_step = msg.row_step = 2**31
