@@ -81,6 +81,8 @@ class OdometryPoses:
         self._lock = threading.Lock()
         self.rejected = 0  # messages with a non-finite position or a zero quaternion
         self.missing = 0  # scans that asked and got no pose
+        self.frames: tuple[str, str] | None = None  # the messages' frame_id and child_frame_id
+        self.frame_changes = 0  # messages whose frames differed from those before (the held poses then dropped)
 
     def add(self, stamp_ns: int, position: tuple[float, float, float], orientation: tuple[float, ...]) -> bool:
         """Hold one odometry pose (world from base); False (and counted) for a non-finite or degenerate one. A stamp
@@ -111,7 +113,17 @@ class OdometryPoses:
         return True
 
     def add_message(self, msg: object) -> bool:
-        """Hold a nav_msgs/Odometry's pose at its header stamp."""
+        """Hold a nav_msgs/Odometry's pose at its header stamp. A message in other frames than those before (odom ->
+        map, another robot's base) drops the held poses, counted in frame_changes: a scan's pose is never
+        interpolated between two frames."""
+        frames = (msg.header.frame_id, msg.child_frame_id)
+        if frames != self.frames:
+            if self.frames is not None:
+                self.frame_changes += 1
+                with self._lock:
+                    self._stamps.clear()
+                    self._poses.clear()
+            self.frames = frames
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         pose = msg.pose.pose
         return self.add(stamp, (pose.position.x, pose.position.y, pose.position.z),

@@ -219,10 +219,18 @@ class SegmentationNode(PointCloudNode):
 
     def _on_odometry(self, msg: Odometry) -> None:
         """Hold the message's pose; one with a non-finite position or a zero quaternion is skipped, counted and
-        warned about (throttled)."""
-        if self.odometry is not None and not self.odometry.add_message(msg):
+        warned about (throttled), and so is a change of the messages' frames (OdometryPoses.add_message)."""
+        if self.odometry is None:
+            return
+        before, changes = self.odometry.frames, self.odometry.frame_changes
+        if not self.odometry.add_message(msg):
             self.get_logger().warning(
                 f"skipping odometry message: non-finite position or zero quaternion ({self.odometry.rejected} so far)",
+                throttle_duration_sec=LOG_PERIOD_S)
+        if self.odometry.frame_changes > changes:
+            self.get_logger().warning(
+                f"odometry frames changed from {before[0]!r} -> {before[1]!r} to {self.odometry.frames[0]!r} -> "
+                f"{self.odometry.frames[1]!r}: poses held before dropped; tracks move as the frames differ",
                 throttle_duration_sec=LOG_PERIOD_S)
 
     def submit_proposals(self, frame: ProposalFrame) -> None:
@@ -299,7 +307,8 @@ class SegmentationNode(PointCloudNode):
         if tracker is not None:
             values.update({"tracks_alive": tracker.alive, "tracks_born": tracker.born, "tracks_lost": tracker.lost})
         if self.odometry is not None:
-            values.update({"scans_without_pose": self.odometry.missing, "odometry_rejected": self.odometry.rejected})
+            values.update({"scans_without_pose": self.odometry.missing, "odometry_rejected": self.odometry.rejected,
+                           "odometry_frame_changes": self.odometry.frame_changes})
         warnings = []
         if isinstance(self.classifier, ProcessClassifier):
             values["stage2_restarts"] = self.classifier.restarts

@@ -4,6 +4,7 @@ around the stamp, the nearest within the gap, none beyond it, the sensor placed 
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -96,3 +97,18 @@ def test_a_bag_played_again_from_its_start_gets_its_poses() -> None:
 def test_a_bad_sensor_in_base_names_itself(text: str) -> None:
     with pytest.raises(ValueError, match="sensor_in_base"):
         sensor_in_base(text)
+
+
+def test_a_change_of_frames_drops_the_held_poses_and_is_counted() -> None:
+    """Poses in `odom` and then in `map` are never interpolated between: the change drops the held ones."""
+    def message(stamp_s: float, x: float, frame: str) -> SimpleNamespace:
+        return SimpleNamespace(header=SimpleNamespace(frame_id=frame, stamp=SimpleNamespace(
+            sec=int(stamp_s), nanosec=round((stamp_s % 1) * 1e9))), child_frame_id="base_link",
+            pose=SimpleNamespace(pose=SimpleNamespace(position=SimpleNamespace(x=x, y=0.0, z=0.0),
+                                                      orientation=SimpleNamespace(x=0.0, y=0.0, z=0.0, w=1.0))))
+    poses = OdometryPoses(max_gap_s=0.5)
+    assert poses.add_message(message(100.0, 0.0, "odom")) and poses.add_message(message(100.1, 1.0, "odom"))
+    assert poses.frame_changes == 0 and poses.pose_at(int(100.05e9))[0, 3] == pytest.approx(0.5)
+    assert poses.add_message(message(100.2, 50.0, "map"))
+    assert poses.frame_changes == 1 and poses.frames == ("map", "base_link")
+    assert poses.pose_at(int(100.15e9))[0, 3] == pytest.approx(50.0)  # not halfway between odom's 1 and map's 50
