@@ -8,6 +8,7 @@ import pytest
 
 from pass3d_ros.core.stage1 import Stage1Config, crowd, refinement, split
 from pass3d_ros.core.stage1.ground import LocalGround, fit_ground, segments
+from pass3d_ros.data.frame import Box3D
 
 
 def random_scan(seed: int, n: int = 4000, n_clusters: int = 60) -> tuple[np.ndarray, np.ndarray]:
@@ -111,3 +112,67 @@ def test_cluster_stats_crowd_members_and_part_sums_match_numpy(seed: int) -> Non
     for k in (0, 1):
         np.testing.assert_array_equal(part_sums[:, k], np.bincount(label[parts] - 30, weights=pts[parts, k],
                                                                    minlength=30))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_cluster_rects_match_each_clusters_own_rectangle(seed: int) -> None:
+    pts, label = random_scan(seed)
+    rng = np.random.default_rng(seed + 20)
+    candidates = np.sort(rng.choice(60, 25, replace=False))
+    candidates = np.concatenate([candidates[1:], candidates[:1], [60]])  # any order; cluster 60 has no points
+    got = refinement._cluster_rects(pts, label, candidates)
+    want = np.zeros((len(candidates), 5))
+    for t, c in enumerate(candidates):
+        mine = label == c
+        if mine.any():
+            want[t] = refinement.min_area_rectangle(pts[mine, :2].astype(np.float64))
+    np.testing.assert_array_equal(got, want)
+    assert refinement._cluster_rects(pts, label, np.zeros(0, dtype=np.int64)).shape == (0, 5)
+
+
+def brute_membership(points, label, kept, boxes, margin, floors, gives_way) -> tuple[np.ndarray, np.ndarray]:
+    """enlarged_membership point by point over every box, without a grid."""
+    primary = np.full(len(points), -1, dtype=np.int32)
+    secondary = np.full(len(points), -1, dtype=np.int32)
+    own_of = {int(c): p for p, c in enumerate(kept)}
+    for i, (x, y, z) in enumerate(points[:, :3].astype(np.float64)):
+        first = own_of.get(int(label[i]), -1)
+        second = -1
+        for b, box in enumerate(boxes):
+            cx, cy, cz, length, width, height, yaw = box
+            half = (0.5 * length + margin[0], 0.5 * width + margin[1], 0.5 * height + margin[2])
+            dx, dy = x - cx, y - cy
+            c, s = np.cos(yaw), np.sin(yaw)
+            if b in (first, second) or abs(dx * c + dy * s) > half[0] or abs(dy * c - dx * s) > half[1]:
+                continue
+            if abs(z - cz) > half[2] and not (floors[b] <= z <= cz):
+                continue
+            if first < 0:
+                first = b
+            elif second < 0 or (not gives_way[b] and gives_way[second]):
+                second = b
+            elif not gives_way[b] and gives_way[first]:
+                first, second = second, b
+        if first >= 0 and second >= 0 and gives_way[first] != gives_way[second]:
+            first = second if gives_way[first] else first
+            second = -1
+        primary[i], secondary[i] = first, second
+    return primary, secondary
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_enlarged_membership_matches_every_box_tested(seed: int) -> None:
+    pts, label = random_scan(seed, n=3000)
+    rng = np.random.default_rng(seed + 30)
+    kept = np.sort(rng.choice(60, 20, replace=False))
+    boxes = [Box3D(center=np.array([*rng.uniform(-30.0, 30.0, 2), rng.uniform(-1.5, 0.0)]),
+                   size=np.array([rng.uniform(1.0, 8.0), rng.uniform(0.5, 4.0), rng.uniform(0.5, 2.0)]),
+                   yaw=float(rng.uniform(-np.pi / 2, np.pi / 2))) for _ in kept]
+    floors = np.where(rng.random(len(kept)) < 0.5, np.inf, rng.uniform(-3.0, -1.0, len(kept)))
+    gives_way = rng.random(len(kept)) < 0.3
+    margin = Stage1Config().enlarge
+    got = refinement.enlarged_membership(pts, label, kept, boxes, margin, floors=floors, gives_way=gives_way)
+    want = brute_membership(pts, label, kept, refinement.boxes_array(boxes), margin, floors, gives_way)
+    assert (want[0] >= 0).sum() > (label >= 0).sum() * 20 / 60 and (want[1] >= 0).any()
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
