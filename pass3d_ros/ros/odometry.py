@@ -19,6 +19,8 @@ import threading
 import numpy as np
 
 NO_MOUNT = "0 0 0 0 0 0"  # the sensor at the odometry child frame's origin, axes aligned
+MAX_POSITION_M = 1e9  # a position farther from the odometry's origin is no robot's (Earth-centred frames reach 6.4e6 m;
+# at 1e16 m a double's step is 2 m, and tracks kept there break apart)
 
 
 def transform_from_xyzrpy(values: tuple[float, ...]) -> np.ndarray:
@@ -79,13 +81,14 @@ class OdometryPoses:
         self._stamps: list[int] = []
         self._poses: list[tuple[np.ndarray, np.ndarray]] = []  # (position, unit quaternion x y z w)
         self._lock = threading.Lock()
-        self.rejected = 0  # messages with a non-finite position or a zero quaternion
+        self.rejected = 0  # messages with a non-finite or implausible (MAX_POSITION_M) position or a zero quaternion
         self.missing = 0  # scans that asked and got no pose
         self.frames: tuple[str, str] | None = None  # the messages' frame_id and child_frame_id
         self.frame_changes = 0  # messages whose frames differed from those before (the held poses then dropped)
 
     def add(self, stamp_ns: int, position: tuple[float, float, float], orientation: tuple[float, ...]) -> bool:
-        """Hold one odometry pose (world from base); False (and counted) for a non-finite or degenerate one. A stamp
+        """Hold one odometry pose (world from base); False (and counted) for a non-finite, implausibly far
+        (MAX_POSITION_M) or degenerate one. A stamp
         already held takes the newer pose: a source whose stamp does not move (left unset, a stalled clock) would
         otherwise pile up every message, none older than hold_s. A stamp more than hold_s before the newest held (a bag
         played again from its start, a restarted source) starts the buffer over: else every pose of the new pass would
@@ -95,7 +98,7 @@ class OdometryPoses:
         scale = float(np.max(np.abs(q))) if np.all(np.isfinite(q)) else 0.0
         q = q / scale if scale > 0.0 else q  # scaled first: components near 1e308 would overflow the norm
         length = float(np.linalg.norm(q))
-        if not np.all(np.isfinite(p)) or scale * length < 1e-6:
+        if not np.all(np.abs(p) <= MAX_POSITION_M) or scale * length < 1e-6:  # NaN fails the bound too
             self.rejected += 1
             return False
         with self._lock:

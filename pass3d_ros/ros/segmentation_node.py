@@ -218,14 +218,15 @@ class SegmentationNode(PointCloudNode):
         return poses
 
     def _on_odometry(self, msg: Odometry) -> None:
-        """Hold the message's pose; one with a non-finite position or a zero quaternion is skipped, counted and
-        warned about (throttled), and so is a change of the messages' frames (OdometryPoses.add_message)."""
+        """Hold the message's pose; one with a non-finite or implausible position or a zero quaternion is skipped,
+        counted and warned about (throttled), and so is a change of the messages' frames (OdometryPoses.add_message)."""
         if self.odometry is None:
             return
         before, changes = self.odometry.frames, self.odometry.frame_changes
         if not self.odometry.add_message(msg):
             self.get_logger().warning(
-                f"skipping odometry message: non-finite position or zero quaternion ({self.odometry.rejected} so far)",
+                f"skipping odometry message: non-finite or implausible position, or zero quaternion "
+                f"({self.odometry.rejected} so far)",
                 throttle_duration_sec=LOG_PERIOD_S)
         if self.odometry.frame_changes > changes:
             self.get_logger().warning(

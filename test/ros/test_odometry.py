@@ -50,7 +50,10 @@ def test_bad_messages_are_counted_and_never_held() -> None:
     poses = OdometryPoses()
     assert not poses.add(S, (float("nan"), 0.0, 0.0), yaw_quaternion(0.0))
     assert not poses.add(S, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
-    assert poses.rejected == 2
+    assert not poses.add(S, (1e16, 0.0, 0.0), yaw_quaternion(0.0))  # no robot's: a double's step there is 2 m
+    assert poses.add(S, (6.4e6, 0.0, 0.0), yaw_quaternion(0.0))  # an Earth-centred frame's is one
+    assert poses.rejected == 3
+    poses = OdometryPoses()
     assert poses.pose_at(S) is None
 
 

@@ -161,5 +161,5 @@ def test_a_bad_odometry_message_is_skipped_and_warned_about(capfd: pytest.Captur
         assert wait_until(lambda: node.odometry.rejected == 1, timeout=5.0)
         err: list[str] = []
         assert wait_until(lambda: err.append(capfd.readouterr().err) or "skipping odometry message: non-finite "
-                          "position or zero quaternion (1 so far)" in "".join(err), timeout=5.0)
+                          "or implausible position, or zero quaternion (1 so far)" in "".join(err), timeout=5.0)
     assert not node.odometry._stamps
