@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pass3d_ros.core.stage1 import Stage1Config, crowd, refinement, split
-from pass3d_ros.core.stage1.ground import LocalGround, fit_ground, segments
+from pass3d_ros.core.stage1.ground import LOCAL_CELL_M, LocalGround, fit_ground, segments, with_local_ground
 from pass3d_ros.data.frame import Box3D
 
 
@@ -176,3 +176,39 @@ def test_enlarged_membership_matches_every_box_tested(seed: int) -> None:
     assert (want[0] >= 0).sum() > (label >= 0).sum() * 20 / 60 and (want[1] >= 0).any()
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
+
+
+def numpy_with_local_ground(points: np.ndarray, fit, band: float) -> np.ndarray:
+    """with_local_ground as numpy wrote it before its compiled passes (fifteenth session)."""
+    local = fit.local
+    rest = np.flatnonzero(~fit.ground)
+    xyz = np.asarray(points[rest, :3], dtype=np.float64)
+    n_cells = local.hist.shape[0]
+    cell = np.floor((xyz[:, :2] - local.origin) / LOCAL_CELL_M).astype(np.int64)
+    inside = np.all((cell >= 0) & (cell < n_cells), axis=1)
+    rest, xyz, cell = rest[inside], xyz[inside], cell[inside]
+    cells, which = np.unique(cell[:, 0] * n_cells + cell[:, 1], return_inverse=True)
+    centres = local.origin + LOCAL_CELL_M * (np.column_stack([cells // n_cells, cells % n_cells]) + 0.5)
+    height = local.heights(xyz, local.offsets(centres)[which])
+    ground = fit.ground.copy()
+    ground[rest[np.abs(xyz[:, 2] - height) < band]] = True
+    return ground
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_with_local_ground_matches_the_numpy_form(seed: int) -> None:
+    """A tilted, bumpy road with objects and clutter on it, some of it past the local grid: the compiled passes mark
+    the same points as numpy's unique-and-heights form did."""
+    rng = np.random.default_rng(seed)
+    n = 20000
+    pts = np.zeros((n, 4), dtype=np.float32)
+    pts[:, :2] = rng.uniform(-90.0, 90.0, (n, 2))
+    road = rng.random(n) < 0.6
+    pts[:, 2] = np.where(road, -1.73 + 0.04 * pts[:, 0] + 0.2 * np.sin(pts[:, 1] / 5.0) + rng.normal(0, 0.03, n),
+                         rng.uniform(-2.0, 2.0, n))
+    config = Stage1Config()
+    fit = fit_ground(pts, config)
+    assert fit.local is not None
+    expected = numpy_with_local_ground(pts, fit, config.th_dist)
+    assert np.count_nonzero(expected & ~fit.ground) > 100  # the local ground takes points the planes left
+    np.testing.assert_array_equal(with_local_ground(pts, fit, config.th_dist), expected)
