@@ -221,7 +221,9 @@ class ProcessClassifier:
             try:
                 child.conn.send(("segment", points, members, int(self.max_proposals)))
                 status, detail = child.conn.recv()
-            except (EOFError, OSError, ValueError):
+            except (EOFError, OSError, ValueError, TypeError) as exc:
+                if isinstance(exc, TypeError) and not child.conn.closed:
+                    raise  # not the pipe closed under the send by `close` (its handle gone): a frame not sendable
                 if self._killed_pid == child.pid:
                     raise ClassifierProcessHungError(
                         f"stage-2 process {child.pid} answered nothing for {self.timeout_s:g} s (stage2_timeout): "
