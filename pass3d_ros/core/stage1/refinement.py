@@ -159,18 +159,27 @@ def _chain_y(cx: np.ndarray, cy: np.ndarray, m: int, xq: float) -> float:
 
 
 @nb.njit(cache=True, nogil=True)
-def _half_hull(sx: np.ndarray, sy: np.ndarray, order: np.ndarray, sign: float) -> np.ndarray:
-    """The lower (`sign` 1) or upper (-1) monotone chain of the points (sx, sy) taken in `order`: indices, left to
-    right."""
-    chain = np.empty(order.shape[0], dtype=np.int64)
+def _convex_hull(x: np.ndarray, y: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, int]:
+    """The convex hull of the points (x, y) by the monotone chain over `order` (ascending x, then y): the vertices'
+    indices counter-clockwise from the first point, the lower chain first (its last vertex, the rightmost point, at
+    the second value less one)."""
+    n = order.shape[0]
+    hull = np.empty(2 * n + 1, dtype=np.int64)
     k = 0
-    for i in order:
-        while k >= 2 and sign * _cross(sx[chain[k - 2]], sy[chain[k - 2]], sx[chain[k - 1]], sy[chain[k - 1]],
-                                       sx[i], sy[i]) <= 0.0:
+    for t in range(n):
+        i = order[t]
+        while k >= 2 and _cross(x[hull[k - 2]], y[hull[k - 2]], x[hull[k - 1]], y[hull[k - 1]], x[i], y[i]) <= 0.0:
             k -= 1
-        chain[k] = i
+        hull[k] = i
         k += 1
-    return chain[:k]
+    lower = k + 1
+    for t in range(n - 2, -1, -1):
+        i = order[t]
+        while k >= lower and _cross(x[hull[k - 2]], y[hull[k - 2]], x[hull[k - 1]], y[hull[k - 1]], x[i], y[i]) <= 0.0:
+            k -= 1
+        hull[k] = i
+        k += 1
+    return hull[:max(k - 1, 1)], lower - 1
 
 
 @nb.njit(cache=True, nogil=True)
@@ -196,10 +205,11 @@ def _binned_candidates(x: np.ndarray, y: np.ndarray) -> np.ndarray:
             highest[b] = i
     chosen = np.concatenate((lowest[lowest >= 0], highest[highest >= 0]))
     sx, sy = x[chosen], y[chosen]
-    order = np.argsort(sx + 1e-9 * sy)
-    low, up = _half_hull(sx, sy, order, 1.0), _half_hull(sx, sy, order, -1.0)
-    if low.shape[0] < 2 or up.shape[0] < 2:
+    hull, n_lower = _convex_hull(sx, sy, np.argsort(sx + 1e-9 * sy))
+    if n_lower < 2:
         return _hull_candidates(x, y)
+    low = hull[:n_lower]  # left to right
+    up = np.concatenate((hull[:1], hull[n_lower:][::-1], hull[n_lower - 1:n_lower]))  # left to right too
     lx, ly, ux, uy = sx[low], sy[low], sx[up], sy[up]
     left, right = max(lx[0], ux[0]), min(lx[-1], ux[-1])
     below = np.full(HULL_BINS, -np.inf)  # a point of bin b strictly between these is strictly inside the inner hull
@@ -287,24 +297,8 @@ def _min_area_rect(x_all: np.ndarray, y_all: np.ndarray) -> tuple:
     keep = _hull_candidates(x_all, y_all) if x_all.shape[0] < BINNED_MIN_POINTS else _binned_candidates(x_all, y_all)
     x = x_all[keep]
     y = y_all[keep]
-    n = x.shape[0]
-    order = _hull_order(x, y)
-    hull = np.empty(2 * n + 1, dtype=np.int64)
-    k = 0
-    for t in range(n):
-        i = order[t]
-        while k >= 2 and _cross(x[hull[k - 2]], y[hull[k - 2]], x[hull[k - 1]], y[hull[k - 1]], x[i], y[i]) <= 0.0:
-            k -= 1
-        hull[k] = i
-        k += 1
-    lower = k + 1
-    for t in range(n - 2, -1, -1):
-        i = order[t]
-        while k >= lower and _cross(x[hull[k - 2]], y[hull[k - 2]], x[hull[k - 1]], y[hull[k - 1]], x[i], y[i]) <= 0.0:
-            k -= 1
-        hull[k] = i
-        k += 1
-    h = max(k - 1, 1)
+    hull, _ = _convex_hull(x, y, _hull_order(x, y))
+    h = hull.shape[0]
     best_area = np.inf
     bux, buy, bu, bv, length, width = 1.0, 0.0, 0.0, 0.0, 0.0, 0.0
     for e in range(h):
