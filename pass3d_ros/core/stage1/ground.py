@@ -69,12 +69,12 @@ class LocalGround(NamedTuple):
         xy = np.ascontiguousarray(np.asarray(xy, dtype=np.float64)[:, :2])
         return _local_offsets(self.hist, self.origin, xy, self.radius, self.min_points, self.band)
 
-    def heights(self, xy: np.ndarray, offsets: np.ndarray | None = None) -> np.ndarray:
-        """z of the local ground at each x-y position: its plane's height there, moved by `offsets` (read at the
-        positions themselves unless given: `with_local_ground` reads them once per cell)."""
+    def heights(self, xy: np.ndarray) -> np.ndarray:
+        """z of the local ground at each x-y position: its plane's height there, moved by the offset read there
+        (`with_local_ground` writes the same out per cell)."""
         xy = np.asarray(xy, dtype=np.float64)[:, :2]
         a, b, c, d = self.planes[segments(xy[:, 0], self.segment_edges, len(self.planes))].T
-        return ((self.offsets(xy) if offsets is None else offsets) - a * xy[:, 0] - b * xy[:, 1] - d) / c
+        return (self.offsets(xy) - a * xy[:, 0] - b * xy[:, 1] - d) / c
 
 
 class GroundFit(NamedTuple):

@@ -189,7 +189,8 @@ def numpy_with_local_ground(points: np.ndarray, fit, band: float) -> np.ndarray:
     rest, xyz, cell = rest[inside], xyz[inside], cell[inside]
     cells, which = np.unique(cell[:, 0] * n_cells + cell[:, 1], return_inverse=True)
     centres = local.origin + LOCAL_CELL_M * (np.column_stack([cells // n_cells, cells % n_cells]) + 0.5)
-    height = local.heights(xyz, local.offsets(centres)[which])
+    a, b, c, d = local.planes[segments(xyz[:, 0], local.segment_edges, len(local.planes))].T
+    height = (local.offsets(centres)[which] - a * xyz[:, 0] - b * xyz[:, 1] - d) / c  # LocalGround.heights, per cell
     ground = fit.ground.copy()
     ground[rest[np.abs(xyz[:, 2] - height) < band]] = True
     return ground
