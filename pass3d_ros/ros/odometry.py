@@ -88,11 +88,10 @@ class OdometryPoses:
 
     def add(self, stamp_ns: int, position: tuple[float, float, float], orientation: tuple[float, ...]) -> bool:
         """Hold one odometry pose (world from base); False (and counted) for a non-finite, implausibly far
-        (MAX_POSITION_M) or degenerate one. A stamp
-        already held takes the newer pose: a source whose stamp does not move (left unset, a stalled clock) would
-        otherwise pile up every message, none older than hold_s. A stamp more than hold_s before the newest held (a bag
-        played again from its start, a restarted source) starts the buffer over: else every pose of the new pass would
-        be dropped as too old until its stamps passed the old ones."""
+        (MAX_POSITION_M) or degenerate one. A stamp already held takes the newer pose: a source whose stamp does not
+        move (left unset, a stalled clock) would otherwise pile up every message, none older than hold_s. A stamp more
+        than hold_s before the newest held (a bag played again from its start, a restarted source) starts the buffer
+        over: else every pose of the new pass would be dropped as too old until its stamps passed the old ones."""
         p = np.asarray(position, dtype=float)
         q = np.asarray(orientation, dtype=float)
         scale = float(np.max(np.abs(q))) if np.all(np.isfinite(q)) else 0.0
@@ -103,8 +102,7 @@ class OdometryPoses:
             return False
         with self._lock:
             if self._stamps and stamp_ns < self._stamps[-1] - self.hold_ns:
-                self._stamps.clear()
-                self._poses.clear()
+                self._drop_held()
             k = bisect.bisect_left(self._stamps, stamp_ns)
             if k < len(self._stamps) and self._stamps[k] == stamp_ns:
                 self._poses[k] = (p, q / length)
@@ -124,13 +122,17 @@ class OdometryPoses:
             if self.frames is not None:
                 self.frame_changes += 1
                 with self._lock:
-                    self._stamps.clear()
-                    self._poses.clear()
+                    self._drop_held()
             self.frames = frames
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         pose = msg.pose.pose
         return self.add(stamp, (pose.position.x, pose.position.y, pose.position.z),
                         (pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w))
+
+    def _drop_held(self) -> None:
+        """Forget every held pose (under the lock): the stream started over, or its frames changed."""
+        self._stamps.clear()
+        self._poses.clear()
 
     def pose_at(self, stamp_ns: int) -> np.ndarray | None:
         """World from sensor (4 x 4) at `stamp_ns`: interpolated between the held messages around it, else the
