@@ -446,6 +446,18 @@ def _count_heights(grouped: np.ndarray, bounds: np.ndarray, planes: np.ndarray, 
             flat[slot[i]] += 1
 
 
+class PlaneFit(NamedTuple):
+    """The first phase of ground plane fitting (`fit_planes`): the segment planes and what the final test needs."""
+
+    points: np.ndarray  # (N, >=3) float32, contiguous: the points the planes were fitted to
+    planes: np.ndarray  # (n_seg, 4) float64
+    segment_edges: np.ndarray  # (n_seg + 1,) x boundaries
+    grouped: np.ndarray  # the sample grouped by segment (the local ground's histogram counts it)
+    bounds: np.ndarray
+    hist: np.ndarray  # (n_cells, n_cells, n_bins) uint16, empty without a local ground
+    origin: float
+
+
 def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = True,
                pool: Executor | None = None) -> GroundFit:
     """Ground mask and planes of a scan (N x >=3, sensor frame, z up) under `config`; see the module docstring.
@@ -457,14 +469,20 @@ def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = T
     steeper than `ground_max_slope_deg` or stepping more than `ground_max_step` at its inner edge takes its inner
     neighbour's plane (the centre segment's falls back to a horizontal plane at its LPR).
     """
+    return ground_of_planes(fit_planes(points, config, in_scan_order, pool), config, pool)
+
+
+def fit_planes(points: np.ndarray, config: Stage1Config, in_scan_order: bool = True,
+               pool: Executor | None = None) -> PlaneFit:
+    """`fit_ground`'s first phase: the sample and the segment planes (`pool` as there, for the sample)."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
     n_seg = int(config.n_seg)
     width = 2.0 * config.ground_x_extent / n_seg
     edges = -config.ground_x_extent + width * np.arange(n_seg + 1)
     if len(pts) == 0:
         planes = np.tile([0.0, 0.0, 1.0, config.seed_height], (n_seg, 1))
-        local = _local_ground(planes, edges, np.zeros((0, 0, 0), dtype=np.uint16), 0.0, config)
-        return GroundFit(np.zeros(0, dtype=bool), planes, edges, local)
+        return PlaneFit(pts, planes, edges, np.zeros(0, np.int64), np.zeros(0, np.int64),
+                        np.zeros((0, 0, 0), dtype=np.uint16), 0.0)
     # The local ground's grid covers every cluster centre the range gate keeps and its widest window.
     half = config.max_range + config.local_ground_radius + LOCAL_GROWTH * config.max_range
     n_cells = int(np.ceil(2.0 * half / LOCAL_CELL_M)) if config.local_ground else 0
@@ -473,7 +491,7 @@ def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = T
     origin = -0.5 * n_cells * LOCAL_CELL_M
     stride = int(config.fit_stride)
     n = len(pts)
-    middle = n // 2 if pool is not None and n >= TWO_THREADS_MIN_POINTS else n
+    middle = _middle(n, pool)
     upper = pool.submit(_sample, pts, stride, in_scan_order, middle, n) if middle < n else None
     sample = _sample(pts, stride, in_scan_order, 0, middle)  # apart: in the kernel, the fit took 3.7 ms, not 2.5
     if upper is not None:
@@ -483,15 +501,34 @@ def fit_ground(points: np.ndarray, config: Stage1Config, in_scan_order: bool = T
         -(config.seed_height + config.below_ground_margin), float(np.cos(np.deg2rad(config.ground_max_slope_deg))),
         config.ground_seed_band, config.ground_lpr_outlier_share, config.ground_max_step, stride,
     )
+    return PlaneFit(pts, planes, edges, grouped, bounds, hist, origin)
+
+
+def ground_of_planes(fit: PlaneFit, config: Stage1Config, pool: Executor | None = None) -> GroundFit:
+    """`fit_ground`'s second phase: every point tested against its segment's plane (and the sample counted into the
+    local ground), split between `pool`'s thread and the caller's when given: the same mask either way. So the ground
+    thread can fit the planes while the caller recovers the rings, and both then share the test."""
+    pts, planes, edges = fit.points, fit.planes, fit.segment_edges
+    n = len(pts)
+    if n == 0:
+        local = _local_ground(planes, edges, fit.hist, 0.0, config)
+        return GroundFit(np.zeros(0, dtype=bool), planes, edges, local)
+    middle = _middle(n, pool)
     ground = np.empty(n, dtype=np.bool_)
     test = (pts, planes, float(edges[0]), float(edges[1] - edges[0]), float(config.th_dist), ground)
-    counted = pool.submit(_test_and_count, *test, middle, n, grouped, bounds, hist, origin) if middle < n else None
+    counted = (pool.submit(_test_and_count, *test, middle, n, fit.grouped, fit.bounds, fit.hist, fit.origin)
+               if middle < n else None)
     if counted is None:
-        _test_and_count(*test, 0, n, grouped, bounds, hist, origin)
+        _test_and_count(*test, 0, n, fit.grouped, fit.bounds, fit.hist, fit.origin)
     else:
         _ground_test(*test, 0, middle)
         counted.result()
-    return GroundFit(ground, planes, edges, _local_ground(planes, edges, hist, origin, config))
+    return GroundFit(ground, planes, edges, _local_ground(planes, edges, fit.hist, fit.origin, config))
+
+
+def _middle(n: int, pool: Executor | None) -> int:
+    """Where a scan of n points is split between two threads (n: not split)."""
+    return n // 2 if pool is not None and n >= TWO_THREADS_MIN_POINTS else n
 
 
 def with_local_ground(points: np.ndarray, fit: GroundFit, band: float) -> np.ndarray:

@@ -142,8 +142,9 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
                     scale: SensorScale | None = None) -> Stage1Result:
     """Stage 1 on float32 points whose coordinates are all finite.
 
-    Ground plane fitting reads the points as they come (its sample does not depend on their order), on the ground
-    thread beside ring recovery (after assigning half of the points to held laser lines, when there are some).
+    Ground plane fitting reads the points as they come (its sample does not depend on their order): its planes on
+    the ground thread beside ring recovery, then its final test on both threads (the whole fit on both threads after
+    assigning half of the points to held laser lines, when there are some).
     Points in any other order than a scan order are put in the canonical order (ring, then azimuth:
     pass3d_ros.core.stage1.scanline.canonical_order) for clustering and refinement, so the proposals do not depend
     on the order the points came in; the results are mapped back to the input order. The frame runs with the
@@ -157,7 +158,7 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     # on both threads (a stream whose points come in no firing order).
     pool = _ground_pool() if cfg.ground_thread else None
     split = pool is not None and ring is None and lines is not None and not lines.empty
-    beside = pool.submit(_ground.fit_ground, flat, cfg) if pool is not None and not split else None
+    beside = pool.submit(_ground.fit_planes, flat, cfg) if pool is not None and not split else None
     ground_cfg = cfg  # the ground reads no field that effective_config changes
     rings = _ring.rings_for(pts, ring, cfg, lines, pool if split else None, tilted=level is not None)
     order, work, work_ring = None, pts, rings.ring
@@ -171,8 +172,8 @@ def _propose_finite(pts: np.ndarray, ring: np.ndarray | None, cfg: Stage1Config,
     if level is not None:  # the sensor's resolution is read in its own frame, the rest runs level
         work = flat if order is None else np.take(flat, order, axis=0)
     t1 = time.perf_counter()
-    if beside is not None:
-        fit = beside.result()
+    if beside is not None:  # the planes fitted beside the rings; both threads test the points against them
+        fit = _ground.ground_of_planes(beside.result(), ground_cfg, pool)
     else:
         fit = _ground.fit_ground(flat, ground_cfg, in_scan_order=not split, pool=pool if split else None)
     if cfg.local_ground_as_ground:

@@ -65,6 +65,20 @@ def test_ground_split_gives_the_same_fit(street) -> None:
     np.testing.assert_array_equal(two.local.hist, one.local.hist)
 
 
+def test_planes_fitted_beside_then_tested_on_two_threads_give_the_same_fit(street) -> None:
+    """The planes fitted alone (on the ground thread, beside the rings), the test then shared by both threads."""
+    points, _ = street
+    config = Stage1Config()
+    planes = ground_module.fit_planes(points, config)
+    with CountingPool() as pool:
+        two = ground_module.ground_of_planes(planes, config, pool)
+        assert pool.submitted == ["_test_and_count"]
+    one = ground_module.fit_ground(points, config)
+    np.testing.assert_array_equal(two.ground, one.ground)
+    np.testing.assert_array_equal(two.planes, one.planes)
+    np.testing.assert_array_equal(two.local.hist, one.local.hist)
+
+
 @pytest.mark.parametrize("ring_field", [True, False])
 def test_propose_on_two_threads_equals_one(street, ring_field: bool) -> None:
     points, ring = street
