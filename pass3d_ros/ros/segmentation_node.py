@@ -236,7 +236,7 @@ class SegmentationNode(PointCloudNode):
 
     def submit_proposals(self, frame: ProposalFrame) -> None:
         """The in-memory input: stage 1's result for one frame, segmented at once on the caller's thread, or with
-        `overlap` handed to this node's worker thread (its slot keeps the newest frame and counts drops).
+        `overlap` handed to this node's worker thread (its slot keeps the newest frames and counts drops).
 
         In line, a frame's latency is its compute and the cluster node's slot drops stale scans. On its own thread
         stage 2 overlaps the next scan's stage 1, but the two contend for the GIL at every torch op: measured
