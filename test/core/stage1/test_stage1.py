@@ -127,20 +127,21 @@ def test_fit_stride_only_thins_the_plane_fits():
 
 @pytest.mark.parametrize("order", ["firing", "ring field", "shuffled", "shuffled ring field"])
 def test_ground_thread_gives_the_same_result(order: str, monkeypatch: pytest.MonkeyPatch):
-    """The ground fit runs on the ground thread for a scan in any order and gives what the fit in line gives."""
+    """The ground planes are fitted on the ground thread for a scan in any order (rule P6: the final test is then
+    shared) and give what the fit in line gives."""
     points, rings, _ = raycast([car_at(12.0, -4.0), Solid((8.0, 3.0, -0.83), PEDESTRIAN)])
     if order.startswith("shuffled"):
         perm = np.random.default_rng(0).permutation(len(points))
         points, rings = points[perm], rings[perm]
     ring_field = rings if order.endswith("ring field") else None
     threads: list[str] = []
-    fit = ground.fit_ground
+    fit = ground.fit_planes
 
     def recording_fit(*args, **kwargs):
         threads.append(threading.current_thread().name)
         return fit(*args, **kwargs)
 
-    monkeypatch.setattr(ground, "fit_ground", recording_fit)
+    monkeypatch.setattr(ground, "fit_planes", recording_fit)
     in_line = propose(points, ring_field, Stage1Config(ground_thread=False))
     assert threads == [threading.current_thread().name]
     threads.clear()
