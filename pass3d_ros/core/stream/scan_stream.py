@@ -97,6 +97,15 @@ class ScanStream:
         body radius the stream holds), intensities
         times `intensity_scale` and then divided by the stream's full scale, and a ring field with values past
         `config`'s lasers (or with `use_ring` False) not read."""
+        points = np.asarray(points)
+        if points.ndim != 2 or points.shape[1] < 4:  # the checks read column 3 unchecked (a compiled kernel)
+            raise ValueError(f"points must be N x 4 (x, y, z, intensity), got shape {points.shape}")
+        if points.dtype != np.float32 and points.dtype != np.float64:  # float16, ints: no kernel reads them
+            points = points.astype(np.float32)
+        if ring is not None:
+            ring = np.asarray(ring)
+            if ring.shape != (len(points),):  # a short one was cut silently by the points the checks keep
+                raise ValueError(f"ring field has shape {ring.shape} for {len(points)} points")
         notes: list[Note] = []
         kept = None
         config = config or Stage1Config()

@@ -4,6 +4,7 @@ as 0..1 on the stream's held scale, a ring field past the lasers not read) apply
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pass3d_ros.core.stage1 import Stage1Config, synthetic_scan
 from pass3d_ros.core.stream import ScanStream
@@ -58,3 +59,19 @@ def test_no_returns_at_the_origin_or_inside_min_range_are_left_out() -> None:
     np.testing.assert_array_equal(scan.kept, np.flatnonzero(~gone))
     assert not [n for n in scan.notes if n.topic == "x/y/z"], "a driver's convention, not a warning"
     assert len(ScanStream().prepare(pts, None, Stage1Config(min_range=0.0)).points) == len(pts) - int(gone.sum()) + 1
+
+
+def test_prepare_refuses_points_without_intensity_and_a_ring_field_of_another_length() -> None:
+    """N x 3 points had their missing intensity column read out of bounds by the checks' compiled kernel (then an
+    IndexError); a ring field shorter than the points was cut silently by the kept points (or an IndexError)."""
+    pts = synthetic_scan(n_rings=16, points_per_ring=90)
+    ring = np.repeat(np.arange(16), 90).astype(np.uint16)
+    for bad in (pts[:, :3], pts[:, 0], pts[:, :, None]):
+        with pytest.raises(ValueError, match="points must be N x 4"):
+            ScanStream().prepare(bad, None, Stage1Config())
+    with_no_return = np.vstack([pts, np.full((1, 4), np.nan, np.float32)])
+    for bad_ring in (ring, ring[:, None], np.concatenate([ring, ring])):
+        with pytest.raises(ValueError, match="ring field has shape"):
+            ScanStream().prepare(with_no_return, bad_ring, Stage1Config())
+    half = ScanStream().prepare(pts.astype(np.float16), ring, Stage1Config())  # no kernel reads float16: as float32
+    assert half.points.dtype == np.float32 and len(half.points) == len(pts)
