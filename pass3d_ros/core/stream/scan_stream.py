@@ -100,10 +100,12 @@ class ScanStream:
         points = np.asarray(points)
         if points.ndim != 2 or points.shape[1] < 4:  # the checks read column 3 unchecked (a compiled kernel)
             raise ValueError(f"points must be N x 4 (x, y, z, intensity), got shape {points.shape}")
-        if points.dtype != np.float32 and points.dtype != np.float64:  # float16, ints: no kernel reads them
-            points = points.astype(np.float32)
+        # The kernels are compiled (warm_up) for contiguous, writeable float32 points and ring fields: a read-only
+        # (np.frombuffer, a memory map), strided or float64 scan compiled them again on first use (28 s for a
+        # read-only one); such a scan is copied, a conforming one passes as it is.
+        points = np.require(points, np.float32, ("C_CONTIGUOUS", "WRITEABLE"))
         if ring is not None:
-            ring = np.asarray(ring)
+            ring = np.require(ring, None, ("C_CONTIGUOUS", "WRITEABLE"))
             if ring.shape != (len(points),):  # a short one was cut silently by the points the checks keep
                 raise ValueError(f"ring field has shape {ring.shape} for {len(points)} points")
         notes: list[Note] = []

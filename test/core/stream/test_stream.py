@@ -3,9 +3,15 @@ as 0..1 on the stream's held scale, a ring field past the lasers not read) apply
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
+
 import numpy as np
 import pytest
+from numba.core.registry import CPUDispatcher
 
+import pass3d_ros.core.stage1 as stage1
+from pass3d_ros.core import scan_checks
 from pass3d_ros.core.stage1 import Stage1Config, synthetic_scan
 from pass3d_ros.core.stream import ScanStream
 from pass3d_ros.data.frame import Frame
@@ -75,3 +81,40 @@ def test_prepare_refuses_points_without_intensity_and_a_ring_field_of_another_le
             ScanStream().prepare(with_no_return, bad_ring, Stage1Config())
     half = ScanStream().prepare(pts.astype(np.float16), ring, Stage1Config())  # no kernel reads float16: as float32
     assert half.points.dtype == np.float32 and len(half.points) == len(pts)
+
+
+def _signatures() -> dict[str, int]:
+    """Signatures compiled (or loaded) so far per numba kernel of stage 1 and the input checks."""
+    found = pkgutil.walk_packages(stage1.__path__, f"{stage1.__name__}.")
+    modules = [importlib.import_module(info.name) for info in found]
+    counts = {}
+    for module in [*modules, scan_checks]:
+        for name, value in vars(module).items():
+            if isinstance(value, CPUDispatcher) and value.__module__ == module.__name__:
+                counts[f"{module.__name__}.{name}"] = len(value.signatures)
+    return counts
+
+
+def test_a_read_only_strided_or_float64_scan_compiles_no_kernel_after_warm_up() -> None:
+    """The checks and stage 1 are compiled for contiguous, writeable float32 scans: a read-only scan (np.frombuffer
+    over a message's bytes, a memory map) compiled a read-only variant of every kernel it reached (28 s on a fresh
+    install), a float64 or strided one the checks' kernel again."""
+    stage1.warm_up()
+    scan_checks.warm_up()
+    pts = synthetic_scan(n_rings=16, points_per_ring=90)
+    ring = np.repeat(np.arange(16), 90).astype(np.uint16)
+    read_only, read_only_ring = pts.copy(), ring.copy()
+    read_only.setflags(write=False)
+    read_only_ring.setflags(write=False)
+    wide = np.zeros((len(pts), 6), np.float32)
+    wide[:, :4] = pts
+    config = Stage1Config(n_rings=16)
+    reference = ScanStream().propose(ScanStream().prepare(pts, ring, config), config)
+    before = _signatures()
+    for points, field in ((read_only, read_only_ring), (pts.astype(np.float64), ring), (wide[:, :4], ring[::1])):
+        stream = ScanStream()
+        result = stream.propose(stream.prepare(points, field, config), config)
+        np.testing.assert_array_equal(result.cluster_id, reference.cluster_id)
+    after = _signatures()
+    grew = {name: (count, after[name]) for name, count in before.items() if after[name] != count}
+    assert grew == {}, f"compiled after warm_up (kernel: signatures before, after): {grew}"
