@@ -24,6 +24,8 @@ MIN_RANGE_M = 2.0  # nearer returns (the vehicle, the mount) are left out of a r
 MIN_RING_POINTS = 3  # a ring value needs this many returns beyond MIN_RANGE_M, else all of its points are read
 MIN_FIT_SHARE = 0.5  # share of returns whose elevation is nearest to their own ring's or a neighbour's for the field
 # to fit: >= 0.9 on real HDL-64E, Ouster and Hesai scans; a random field scores about 5 / rings
+ONE_LASER_DEG = 2.0  # a field of one measured value fits the returns within this of its median elevation (one laser,
+# off the origin by a few centimetres); a driver that fills the field with one value for every laser fits none
 NEIGHBOURS = 2  # rings either side of a return's own that still count as fitting it (KITTI's lasers sit off the
 # origin, so a near return's elevation can read a ring or two away)
 
@@ -137,9 +139,16 @@ def _beyond(members: np.ndarray, r: np.ndarray, tan: np.ndarray, reach: float, b
 def _fit_share(r: np.ndarray, tan: np.ndarray, ring: np.ndarray, medians: np.ndarray, measured: np.ndarray
                ) -> float:
     """Share of the returns beyond MIN_RANGE_M (of `measured` ring values) whose elevation is nearest to the median
-    of their own ring value or of one within NEIGHBOURS rings of it in elevation order."""
-    if len(measured) < 2:
+    of their own ring value or of one within NEIGHBOURS rings of it in elevation order; with one measured value, of
+    those within ONE_LASER_DEG of its median (a field of one value on a scan of many lasers does not fit)."""
+    if len(measured) == 0:
         return 1.0
+    if len(measured) == 1:
+        far = (r > MIN_RANGE_M) & (ring == measured[0])
+        if not far.any():
+            return 1.0
+        off = np.abs(np.arctan(tan[far]) - np.arctan(medians[measured[0]]))
+        return float(np.mean(off <= np.deg2rad(ONE_LASER_DEG)))
     by_elevation = measured[np.argsort(medians[measured])]
     levels = medians[by_elevation]
     rank = np.zeros(len(medians), dtype=np.int64)

@@ -72,6 +72,26 @@ def test_an_unfit_field_stays_ignored_for_the_stream() -> None:
     assert field_rings(pts, field + 1, order) == (None, order)
 
 
+@pytest.mark.parametrize("value", [0, 7, 63])
+def test_a_field_of_one_value_for_every_laser_is_ignored(value: int) -> None:
+    """A driver that declares a ring field but fills it with one value (every point ring 0) gives the proposals of
+    no field at all, not one ring's worth of runs: the points' elevations span every laser."""
+    pts = synthetic_scan(points_per_ring=900)
+    field = np.full(len(pts), value, dtype=np.uint16)
+    order = measure_ring_order(pts, field)
+    assert order.convention == "unfit" and order.fit_share < 0.2
+    np.testing.assert_array_equal(propose(pts, field).cluster_id, propose(pts).cluster_id)
+
+
+def test_one_laser_with_its_one_value_fits() -> None:
+    """A scan of a single laser's returns (a crop, a one-laser sensor) with its one ring value: the field fits."""
+    pts = synthetic_scan(points_per_ring=360)
+    ring = np.repeat(np.arange(N_RINGS), 360)
+    one = pts[ring == 40]
+    order = measure_ring_order(one, np.full(len(one), 3, dtype=np.uint16))
+    assert order.fits and order.fit_share > 0.9
+
+
 def test_stage1_reports_the_numbering_and_gives_the_same_proposals() -> None:
     pts = synthetic_scan(points_per_ring=900)
     ring = np.repeat(np.arange(N_RINGS), 900).astype(np.uint16)
@@ -114,5 +134,7 @@ def test_negative_or_empty_fields_do_not_break_the_measurement(sensor_top: int) 
     pts = synthetic_scan(n_rings=8, points_per_ring=90)
     assert measure_ring_order(pts[:0], np.zeros(0, np.uint16)).convention == "top_down"
     assert measure_ring_order(pts, np.full(len(pts), -1, np.int32)).convention == "unfit"
-    one = measure_ring_order(pts, np.full(len(pts), sensor_top, np.uint16))
+    assert measure_ring_order(pts, np.full(len(pts), sensor_top, np.uint16)).convention == "unfit"  # 8 lasers
+    laser = pts[:90]  # one laser's returns, with a value far past the lasers there are
+    one = measure_ring_order(laser, np.full(len(laser), sensor_top, np.uint16))
     assert one.convention == "top_down" and one.rings(np.full(3, sensor_top, np.uint16)).tolist() == [sensor_top] * 3
