@@ -23,6 +23,8 @@ DIAGNOSTICS_PERIOD_S = 1.0
 HISTORY = 200  # frames kept for the percentiles
 NO_OUTPUT_WARN_S = 3.0  # frames came in and were skipped, dropped or failed, but none went out for this long: WARN
 MAX_GAP_NS = 10_000_000_000  # a longer silence is a pause of the stream (stopped, bag restarted), not lost frames
+TROUBLE_WINDOW_S = 10.0  # WARN for frames dropped, failed or lost only while their count grew this recently
+TROUBLE_COUNTERS = ("dropped", "failed", "input_gaps")
 STEPS = ("wait", "decode", "compute", "handoff", "encode", "publish", "sink")  # sink: the in-memory next stage;
 # handoff: the wait in segmentation_node's publishing thread (overlap)
 
@@ -155,20 +157,46 @@ class OutputWatch:
                 + (", ".join(why) or "none finished"))
 
 
+class RecentTrouble:
+    """Whether frames were dropped, failed or lost (TROUBLE_COUNTERS summed) within the last `window_s`: a node's
+    status describes the present, so one drop an hour ago leaves it OK (the counts stay in its values). Fed one sample
+    per status (plain numbers, no rclpy)."""
+
+    def __init__(self, window_s: float = TROUBLE_WINDOW_S) -> None:
+        self.window_s = window_s
+        self._last_growth_s: float | None = None
+        self._total: int | None = None
+
+    def update(self, now_s: float, values: Mapping[str, float | int | None]) -> bool:
+        """Record this status's counts at `now_s` (monotonic seconds); True when their sum grew within the window
+        (the first sample counts as growth when it is not 0)."""
+        total = int(sum(values.get(k) or 0 for k in TROUBLE_COUNTERS))
+        if total != (self._total or 0) or (self._total is None and total):
+            self._last_growth_s = now_s
+        self._total = total
+        return self._last_growth_s is not None and now_s - self._last_growth_s <= self.window_s
+
+
 def to_status(name: str, counters: Mapping[str, int], stats: NodeStats, message: str = "",
-              warning: str = "", error: str = "") -> DiagnosticStatus:
-    """One DiagnosticStatus: OK; WARN when frames were dropped, failed or lost before the node, or when a `warning`
-    (what is wrong now, e.g. with the input) is given; ERROR when an `error` is (a stage that had to be killed).
-    The error, else the warning, is then the message."""
+              warning: str = "", error: str = "", recent: RecentTrouble | None = None,
+              now_s: float | None = None) -> DiagnosticStatus:
+    """One DiagnosticStatus: OK; WARN when frames were dropped, failed or lost before the node (with `recent`: within
+    its window, up to `now_s`, default now), or when a `warning` (what is wrong now, e.g. with the input) is given;
+    ERROR when an `error` is (a stage that had to be killed). The error, else the warning, is then the message."""
     values: dict[str, float | int | None] = dict(counters)
     values.update(stats.snapshot())
-    trouble = bool(warning) or any(values.get(k) for k in ("dropped", "failed", "input_gaps"))
+    if recent is None:
+        lost = any(values.get(k) for k in TROUBLE_COUNTERS)
+        lost_text = "frames dropped or lost"
+    else:
+        lost = recent.update(time.monotonic() if now_s is None else now_s, values)
+        lost_text = f"frames dropped or lost in the last {recent.window_s:g} s"
+    trouble = bool(warning) or lost
     level = DiagnosticStatus.ERROR if error else DiagnosticStatus.WARN if trouble else DiagnosticStatus.OK
     return DiagnosticStatus(
         level=level,
         name=name,
-        message="; ".join(m for m in (error, warning) if m) or message or (
-            "frames dropped or lost" if trouble else "ok"),
+        message="; ".join(m for m in (error, warning) if m) or message or (lost_text if trouble else "ok"),
         hardware_id="pass3d",
         values=[KeyValue(key=k, value="" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v)))
                 for k, v in values.items()],

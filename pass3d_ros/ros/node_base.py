@@ -29,6 +29,7 @@ from pass3d_ros.ros.diagnostics import (
     DIAGNOSTICS_TOPIC,
     NodeStats,
     OutputWatch,
+    RecentTrouble,
     StepClock,
     to_status,
 )
@@ -75,6 +76,7 @@ class PointCloudNode(Node):
         self.stats = NodeStats(count_gaps=self.COUNTS_INPUT_GAPS)
         self.skip_reasons: Counter[str] = Counter()  # skipped frames by reason ("malformed", "empty")
         self.output_watch = OutputWatch()
+        self.recent_trouble = RecentTrouble()  # WARN for loss only while it grows (diagnostics.TROUBLE_WINDOW_S)
         self._warned: set[str] = set()  # the keys of the once-only warnings given (warn_once)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
@@ -220,7 +222,7 @@ class PointCloudNode(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [to_status(self.get_name(), {**counters, **values}, self.stats,
                                 warning="; ".join(w for w in warnings if w),
-                                error="; ".join(self.diagnostic_errors()))]
+                                error="; ".join(self.diagnostic_errors()), recent=self.recent_trouble)]
         self.diagnostics_pub.publish(msg)
 
     def diagnostic_extras(self) -> tuple[dict[str, int], list[str]]:

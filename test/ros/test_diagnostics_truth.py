@@ -21,7 +21,14 @@ from sensor_msgs.msg import PointCloud2
 
 from pass3d_ros.msgs.pointcloud2 import encode, header_stamp_ns
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
-from pass3d_ros.ros.diagnostics import NO_OUTPUT_WARN_S, NodeStats, OutputWatch, status_values, to_status
+from pass3d_ros.ros.diagnostics import (
+    NO_OUTPUT_WARN_S,
+    NodeStats,
+    OutputWatch,
+    RecentTrouble,
+    status_values,
+    to_status,
+)
 from pass3d_ros.ros.input_watch import MAX_PENDING, Cadence, InputWatch
 from pass3d_ros.ros.qos import qos_profile
 from pass3d_ros.ros.segmentation_node import SegmentationNode
@@ -219,3 +226,23 @@ def test_a_stream_that_never_settles_holds_a_bounded_number_of_intervals_pending
         cadence.add(int(multiple) * PERIOD_NS)
         assert cadence.pending() <= 5 * MAX_PENDING
     assert cadence.missed > 0
+
+
+def test_loss_turns_the_status_warn_only_while_it_is_recent() -> None:
+    """One drop an hour ago does not hold a node at WARN for ever: the status follows the counts' growth over the
+    last TROUBLE_WINDOW_S; the totals stay in the values."""
+    stats, recent = NodeStats(), RecentTrouble(window_s=10.0)
+    counters = {"received": 100, "processed": 100, "dropped": 0, "failed": 0}
+
+    def level(now_s: float) -> int:
+        return to_status("segmentation_node", counters, stats, recent=recent, now_s=now_s).level
+
+    assert level(0.0) == DiagnosticStatus.OK
+    counters.update(received=110, processed=109, dropped=1)
+    assert level(1.0) == DiagnosticStatus.WARN
+    assert level(10.5) == DiagnosticStatus.WARN  # within 10 s of the drop
+    status = to_status("segmentation_node", counters, stats, recent=recent, now_s=12.0)
+    assert status.level == DiagnosticStatus.OK and status_values(status)["dropped"] == 1
+    counters.update(failed=1)
+    assert level(13.0) == DiagnosticStatus.WARN
+    assert RecentTrouble().update(0.0, {"dropped": 3})  # a node's first status after loss already warns
