@@ -109,3 +109,26 @@ def test_a_pitched_scan_gives_the_pipelines_labels_on_both_node_paths(hdl32e_sca
         labels, cluster_id = offline.published_in_input(len(points))
         assert np.array_equal(labeled["label"], labels), layout.__name__
         assert np.array_equal(labeled["cluster_id"], cluster_id), layout.__name__
+
+
+def test_a_scan_in_another_frame_starts_the_stream_over(hdl32e_scan: Frame) -> None:
+    """Scans in frame "a" teach the stream its mounting; a scan in frame "b" (another sensor, or this one mounted
+    again) starts it over: the mounting is read afresh and the tracks, kept in the old frame, end."""
+    cloud = cloud_of(hdl32e_scan.points, hdl32e_scan.ring)
+    with ros_session() as ros:
+        cluster_factory, segmentation_factory = in_memory_factories()
+        cluster = ros.add(cluster_factory(context=ros.context))
+        segmentation = ros.add(segmentation_factory(context=ros.context, parameter_overrides=SIZE_RULES))
+        resets = []
+        reset_tracks = segmentation.stage2.reset_tracks
+        segmentation.stage2.reset_tracks = lambda: (resets.append(1), reset_tracks())
+        labeled = Collector(ros, PointCloud2, "/pass3d/labeled")
+        pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+        connect(pub, labeled)
+        for k in range(6):
+            pub.publish(encode(cloud, stamp_ns=STAMP0 + k * 100_000_000, frame_id="a"))
+            labeled.wait(k + 1)
+        assert cluster.stream.mounting.held is not None and not resets
+        pub.publish(encode(cloud, stamp_ns=STAMP0 + 6 * 100_000_000, frame_id="b"))
+        labeled.wait(7)
+        assert cluster.stream.mounting.held is None and resets == [1]
