@@ -88,6 +88,7 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
                                                              strict=True)]
     cluster_id = objects.cluster_id
     filling = tracker.filling() if points is not None else []
+    held_ids: set[int] = set()  # the cluster ids of this scan's held objects (scored as held, whatever their size)
     if points is not None and (said.held or said.merged or filling):
         cluster_id = cluster_id.copy()
         ids = _PartIds(objects, cluster_id)
@@ -95,8 +96,10 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
             voted_objects += _shared_out(points, voted_objects, tracked, members, owner, said.merged, back, labels,
                                          cluster_id, track_id, ids)
         if said.held and background is not None:
-            voted_objects += _held_objects(points, objects, [(t, background.index[m]) for t, m in said.held],
-                                           labels, cluster_id, track_id, ids)
+            held_objects = _held_objects(points, objects, [(t, background.index[m]) for t, m in said.held],
+                                         labels, cluster_id, track_id, ids)
+            held_ids = {obj.cluster_id for obj in held_objects}
+            voted_objects += held_objects
     if points is not None and tracker.config.fill_shapes:
         to_tracking = TrackingFrame(pose).after(None if back is None else back.T)  # level -> sensor -> tracking
         held = [background.index[m] for _, m in said.held] if said.held and background is not None else []
@@ -106,7 +109,7 @@ def track_scan(tracker: Tracker, objects: FrameObjects, stamp_s: float, pose: np
         tracker.shapes.remember(confirmed_cars, stamp_s, points, road, labels, track_id, CAR, to_tracking)
         if filling:
             voted_objects += _filled(tracker, filling, road, points, ground, labels, cluster_id, track_id,
-                                     voted_objects, to_tracking, stamp_s, ids)
+                                     voted_objects, to_tracking, stamp_s, ids, held_ids)
     voted = FrameObjects(labels, cluster_id, voted_objects, objects.groups_split)
     return TrackedScan(voted, track_id, tracked, 1e3 * (time.perf_counter() - started))
 
@@ -243,12 +246,12 @@ def _shared_out(points: np.ndarray, voted: list[LabelledObject], tracked: list[T
 def _filled(tracker: Tracker, filling: list[Track], road: np.ndarray, points: np.ndarray,
             ground: np.ndarray | None, labels: np.ndarray, cluster_id: np.ndarray, track_id: np.ndarray,
             voted: list[LabelledObject], to_tracking: tuple[np.ndarray, np.ndarray], stamp_s: float,
-            ids: _PartIds) -> list[LabelledObject]:
+            ids: _PartIds, held_ids: set[int]) -> list[LabelledObject]:
     """The scan's points stage 2 left background, in no proposal and off the ground, that fall in a voxel of a
     filling track's remembered shape (`shapes`) taken by that track: a track with an object this scan (its points
-    among `road`) adds them to its object holding most of its points (its box fitted again, `voted` updated in
-    place); another, with MIN_OBJECT_POINTS of them or more, makes a new object of them, scored as a held one.
-    Returns the new objects."""
+    among `road`) adds them to its object holding most of its points (its box fitted again and scored again,
+    `_refitted`; `voted` updated in place; `held_ids`: the cluster ids of the scan's held objects); another, with
+    MIN_OBJECT_POINTS of them or more, makes a new object of them, scored as a held one. Returns the new objects."""
     owner = tracker.shapes.owners(points, labels, cluster_id, ground, to_tracking, [t.track_id for t in filling],
                                   np.array([t.state[2:4] for t in filling]), stamp_s)
     taken_all = np.flatnonzero(owner >= 0)
@@ -271,9 +274,7 @@ def _filled(tracker: Tracker, filling: list[Track], road: np.ndarray, points: np
     ones = np.ones(len(points), np.float32)
     for (d, _), box in zip(grown, boxed_objects(points, [(voted[d].label, voted[d].cluster_id, m) for d, m in grown],
                                                 ones), strict=True):
-        obj = voted[d]
-        voted[d] = LabelledObject(box.center, box.size, box.yaw, obj.label, obj.score, obj.cluster_id, box.plausible,
-                                  obj.track_id)
+        voted[d] = _refitted(voted[d], box, voted[d].cluster_id in held_ids)
     out = []
     for (track, taken, object_id), box in zip(made, boxed_objects(points, [(track.label(), object_id, taken)
                                                                         for track, taken, object_id in made], ones),
@@ -282,6 +283,17 @@ def _filled(tracker: Tracker, filling: list[Track], road: np.ndarray, points: np
         out.append(LabelledObject(box.center, box.size, box.yaw, box.label, track.score() * HELD_SCORE, object_id,
                                   box.plausible, track.track_id))
     return out
+
+
+def _refitted(obj: LabelledObject, box: LabelledObject, held: bool) -> LabelledObject:
+    """`obj` with the box `box` fitted again over its grown points and `box`'s plausibility; the score follows the
+    flag as `_voted` scores it (halved when the grown box is no longer plausible, whole again when it has become
+    plausible), except a held object's, its track's share times HELD_SCORE whatever its size."""
+    score = obj.score
+    if not held and box.plausible != obj.plausible:
+        score = score * IMPLAUSIBLE_SCORE if not box.plausible else score / IMPLAUSIBLE_SCORE
+    return LabelledObject(box.center, box.size, box.yaw, obj.label, score, obj.cluster_id, box.plausible,
+                          obj.track_id)
 
 
 def _voted(obj: LabelledObject, tracked: Tracked, track_id: int) -> LabelledObject:

@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 
 from pass3d_ros.classes import BACKGROUND, CAR
-from pass3d_ros.core.objects import FrameObjects, LabelledObject
+from pass3d_ros.core.objects import IMPLAUSIBLE_SCORE, FrameObjects, LabelledObject
 from pass3d_ros.core.stage2.config import Stage2Config
 from pass3d_ros.core.stream.shapes import SHAPE_POINTS, ShapeMemory
 from pass3d_ros.core.stream.tracks import Tracker, TrackerConfig
@@ -145,3 +145,43 @@ def test_a_track_remembered_with_no_point_has_no_shape() -> None:
     found = memory.owners(np.concatenate([points, car_points(x0=30.0)]), np.zeros(2 * n, np.uint8),
                           np.full(2 * n, -1, np.int32), None, IDENTITY, [7, 8], np.zeros((2, 2)), 0.1)
     assert (found[:n] == -1).all() and (found[n:] == 1).all()
+
+
+def long_car_points(x0: float, x1: float, extra: tuple[float, ...] = ()) -> np.ndarray:
+    """A car's side at y = 3: 40 points from x0 to x1 (two heights), then one point at each x of `extra` (N x 4)."""
+    x = np.concatenate([np.repeat(np.linspace(x0, x1, 20), 2), np.asarray(extra, dtype=np.float64)])
+    z = np.concatenate([np.tile([-1.4, -0.4], 20), np.full(len(extra), -1.4)])
+    return np.stack([x, np.full(len(x), 3.0), z, np.full(len(x), 0.5)], axis=1).astype(np.float32)
+
+
+def grown_car(points: np.ndarray, seen: np.ndarray, part: np.ndarray, plausible: bool) -> object:
+    """A car tracked with fill_shapes over three scans of its `seen` points (confidence 0.9), then proposed as `part`
+    only (published with `plausible` and scored as `_voted` scores it); the tracked scan."""
+    tracker = Tracker(FILL)
+    for k in range(3):
+        track_scan(tracker, car_scan(points[seen], np.ones(int(seen.sum()), bool)), 0.1 * k, points=points[seen])
+    scan = car_scan(points, part)
+    (obj,) = scan.objects
+    score = 1.0 if plausible else IMPLAUSIBLE_SCORE
+    scan = FrameObjects(scan.labels, scan.cluster_id, [dataclasses.replace(obj, plausible=plausible, score=score)])
+    return track_scan(tracker, scan, 0.3, points=points)
+
+
+def test_a_car_grown_by_its_shape_is_scored_for_its_new_box() -> None:
+    # A 6.0 m car; this scan its front 3 m is proposed, its rear in no proposal, and a point 0.2 m past its end falls
+    # in the last voxel of its shape: the grown box (6.25 m) is no plausible car, so its score is halved
+    # (docs/outputs.md: "score ... halved when the box is implausible").
+    points = long_car_points(10.05, 16.05, extra=(16.3,))
+    seen = np.arange(len(points)) < 40
+    out = grown_car(points, seen, points[:, 0] <= 13.1, plausible=True)
+    (car,) = out.voted.objects
+    assert (out.voted.labels == CAR).all() and max(car.size[:2]) > 6.21
+    assert not car.plausible and car.score == out.tracked[0].score * IMPLAUSIBLE_SCORE
+    # A 4 m car proposed as a 0.5 m sliver (implausible, its score halved): grown back to the whole car, plausible,
+    # its score is its track's share again.
+    points = long_car_points(10.0, 14.0)
+    everything = np.ones(len(points), bool)
+    out = grown_car(points, everything, points[:, 0] <= 10.5, plausible=False)
+    (car,) = out.voted.objects
+    assert (out.voted.labels == CAR).all() and max(car.size[:2]) > 3.9
+    assert car.plausible and car.score == out.tracked[0].score
