@@ -144,7 +144,8 @@ class ClusterProposalNode(PointCloudNode):
         stream's laser lines, ring order, mounting, body and intensity scale are read afresh (a warning says so)."""
         if self._frame_id is not None and frame_id != self._frame_id:
             self.get_logger().warning(f"input frame_id changed from {self._frame_id!r} to {frame_id!r}: the stream's "
-                                      "laser lines, mounting, body and intensity scale are read again")
+                                      "laser lines, mounting, body and intensity scale are read again (one sensor per "
+                                      "input topic)", throttle_duration_sec=LOG_PERIOD_S)
             self._ring_order, self._sensor_source = None, None
         self._frame_id = frame_id
         self._pipeline.follow(frame_id)

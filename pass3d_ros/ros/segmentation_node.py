@@ -457,7 +457,7 @@ class SegmentationNode(PointCloudNode):
         kept in the old frame, end (a warning says so) rather than jump."""
         if self._tracked_frame is not None and frame_id != self._tracked_frame and self.stage2.tracker is not None:
             self.get_logger().warning(f"proposals' frame_id changed from {self._tracked_frame!r} to {frame_id!r}: "
-                                      "the tracks start over")
+                                      "the tracks start over", throttle_duration_sec=LOG_PERIOD_S)
             self.stage2.reset_tracks()
         self._tracked_frame = frame_id
 
