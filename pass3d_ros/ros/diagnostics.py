@@ -164,39 +164,34 @@ class RecentTrouble:
 
     def __init__(self, window_s: float = TROUBLE_WINDOW_S) -> None:
         self.window_s = window_s
-        self._last_growth_s: float | None = None
-        self._total: int | None = None
+        self._last_growth_s = -np.inf
+        self._total = 0
 
     def update(self, now_s: float, values: Mapping[str, float | int | None]) -> bool:
         """Record this status's counts at `now_s` (monotonic seconds); True when their sum grew within the window
-        (the first sample counts as growth when it is not 0)."""
+        (from 0 at the start: a first status after loss warns)."""
         total = int(sum(values.get(k) or 0 for k in TROUBLE_COUNTERS))
-        if total != (self._total or 0) or (self._total is None and total):
+        if total != self._total:
             self._last_growth_s = now_s
         self._total = total
-        return self._last_growth_s is not None and now_s - self._last_growth_s <= self.window_s
+        return now_s - self._last_growth_s <= self.window_s
 
 
-def to_status(name: str, counters: Mapping[str, int], stats: NodeStats, message: str = "",
-              warning: str = "", error: str = "", recent: RecentTrouble | None = None,
-              now_s: float | None = None) -> DiagnosticStatus:
-    """One DiagnosticStatus: OK; WARN when frames were dropped, failed or lost before the node (with `recent`: within
-    its window, up to `now_s`, default now), or when a `warning` (what is wrong now, e.g. with the input) is given;
-    ERROR when an `error` is (a stage that had to be killed). The error, else the warning, is then the message."""
+def to_status(name: str, counters: Mapping[str, int], stats: NodeStats, recent: RecentTrouble, message: str = "",
+              warning: str = "", error: str = "", now_s: float | None = None) -> DiagnosticStatus:
+    """One DiagnosticStatus: OK; WARN when frames were dropped, failed or lost before the node within `recent`'s
+    window (up to `now_s`, default now), or when a `warning` (what is wrong now, e.g. with the input) is given; ERROR
+    when an `error` is (a stage that had to be killed). The error, else the warning, is then the message."""
     values: dict[str, float | int | None] = dict(counters)
     values.update(stats.snapshot())
-    if recent is None:
-        lost = any(values.get(k) for k in TROUBLE_COUNTERS)
-        lost_text = "frames dropped or lost"
-    else:
-        lost = recent.update(time.monotonic() if now_s is None else now_s, values)
-        lost_text = f"frames dropped or lost in the last {recent.window_s:g} s"
+    lost = recent.update(time.monotonic() if now_s is None else now_s, values)
     trouble = bool(warning) or lost
     level = DiagnosticStatus.ERROR if error else DiagnosticStatus.WARN if trouble else DiagnosticStatus.OK
     return DiagnosticStatus(
         level=level,
         name=name,
-        message="; ".join(m for m in (error, warning) if m) or message or (lost_text if trouble else "ok"),
+        message="; ".join(m for m in (error, warning) if m) or message or (
+            f"frames dropped or lost in the last {recent.window_s:g} s" if trouble else "ok"),
         hardware_id="pass3d",
         values=[KeyValue(key=k, value="" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v)))
                 for k, v in values.items()],

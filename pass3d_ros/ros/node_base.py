@@ -220,9 +220,9 @@ class PointCloudNode(Node):
         values = {**{f"skipped_{reason}": count for reason, count in self.skip_reasons.items()}, **values}
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [to_status(self.get_name(), {**counters, **values}, self.stats,
+        msg.status = [to_status(self.get_name(), {**counters, **values}, self.stats, self.recent_trouble,
                                 warning="; ".join(w for w in warnings if w),
-                                error="; ".join(self.diagnostic_errors()), recent=self.recent_trouble)]
+                                error="; ".join(self.diagnostic_errors()))]
         self.diagnostics_pub.publish(msg)
 
     def diagnostic_extras(self) -> tuple[dict[str, int], list[str]]:

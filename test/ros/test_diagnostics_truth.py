@@ -185,7 +185,7 @@ def test_a_rate_change_is_learnt_not_reported_as_frames_missed() -> None:
     snapshot = stats.snapshot()
     assert snapshot["frames_missed_upstream"] == 0 and snapshot["input_gaps"] == 0
     assert snapshot["input_rate_changes"] == 2 and snapshot["input_period_ms"] == pytest.approx(100.0)
-    status = to_status("cluster_proposal_node", {"received": 100, "processed": 100}, stats)
+    status = to_status("cluster_proposal_node", {"received": 100, "processed": 100}, stats, RecentTrouble())
     assert status.level == DiagnosticStatus.OK, status.message
 
     stamp = rate_changes()[-1]
@@ -235,13 +235,13 @@ def test_loss_turns_the_status_warn_only_while_it_is_recent() -> None:
     counters = {"received": 100, "processed": 100, "dropped": 0, "failed": 0}
 
     def level(now_s: float) -> int:
-        return to_status("segmentation_node", counters, stats, recent=recent, now_s=now_s).level
+        return to_status("segmentation_node", counters, stats, recent, now_s=now_s).level
 
     assert level(0.0) == DiagnosticStatus.OK
     counters.update(received=110, processed=109, dropped=1)
     assert level(1.0) == DiagnosticStatus.WARN
     assert level(10.5) == DiagnosticStatus.WARN  # within 10 s of the drop
-    status = to_status("segmentation_node", counters, stats, recent=recent, now_s=12.0)
+    status = to_status("segmentation_node", counters, stats, recent, now_s=12.0)
     assert status.level == DiagnosticStatus.OK and status_values(status)["dropped"] == 1
     counters.update(failed=1)
     assert level(13.0) == DiagnosticStatus.WARN
