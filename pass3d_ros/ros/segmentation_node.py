@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -172,6 +175,12 @@ class SegmentationNode(PointCloudNode):
         self.frames_hung = 0  # frames whose stage-2 process answered nothing for stage2_timeout (killed)
         self.frames_late = 0  # frames whose result came after stage2_timeout, dropped instead of published late
         self._hung: tuple[float, str] | None = None  # when stage 2 was last killed for hanging, and why
+        # max_proposals and stage2_timeout as the next frame takes them; one set while a frame is in stage 2 waits for
+        # its end (`_frame_settings`), so the budget, the classifier and the late check of a frame read the same values
+        self._settings_lock = threading.Lock()
+        self._in_stage2 = False
+        self._pending: dict[str, Any] = {}
+        self._stage2_timeout = self.settings.stage2_timeout
         scan_checks.warm_up()
         shapes.warm_up()
         warm_up_objects()
@@ -351,14 +360,39 @@ class SegmentationNode(PointCloudNode):
         fixed = [p.name for p in changed if p.name not in live]
         if fixed:
             return params.result(False, f"{', '.join(fixed)} can only be set at start-up")
+        with self._settings_lock:
+            self._pending.update({p.name: p.value for p in changed if p.name in ("max_proposals", "stage2_timeout")})
+            if not self._in_stage2:
+                self._take_changes()
         for p in changed:
-            if p.name == "max_proposals":
-                self.classifier.max_proposals = int(p.value)
-            if p.name == "stage2_timeout" and isinstance(self.classifier, ProcessClassifier):
-                self.classifier.timeout_s = float(p.value)
             if p.name == "min_confidence" and self.detections is not None:
                 self.detections.publish_label_info(p.value)  # LabelInfo's threshold follows it
         return params.result(True)
+
+    def _take_changes(self) -> None:
+        """Hand the max_proposals and stage2_timeout set since the last frame to the classifier (under
+        `_settings_lock`, while no frame is in stage 2)."""
+        pending, self._pending = self._pending, {}
+        if "max_proposals" in pending:
+            self.classifier.max_proposals = int(pending["max_proposals"])
+        if "stage2_timeout" in pending:
+            self._stage2_timeout = float(pending["stage2_timeout"])
+            if isinstance(self.classifier, ProcessClassifier):
+                self.classifier.timeout_s = self._stage2_timeout
+
+    @contextmanager
+    def _frame_settings(self) -> Iterator[tuple[int, float]]:
+        """The max_proposals and stage2_timeout of the frame in stage 2: a change set meanwhile waits for the frame's
+        end, so one frame never mixes two values (budgeted with one limit, classified with another)."""
+        with self._settings_lock:
+            self._in_stage2 = True
+            settings = int(self.classifier.max_proposals), self._stage2_timeout
+        try:
+            yield settings
+        finally:
+            with self._settings_lock:
+                self._in_stage2 = False
+                self._take_changes()
 
     def _process(self, item: PointCloud2 | ProposalFrame) -> Outcome | None:
         """One frame: decode (a message: implausible points left out), segment up to max_proposals proposals,
@@ -374,22 +408,22 @@ class SegmentationNode(PointCloudNode):
         if len(points) == 0:
             self.get_logger().warning("skipping empty proposals cloud", throttle_duration_sec=LOG_PERIOD_S)
             return self.skipped("empty")
-        proposals = self._budget(frame)
-        members = proposals.members
-        stage2_points = level_points(self._on_training_scale(points), frame.level)
-        clock.mark("decode")
-        try:
-            result = self.stage2.segment(stage2_points, members, frame.people_only)
-        except ClassifierProcessHungError as exc:  # killed by the supervisor, which logged it; restarted
-            self.frames_down += 1
-            self.frames_hung += 1
-            self._hung = (time.monotonic(), str(exc))
-            return DROPPED
-        except ClassifierProcessDownError:  # its death was logged once by the supervisor; this frame is dropped
-            self.frames_down += 1
-            return DROPPED
+        with self._frame_settings() as (limit, timeout):
+            proposals = self._budget(frame, limit)
+            members = proposals.members
+            stage2_points = level_points(self._on_training_scale(points), frame.level)
+            clock.mark("decode")
+            try:
+                result = self.stage2.segment(stage2_points, members, frame.people_only)
+            except ClassifierProcessHungError as exc:  # killed by the supervisor, which logged it; restarted
+                self.frames_down += 1
+                self.frames_hung += 1
+                self._hung = (time.monotonic(), str(exc))
+                return DROPPED
+            except ClassifierProcessDownError:  # its death was logged once by the supervisor; this frame is dropped
+                self.frames_down += 1
+                return DROPPED
         clock.mark("compute")
-        timeout = self.get_parameter("stage2_timeout").value
         if clock.steps_ms["compute"] > 1e3 * timeout:
             self.frames_late += 1
             self.get_logger().warning(
@@ -436,11 +470,11 @@ class SegmentationNode(PointCloudNode):
                              None if frame.ground is None else frame.ground[keep],
                              None if frame.people_only is None else frame.people_only[keep])
 
-    def _budget(self, frame: ProposalFrame) -> Budgeted:
-        """Member points and cluster ids of the frame's proposals, at most max_proposals of them (the nearest): the
-        cut ones are not classified, so their points are background; a cut is counted and warned about (throttled)."""
+    def _budget(self, frame: ProposalFrame, limit: int) -> Budgeted:
+        """Member points and cluster ids of the frame's proposals, at most `limit` (max_proposals) of them (the
+        nearest): the cut ones are not classified, so their points are background; a cut is counted and warned about
+        (throttled)."""
         first, second, count = dense_ids(frame.cluster_id, frame.cluster_id2)
-        limit = int(self.get_parameter("max_proposals").value)
         cut = proposals_cut(count, limit)
         if cut:
             first, second, _ = nearest_proposals(frame.points, first, second, count, limit)

@@ -1,10 +1,11 @@
 """Parameters changed on running nodes: a stage-1 change or a new intensity_scale reaches the next scan with the
-stream's held state reset where it must be (and only there), an unknown name is refused naming it, and
-use_sim_time is taken by both nodes."""
+stream's held state reset where it must be (and only there), a stage-2 change set while a frame is in stage 2 waits
+for the next frame, an unknown name is refused naming it, and use_sim_time is taken by both nodes."""
 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -18,7 +19,8 @@ from rclpy.parameter_client import AsyncParameterClient
 
 from pass3d_ros.core import stage1
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.msgs.pointcloud2 import header_stamp_ns
+from pass3d_ros.msgs.pointcloud2 import encode, header_stamp_ns
+from pass3d_ros.ros import segmentation_node
 from pass3d_ros.ros.cluster_proposal_node import ClusterProposalNode
 from pass3d_ros.ros.segmentation_node import SegmentationNode
 
@@ -155,5 +157,92 @@ def test_segmentation_node_refuses_start_up_parameters_and_changes_none(context:
         assert node.get_parameter("min_confidence").value == 0.0
         assert node.set_parameters([Parameter("max_proposals", value=12)])[0].successful
         assert node.classifier.max_proposals == 12
+    finally:
+        node.destroy_node()
+
+
+class HeldStage2:
+    """Holds the next frame of a segmentation node between its budget and the classifier (`level_points`, called
+    between them, waits until `release` is set), and records each classifier call: proposals read, its limit."""
+
+    def __init__(self, node: SegmentationNode, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.calls: list[tuple[int, int]] = []
+        self.entered = threading.Event()
+        self.release = threading.Event()
+        level = segmentation_node.level_points
+
+        def held(points: np.ndarray, rotation: np.ndarray | None) -> np.ndarray:
+            if not self.entered.is_set():
+                self.entered.set()
+                assert self.release.wait(WAIT_S)
+            return level(points, rotation)
+
+        monkeypatch.setattr(segmentation_node, "level_points", held)
+        segment = node.classifier.segment
+
+        def recorded(points: np.ndarray, members: list[np.ndarray]):
+            self.calls.append((len(members), node.classifier.max_proposals))
+            return segment(points, members)
+
+        node.classifier.segment = recorded
+
+
+def segment_once(node: SegmentationNode, columns: dict[str, np.ndarray], k: int) -> None:
+    """Submit the proposals cloud `columns` as scan `k` and wait until the node has finished it."""
+    msg = encode(columns, stamp_ns=STAMP0 + k * PERIOD_NS)
+    node.submit(msg, header_stamp_ns(msg))
+    assert wait_until(lambda: node.worker.counters.received == k + 1 and node.idle())
+
+
+def test_a_max_proposals_change_during_a_frame_waits_for_the_next(
+    context: Context, proposal_columns: dict[str, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    node = SegmentationNode(context=context, in_memory=True,
+                            parameter_overrides=[Parameter("classifier", value="size_rules")])
+    held = HeldStage2(node, monkeypatch)
+    count = len(np.unique(proposal_columns["cluster_id"][proposal_columns["cluster_id"] >= 0]))
+    assert count > 2
+    try:
+        msg = encode(proposal_columns, stamp_ns=STAMP0)
+        node.submit(msg, header_stamp_ns(msg))
+        assert held.entered.wait(WAIT_S)
+        assert node.set_parameters([Parameter("max_proposals", value=2)])[0].successful
+        held.release.set()
+        assert wait_until(lambda: node.worker.counters.processed == 1 and node.idle())
+        assert held.calls == [(count, 128)], "the frame in hand is budgeted and classified with what it began with"
+        assert node.proposals_cut == 0
+
+        segment_once(node, proposal_columns, 1)
+        assert held.calls[1] == (2, 2) and node.classifier.max_proposals == 2
+        assert node.proposals_cut == count - 2
+    finally:
+        node.destroy_node()
+
+
+def test_a_stage2_timeout_change_during_a_frame_waits_for_the_next(
+    context: Context, proposal_columns: dict[str, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    node = SegmentationNode(context=context, in_memory=True,
+                            parameter_overrides=[Parameter("classifier", value="size_rules")])
+    held = HeldStage2(node, monkeypatch)
+    segment = node.classifier.segment
+
+    def slow(points: np.ndarray, members: list[np.ndarray]):
+        time.sleep(0.3)  # longer than the stage2_timeout set during it, far within the one it began with
+        return segment(points, members)
+
+    node.classifier.segment = slow
+    try:
+        msg = encode(proposal_columns, stamp_ns=STAMP0)
+        node.submit(msg, header_stamp_ns(msg))
+        assert held.entered.wait(WAIT_S)
+        assert node.set_parameters([Parameter("stage2_timeout", value=0.1)])[0].successful
+        held.release.set()
+        assert wait_until(lambda: node.worker.counters.received == 1 and node.idle())
+        assert (node.frames_late, node.counters().processed) == (0, 1), \
+            "the frame in hand is held to the stage2_timeout it began with"
+
+        segment_once(node, proposal_columns, 1)
+        assert (node.frames_late, node.counters().dropped) == (1, 1), "the next frame is held to the new one"
     finally:
         node.destroy_node()
