@@ -187,6 +187,26 @@ class HeldStage2:
         node.classifier.segment = recorded
 
 
+@pytest.fixture
+def node(context: Context) -> Iterator[SegmentationNode]:
+    """A segmentation node with the size-rules classifier, stage 2 in this process."""
+    node = SegmentationNode(context=context, in_memory=True,
+                            parameter_overrides=[Parameter("classifier", value="size_rules")])
+    yield node
+    node.destroy_node()
+
+
+def change_during_first_frame(node: SegmentationNode, held: HeldStage2, columns: dict[str, np.ndarray],
+                              change: Parameter) -> None:
+    """Submit `columns` as scan 0, set `change` while the node holds it between its budget and the classifier, then
+    let it go on."""
+    msg = encode(columns, stamp_ns=STAMP0)
+    node.submit(msg, header_stamp_ns(msg))
+    assert held.entered.wait(WAIT_S)
+    assert node.set_parameters([change])[0].successful
+    held.release.set()
+
+
 def segment_once(node: SegmentationNode, columns: dict[str, np.ndarray], k: int) -> None:
     """Submit the proposals cloud `columns` as scan `k` and wait until the node has finished it."""
     msg = encode(columns, stamp_ns=STAMP0 + k * PERIOD_NS)
@@ -195,35 +215,24 @@ def segment_once(node: SegmentationNode, columns: dict[str, np.ndarray], k: int)
 
 
 def test_a_max_proposals_change_during_a_frame_waits_for_the_next(
-    context: Context, proposal_columns: dict[str, np.ndarray], monkeypatch: pytest.MonkeyPatch
+    node: SegmentationNode, proposal_columns: dict[str, np.ndarray], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    node = SegmentationNode(context=context, in_memory=True,
-                            parameter_overrides=[Parameter("classifier", value="size_rules")])
     held = HeldStage2(node, monkeypatch)
     count = len(np.unique(proposal_columns["cluster_id"][proposal_columns["cluster_id"] >= 0]))
     assert count > 2
-    try:
-        msg = encode(proposal_columns, stamp_ns=STAMP0)
-        node.submit(msg, header_stamp_ns(msg))
-        assert held.entered.wait(WAIT_S)
-        assert node.set_parameters([Parameter("max_proposals", value=2)])[0].successful
-        held.release.set()
-        assert wait_until(lambda: node.worker.counters.processed == 1 and node.idle())
-        assert held.calls == [(count, 128)], "the frame in hand is budgeted and classified with what it began with"
-        assert node.proposals_cut == 0
+    change_during_first_frame(node, held, proposal_columns, Parameter("max_proposals", value=2))
+    assert wait_until(lambda: node.worker.counters.processed == 1 and node.idle())
+    assert held.calls == [(count, 128)], "the frame in hand is budgeted and classified with what it began with"
+    assert node.proposals_cut == 0
 
-        segment_once(node, proposal_columns, 1)
-        assert held.calls[1] == (2, 2) and node.classifier.max_proposals == 2
-        assert node.proposals_cut == count - 2
-    finally:
-        node.destroy_node()
+    segment_once(node, proposal_columns, 1)
+    assert held.calls[1] == (2, 2) and node.classifier.max_proposals == 2
+    assert node.proposals_cut == count - 2
 
 
 def test_a_stage2_timeout_change_during_a_frame_waits_for_the_next(
-    context: Context, proposal_columns: dict[str, np.ndarray], monkeypatch: pytest.MonkeyPatch
+    node: SegmentationNode, proposal_columns: dict[str, np.ndarray], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    node = SegmentationNode(context=context, in_memory=True,
-                            parameter_overrides=[Parameter("classifier", value="size_rules")])
     held = HeldStage2(node, monkeypatch)
     segment = node.classifier.segment
 
@@ -232,17 +241,10 @@ def test_a_stage2_timeout_change_during_a_frame_waits_for_the_next(
         return segment(points, members)
 
     node.classifier.segment = slow
-    try:
-        msg = encode(proposal_columns, stamp_ns=STAMP0)
-        node.submit(msg, header_stamp_ns(msg))
-        assert held.entered.wait(WAIT_S)
-        assert node.set_parameters([Parameter("stage2_timeout", value=0.1)])[0].successful
-        held.release.set()
-        assert wait_until(lambda: node.worker.counters.received == 1 and node.idle())
-        assert (node.frames_late, node.counters().processed) == (0, 1), \
-            "the frame in hand is held to the stage2_timeout it began with"
+    change_during_first_frame(node, held, proposal_columns, Parameter("stage2_timeout", value=0.1))
+    assert wait_until(lambda: node.worker.counters.received == 1 and node.idle())
+    assert (node.frames_late, node.counters().processed) == (0, 1), \
+        "the frame in hand is held to the stage2_timeout it began with"
 
-        segment_once(node, proposal_columns, 1)
-        assert (node.frames_late, node.counters().dropped) == (1, 1), "the next frame is held to the new one"
-    finally:
-        node.destroy_node()
+    segment_once(node, proposal_columns, 1)
+    assert (node.frames_late, node.counters().dropped) == (1, 1), "the next frame is held to the new one"
