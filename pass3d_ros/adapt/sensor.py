@@ -119,7 +119,9 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
     rings, sources, vertical, horizontal, tops, bottoms = [], Counter(), [], [], [], []
     constant: list[float] = []
     body = SelfReturnReader()
+    specs: dict[str, int] = {}  # scans read of each spec, for the error when none holds a point
     for spec, frame in frames:
+        specs[spec] = specs.get(spec, 0) + 1
         proposed = proposed_frame(pipeline, spec, frame, printed=printed)
         scan, result = proposed.scan, proposed.result
         if proposed.empty:
@@ -138,7 +140,9 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
             vertical.append(result.sensor.vertical_deg)
             horizontal.append(result.sensor.horizontal_deg)
     if not tops:
-        raise UserError("no scan of the recording holds a point")
+        read = ", ".join(f"{spec} ({count} scan(s) read)" for spec, count in specs.items())
+        raise UserError(f"no scan of the recording holds a point: {read}; each was empty or had every point "
+                        "dropped (the notes above say why)")
     n_rings = int(np.median(rings)) if rings else 0
     values = [float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan") for v in (vertical, horizontal)] \
         if rings else [float("nan"), float("nan")]

@@ -493,6 +493,24 @@ def test_a_bag_recording_names_its_topic_in_the_parameter_file(tmp_path):
     assert params["/**/cluster_proposal_node"]["ros__parameters"]["input_topic"] == "/ouster/points"
 
 
+def test_a_recording_whose_points_are_all_dropped_names_itself_and_exits_2(tmp_path, capsys):
+    """Scans whose every point is NaN read as scans, then hold no point: the one-line error names the recording (of
+    several --data, which one) and says why, exit 2, nothing written."""
+    from pass3d_ros.tools import adapt
+
+    seq = tmp_path / "nan"
+    for i in range(8):
+        write_semantickitti_frame(seq, Frame(name=f"{i:06d}", points=np.full((500, 4), np.nan, np.float32)))
+    args = [*TINY, "--out", str(tmp_path / "out")]
+    args[1] = f"semantickitti:{seq}"
+    assert adapt.main(args) == 2
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("pass3d_adapt: error: no scan of the recording holds a point") and "Traceback" not in err
+    assert f"semantickitti:{seq}" in last and "8 scan(s) read" in last, last
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_recording_without_proposals_is_one_line_and_exit_2(tmp_path, capsys):
     """Eight scans of sparse noise (or a sensor stage 1 cannot read) give stage 1 no proposal to adapt on: the
     trainer's TrainingError is one line on stderr and exit 2, not a traceback."""
