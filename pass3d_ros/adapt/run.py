@@ -12,6 +12,7 @@ GUARD_DROP mean IoU on the guard scenes are refused. The folder is written by ad
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -151,6 +152,7 @@ class Adaptation:
     def _read_recording(self) -> None:
         """At most max_scans scans of the recording, evenly spaced over each spec, in time order."""
         o = self.options
+        _refuse_repeats(o.data)
         each = max(1, o.max_scans // len(o.data))
         topics = set()
         for spec in o.data:
@@ -371,6 +373,21 @@ def train_arguments(options: TrainOptions) -> list[str]:
     for spec in options.data[1:]:
         args += ["--data", spec]
     return args + (["--fit-epochs"] if options.fit_epochs else []) + (["--no-progress"] if options.quiet else [])
+
+
+def _refuse_repeats(specs: list[str]) -> None:
+    """UserError when one recording is given twice (symlinks and spellings of its path resolved): its copies would
+    fall on both sides of the split, so scans adapted on would also be held out and flatter the check."""
+    seen: dict[tuple[str, str, str], str] = {}
+    for spec in specs:
+        dataset = resolve_dataset(spec)
+        path, sep, topic = dataset.path.partition("#")
+        place = os.path.realpath(path) if os.path.exists(path) else path
+        key = (dataset.format, place + sep + topic, dataset.crop)
+        if key in seen:
+            raise UserError(f"--data {spec}: the same recording as --data {seen[key]}; give each recording once "
+                            "(its copies would be both adapted on and held out)")
+        seen[key] = spec
 
 
 def _bag_topic(dataset: Dataset) -> str | None:

@@ -511,6 +511,25 @@ def test_a_recording_whose_points_are_all_dropped_names_itself_and_exits_2(tmp_p
     assert not (tmp_path / "out").exists()
 
 
+def test_a_recording_given_twice_is_one_line_and_exit_2(tmp_path, capsys):
+    """The same recording twice (here once through a symlink) would put copies of the held-out scans among those
+    adapted on, flattering the check: exit 2 with one line naming both --data, before anything is read."""
+    from pass3d_ros.tools import adapt
+
+    seq = tmp_path / "seq"
+    for k in range(8):
+        write_semantickitti_frame(seq, generate_frame(seed=5, index=k, sensor="vlp16"))
+    (tmp_path / "link").symlink_to(seq)
+    args = [*TINY, "--out", str(tmp_path / "out"), "--data", f"semantickitti:{tmp_path / 'link'}/"]
+    args[1] = f"semantickitti:{seq}"
+    assert adapt.main(args) == 2
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1] == (f"pass3d_adapt: error: --data semantickitti:{tmp_path / 'link'}/: the "
+                                            f"same recording as --data semantickitti:{seq}; give each recording "
+                                            "once (its copies would be both adapted on and held out)"), err
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_recording_without_proposals_is_one_line_and_exit_2(tmp_path, capsys):
     """Eight scans of sparse noise (or a sensor stage 1 cannot read) give stage 1 no proposal to adapt on: the
     trainer's TrainingError is one line on stderr and exit 2, not a traceback."""
