@@ -119,9 +119,9 @@ def read_sensor(frames: Iterable[tuple[str, Frame]], config: Stage1Config,
     rings, sources, vertical, horizontal, tops, bottoms = [], Counter(), [], [], [], []
     constant: list[float] = []
     body = SelfReturnReader()
-    specs: dict[str, int] = {}  # scans read of each spec, for the error when none holds a point
+    specs: Counter[str] = Counter()  # scans read of each spec, for the error when none holds a point
     for spec, frame in frames:
-        specs[spec] = specs.get(spec, 0) + 1
+        specs[spec] += 1
         proposed = proposed_frame(pipeline, spec, frame, printed=printed)
         scan, result = proposed.scan, proposed.result
         if proposed.empty:
