@@ -81,7 +81,6 @@ class ClusterProposalNode(PointCloudNode):
         self._next_config = self._pipeline.config  # the stage-1 values set last, for the worker (_take_changes)
         self._intensity_scale: float | None = None  # the intensity_scale the stream's full scale was read under
         self._noted: dict[str, float] = {}  # when each topic of the input checks was last logged
-        self._frame_id: str | None = None  # the input's frame_id the stream's state was learned in (`_follow_frame`)
         # proposals in the input's layout (pass3d_ros.ros.input_layout), for segmentation_node's as_input / background
         self._full = (check_layout(self.get_parameter("output_layout").value) == AS_INPUT
                       or bool(self.get_parameter("publish_background").value))
@@ -138,17 +137,6 @@ class ClusterProposalNode(PointCloudNode):
             self.stream.restart_scale()
         self._intensity_scale = scale
         return scale
-
-    def _follow_frame(self, frame_id: str) -> None:
-        """A scan in another frame than the scans before it comes from another sensor, or one mounted again: the
-        stream's laser lines, ring order, mounting, body and intensity scale are read afresh (a warning says so)."""
-        if self._frame_id is not None and frame_id != self._frame_id:
-            self.get_logger().warning(f"input frame_id changed from {self._frame_id!r} to {frame_id!r}: the stream's "
-                                      "laser lines, mounting, body and intensity scale are read again (one sensor per "
-                                      "input topic)", throttle_duration_sec=LOG_PERIOD_S)
-            self._ring_order, self._sensor_source = None, None
-        self._frame_id = frame_id
-        self._pipeline.follow(frame_id)
 
     def _report_sensor(self, result: Stage1Result) -> None:
         """Log the stream's ring source and effective stage-1 values when they first appear or the source changes
@@ -260,7 +248,10 @@ class ClusterProposalNode(PointCloudNode):
         except PointCloud2Error as exc:
             self.get_logger().warning(f"skipping malformed PointCloud2: {exc}", throttle_duration_sec=LOG_PERIOD_S)
             return self.skipped("malformed")
-        self._follow_frame(msg.header.frame_id)
+        if self.follow_frame(msg.header.frame_id, "the stream's laser lines, mounting, body and intensity scale are "
+                             "read again (one sensor per input topic)"):
+            self._ring_order, self._sensor_source = None, None
+        self._pipeline.follow(msg.header.frame_id)
         prepared = self._pipeline.prepare(scan.points, scan.ring, intensity_scale=self._take_changes(),
                                           use_ring=self.get_parameter("use_ring_field").value)
         self._log_notes(prepared.notes)

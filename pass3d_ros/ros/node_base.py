@@ -78,6 +78,7 @@ class PointCloudNode(Node):
         self.output_watch = OutputWatch()
         self.recent_trouble = RecentTrouble()  # WARN for loss only while it grows (diagnostics.TROUBLE_WINDOW_S)
         self._warned: set[str] = set()  # the keys of the once-only warnings given (warn_once)
+        self._frame_id: str | None = None  # the input's frame_id the stream's state was learned in (follow_frame)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
 
@@ -96,6 +97,17 @@ class PointCloudNode(Node):
         if key not in self._warned:
             self._warned.add(key)
             self.get_logger().warning(text)
+
+    def follow_frame(self, frame_id: str, starts_over: str | None) -> bool:
+        """Note the input's frame_id; True when it differs from the one before (another sensor, or one mounted
+        again), for the caller to start its stream's state over, with a throttled warning that says `starts_over`
+        (what does; None: no warning, nothing held)."""
+        changed = self._frame_id is not None and frame_id != self._frame_id
+        if changed and starts_over is not None:
+            self.get_logger().warning(f"input frame_id changed from {self._frame_id!r} to {frame_id!r}: {starts_over}",
+                                      throttle_duration_sec=LOG_PERIOD_S)
+        self._frame_id = frame_id
+        return changed
 
     def output_publisher(self, msg_type: type, topic_parameter: str) -> Publisher:
         """A publisher on the topic the parameter `topic_parameter` names, with the `output_qos` profile."""

@@ -193,7 +193,6 @@ class SegmentationNode(PointCloudNode):
                                         tracking=self.settings.tracking,
                                         tracker_config=self.settings.tracker_config(),
                                         people_in_groups=self.settings.people_in_groups)
-        self._tracked_frame: str | None = None  # the frame_id the tracks live in (`_follow_frame`)
         self.odometry = self._subscribe_odometry()
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -486,15 +485,6 @@ class SegmentationNode(PointCloudNode):
         ids = source_ids((frame.cluster_id, frame.cluster_id2), (first, second), count)
         return Budgeted(proposal_members(first, second, n_proposals=count), ids, first)
 
-    def _follow_frame(self, frame_id: str) -> None:
-        """Scans in another frame than those before come from another sensor (or one mounted again): the tracks,
-        kept in the old frame, end (a warning says so) rather than jump."""
-        if self._tracked_frame is not None and frame_id != self._tracked_frame and self.stage2.tracker is not None:
-            self.get_logger().warning(f"proposals' frame_id changed from {self._tracked_frame!r} to {frame_id!r}: "
-                                      "the tracks start over", throttle_duration_sec=LOG_PERIOD_S)
-            self.stage2.reset_tracks()
-        self._tracked_frame = frame_id
-
     def _publish(self, labeled: Labeled) -> None:
         """Encode and publish one segmented frame (and its objects, as markers and detections, to whoever listens)."""
         frame, proposals, result, clock = labeled
@@ -505,7 +495,9 @@ class SegmentationNode(PointCloudNode):
         if self.odometry is not None and pose is None:
             self.get_logger().warning("no odometry within odometry_max_gap of the scan: tracked in the sensor's frame",
                                       throttle_duration_sec=LOG_PERIOD_S)
-        self._follow_frame(frame.header.frame_id)
+        tracking = self.stage2.tracker is not None
+        if self.follow_frame(frame.header.frame_id, "the tracks start over" if tracking else None) and tracking:
+            self.stage2.reset_tracks()
         tracked = self.stage2.track(out, header_stamp_ns(frame) * 1e-9, pose=pose, level=frame.level,
                                     points=frame.levelled, ground=frame.ground)
         out = out if tracked is None else tracked.voted
