@@ -121,6 +121,8 @@ def instance_sightings(truth: np.ndarray, instance: np.ndarray, scan: np.ndarray
     object_ids, object_sizes = np.unique(cluster_id[on_road], return_counts=True)
     out: dict[int, Sighting] = {}
     ids, counts = np.unique(instance[mine], return_counts=True)
+    if not len(ids):  # no road user with an instance id (np.split would still give one, empty, group)
+        return out
     index = np.flatnonzero(mine)
     order = np.argsort(instance[index], kind="stable")
     groups = np.split(index[order], np.cumsum(counts)[:-1])

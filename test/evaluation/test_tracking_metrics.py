@@ -13,10 +13,20 @@ import pytest
 
 import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
 from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
+from pass3d_ros.core.stage1 import Stage1Config
+from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.config import tracker_from_params
 from pass3d_ros.core.stream.tracks import TrackerConfig
 from pass3d_ros.core.tracked_scan import NO_TRACK
-from pass3d_ros.evaluation.tracking import Flicker, Mot, Sighting, instance_sightings, scan_period
+from pass3d_ros.data.spec import resolve_dataset
+from pass3d_ros.evaluation.tracking import (
+    Flicker,
+    Mot,
+    Sighting,
+    evaluate_tracking,
+    instance_sightings,
+    scan_period,
+)
 from pass3d_ros.tools import evaluate
 
 
@@ -78,6 +88,26 @@ def test_a_joined_object_corresponds_to_the_instance_holding_most_of_it_only() -
     track[:10] = 20
     out = instance_sightings(truth, instance, labels, labels, cluster, track, 0.1)
     assert (out[1].match, out[2].match) == (20, 21)
+
+
+def test_a_scan_without_road_user_instances_has_no_sightings() -> None:
+    truth = np.array([BACKGROUND] * 15 + [CAR] * 5, np.uint8)
+    instance = np.array([-1] * 15 + [-1] * 5, np.int32)  # a car without an instance id, the rest background
+    cluster = np.full(20, -1, np.int32)
+    assert instance_sightings(truth, instance, truth, truth, cluster, cluster, 0.0) == {}
+    empty = np.zeros(0, np.uint8)  # a scan of no points
+    none = np.zeros(0, np.int32)
+    assert instance_sightings(empty, none, empty, empty, none, none, 0.1) == {}
+
+
+def test_a_tracking_run_goes_on_through_scans_without_instances() -> None:
+    frames = list(resolve_dataset("synthetic:drive=3,seed=3,sensor=hdl32e").frames())
+    blank = frames[1]  # the middle scan: its road users labelled, none with an instance id
+    frames[1] = replace(blank, instance=np.full(len(blank.points), -1, np.int32))
+    run = evaluate_tracking(iter(("drive", frame) for frame in frames), Stage1Config(),
+                            open_classifier(None, "size_rules"))
+    assert run["frames"] == 3 and run["instances"] == "persistent"
+    assert run["mot"]["sightings"] > 0 and run["mot"]["object_tracks"] > 0
 
 
 def test_clear_mot_counts_a_scan_in_a_neighbour_s_object_as_a_gap_not_two_switches() -> None:
