@@ -18,7 +18,8 @@ each scan's scan-by-scan labels (`LabelledScan.published`) beside the labels wit
   this module first did (`mot_most_points`): the sighting is the object holding most of the instance's points,
   however few, so that two people stage 1 joined for one scan both take its one track (a switch for one of them).
 - Label-free flicker of the tracks themselves (any data): per track, class changes along its sightings of the
-  scan-by-scan class against those of the voted class, per 10 s of the track's life, pooled over tracks seen 2+ times.
+  scan-by-scan class against those of the voted class, per 10 s of the track's life, pooled over tracks seen 2+ times;
+  a track is sighted once a scan, as its largest object there (the parts of one it took are not changes in time).
 
 The scan period comes from the stamps (their median step within a spec) unless a rate is given (`scan_rate_hz`: the
 nuScenes parking lot's key frames, read without stamps at 10 Hz, are 2 Hz); the tracker then sees stamps index /
@@ -38,6 +39,7 @@ from pass3d_ros.classes import BACKGROUND, CLASS_NAMES, FOREGROUND, NUM_CLASSES
 from pass3d_ros.core.metrics import SegmentationMetrics, paired_iou_difference
 from pass3d_ros.core.objects import warm_up as warm_up_objects
 from pass3d_ros.core.pipeline import LabelledScan, ScanPipeline
+from pass3d_ros.core.point_owners import object_points
 from pass3d_ros.core.stage1 import Stage1Config, warm_up
 from pass3d_ros.core.stage2 import Classifier
 from pass3d_ros.core.stage2.groups import DEFAULT_ENABLED as PEOPLE_IN_GROUPS
@@ -228,9 +230,16 @@ class TrackingEvaluation:
         if tracked is None:
             raise ValueError("TrackingEvaluation.frame: a scan segmented without tracking")
         self.track_ms.append(tracked.ms)
-        for obj, said in zip(labelled.published.objects, tracked.tracked, strict=True):
-            if said.track_id != NO_TRACK:  # a detection in no track (an implausible box) is no object over time
-                history.tracks[said.track_id].append((stamp_s, obj.label, said.label))
+        objects = labelled.published
+        points = np.bincount(object_points(objects)[1], minlength=len(objects.objects))
+        sighted: dict[int, tuple[int, int, int]] = {}  # per track: (points, scan-by-scan class, voted class)
+        for obj, said, n in zip(objects.objects, tracked.tracked, points.tolist(), strict=True):
+            # a detection in no track (an implausible box) is no object over time; a track with several objects in
+            # the scan (parts of it) is sighted once, as its largest: parts' classes differ in space, not time
+            if said.track_id != NO_TRACK and n > sighted.get(said.track_id, (-1,))[0]:
+                sighted[said.track_id] = (n, obj.label, said.label)
+        for track, (_, scan_class, voted_class) in sighted.items():
+            history.tracks[track].append((stamp_s, scan_class, voted_class))
         if not has_labels:
             return
         size = len(frame.points)

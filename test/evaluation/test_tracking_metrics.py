@@ -7,22 +7,26 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 import pass3d_ros.synthetic  # noqa: F401  (registers synthetic:)
 from pass3d_ros.classes import BACKGROUND, CAR, PEDESTRIAN
+from pass3d_ros.core.objects import FrameObjects, LabelledObject
 from pass3d_ros.core.stage1 import Stage1Config
 from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.config import tracker_from_params
-from pass3d_ros.core.stream.tracks import TrackerConfig
+from pass3d_ros.core.stream.tracks import Tracked, TrackerConfig
 from pass3d_ros.core.tracked_scan import NO_TRACK
 from pass3d_ros.data.spec import resolve_dataset
 from pass3d_ros.evaluation.tracking import (
     Flicker,
     Mot,
     Sighting,
+    StreamHistory,
+    TrackingEvaluation,
     evaluate_tracking,
     instance_sightings,
     scan_period,
@@ -123,6 +127,38 @@ def test_clear_mot_counts_a_scan_in_a_neighbour_s_object_as_a_gap_not_two_switch
     most.add(history, PEDESTRIAN)
     assert (clear.id_switches, clear.fragmentations, clear.matched) == (0, 1, 3)
     assert (most.id_switches, most.fragmentations, most.matched) == (2, 0, 4)
+
+
+def test_a_track_with_two_objects_in_one_scan_is_sighted_once_there() -> None:
+    def scan(parts: list[tuple[int, int, int]], voted: int) -> SimpleNamespace:
+        """One scan's published objects, (track, scan-by-scan class, points) each, all voted `voted`."""
+        labels = np.concatenate([np.full(n, cls, np.uint8) for _, cls, n in parts])
+        cluster = np.concatenate([np.full(n, k, np.int32) for k, (_, _, n) in enumerate(parts)])
+        objects = [LabelledObject((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 0.0, cls, 1.0, k)
+                   for k, (_, cls, _) in enumerate(parts)]
+        tracked = [Tracked(track, voted, 1.0, True) for track, _, _ in parts]
+        return SimpleNamespace(published=FrameObjects(labels, cluster, objects),
+                               tracked=SimpleNamespace(ms=1.0, tracked=tracked))
+
+    run = TrackingEvaluation(per_frame_instances=False)
+    history = StreamHistory(0.1)
+    frame = SimpleNamespace(name="f", labels=None)  # label-free data: the tracks' own flicker only
+    scans = [scan([(7, CAR, 40), (7, PEDESTRIAN, 12)], CAR),  # a car and a part of it stage 2 called a person
+             scan([(7, PEDESTRIAN, 12), (7, CAR, 40)], CAR),
+             scan([(7, CAR, 40), (7, PEDESTRIAN, 12)], CAR)]
+    for k, labelled in enumerate(scans):
+        run.frame("s", frame, labelled, 0.1 * k, history)
+    run.end_stream("s", history)
+    flicker = run.summary()["track_flicker"]
+    assert (flicker["objects"], flicker["changes_scan"], flicker["changes_voted"]) == (1, 0, 0)  # the part: no change
+    assert flicker["life_s"] == pytest.approx(0.3)
+    history = StreamHistory(0.1)
+    run = TrackingEvaluation(per_frame_instances=False)
+    for k, labelled in enumerate([scans[0], scan([(7, PEDESTRIAN, 40), (7, CAR, 12)], CAR), scans[2]]):
+        run.frame("s", frame, labelled, 0.1 * k, history)
+    run.end_stream("s", history)
+    flicker = run.summary()["track_flicker"]  # the track's larger object called a person once: there and back
+    assert (flicker["objects"], flicker["changes_scan"], flicker["changes_voted"]) == (1, 2, 0)
 
 
 def test_scan_period_is_the_stamps_median_step() -> None:
