@@ -21,6 +21,7 @@ from pass3d_ros.core.stage2.config import tracker_from_params
 from pass3d_ros.core.stream.tracks import Tracked, TrackerConfig
 from pass3d_ros.core.tracked_scan import NO_TRACK
 from pass3d_ros.data.spec import resolve_dataset
+from pass3d_ros.evaluation.report import format_tracking
 from pass3d_ros.evaluation.tracking import (
     Flicker,
     Mot,
@@ -46,6 +47,45 @@ def test_id_switches_and_fragmentations_are_counted_as_clear_mot_counts_them() -
     out = mot.summary()
     assert (out["id_switches"], out["fragmentations"], out["object_tracks"]) == (2, 2, 2)
     assert out["id_switches_per_100"] == pytest.approx(100.0) and out["matched"] == 8 and out["sightings"] == 13
+
+
+@pytest.mark.parametrize(("tracks", "counts"), [
+    ([NO_TRACK, NO_TRACK, NO_TRACK], (0, 0, 1, 0)),  # never matched: misses only
+    ([NO_TRACK, NO_TRACK, 4, 4], (0, 0, 1, 2)),  # matched late: no fragmentation before its first match
+    ([4, 4, NO_TRACK, NO_TRACK], (0, 0, 1, 2)),  # lost at the end: never resumed, no fragmentation
+    ([4, NO_TRACK, NO_TRACK, 4], (0, 1, 1, 2)),  # one gap of two scans: one fragmentation
+    ([4, NO_TRACK, 4, NO_TRACK, 4], (0, 2, 1, 3)),  # two gaps
+    ([1, 2, 1], (2, 0, 1, 3)),  # there and back: two switches
+    ([5], (0, 0, 0, 1)),  # seen once: matched, but no object-track
+    ([], (0, 0, 0, 0)),
+])
+def test_clear_mot_counts_of_one_instance(tracks: list[int], counts: tuple[int, int, int, int]) -> None:
+    mot = Mot()
+    mot.add([seen(t) for t in tracks], CAR)
+    assert (mot.id_switches, mot.fragmentations, mot.object_tracks, mot.matched) == counts
+    assert mot.sightings == len(tracks)
+
+
+def test_clear_mot_counts_swapped_and_reused_tracks_per_instance() -> None:
+    mot = Mot()
+    mot.add([seen(1), seen(1), seen(2), seen(2)], CAR)  # two instances swap their tracks: a switch each
+    mot.add([seen(2), seen(2), seen(1), seen(1)], CAR)
+    mot.add([seen(3), seen(NO_TRACK), seen(2)], CAR)  # then takes a track another instance had: a switch, a gap
+    out = mot.summary()
+    assert (out["id_switches"], out["fragmentations"], out["object_tracks"]) == (3, 1, 3)
+    assert out["id_switches_per_100"] == pytest.approx(100.0) and out["fragmentations_per_100"] == pytest.approx(
+        100.0 / 3)
+    assert Mot().summary()["id_switches_per_100"] is None  # no object-tracks: no rate
+
+
+def test_flicker_pools_changes_over_the_summed_lives() -> None:
+    flicker = Flicker()
+    flicker.add([CAR, PEDESTRIAN], [CAR, CAR], 0.2)  # a short life with a change
+    flicker.add([CAR] * 99 + [PEDESTRIAN], [CAR] * 100, 9.8)  # a long one with one change
+    out = flicker.summary()
+    assert out["life_s"] == pytest.approx(10.0) and out["per_10s_scan"] == pytest.approx(2.0)  # not (50 + 1.02) / 2
+    assert out["per_10s_voted"] == 0.0 and out["reduction"] == pytest.approx(1.0)
+    assert Flicker().summary()["per_10s_scan"] is None and Flicker().summary()["reduction"] is None
 
 
 def test_flicker_counts_class_changes_per_object_per_ten_seconds_of_life() -> None:
@@ -159,6 +199,28 @@ def test_a_track_with_two_objects_in_one_scan_is_sighted_once_there() -> None:
     run.end_stream("s", history)
     flicker = run.summary()["track_flicker"]  # the track's larger object called a person once: there and back
     assert (flicker["objects"], flicker["changes_scan"], flicker["changes_voted"]) == (1, 2, 0)
+
+
+def test_an_instance_s_life_spans_missing_scans_and_the_report_prints_the_json_numbers() -> None:
+    run = TrackingEvaluation(per_frame_instances=False)
+    run.labelled = True
+    history = StreamHistory(0.1)
+    for stamp, track, cls in [(0.0, 4, CAR), (0.1, 4, PEDESTRIAN), (0.5, 9, CAR)]:  # scans 0.2 to 0.4 missing
+        history.instances[3].append(replace(seen(track, cls), stamp_s=stamp))
+    history.instances[8].append(seen(2))  # seen once: neither flicker nor an object-track
+    run.truth_class[("s", 3)][CAR] = 3
+    run.truth_class[("s", 8)][CAR] = 1
+    run.end_stream("s", history)
+    flicker, mot = run.instance_flicker.summary(), run.mot.summary()
+    assert flicker["objects"] == 1 and flicker["life_s"] == pytest.approx(0.6) and flicker["changes_scan"] == 2
+    assert (mot["object_tracks"], mot["id_switches"], mot["fragmentations"], mot["sightings"]) == (1, 1, 0, 4)
+    summary = {"frames": 4, "streams": {}, "classifier": {"kind": "size_rules", "device": "cpu", "threads": 1},
+               "flicker": flicker, "mot": mot, "mot_most_points": run.mot_most_points.summary(),
+               "track_flicker": Flicker().summary(), "track_ms": {"median": None, "max": None}}
+    text = format_tracking(summary)
+    assert "(2 -> 2 changes, 1 objects, 0.6 s of life" in text
+    assert "id switches 1 (100.0 per 100 object-tracks), fragmentations 0 (0.0 per 100), 1 object-tracks, " \
+           "4 of 4 sightings matched" in text
 
 
 def test_scan_period_is_the_stamps_median_step() -> None:
