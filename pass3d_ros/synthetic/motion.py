@@ -6,7 +6,9 @@ is the scene's own (the frame of a single synthetic frame's sensor). In it:
   on the right-hand side of the road, -u on the left), its path centred on the scene's origin (scan 0 behind, the
   last scan ahead), level, the sensor MOUNT_HEIGHT_M above the road under it;
 - cars, vans and trucks in the traffic lanes drive along their lane the way they face, one speed per lane (3-16 m/s
-  in the others, the ego's speed in the ego's lane: no car drives through another), turned square to the road;
+  in the others, the ego's speed in the ego's lane: no car drives through another), turned square to the road, when
+  they stand within `LANE_KEEP_M` of the lane's centre line; one further off (across a lane line: a car
+  `synthetic.occlusion.add_partial_views` put a hand's breadth beside the car it hides) is taken out of the drive;
   cars on a cross street drive along it (4-10 m/s);
 - pedestrians, alone or in a group (people standing within `GROUP_REACH_M` of each other, with the bicycle or
   stroller one pushes), walk along the pavement or cross the street, whichever way the group's first member faces,
@@ -50,6 +52,9 @@ STEP_M = 0.25  # collision tests every this much travel against standing things
 MOVER_GAP_M = 0.1  # movers' footprints keep this apart at every scan (and half-way between scans)
 STATIC_GAP_M = 0.05  # a mover's footprint from standing primitives' boxes
 VEHICLE_KINDS = ("Car", "Van", "Truck")
+# A vehicle drives its lane only this near the lane's centre line: the scene's traffic stands within 0.52 m of it (40
+# drives' lane movers), the cars placed to hide another up to 1.75 m off; driven, they passed 0.2 m from parked cars.
+LANE_KEEP_M = 0.6
 EGO_CLEAR_M = 2.1  # height above the road the ego car's path is cleared to (roof and sensor head)
 
 
@@ -266,11 +271,15 @@ def plan_motions(scene: Scene, rng: np.random.Generator, path: EgoPath, n_scans:
     lane_speed = rng.uniform(*LANE_SPEED_MPS, size=max(lanes, 1))
     lane_speed[ego_lane] = path.speed
     units: list[list[int]] = []
+    astray = np.zeros(n, dtype=bool)  # vehicles across a lane line: out of the drive, as background in the lanes
     for k, o in enumerate(scene.objects):  # vehicles
         if o.kind not in VEHICLE_KINDS:
             continue
         rel = o.yaw - road_yaw
         if abs(uv[k, 1]) < lane_edge and abs(math.sin(rel)) < 0.3:
+            if _lane_offset(uv[k, 1], lane_edge, lane_width) > LANE_KEEP_M:
+                astray[k] = True
+                continue
             heading = road_yaw + (0.0 if math.cos(rel) > 0 else math.pi)
             speed = lane_speed[int(np.clip((uv[k, 1] + lane_edge) // lane_width, 0, lanes - 1))]
             mode[k] = "lane"
@@ -285,7 +294,7 @@ def plan_motions(scene: Scene, rng: np.random.Generator, path: EgoPath, n_scans:
         velocity[k] = speed * np.array([math.cos(heading), math.sin(heading)])
         units.append([k])
     in_lanes = np.array([not o.boxed and abs(v) < lane_edge for o, v in zip(scene.objects, uv[:, 1], strict=True)],
-                        dtype=bool)
+                        dtype=bool) | astray
     groups = _units(scene)
     people = [unit for unit in groups if rng.random() >= (STAND_SHARE if _walking(scene, unit) else RIDER_STAND_SHARE)]
     for unit in groups:
@@ -320,6 +329,12 @@ def plan_motions(scene: Scene, rng: np.random.Generator, path: EgoPath, n_scans:
         units.append(unit)
     removed = _resolve(scene, obstacles, path, n_scans, units, x, y, yaw, velocity, mode, in_lanes)
     return Motions(x, y, yaw, velocity, removed, mode)
+
+
+def _lane_offset(v: float, lane_edge: float, lane_width: float) -> float:
+    """How far road coordinate v lies from the centre line of the lane it is in (lanes `lane_width` wide from
+    -`lane_edge`)."""
+    return abs((v + lane_edge) % lane_width - 0.5 * lane_width)
 
 
 def _resolve(scene: Scene, obstacles: _Obstacles, path: EgoPath, n_scans: int, units: list[list[int]],
