@@ -12,7 +12,6 @@ GUARD_DROP mean IoU on the guard scenes are refused. The folder is written by ad
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -33,7 +32,7 @@ from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint
 from pass3d_ros.data.bag import parse_bag_spec, select_topic
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.spec import Dataset, open_dataset, resolve_dataset
+from pass3d_ros.data.spec import Dataset, open_dataset, repeated_recording, resolve_dataset
 from pass3d_ros.evaluation.offline import evaluate_draws, proposed_frame
 from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.synthetic.dataset import HEIGHT_RANGE_M
@@ -378,16 +377,10 @@ def train_arguments(options: TrainOptions) -> list[str]:
 def _refuse_repeats(specs: list[str]) -> None:
     """UserError when one recording is given twice (symlinks and spellings of its path resolved): its copies would
     fall on both sides of the split, so scans adapted on would also be held out and flatter the check."""
-    seen: dict[tuple[str, str, str], str] = {}
-    for spec in specs:
-        dataset = resolve_dataset(spec)
-        path, sep, topic = dataset.path.partition("#")
-        place = os.path.realpath(path) if os.path.exists(path) else path
-        key = (dataset.format, place + sep + topic, dataset.crop)
-        if key in seen:
-            raise UserError(f"--data {spec}: the same recording as --data {seen[key]}; give each recording once "
-                            "(its copies would be both adapted on and held out)")
-        seen[key] = spec
+    repeat = repeated_recording(specs)
+    if repeat is not None:
+        raise UserError(f"--data {repeat[0]}: the same recording as --data {repeat[1]}; give each recording once "
+                        "(its copies would be both adapted on and held out)")
 
 
 def _bag_topic(dataset: Dataset) -> str | None:

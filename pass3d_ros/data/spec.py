@@ -15,6 +15,7 @@ instances cut alike, boxes without a kept point dropped (pass3d_ros.data.frame.c
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
@@ -168,6 +169,22 @@ def resolve_dataset(spec: str | Dataset) -> Dataset:
 def resolve_datasets(specs: Iterable[str | Dataset]) -> list[Dataset]:
     """`resolve_dataset` of each spec, in order."""
     return [resolve_dataset(spec) for spec in specs]
+
+
+def repeated_recording(specs: Iterable[str]) -> tuple[str, str] | None:
+    """(spec, earlier spec) for the first spec that names the same recording as one before it (symlinks and
+    spellings of its path resolved, the same crop), None when each is given once: tools that read several specs
+    would read its frames twice."""
+    seen: dict[tuple[str, str, str], str] = {}
+    for spec in specs:
+        dataset = resolve_dataset(spec)
+        path, sep, topic = dataset.path.partition("#")
+        place = os.path.realpath(path) if os.path.exists(path) else path
+        key = (dataset.format, place + sep + topic, dataset.crop)
+        if key in seen:
+            return spec, seen[key]
+        seen[key] = spec
+    return None
 
 
 def open_dataset(spec: str | Dataset) -> Iterator[Frame]:

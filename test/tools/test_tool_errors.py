@@ -447,3 +447,18 @@ def test_segment_param_reaches_stage1(tmp_path: Path, monkeypatch: pytest.Monkey
         assert segment.main([*base, "--out", str(tmp_path / "b"), "--param", item]) == 2
         one_error_line(capsys.readouterr().err, "pass3d_segment", item.partition("=")[0])
     assert not (tmp_path / "b").exists()
+
+
+def test_a_recording_given_twice_is_scored_once_or_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`pass3d_evaluate` given one recording twice (the same spec, or its folder through a symlink) would score its
+    frames twice (and with --tracking run them as one stream with stamps going back): one line, exit 2."""
+    assert evaluate.main(["--stage1-only", "--data", SPEC, "--data", SPEC, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "the same recording" in err and "Traceback" not in err
+    folder = tmp_path / "seq"
+    assert simulate.main(["--frames", "1", "--out", str(folder)]) == 0
+    (tmp_path / "link").symlink_to(folder)
+    capsys.readouterr()
+    assert evaluate.main(["--stage1-only", "--data", f"semantickitti:{folder}", "--data",
+                          f"semantickitti:{tmp_path / 'link'}", "--no-progress"]) == 2
+    assert "the same recording" in capsys.readouterr().err
