@@ -252,7 +252,7 @@ def _pct(value: float | None) -> str:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pass3d_benchmark live`."""
     parser.add_argument("--frames", type=int, default=10, metavar="N", help="synthetic frames in the bag (default 10)")
-    parser.add_argument("--seed", type=int, default=7, help="synthetic scene seed (default 7)")
+    parser.add_argument("--seed", type=number(int, 0), default=7, help="synthetic scene seed (default 7)")
     parser.add_argument("--rate", type=number(float, 0.0, low_open=True), default=1.0, metavar="R",
                         help="play at 10 Hz x R (default 1)")
     parser.add_argument("--hz", type=number(float, 0.0, low_open=True), metavar="F",

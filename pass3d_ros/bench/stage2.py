@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="proposals per constructed frame (cap with --data)")
     parser.add_argument("--max-points", type=number(int, 1), default=2000, help="largest proposal (points)")
     parser.add_argument("--repeats", type=number(int, 1), default=15, help="timed frames (after 2 warm-up frames)")
-    add_threads(parser, metavar=None)
+    add_threads(parser, metavar=None, low=1)
     parser.add_argument("--device", type=torch_device, default="cpu", help="cpu or cuda")
     parser.add_argument("--seed", type=number(int, 0), default=0)
 

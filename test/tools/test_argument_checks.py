@@ -155,11 +155,13 @@ def test_benchmark_live_refuses_numbers_that_are_not_finite(flag: str, value: st
     ("codec", "--points", "-1"), ("codec", "--repeat", "0"), ("layout", "--width", "0"), ("layout", "--repeat", "0"),
     ("stage2", "--repeats", "0"), ("stage2", "--proposals", "0"), ("stage2", "--max-points", "0"),
     ("stage2", "--seed", "-1"), ("fuzz", "--seed", "-1"), ("tracks", "--seed", "-1"), ("simulate", "--seed", "-1"),
+    ("stage2", "--threads", "0"), ("stage2", "--threads", "-2"), ("live", "--seed", "-1"),
 ])
 def test_benchmark_suites_refuse_counts_they_cannot_run(suite: str, flag: str, value: str,
                                                        capsys: pytest.CaptureFixture[str]) -> None:
-    """Zero repetitions, an empty cloud or a negative seed: one line naming the option (was a traceback: a median of
-    nothing, an empty grid, numpy refusing the seed)."""
+    """Zero repetitions, an empty cloud, no thread or a negative seed: one line naming the option (was a traceback: a
+    median of nothing, an empty grid, numpy refusing the seed, limit_threads refusing 0; live's seed was refused only
+    once the classifier was loaded, naming the synthetic spec it builds rather than --seed)."""
     from pass3d_ros.bench import benchmark
 
     refused(capsys, lambda: benchmark.main([suite, flag, value]), flag)
