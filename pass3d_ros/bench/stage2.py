@@ -19,6 +19,7 @@ from pass3d_ros.core.stage2.segmentation import (
     prepare_proposals,
 )
 from pass3d_ros.core.threads import limit_threads
+from pass3d_ros.data.spec import DatasetError
 from pass3d_ros.tools.cli import add_data, add_threads, add_weights, number, torch_device
 
 # (length, width, height) of the constructed proposals: car, pedestrian, cyclist, background clutter.
@@ -80,6 +81,8 @@ def _frames(args: argparse.Namespace) -> list[tuple[np.ndarray, list[np.ndarray]
     for frame in islice(open_dataset(args.data), args.frames):
         proposed = pipeline.propose(frame.points, frame.ring)
         out.append((proposed.points, proposed.nonempty_members()))
+    if not out:
+        raise DatasetError(f"{args.data}: no frames to time")
     return out
 
 
@@ -88,11 +91,11 @@ def run(args: argparse.Namespace) -> int:
     limits = limit_threads(args.threads)
     torch.manual_seed(args.seed)
     cap = max(args.proposals, 1)
+    frames = _frames(args)  # before the network is built: a --data without frames is refused at once
     weights = args.weights or make_checkpoint(PointNet2Seg(make_config(args.config)))
     segmenter = cast(Segmenter, open_classifier(weights, device=args.device, max_proposals=cap))  # a network
     config = segmenter.config
     params = count_parameters(PointNet2Seg(config))
-    frames = _frames(args)
     for points, members in frames[:1] * 2:
         segmenter.segment(points, members)
     total, cpu, prep, net, proposals, member_points = [], [], [], [], [], []
