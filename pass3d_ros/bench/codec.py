@@ -1,4 +1,4 @@
-"""PointCloud2 codec speed: decode / encode of an rclpy message, median and min over repeats."""
+"""PointCloud2 codec speed: decode / encode of an rclpy message, median and min over repeats after a warm-up call."""
 
 from __future__ import annotations
 
@@ -32,8 +32,9 @@ def sample_cloud(points: int, seed: int = 0) -> np.ndarray:
 
 
 def time_ms(func: Callable[[], Any], repeat: int) -> tuple[float, float]:
-    """(median, min) wall time of `func` in milliseconds; results are kept alive so fresh memory is timed."""
-    results, times = [], []
+    """(median, min) wall time of `func` in milliseconds over `repeat` calls after one untimed call (the first
+    compiles or loads numba kernels: hundreds of ms); results are kept alive so fresh memory is timed."""
+    results, times = [func()], []
     for _ in range(repeat):
         start = time.perf_counter()
         results.append(func())
@@ -59,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     columns = {name: np.ascontiguousarray(cloud[name]) for name in cloud.dtype.names}
     fields = ", ".join(f"{f.name}:{cloud.dtype.fields[f.name][0]}@{f.offset}" for f in msg.fields)
     print(f"cloud: {args.points} points, point_step {msg.point_step} B, {len(msg.data) / 1e6:.2f} MB; fields {fields}")
-    print(f"message: {type(msg).__module__}.{type(msg).__name__}; {args.repeat} repeats")
+    print(f"message: {type(msg).__module__}.{type(msg).__name__}; {args.repeat} timed repeats after one untimed call")
     rows = [
         ("encode", time_ms(lambda: encode(cloud, frame_id="velodyne", stamp_ns=1), args.repeat)),
         ("encode_dict", time_ms(lambda: encode(columns, frame_id="velodyne", stamp_ns=1), args.repeat)),

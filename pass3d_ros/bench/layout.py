@@ -91,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
               (f"Ouster-like organized {int(frame.ring.max()) + 1} x {args.width}, 48-byte points, no-returns kept",
                encode(organized(frame, args.width), height=int(frame.ring.max()) + 1))]
     for name, msg in clouds:
-        print(f"{name}: {msg.width * msg.height} points, {len(msg.data) / 1e6:.1f} MB; {args.repeat} repeats")
+        print(f"{name}: {msg.width * msg.height} points, {len(msg.data) / 1e6:.1f} MB; {args.repeat} timed repeats "
+              "after one untimed call")
         for step, (median, low) in timings(msg, args.repeat):
             print(f"  {step:24s} median {median:7.2f} ms   min {low:7.2f} ms")
     return 0
