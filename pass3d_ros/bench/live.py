@@ -12,8 +12,9 @@ free-running: a node that is still busy drops the stale frame and counts it). Pr
 dropped, output rate, latency median / p95, per-stage medians, each node's counters.
 --soak: the same for --seconds (default 600), watching this process's resident memory (VmRSS from
 /proc/self/status, sampled every second): after the warm-up (default the first 30 s) and at the end
-(medians over 10 s), the growth between them in %, and the slope of a straight line fitted to the samples
-after the warm-up. The memory figures are printed on every run; only --soak changes the default duration.
+(medians over 10 s, or over half the time after the warm-up when that is shorter), the growth between them in %,
+and the slope of a straight line fitted to the samples after the warm-up. The memory figures are printed on every
+run; only --soak changes the default duration.
 Runs of two minutes or more also print one row per minute of input: frames in / out, median latency,
 and how busy the CPUs were, in all and by this process (other work on a shared machine slows the nodes).
 
@@ -133,9 +134,10 @@ class RssSampler:
 
 
 def memory_report(samples: list[tuple[float, float]], warmup_s: float, span_s: float = MEMORY_SPAN_S) -> dict:
-    """Resident memory after the warm-up and at the end, each the median of the samples over `span_s`
-    (RSS swings by tens of MiB as large arrays come and go), growth between them in %, the peak, and the
-    slope (MiB / min) of a straight line fitted to every sample after the warm-up."""
+    """Resident memory after the warm-up and at the end, each the median of the samples over `span_s`, or over half
+    the time after the warm-up when that is shorter, so the two never read the same samples (RSS swings by tens of
+    MiB as large arrays come and go), growth between them in %, the peak, and the slope (MiB / min) of a straight
+    line fitted to every sample after the warm-up."""
     if not samples:
         return {"available": False}
     after = [(t, m) for t, m in samples if t >= warmup_s]
@@ -145,8 +147,9 @@ def memory_report(samples: list[tuple[float, float]], warmup_s: float, span_s: f
                 "growth_pct": None, "peak_mib": peak, "slope_mib_per_min": None}
     t = np.array([s[0] for s in after])
     m = np.array([s[1] for s in after])
-    first = float(np.median(m[t <= t[0] + span_s]))
-    last = float(np.median(m[t >= t[-1] - span_s]))
+    span = min(span_s, float(t[-1] - t[0]) / 2.0)
+    first = float(np.median(m[t <= t[0] + span]))
+    last = float(np.median(m[t >= t[-1] - span]))
     slope = float(np.polyfit(t, m, 1)[0]) * 60.0 if np.ptp(t) > 0 else None
     return {
         "available": True,
@@ -157,6 +160,7 @@ def memory_report(samples: list[tuple[float, float]], warmup_s: float, span_s: f
         "peak_mib": peak,
         "slope_mib_per_min": slope,
         "window_s": float(t[-1] - t[0]),
+        "span_s": span,
     }
 
 
@@ -374,8 +378,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"output rate / what the offline compute allows ({bound:.2f} Hz) = "
               f"{(live['output_hz'] or 0) / bound:.2f}")
     if memory["available"] and memory["after_warmup_mib"] is not None:
-        print(f"resident memory (medians over {MEMORY_SPAN_S:.0f} s): {memory['after_warmup_mib']:.1f} MiB after "
-              f"{warmup:.0f} s, {memory['end_mib']:.1f} MiB at the end ({memory['growth_pct']:+.2f} % over "
+        print(f"resident memory (medians over {memory['span_s']:.1f} s): {memory['after_warmup_mib']:.1f} MiB after "
+              f"{warmup:.1f} s, {memory['end_mib']:.1f} MiB at the end ({memory['growth_pct']:+.2f} % over "
               f"{memory['window_s']:.0f} s; fitted {memory['slope_mib_per_min']:+.2f} MiB/min), "
               f"peak {memory['peak_mib']:.1f} MiB")
     else:
