@@ -12,6 +12,8 @@ def test_the_tracks_suite_prints_its_cost_and_keeps_every_id(capsys: pytest.Capt
     out = capsys.readouterr().out
     assert "12 objects a scan of 120000 points, 30 scans" in out and "ids used 12 for 12 objects" in out
     assert "tracker + vote on points (track_scan): median" in out and "tracker update alone: median" in out
+    # the first 10 scans make the tracks and are not timed: the medians are over the other 20, and say so
+    assert "timed: the last 20 of the 30 scans" in out
 
 
 def test_the_tracks_suite_refuses_a_scan_too_small_for_its_objects(capsys: pytest.CaptureFixture[str]) -> None:
