@@ -12,6 +12,7 @@ from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.tools.cli import number
 
 TARGET_S_PER_FRAME = 0.5
+TARGET_SENSOR = "hdl64e"  # the target is an HDL-64E frame's (docs/performance.md)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -67,6 +68,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"  stages (median): scene {float(np.median(scene_s)):.3f} s, rays + cast {float(np.median(cast_s)):.3f} s, "
           f"noise + labels + boxes {float(np.median(post_s)):.3f} s")
     print(f"  points/frame: median {int(np.median(points))}  min {min(points)}  max {max(points)}")
-    verdict = "ok" if med <= TARGET_S_PER_FRAME else "SLOWER THAN TARGET"
-    print(f"  target <= {TARGET_S_PER_FRAME} s/frame: {verdict}")
+    if args.sensor == TARGET_SENSOR:
+        verdict = "ok" if med <= TARGET_S_PER_FRAME else "SLOWER THAN TARGET"
+        print(f"  target <= {TARGET_S_PER_FRAME} s/frame (HDL-64E): {verdict}")
+    else:
+        print(f"  target <= {TARGET_S_PER_FRAME} s per HDL-64E frame: not judged on {args.sensor}")
     return 0
