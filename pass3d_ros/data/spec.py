@@ -171,7 +171,7 @@ def resolve_datasets(specs: Iterable[str | Dataset]) -> list[Dataset]:
     return [resolve_dataset(spec) for spec in specs]
 
 
-def repeated_recording(specs: Iterable[str]) -> tuple[str, str] | None:
+def repeated_recording(specs: Iterable[str | Dataset]) -> tuple[str, str] | None:
     """(spec, earlier spec) for the first spec that names the same recording as one before it (symlinks and
     spellings of its path resolved, the same crop), None when each is given once: tools that read several specs
     would read its frames twice."""
@@ -182,8 +182,8 @@ def repeated_recording(specs: Iterable[str]) -> tuple[str, str] | None:
         place = os.path.realpath(path) if os.path.exists(path) else path
         key = (dataset.format, place + sep + topic, dataset.crop)
         if key in seen:
-            return spec, seen[key]
-        seen[key] = spec
+            return str(spec), seen[key]
+        seen[key] = str(spec)
     return None
 
 

@@ -243,7 +243,7 @@ def _check_args(args: argparse.Namespace) -> str:
 def run(args: argparse.Namespace) -> tuple[str, dict, int]:
     """Evaluate as `args` ask: (mode, summary ending with the stage-1 config it ran with, exit status)."""
     datasets = resolve_datasets(args.data)
-    repeat = repeated_recording(args.data)
+    repeat = repeated_recording(datasets)
     if repeat is not None:
         raise DatasetError(f"--data {repeat[0]}: the same recording as --data {repeat[1]}; give each recording once "
                            "(its frames would be scored twice)")
