@@ -6,7 +6,9 @@ of the package is declared."""
 from __future__ import annotations
 
 import ast
+import itertools
 import re
+import shlex
 import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -162,3 +164,33 @@ def test_the_test_tools_the_suite_relies_on_are_in_the_test_extra() -> None:
         assert "pytest-timeout" in test
     if re.search(r"pytest .*-n ", (ROOT / "Makefile").read_text()):
         assert "pytest-xdist" in test
+
+
+def readme_install_commands() -> tuple[list[str], list[str]]:
+    """The README's install block ("On your robot"): the keys its `rosdep install` skips and what its `pip install`
+    installs into the workspace's venv."""
+    text = (ROOT / "README.md").read_text()
+    block = text.split("\n## On your robot\n", 1)[1].split("```bash\n", 1)[1].split("```", 1)[0]
+    rosdep = next(shlex.split(line) for line in block.splitlines() if line.startswith("rosdep install"))
+    skipped = [key for flag, value in itertools.pairwise(rosdep) if flag == "--skip-keys"
+               for key in value.split()]
+    pip = next(shlex.split(line) for line in block.splitlines() if line.startswith("pip install"))
+    return skipped, [token for token in pip[2:] if not token.startswith("-")]
+
+
+def test_readme_rosdep_line_skips_what_the_venv_pip_installs() -> None:
+    """A `-pip` rosdep key makes rosdep run pip on the system Python, which Jazzy's Ubuntu 24.04 refuses (PEP 668:
+    externally managed) unless pip was told to break system packages: `rosdep install` fails. The README installs
+    such a dependency, and the pinned torch, with pip into the venv instead, so its rosdep line must skip their keys;
+    and it skips only keys package.xml names, each installed by its pip line."""
+    skipped, pip = readme_install_commands()
+    key_to_requirement = {key: requirement for requirement, key in IMPORTS.values()}
+    pip_keys = {key for key in exec_depends() if key.endswith("-pip")}
+    assert pip_keys, "package.xml names no pip key: drop this test's premise"
+    assert pip_keys <= set(skipped), f"the README's rosdep line must skip {sorted(pip_keys - set(skipped))}"
+    assert set(skipped) <= exec_depends(), f"the README skips keys package.xml lacks: {set(skipped) - exec_depends()}"
+    installed = {requirement_name(token) for token in pip}
+    for key in skipped:
+        assert key_to_requirement[key] in installed, f"{key} is skipped but the README's pip line lacks it"
+    torch = setup_lists()["TORCH_REQUIRES"][0]
+    assert torch in pip, "the README pins torch as setup.py does"
