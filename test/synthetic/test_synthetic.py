@@ -16,7 +16,7 @@ from pass3d_ros.synthetic import parts as pt
 from pass3d_ros.synthetic import raycast as rc
 from pass3d_ros.synthetic.builder import Scene, SceneBuilder
 from pass3d_ros.synthetic.dataset import cast_scene, generate_frame, mixed_pixel_share
-from pass3d_ros.synthetic.materials import M_OTHER, M_TIRE, M_WALL
+from pass3d_ros.synthetic.materials import M_CABIN, M_OTHER, M_TIRE, M_WALL
 from pass3d_ros.synthetic.scene import generate_scene
 from pass3d_ros.synthetic.sensor import HDL64E, ray_bundle
 
@@ -335,6 +335,70 @@ def test_vehicle_models_follow_kitti_class_boundaries():
     assert np.mean(vans[:, 2] < 1.95) > 0.1
     assert 4.7 <= vans[:, 0].mean() <= 5.4 and 2.0 <= vans[:, 2].mean() <= 2.4
     assert 8.5 <= trucks[:, 0].mean() <= 11.5 and trucks[:, 2].min() > 2.5
+
+
+def _extent(parts) -> np.ndarray:
+    """L x W x H of one object's parts."""
+    lo = np.min([p.center - pt.part_extent(p) for p in parts], axis=0)
+    hi = np.max([p.center + pt.part_extent(p) for p in parts], axis=0)
+    return hi - lo
+
+
+def _first_draws(seeds, lo: float, hi: float, skip: int = 0) -> list[int]:
+    """The seeds whose generator's draw number `skip` (0: the first) lies in [lo, hi)."""
+    return [s for s in seeds if lo <= np.random.default_rng(s).random(skip + 1)[skip] < hi]
+
+
+def test_trucks_include_city_buses_labelled_background():
+    """A truck whose first draw lies in [0.3, 0.45) is a city bus (12 m solo, 10.5 m midi) with a window band,
+    and the street labels it background as every KITTI Truck."""
+    from pass3d_ros.synthetic.objects.vehicles import truck_parts
+    from pass3d_ros.synthetic.street import VEHICLE_LABEL, draw_vehicle
+
+    seeds = _first_draws(range(200), 0.3, 0.45)
+    assert len(seeds) >= 20
+    buses = [truck_parts(np.random.default_rng(s)) for s in seeds]
+    size = np.array([_extent(parts) for parts in buses])
+    assert (size[:, 0] >= 10.5).all() and (size[:, 0] <= 12.2).all()
+    assert (size[:, 1] >= 2.5).all() and (size[:, 1] <= 2.55).all()
+    assert (size[:, 2] >= 3.05).all() and (size[:, 2] <= 3.35).all()
+    assert all(any(p.material == M_CABIN for p in parts) for parts in buses)  # the window band
+    assert all(sum(p.material == M_TIRE for p in parts) == 4 for parts in buses)  # two axles
+    # The street's draw: van below 0.1, truck in [0.1, 0.15), then the truck's own first draw picks the bus.
+    street = [s for s in _first_draws(range(3000), 0.1, 0.15) if 0.3 <= np.random.default_rng(s).random(2)[1] < 0.45]
+    assert street
+    for seed in street[:5]:
+        kind, parts = draw_vehicle(np.random.default_rng(seed), 0.1, 0.05)
+        assert kind == "Truck" and VEHICLE_LABEL[kind] == BACKGROUND
+        assert 10.5 <= _extent(parts)[0] <= 12.2 and any(p.material == M_CABIN for p in parts)
+
+
+def test_box_trucks_and_semis_draw_as_before_buses():
+    """Outside the bus range a truck takes the same draws, in the same order, as before buses existed (first draw:
+    semi below 0.3; then length, width, height, cab length, cab height, wheel radius, cab paint, cargo box), so
+    scenes without a bus are unchanged object for object."""
+    from pass3d_ros.synthetic.materials import paint_rho
+    from pass3d_ros.synthetic.objects.vehicles import truck_parts
+
+    kinds = set()
+    for seed in [s for s in range(60) if s not in _first_draws(range(60), 0.3, 0.45)]:
+        rng, replay = np.random.default_rng(seed), np.random.default_rng(seed)
+        parts = truck_parts(rng)
+        semi = replay.random() < 0.3
+        length = replay.uniform(12.0, 16.5) if semi else replay.uniform(6.0, 10.0)
+        width, height = replay.uniform(2.35, 2.55), replay.uniform(2.9, 3.9 if semi else 3.6)
+        cab_len, cab_h, wheel_r = replay.uniform(1.9, 2.4), replay.uniform(2.5, 3.1), replay.uniform(0.48, 0.53)
+        rho_cab, rho_box = paint_rho(replay), replay.uniform(0.2, 0.6)
+        assert rng.random() == replay.random()  # the same number of draws
+        cab, cargo = parts[0], parts[1]
+        assert cab.center[0] == length / 2 - cab_len / 2 and cab.size[1] == width / 2 - 0.03
+        assert cab.size[2] == 0.5 * (cab_h - 0.35) and cab.rho == rho_cab
+        assert cargo.size[2] == 0.5 * (height - 1.0) and cargo.rho == rho_box
+        wheels = [p for p in parts if p.material == M_TIRE]
+        assert len(wheels) == (8 if semi else 4 + 2 * (length > 8.0)) and all(w.size[0] == wheel_r for w in wheels)
+        assert not any(p.material == M_CABIN for p in parts)
+        kinds.add(semi)
+    assert kinds == {True, False}
 
 
 def test_people_models_have_kitti_sizes():

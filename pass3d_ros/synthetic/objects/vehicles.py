@@ -1,10 +1,11 @@
-"""Vehicle models with KITTI's class boundaries: cars (class Car) and vans and trucks (background).
+"""Vehicle models with KITTI's class boundaries: cars (class Car) and vans, trucks and buses (background).
 
 KITTI's annotators do not cut Car from Van by height: tall SUVs and minivans (up to about 2.0 m) are labelled
 Car, small delivery vans (from about 1.8-1.9 m) Van. The models overlap in the same way, so height alone never
 separates the classes. Target means (metres, L x W x H) are the KITTI training-label means tabulated by
 Frustum-PointNets (Qi et al., CVPR 2018, `kitti/kitti_util` type_mean_size): Car 3.88 x 1.63 x 1.53,
-Van 5.07 x 1.90 x 2.21, Truck 10.14 x 2.59 x 3.25.
+Van 5.07 x 1.90 x 2.21, Truck 10.14 x 2.59 x 3.25. KITTI labels a bus Truck or Misc, both background here, so
+city buses are drawn among the trucks (`truck_parts`).
 """
 
 from __future__ import annotations
@@ -117,12 +118,47 @@ def van_parts(rng: np.random.Generator) -> list[Part]:
     return parts
 
 
-def truck_parts(rng: np.random.Generator) -> list[Part]:
-    """Truck (background, KITTI 'Truck'): box truck, or tractor with semi-trailer; two to four axles.
+def bus_parts(rng: np.random.Generator) -> list[Part]:
+    """City bus (background, KITTI 'Truck' or 'Misc'): a 10.5-12.2 m two-axle low-floor solo bus.
 
-    The mix averages about 10 x 2.45 x 3.3 m (KITTI Truck 10.14 x 2.59 x 3.25).
+    Sizes are typical published figures of the Mercedes-Benz Citaro (Daimler technical information: 11.95 m solo,
+    10.5 m Citaro K midi; 2.55 m wide; 3.08-3.12 m high with the roof air conditioning; front / rear overhang
+    2.7 / 3.4 m; 275/70 R 22.5 tyres, radius about 0.48 m; boarding height 0.32 m). A painted box body 2.9-3.1 m
+    high, 0.3 m above the road, with a window band all round but the engine wall at the back (glass as on car
+    cabins, 1.0-1.2 m to 2.5-2.7 m up) and a roof unit on top (3.05-3.35 m in all). Mean 11.35 x 2.53 x 3.2 m.
     """
-    semi = rng.random() < 0.3
+    length, width = rng.uniform(10.5, 12.2), rng.uniform(2.5, 2.55)
+    body_h, unit_h = rng.uniform(2.9, 3.1), rng.uniform(0.15, 0.25)
+    window_lo, window_hi = rng.uniform(1.0, 1.2), rng.uniform(2.5, 2.7)
+    front, rear, wheel_r = rng.uniform(2.5, 2.7), rng.uniform(3.2, 3.5), rng.uniform(0.47, 0.5)
+    rho = paint_rho(rng)
+    clearance, engine_wall, inset = 0.3, 0.25, 0.02  # glass sits `inset` behind the body's faces
+    glass_back, glass_front = -length / 2 + engine_wall, length / 2 - inset
+    glass_x, glass_half = 0.5 * (glass_back + glass_front), 0.5 * (glass_front - glass_back)
+    band_z, band_h = 0.5 * (window_lo + window_hi), 0.5 * (window_hi - window_lo)
+    parts = [
+        box([0.0, 0.0, 0.5 * (clearance + window_lo)], [length / 2, width / 2, 0.5 * (window_lo - clearance)],
+            M_PAINT, rho),
+        box([glass_x, 0.0, band_z], [glass_half, width / 2 - inset, band_h], M_CABIN, rho),
+        box([-length / 2 + engine_wall / 2, 0.0, band_z], [engine_wall / 2, width / 2, band_h], M_PAINT, rho),
+        box([0.0, 0.0, 0.5 * (window_hi + body_h)], [length / 2, width / 2, 0.5 * (body_h - window_hi)], M_PAINT, rho),
+        box([0.1 * length, 0.0, body_h + unit_h / 2], [1.5, 0.38 * width, unit_h / 2], M_PAINT, rho),
+    ]
+    parts += _wheels([length / 2 - front, -length / 2 + rear], width / 2 - 0.25, wheel_r, 0.04, width=0.25)
+    return parts
+
+
+def truck_parts(rng: np.random.Generator) -> list[Part]:
+    """Truck (background, KITTI 'Truck'): tractor with semi-trailer (30 %), city bus (15 %, `bus_parts`) or box
+    truck (55 %); two to four axles.
+
+    The mix averages about 10.35 x 2.46 x 3.29 m (KITTI Truck 10.14 x 2.59 x 3.25; 9.9 x 2.45 x 3.3 before the buses).
+    The first draw picks the kind; box trucks and semis then draw exactly as they did before buses were added.
+    """
+    r = rng.random()
+    if 0.3 <= r < 0.45:
+        return bus_parts(rng)
+    semi = r < 0.3
     length = rng.uniform(12.0, 16.5) if semi else rng.uniform(6.0, 10.0)
     width, height = rng.uniform(2.35, 2.55), rng.uniform(2.9, 3.9 if semi else 3.6)
     cab_len, cab_h, clearance, wheel_r = rng.uniform(1.9, 2.4), rng.uniform(2.5, 3.1), 0.35, rng.uniform(0.48, 0.53)
