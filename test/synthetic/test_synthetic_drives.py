@@ -16,7 +16,7 @@ from pass3d_ros.synthetic.scene import generate_scene
 from pass3d_ros.synthetic.sensor import SENSOR_NAMES, sensor_model
 from pass3d_ros.synthetic.specs import parse_synthetic_spec
 
-SEED = 10  # a street with walking and standing pedestrians, a rider and moving cars near the ego car's path
+SEED = 33  # a street with walking and standing pedestrians, a rider and moving cars near the ego car's path
 SCANS = 4
 
 
