@@ -43,7 +43,7 @@ def generate_launch_description() -> LaunchDescription:
             DeclareLaunchArgument("input_topic", default_value="/velodyne_points", description="LiDAR topic"),
             DeclareLaunchArgument("weights", default_value="", description="stage-2 checkpoint; empty = shipped"),
             DeclareLaunchArgument("rviz", default_value="false", description="also start rviz2"),
-            DeclareLaunchArgument("namespace", default_value="", description="namespace of both nodes"),
+            DeclareLaunchArgument("namespace", default_value="", description="nodes and pass3d topics"),
             DeclareLaunchArgument("use_sim_time", default_value="false", description="follow /clock (bag replay)"),
             Node(
                 package="pass3d_ros",

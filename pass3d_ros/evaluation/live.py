@@ -463,10 +463,10 @@ class LiveHarness:
             self.segmenter = _make_node(kinds[1], self.context, self.overrides[NODE_NAMES[1]], self.nodes)
         probe = rclpy.create_node(f"pass3d_live_eval_{random.getrandbits(32):08x}", context=self.context)
         self.nodes.append(probe)
-        labeled_topic = self._topic(1, "labeled_topic")
+        labeled_topic = probe.resolve_topic_name(self._topic(1, "labeled_topic"))  # relative names: as recorded
         if self.writer is not None:
             self.writer.open()
-        objects_topic = self._topic(1, "objects_topic")
+        objects_topic = probe.resolve_topic_name(self._topic(1, "objects_topic"))
         probe.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, 10)
         self.session = _Session(self.result, options.keep_labels, self.writer, labeled_topic, objects_topic)
         output_qos = qos_profile(self._topic(1, "output_qos"), depth=50)

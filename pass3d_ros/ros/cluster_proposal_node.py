@@ -41,8 +41,8 @@ if TYPE_CHECKING:
 
 NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "input_topic": ("/velodyne_points", "PointCloud2 topic of the LiDAR driver", None),
-    "proposals_topic": ("/pass3d/proposals", "output: all valid points with ring, ground, cluster_id(2)", None),
-    "boxes_topic": ("/pass3d/proposal_boxes", "output: MarkerArray of the proposal boxes", None),
+    "proposals_topic": ("pass3d/proposals", "output: all valid points with ring, ground, cluster_id(2)", None),
+    "boxes_topic": ("pass3d/proposal_boxes", "output: MarkerArray of the proposal boxes", None),
     "input_qos": ("auto", INPUT_QOS_HELP, None),
     "output_qos": ("reliable", f"QoS of the outputs: {' or '.join(QOS_NAMES)}", None),
     "intensity_scale": (

@@ -113,7 +113,8 @@ class DetectionOutputs:
                 return cls(node, detections_topic, label_info_topic, qos)
             except Exception as exc:  # a vision_msgs whose type support does not load (a broken build)
                 reason = f"vision_msgs' type support does not load ({exc})"
-        node.get_logger().info(f"{detections_topic} and {label_info_topic} are off: {reason}; install vision_msgs "
+        names = [node.resolve_topic_name(topic) for topic in (detections_topic, label_info_topic)]
+        node.get_logger().info(f"{names[0]} and {names[1]} are off: {reason}; install vision_msgs "
                                "(rosdep: ros-jazzy-vision-msgs) for them. Objects go out as markers only.")
         return None
 

@@ -63,18 +63,18 @@ from pass3d_ros.ros.run import run_nodes
 HUNG_ERROR_S = 10.0  # a stage-2 process killed for hanging stays an ERROR on /diagnostics this long (seen at 1 Hz)
 
 NODE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
-    "input_topic": ("/pass3d/proposals", "proposals cloud from cluster_proposal_node", None),
-    "labeled_topic": ("/pass3d/labeled", "output: labeled cloud (label, confidence, rgb)", None),
+    "input_topic": ("pass3d/proposals", "proposals cloud from cluster_proposal_node", None),
+    "labeled_topic": ("pass3d/labeled", "output: labeled cloud (label, confidence, rgb)", None),
     "output_layout": ("compact", f"{OUTPUT_LAYOUT_HELP}; as_input needs cluster_proposal_node's output_layout as_input "
                       "too (pass3d_pipeline: always there)", None),
     "publish_background": (False, "publish background_topic: the input without the points labeled car, pedestrian or "
                            "cyclist, every input field as it came, input order, height 1 (for odometry / SLAM; while "
                            "something subscribes)", None),
-    "background_topic": ("/pass3d/background", "output: the background cloud (publish_background)", None),
-    "objects_topic": ("/pass3d/objects", "output: MarkerArray, one box and text per labeled object", None),
-    "detections_topic": ("/pass3d/detections", "output: vision_msgs/Detection3DArray, one detection per labeled "
+    "background_topic": ("pass3d/background", "output: the background cloud (publish_background)", None),
+    "objects_topic": ("pass3d/objects", "output: MarkerArray, one box and text per labeled object", None),
+    "detections_topic": ("pass3d/detections", "output: vision_msgs/Detection3DArray, one detection per labeled "
                          "object (where vision_msgs is installed)", None),
-    "label_info_topic": ("/pass3d/label_info", "output: vision_msgs/LabelInfo, the class map (transient local, "
+    "label_info_topic": ("pass3d/label_info", "output: vision_msgs/LabelInfo, the class map (transient local, "
                          "where vision_msgs is installed)", None),
     "odometry_topic": ("", "input: the robot's nav_msgs/Odometry (empty: none); with tracking on, tracks are kept in "
                        "its world frame, so the robot's own motion is no object's", None),

@@ -132,9 +132,13 @@ def test_rviz_config_shows_the_nodes_topics() -> None:
     cloud = displays["Labeled cloud"]
     assert cloud["Class"] == "rviz_default_plugins/PointCloud2"
     assert cloud["Color Transformer"] == "RGB8"
-    assert cloud["Topic"]["Value"] == segmentation_node.NODE_PARAMETERS["labeled_topic"][0]
-    assert displays["Objects"]["Topic"]["Value"] == segmentation_node.NODE_PARAMETERS["objects_topic"][0]
-    assert displays["Proposals"]["Topic"]["Value"] == cluster_proposal_node.NODE_PARAMETERS["boxes_topic"][0]
+    def resolved(name: str) -> str:  # the nodes' topics are relative names; rviz shows them without a namespace
+        return name if name.startswith("/") else "/" + name
+
+    assert cloud["Topic"]["Value"] == resolved(segmentation_node.NODE_PARAMETERS["labeled_topic"][0])
+    assert displays["Objects"]["Topic"]["Value"] == resolved(segmentation_node.NODE_PARAMETERS["objects_topic"][0])
+    assert displays["Proposals"]["Topic"]["Value"] == resolved(
+        cluster_proposal_node.NODE_PARAMETERS["boxes_topic"][0])
 
 
 @pytest.mark.ros

@@ -154,6 +154,23 @@ def test_a_run_time_change_is_validated_once_by_the_config(ros: Ros, monkeypatch
     assert len(checked) == 2 and node.config.enlarge == (0.1, 0.1, 0.4)
 
 
+def test_a_namespace_moves_the_outputs_and_keeps_the_sensor_topic(ros: Ros, frame: Frame) -> None:
+    """Two pipelines side by side (`ros2 launch ... namespace:=car1`): the outputs are relative names, so they move
+    under the nodes' namespace and the two nodes still meet there; the driver's topic stays absolute."""
+    ros.add(ClusterProposalNode(context=ros.context, namespace="car1"))
+    ros.add(SegmentationNode(context=ros.context, namespace="car1",
+                             parameter_overrides=[Parameter("classifier", value="size_rules")]))
+    labeled = Collector(ros, PointCloud2, "/car1/pass3d/labeled")
+    boxes = Collector(ros, MarkerArray, "/car1/pass3d/proposal_boxes")
+    pub = ros.probe.create_publisher(PointCloud2, "/velodyne_points", qos_profile("reliable"))
+    connect(pub, labeled, boxes)
+    pub.publish(scan_message(frame, STAMP0))
+    assert header_stamp_ns(labeled.wait(1)[0]) == STAMP0
+    assert boxes.wait(1)
+    names = dict(ros.probe.get_topic_names_and_types())
+    assert "/car1/pass3d/proposals" in names and "/pass3d/labeled" not in names
+
+
 # ---- segmentation_node ----
 
 @pytest.mark.parametrize("kind", ["size_rules", "network"])
