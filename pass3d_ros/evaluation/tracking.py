@@ -215,6 +215,7 @@ class TrackingEvaluation:
         self.mot = Mot()
         self.mot_most_points = Mot(most_points=True)
         self.truth_class: dict[tuple[str, int], list[int]] = defaultdict(lambda: [0] * NUM_CLASSES)
+        self.with_instances = False  # a labelled frame carried instance ids
         self.streams: dict[str, dict] = {}
         self.track_ms: list[float] = []
 
@@ -250,6 +251,7 @@ class TrackingEvaluation:
         self.voted.update(name, frame.labels, voted, vehicle_other=frame.vehicle_other)
         if self.per_frame_instances or frame.instance is None:
             return
+        self.with_instances = True
         track_id = labelled.proposed.in_input(tracked.track_id, size, NO_TRACK)
         seen = instance_sightings(frame.labels, frame.instance, scan, voted, cluster_id, track_id, stamp_s)
         for g, sighting in seen.items():
@@ -287,6 +289,8 @@ class TrackingEvaluation:
         out["mean_iou"] = {"scan": scan["mean_iou"], "voted": voted["mean_iou"]}
         if self.per_frame_instances:
             out["instances"] = "per-frame: ground-truth flicker, id switches and fragmentations not defined"
+        elif not self.with_instances:
+            out["instances"] = "none: ground-truth flicker, id switches and fragmentations need instance ids"
         else:
             out["instances"] = "persistent"
             out["flicker"] = self.instance_flicker.summary()

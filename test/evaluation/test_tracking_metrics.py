@@ -154,6 +154,16 @@ def test_a_tracking_run_goes_on_through_scans_without_instances() -> None:
     assert run["mot"]["sightings"] > 0 and run["mot"]["object_tracks"] > 0
 
 
+def test_labelled_scans_without_instance_ids_say_so_and_count_no_switches() -> None:
+    """Labels but no instance ids (KITTI object frames): no object-track can be followed, so the run says `none`
+    and reports no id switches or ground-truth flicker (it said "persistent" with zero object-tracks)."""
+    frames = [replace(frame, instance=None) for frame in resolve_dataset("synthetic:drive=2,seed=3").frames()]
+    run = evaluate_tracking(iter(("drive", frame) for frame in frames), Stage1Config(),
+                            open_classifier(None, "size_rules"))
+    assert run["instances"].startswith("none") and "mot" not in run and "flicker" not in run
+    assert run["iou"]["car"]["scan"] is not None
+
+
 def test_clear_mot_counts_a_scan_in_a_neighbour_s_object_as_a_gap_not_two_switches() -> None:
     def joined(neighbour: int) -> Sighting:
         return Sighting(0.0, PEDESTRIAN, PEDESTRIAN, neighbour, PEDESTRIAN, PEDESTRIAN, NO_TRACK)
