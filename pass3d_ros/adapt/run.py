@@ -32,7 +32,7 @@ from pass3d_ros.core.stage2 import open_classifier
 from pass3d_ros.core.stage2.segmentation import Segmenter, load_model, make_checkpoint
 from pass3d_ros.data.bag import parse_bag_spec, select_topic
 from pass3d_ros.data.frame import Frame
-from pass3d_ros.data.spec import Dataset, open_dataset, repeated_recording, resolve_dataset
+from pass3d_ros.data.spec import Dataset, open_dataset, refuse_repeated_recordings, resolve_dataset
 from pass3d_ros.evaluation.offline import evaluate_draws, proposed_frame
 from pass3d_ros.msgs.errors import UserError
 from pass3d_ros.synthetic.dataset import HEIGHT_RANGE_M
@@ -151,7 +151,8 @@ class Adaptation:
     def _read_recording(self) -> None:
         """At most max_scans scans of the recording, evenly spaced over each spec, in time order."""
         o = self.options
-        _refuse_repeats(o.data)
+        # a recording's copies would fall on both sides of the split and flatter the check
+        refuse_repeated_recordings(o.data, "its copies would be both adapted on and held out")
         each = max(1, o.max_scans // len(o.data))
         topics = set()
         for spec in o.data:
@@ -372,15 +373,6 @@ def train_arguments(options: TrainOptions) -> list[str]:
     for spec in options.data[1:]:
         args += ["--data", spec]
     return args + (["--fit-epochs"] if options.fit_epochs else []) + (["--no-progress"] if options.quiet else [])
-
-
-def _refuse_repeats(specs: list[str]) -> None:
-    """UserError when one recording is given twice (symlinks and spellings of its path resolved): its copies would
-    fall on both sides of the split, so scans adapted on would also be held out and flatter the check."""
-    repeat = repeated_recording(specs)
-    if repeat is not None:
-        raise UserError(f"--data {repeat[0]}: the same recording as --data {repeat[1]}; give each recording once "
-                        "(its copies would be both adapted on and held out)")
 
 
 def _bag_topic(dataset: Dataset) -> str | None:

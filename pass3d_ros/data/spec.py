@@ -171,10 +171,9 @@ def resolve_datasets(specs: Iterable[str | Dataset]) -> list[Dataset]:
     return [resolve_dataset(spec) for spec in specs]
 
 
-def repeated_recording(specs: Iterable[str | Dataset]) -> tuple[str, str] | None:
-    """(spec, earlier spec) for the first spec that names the same recording as one before it (symlinks and
-    spellings of its path resolved, the same crop), None when each is given once: tools that read several specs
-    would read its frames twice."""
+def refuse_repeated_recordings(specs: Iterable[str | Dataset], consequence: str) -> None:
+    """DatasetError naming the first spec that names the same recording as one before it (symlinks and spellings of
+    its path resolved, the same crop), with what reading it twice would do (`consequence`)."""
     seen: dict[tuple[str, str, str], str] = {}
     for spec in specs:
         dataset = resolve_dataset(spec)
@@ -182,9 +181,9 @@ def repeated_recording(specs: Iterable[str | Dataset]) -> tuple[str, str] | None
         place = os.path.realpath(path) if os.path.exists(path) else path
         key = (dataset.format, place + sep + topic, dataset.crop)
         if key in seen:
-            return str(spec), seen[key]
+            raise DatasetError(f"--data {spec}: the same recording as --data {seen[key]}; give each recording once "
+                               f"({consequence})")
         seen[key] = str(spec)
-    return None
 
 
 def open_dataset(spec: str | Dataset) -> Iterator[Frame]:

@@ -495,9 +495,8 @@ class SegmentationNode(PointCloudNode):
         if self.odometry is not None and pose is None:
             self.get_logger().warning("no odometry within odometry_max_gap of the scan: tracked in the sensor's frame",
                                       throttle_duration_sec=LOG_PERIOD_S)
-        tracking = self.stage2.tracker is not None
-        if self.follow_frame(frame.header.frame_id, "the tracks start over" if tracking else None) and tracking:
-            self.stage2.reset_tracks()
+        if self.follow_frame(frame.header.frame_id, None if self.stage2.tracker is None else "the tracks start over"):
+            self.stage2.reset_tracks()  # nothing to forget with tracking off
         tracked = self.stage2.track(out, header_stamp_ns(frame) * 1e-9, pose=pose, level=frame.level,
                                     points=frame.levelled, ground=frame.ground)
         out = out if tracked is None else tracked.voted

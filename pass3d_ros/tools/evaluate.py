@@ -89,7 +89,7 @@ from pass3d_ros.core.stream.intensity_match import DEFAULT_ENABLED as INTENSITY_
 from pass3d_ros.core.threads import DEFAULT_THREADS, limit_threads
 from pass3d_ros.data.outputs import write_text_atomic
 from pass3d_ros.data.params_file import NodeSettings, read_params_file
-from pass3d_ros.data.spec import Dataset, DatasetError, repeated_recording, resolve_datasets
+from pass3d_ros.data.spec import Dataset, DatasetError, refuse_repeated_recordings, resolve_datasets
 from pass3d_ros.evaluation.agreement import evaluate_agreement, evaluate_agreement_draws
 from pass3d_ros.evaluation.live import LiveOptions
 from pass3d_ros.evaluation.live_data import evaluate_live
@@ -243,10 +243,7 @@ def _check_args(args: argparse.Namespace) -> str:
 def run(args: argparse.Namespace) -> tuple[str, dict, int]:
     """Evaluate as `args` ask: (mode, summary ending with the stage-1 config it ran with, exit status)."""
     datasets = resolve_datasets(args.data)
-    repeat = repeated_recording(datasets)
-    if repeat is not None:
-        raise DatasetError(f"--data {repeat[0]}: the same recording as --data {repeat[1]}; give each recording once "
-                           "(its frames would be scored twice)")
+    refuse_repeated_recordings(datasets, "its frames would be scored twice")
     mode = _check_args(args)
     node = read_params_file(args.params_file) if args.params_file else NodeSettings()
     if node.weights and args.weights is None and mode != "stage1" and args.classifier in (None, "network"):
