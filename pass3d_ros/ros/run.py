@@ -114,6 +114,9 @@ def run_nodes(program: str, factories: Sequence[Callable[[], Node]], argv: list[
     except (ValueError, OSError, ParameterException) as exc:
         print(f"{program}: {ros_message(exc)}", file=sys.stderr)
         return 2
+    except RuntimeError:  # rclpy's RCLError: Ctrl-C shut the context down after the executor's check, before its
+        if rclpy.ok():  # wait set was made ("the given context is not valid"); a shutdown, as above
+            raise
     finally:
         for node in nodes:  # workers first: a frame in hand must not publish into a finished executor or context
             if isinstance(node, PointCloudNode):

@@ -126,3 +126,28 @@ def test_bad_input_topic_is_one_line(topic: str) -> None:
     lines = [line for line in err.splitlines() if line.startswith("cluster_proposal_node: ")]
     assert proc.returncode == 2 and len(lines) == 1 and "is invalid" in lines[0], err
     assert "Traceback" not in err and "/project/src" not in err, err
+
+
+def test_ctrl_c_racing_the_executor_is_a_clean_exit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C shuts the context down; when that lands between the executor's check and its wait set, rclpy raises
+    RCLError ("the given context is not valid"). That is the same shutdown: exit 0, no traceback (a real
+    pass3d_pipeline once exited 1 with it). An RCLError while the context is still up is a bug and propagates."""
+    from rclpy._rclpy_pybind11 import RCLError
+
+    from pass3d_ros.ros import run
+
+    def interrupted(self) -> None:
+        rclpy.shutdown()
+        raise RCLError("failed to initialize wait set: the given context is not valid")
+
+    monkeypatch.setattr(run, "apply_shipped_profile", lambda: None)  # this process's environment stays as it is
+    monkeypatch.setattr(run.SingleThreadedExecutor, "spin", interrupted)
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain()))
+    assert run.run_nodes("pass3d_test", [], ["pass3d_test"]) == 0
+
+    def broken(self) -> None:
+        raise RCLError("something else")
+
+    monkeypatch.setattr(run.SingleThreadedExecutor, "spin", broken)
+    with pytest.raises(RCLError):
+        run.run_nodes("pass3d_test", [], ["pass3d_test"])
