@@ -82,6 +82,16 @@ def proposed_frame(pipeline: ScanPipeline, spec: str, frame: Frame, printed: set
     return proposed
 
 
+def score_stage1(metrics: Stage1Metrics, name: str, proposed: ProposedScan, frame: Frame) -> dict:
+    """Add one frame's stage 1 to `metrics` over the input's points: a point the input checks left out is in no
+    proposal and not ground, so a labelled one counts as a miss, as the full evaluation scores it; returns its row."""
+    result, size = proposed.result, len(frame.points)
+    cluster_id, cluster_id2 = (proposed.in_input(ids, size, -1) for ids in (result.cluster_id, result.cluster_id2))
+    ground = proposed.in_input(result.ground, size, False)
+    return metrics.update(name, result.n_proposals, cluster_id, cluster_id2, ground, result.timings_ms, frame.labels,
+                          frame.ground)
+
+
 def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
                     max_proposals: int = DEFAULT_MAX_PROPOSALS) -> dict:
     """Run stage 1 on every frame and accumulate its metrics; returns the summary with per-frame rows. Laser lines
@@ -94,8 +104,7 @@ def evaluate_stage1(frames: Iterator[tuple[str, Frame]], config: Stage1Config,
     for spec, frame in frames:
         proposed = proposed_frame(pipeline, spec, frame)
         result = proposed.result
-        row = metrics.update_result(f"{spec}#{frame.name}", result, proposed.kept_values(frame.labels),
-                                    proposed.kept_values(frame.ground))
+        row = score_stage1(metrics, f"{spec}#{frame.name}", proposed, frame)
         row["ring_source"] = result.ring_source
         row["proposals_cut"] = budget.add(result.n_proposals)  # a kept proposal has points
     summary = metrics.summary()
@@ -146,7 +155,7 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
             raise DatasetError(f"{spec}: frame {frame.name} has no point labels; full evaluation needs labelled data")
         proposed = proposed_frame(pipeline, spec, frame)
         result, members = proposed.result, proposed.members
-        truth, ground = proposed.kept_values(frame.labels), proposed.kept_values(frame.ground)
+        truth = proposed.kept_values(frame.labels)
         cut = budget.add(len(proposed.nonempty_members()))
         labelled = pipeline.segment(proposed)
         background += background_proposals(proposed.scan.points, truth, members, labelled.segmented.proposal_class)
@@ -157,7 +166,7 @@ def evaluate_full(frames: Iterator[tuple[str, Frame]], config: Stage1Config, cla
         objects.update(frame.labels, predicted, frame.instance, frame.points)
         row["proposals"] = result.n_proposals
         row["proposals_cut"] = cut
-        stage1.update_result(name, result, truth, ground)
+        score_stage1(stage1, name, proposed, frame)
     summary = segmentation.summary()
     summary["stage1"] = stage1.summary()["stage1"]
     summary["objects"] = objects.summary()

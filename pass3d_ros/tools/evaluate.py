@@ -14,8 +14,9 @@ Modes (one per run):
                   point labels is an error naming its spec. Points with a non-finite coordinate never reach the core:
                   they are predicted background and still scored (a labelled one counts as a miss).
   --stage1-only   stage 1 cluster proposals: foreground recall (share of ground-truth car / pedestrian /
-                  cyclist points inside a kept proposal), proposals per frame, milliseconds per frame and
-                  per step, ground precision / recall where the dataset has a ground truth.
+                  cyclist points inside a kept proposal; a labelled point the input checks leave out counts as
+                  a miss), proposals per frame, milliseconds per frame and per step, ground precision / recall
+                  where the dataset has a ground truth.
   --view-agreement
                   labels unused (unlabelled scans welcome): stage 1, then the network on every proposal in each
                   of the 8 canonical views; per class (by the views' majority), the share of proposals all 8

@@ -76,6 +76,25 @@ def test_evaluate_stage1_on_constructed_frames():
     assert "foreground recall" in format_stage1(summary, per_frame=True)
 
 
+def test_stage1_recall_counts_labelled_points_the_checks_leave_out_as_misses():
+    """Car points with non-finite coordinates never reach stage 1: they are in no proposal, so stage-1 recall counts
+    them in its denominator, as the full evaluation counts them as missed (they were silently dropped)."""
+    pts = synthetic_scan()
+    result = propose(pts)
+    covered = result.cluster_id >= 0
+    lost = np.full((100, 4), np.nan, np.float32)
+    lost[:, 3] = 0.5
+    labels = np.concatenate([covered.astype(np.uint8), np.ones(100, np.uint8)])
+    ground = np.concatenate([result.ground, np.ones(100, bool)])
+    frame = Frame("f0", np.vstack([pts, lost]), labels=labels, ground=ground)
+    summary = evaluate_stage1(iter([("mem", frame)]), Stage1Config())
+    st, row = summary["stage1"], summary["per_frame"][0]
+    fg = int(covered.sum())
+    assert st["foreground_points"] == fg + 100 and row["points"] == len(pts) + 100
+    assert st["foreground_recall"] == pytest.approx(fg / (fg + 100)) == row["foreground_recall"]
+    assert st["ground"]["recall"] == pytest.approx(result.ground.sum() / (result.ground.sum() + 100))
+
+
 def test_evaluate_cli_errors(capsys):
     assert evaluate.main(["--stage1-only", "--data", "nosuchformat:/x"]) == 2
     assert "unknown format" in capsys.readouterr().err
