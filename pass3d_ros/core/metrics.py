@@ -530,6 +530,16 @@ def interval_text(interval: dict | None) -> str:
     return f"[{100 * interval['low']:.1f}, {100 * interval['high']:.1f}]"
 
 
+def mean_classes_text(per_class: dict) -> str:
+    """The classes the mean IoU averages (foreground ones with ground-truth points), naming those it leaves out."""
+    names = [CLASS_NAMES[c] for c in FOREGROUND]
+    absent = [name for name in names if name in per_class and not per_class[name]["points"]]
+    if not absent or len(absent) == len(names):
+        return ", ".join(names)
+    kept = [name for name in names if name not in absent]
+    return f"{', '.join(kept)}; no ground-truth {' or '.join(absent)} points"
+
+
 def format_metrics(per_class: dict, mean_iou: float | None, mean_interval: dict | None = None,
                    extra_rows: Sequence[tuple[str, str, dict]] = ()) -> list[str]:
     """Table lines: per-class precision / recall / IoU in %, point counts, and the foreground mean IoU; with the
@@ -549,7 +559,7 @@ def format_metrics(per_class: dict, mean_iou: float | None, mean_interval: dict 
         span = f"  {interval_text(row.get('interval')):<16}" if boot else ""
         lines.append(f"{name:<{width}}{percent_text(row['precision']):>8}{percent_text(row['recall']):>10}"
                      f"{percent_text(row['iou']):>8}{span}{row['points']:>10}")
-    mean = f"mean IoU (car, pedestrian, cyclist): {percent_text(mean_iou).strip()} %"
+    mean = f"mean IoU ({mean_classes_text(per_class)}): {percent_text(mean_iou).strip()} %"
     lines.append(mean + (f" {interval_text(mean_interval)}" if mean_interval is not None else ""))
     if boot and level:
         note = (f"intervals: {level['method']}, {level['resamples']} resamples of {level['frames']} frame(s), "

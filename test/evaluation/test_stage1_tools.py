@@ -11,7 +11,7 @@ import pytest
 
 from pass3d_ros.bench import benchmark
 from pass3d_ros.bench import stage1 as bench
-from pass3d_ros.core.metrics import ConfusionAccumulator, Stage1Metrics
+from pass3d_ros.core.metrics import ConfusionAccumulator, Stage1Metrics, format_metrics
 from pass3d_ros.core.stage1 import Stage1Config, propose, synthetic_scan
 from pass3d_ros.data.frame import Frame
 from pass3d_ros.evaluation.offline import evaluate_stage1
@@ -35,6 +35,20 @@ def test_confusion_accumulator_precision_recall_iou():
         acc.update(np.array([0, 1]), np.array([0]))
     with pytest.raises(ValueError):
         acc.update(np.array([4]), np.array([0]))
+
+
+def test_mean_iou_line_names_the_classes_it_averages():
+    """No cyclist in the ground truth, a few points called cyclist: the cyclist row reads IoU 0 and the mean leaves it
+    out, so the line names car and pedestrian only (it said "car, pedestrian, cyclist" over a two-class mean)."""
+    acc = ConfusionAccumulator()
+    acc.update(np.array([0, 0, 1, 1, 2, 2]), np.array([3, 0, 1, 0, 2, 2]))
+    summary = acc.summary()
+    assert summary["per_class"]["cyclist"]["iou"] == 0.0 and summary["mean_iou"] == pytest.approx((0.5 + 1.0) / 2)
+    line = format_metrics(summary["per_class"], summary["mean_iou"])[-1]
+    assert line == "mean IoU (car, pedestrian; no ground-truth cyclist points): 75.0 %"
+    full = ConfusionAccumulator()
+    full.update(np.array([1, 2, 3]), np.array([1, 2, 3]))
+    assert format_metrics(full.summary()["per_class"], 1.0)[-1] == "mean IoU (car, pedestrian, cyclist): 100.0 %"
 
 
 def test_stage1_metrics_accumulate_over_frames():
