@@ -84,8 +84,10 @@ def parse_synthetic_spec(text: str) -> dict[str, Any]:
         except ValueError as exc:
             name = "drive" if key == "frames" and "drive" in given else key
             raise DatasetError(f"synthetic spec {text!r}: {name} must be an integer, got {value.strip()!r}") from exc
-    if min(values.values()) < 0:
-        raise DatasetError(f"synthetic spec {text!r}: frames, seed and start must not be negative")
+    negative = [key for key, number in values.items() if number < 0 and not (key == "frames" and "drive" in given)]
+    if negative:  # a drive's count is checked below, against its range
+        raise DatasetError(f"synthetic spec {text!r}: {' and '.join(negative)} must not be negative, got "
+                           f"{', '.join(str(values[key]) for key in negative)}")
     if "drive" in given:
         mixed = sorted(given & {"frames", "start", "without"})
         if mixed:

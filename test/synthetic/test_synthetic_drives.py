@@ -54,7 +54,8 @@ def test_spec_parses_drive():
     ("drive=3,frames=2,seed=1", "a drive takes no frames"),
     ("drive=3,seed=1,start=4", "a drive takes no start"),
     ("drive=3,seed=1,without=dark", "a drive takes no without"),
-    ("drive=3,seed=-1", "must not be negative"),
+    ("drive=3,seed=-1", "seed must not be negative, got -1"),
+    ("drive=-3,seed=1", "drive must be 1..100 scans, got -3"),  # was "frames, seed and start must not be negative"
     ("drive=3,seed=1,sensor=hdl128", "unknown sensor"),
     ("drive=3,seed=1,speed=4", "or drive=N,seed=S"),
 ])
