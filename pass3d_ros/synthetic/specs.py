@@ -48,9 +48,13 @@ def parse_synthetic_spec(text: str) -> dict[str, Any]:
     height: float | None = None
     angles = {"roll": 0.0, "pitch": 0.0}
     without: frozenset[str] = frozenset()
+    named: set[str] = set()
     for item in filter(None, (part.strip() for part in text.split(","))):
         key, sep, value = item.partition("=")
         key = key.strip()
+        if sep and key in named:  # the last would silently win
+            raise DatasetError(f"synthetic spec {text!r}: {key}= given twice")
+        named.add(key)
         if sep and key in angles:
             angles[key] = _number_in(text, key, value, MOUNT_ANGLE_RANGE_DEG, "degrees") + 0.0  # -0.0 -> 0.0
             continue

@@ -58,6 +58,9 @@ def test_spec_parses_drive():
     ("drive=-3,seed=1", "drive must be 1..100 scans, got -3"),  # was "frames, seed and start must not be negative"
     ("drive=3,seed=1,sensor=hdl128", "unknown sensor"),
     ("drive=3,seed=1,speed=4", "or drive=N,seed=S"),
+    ("drive=3,seed=1,seed=2", "seed= given twice"),  # was seed 2, silently
+    ("drive=3,drive=5,seed=1", "drive= given twice"),
+    ("drive=3,seed=1,sensor=vlp16,sensor=os1-64", "sensor= given twice"),
 ])
 def test_bad_drive_specs_name_the_spec(bad, why):
     with pytest.raises(DatasetError, match=rf"synthetic spec '{bad}'.*{why}"):
