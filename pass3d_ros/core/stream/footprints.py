@@ -37,6 +37,60 @@ class Footprints(NamedTuple):
         return pieces(self.xy, self.counts)
 
 
+MIN_EDGE_POINTS = 5  # footprint points a track and a detection each need for `edge_shifts` to read a move
+
+
+@nb.njit(cache=True, nogil=True)
+def edge_shifts(rows: np.ndarray, states: np.ndarray, offsets: np.ndarray, counts: np.ndarray, xy: np.ndarray,
+                starts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How far each track's object moved since its prediction, read from the box edge that moved least: per track
+    row of `rows`, its predicted footprint (`states`' x, y plus its first `counts` `offsets`) and its detection's
+    footprint points (`xy[starts[k]:starts[k + 1]]`) are measured along the footprint's principal axis and across it;
+    on each axis the nearer of the two edges' shifts is the move. A moving car moves both ends alike; a parked car seen
+    by another side keeps one end where it was while its box centre jumps by metres. (R, 2) shifts, (R, 2) moves of
+    the footprints' box centres (the two edges' mean shift) and whether each was read (MIN_EDGE_POINTS on both
+    sides)."""
+    shifts = np.zeros((len(rows), 2))
+    centres = np.zeros((len(rows), 2))
+    read = np.zeros(len(rows), np.bool_)
+    for k in range(len(rows)):
+        r = rows[k]
+        n, first, last = counts[r], starts[k], starts[k + 1]
+        if n < MIN_EDGE_POINTS or last - first < MIN_EDGE_POINTS:
+            continue
+        mx, my = 0.0, 0.0
+        for i in range(n):
+            mx += offsets[r, i, 0]
+            my += offsets[r, i, 1]
+        mx, my = mx / n, my / n
+        cxx, cyy, cxy = 0.0, 0.0, 0.0
+        for i in range(n):
+            dx, dy = offsets[r, i, 0] - mx, offsets[r, i, 1] - my
+            cxx += dx * dx
+            cyy += dy * dy
+            cxy += dx * dy
+        theta = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
+        axes = np.array([[np.cos(theta), np.sin(theta)], [-np.sin(theta), np.cos(theta)]])
+        for a in range(2):
+            ax, ay = axes[a, 0], axes[a, 1]
+            lo, hi = np.inf, -np.inf
+            for i in range(n):
+                v = (states[r, 0] + offsets[r, i, 0]) * ax + (states[r, 1] + offsets[r, i, 1]) * ay
+                lo, hi = min(lo, v), max(hi, v)
+            dlo, dhi = np.inf, -np.inf
+            for i in range(first, last):
+                v = xy[i, 0] * ax + xy[i, 1] * ay
+                dlo, dhi = min(dlo, v), max(dhi, v)
+            move = dlo - lo if abs(dlo - lo) <= abs(dhi - hi) else dhi - hi
+            centre = 0.5 * (dlo - lo + dhi - hi)
+            shifts[k, 0] += move * ax
+            shifts[k, 1] += move * ay
+            centres[k, 0] += centre * ax
+            centres[k, 1] += centre * ay
+        read[k] = True
+    return shifts, centres, read
+
+
 def point_cells(xy: np.ndarray) -> np.ndarray:
     """The key of the CELL_M cell each point of `xy` (M, 2) falls in."""
     index = np.floor(np.asarray(xy, dtype=np.float64) / CELL_M).astype(np.int64) + _OFFSET

@@ -50,6 +50,18 @@ def correct_rows(rows: np.ndarray, states: np.ndarray, covs: np.ndarray, measure
 
 
 @nb.njit(cache=True, nogil=True)
+def correct_moved_rows(rows: np.ndarray, states: np.ndarray, covs: np.ndarray, moved: np.ndarray,
+                       measured: np.ndarray, noise: float, view: np.ndarray) -> None:
+    """`correct_rows` for new views whose object's move was read apart from its box centre (`moved`: where the
+    object's points say it is, one per row): that corrects position and velocity first, then the new view's centre
+    (`measured`, `view`) the position alone. A parked car's velocity learns it stands still although each view moves
+    its box centre."""
+    for t in range(len(rows)):
+        _correct(states[rows[t]], covs[rows[t]], moved[t, 0], moved[t, 1], noise, 0.0)
+        _correct(states[rows[t]], covs[rows[t]], measured[t, 0], measured[t, 1], noise, view[t])
+
+
+@nb.njit(cache=True, nogil=True)
 def _correct(state: np.ndarray, p: np.ndarray, x: float, y: float, noise: float, view: float) -> None:
     """One state (4,) and covariance (4, 4) corrected by the centre (x, y) (`correct_rows`)."""
     gain = np.empty((4, 2))

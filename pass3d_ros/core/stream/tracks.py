@@ -54,6 +54,7 @@ from pass3d_ros.core.stream.footprints import (
     Footprints,
     cell_sets,
     cells,
+    edge_shifts,
     evenly_spaced,
     extent,
     keep_rows,
@@ -126,6 +127,9 @@ class TrackerConfig:
     implausible_births: bool = False  # a detection whose box cannot be one object of its class (core.objects'
     # plausible flag: a car 1.2 x 0.2 x 0.01 m, a sliver of a car's roof) may start a track; False: it starts none
     # (it may still match a track, be a part of one or find an ended one again) and has no track this scan
+    edge_shift: bool = True  # a car's move read from its box edge that moved least (`footprints.edge_shifts`): a
+    # detection whose centre moved more than reshape_m apart from that is a new view, and that move corrects the
+    # velocity (a parked car seen by another side keeps one end where it was: it does not start driving)
     fill_shapes: bool = False  # a confirmed car track's remembered shape (`shapes`: the voxels its objects' points
     # filled over its last shape_sightings sightings) takes the scan's points stage 2 left background, in no proposal
     # and off the ground, that fall in it (core.tracked_scan). Off: rule N of docs/experiments/tracks.md (flicker
@@ -287,10 +291,11 @@ class Tracker:
             shared = _Shared(shared_cells(tracks, detections), np.diff(tracks[1]), np.diff(detections[1]))
         rows, cols = self._associate(centers, labels, shared, usable)
         matched = dict(zip(cols.tolist(), rows.tolist(), strict=True))
-        self._correct_all(self._live()[rows], centers[cols], sizes[cols])
+        split = world.split() if world is not None else None  # each detection's footprint points, once a scan
+        self._correct_all(self._live()[rows], centers[cols], sizes[cols],
+                          None if split is None else [split[c] for c in cols.tolist()])
         confirmed = self.store.hits[self._live()] >= self.config.min_hits
         parts = self._parts(matched, shared, confirmed)
-        split = world.split() if world is not None else None  # each detection's footprint points, once a scan
         if self.config.part_extent is not None:
             parts.update(self._ends(matched, parts, labels, split))
         covered = self._covered(matched, parts, labels, shared, confirmed)
@@ -341,7 +346,7 @@ class Tracker:
             if row is not None:  # another view of a waiting car: corrected as a matched track is
                 taken.add(row)
                 track = self.tracks[row]
-                self._correct_all(np.array([track.slot]), centers[d:d + 1], sizes[d:d + 1])
+                self._correct_all(np.array([track.slot]), centers[d:d + 1], sizes[d:d + 1], [points[d]])
             else:
                 track = self._revive(centers[d], sizes[d], int(labels[d]), stamp_s, None if detections is None
                                      else detections[0][detections[1][d]:detections[1][d + 1]])
@@ -702,22 +707,42 @@ class Tracker:
         kalman.predict_rows(slots, store.state, store.cov, store.stamp, stamp_s, self.config.max_dt_s,
                             self.config.process_accel)
 
-    def _correct_all(self, slots: np.ndarray, centers: np.ndarray, sizes: np.ndarray | None = None) -> None:
+    def _correct_all(self, slots: np.ndarray, centers: np.ndarray, sizes: np.ndarray | None = None,
+                     points: list[np.ndarray] | None = None) -> None:
         """The Kalman correction of each matched track (its store row) by its detection's centre (x, y measured), all
         at once. With
         the detections' `sizes`, a box of a long object (LONG_M: a car) whose horizontal edges changed by more than
         `reshape_m` from the track's is a new view of the object: its centre corrects the position (uncertain by half
         the change) and not the velocity (a parked car seen by its rear, then whole, moves its box centre by metres
-        while it stands still)."""
+        while it stands still). With `edge_shift` and the detections' footprint `points` (tracking frame), a long
+        object's move is also read from its box edge that moved least (`edge_shifts`): a footprint whose box centre
+        moved more than `reshape_m` apart from that is a new view too, and the move read corrects the velocity
+        first."""
         if not len(slots):
             return
         store = self.store
+        measured = np.ascontiguousarray(centers[:, :2], dtype=np.float64)
         view = np.zeros(len(slots))
+        long = LONG_CLASS[store.voted(slots)[0]]
         if sizes is not None and self.config.reshape_m is not None:
-            view = new_views(slots, store.box, np.ascontiguousarray(sizes, dtype=np.float64),
-                             LONG_CLASS[store.voted(slots)[0]], self.config.reshape_m)
-        kalman.correct_rows(slots, store.state, store.cov, np.ascontiguousarray(centers[:, :2], dtype=np.float64),
-                            self.config.measurement_m ** 2, view)
+            view = new_views(slots, store.box, np.ascontiguousarray(sizes, dtype=np.float64), long,
+                             self.config.reshape_m)
+        if points is None or not self.config.edge_shift or self.config.reshape_m is None or not long.any():
+            kalman.correct_rows(slots, store.state, store.cov, measured, self.config.measurement_m ** 2, view)
+            return
+        starts = np.concatenate([[0], np.cumsum([len(p) for p in points])]).astype(np.int64)
+        xy = np.concatenate(points).reshape(-1, 2) if points else np.zeros((0, 2))
+        shifts, centres, read = edge_shifts(slots, store.state, store.offsets, store.points,
+                                            np.ascontiguousarray(xy, dtype=np.float64), starts)
+        moved = store.state[slots, :2] + shifts
+        apart = np.hypot(*(centres - shifts).T)
+        by_edges = read & long & (apart > self.config.reshape_m)
+        view = np.where(by_edges, np.maximum(view, (apart / 2) ** 2), view)
+        first = read & long & (view > 0)  # the move read corrects the velocity before the new view's centre
+        noise = self.config.measurement_m ** 2
+        kalman.correct_moved_rows(slots[first], store.state, store.cov, moved[first], measured[first], noise,
+                                  view[first])
+        kalman.correct_rows(slots[~first], store.state, store.cov, measured[~first], noise, view[~first])
 
     def _sighted(self, slots: np.ndarray, centers: np.ndarray, sizes: np.ndarray, labels: np.ndarray,
                  scores: np.ndarray, stamp_s: float) -> None:

@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from pass3d_ros.classes import CAR, CYCLIST, PEDESTRIAN
-from pass3d_ros.core.stream.footprints import Footprints
+from pass3d_ros.core.stream.footprints import Footprints, edge_shifts
 from pass3d_ros.core.stream.tracks import Tracker, TrackerConfig
 
 SIZE = {CAR: (4.0, 1.7, 1.5), PEDESTRIAN: (0.6, 0.6, 1.7), CYCLIST: (1.7, 0.6, 1.7)}
@@ -251,3 +251,57 @@ def test_an_implausible_box_starts_no_track_but_still_matches_one() -> None:
     assert said.track_id == 0, "an implausible box may still be its track's sighting"
     born = Tracker(TrackerConfig(implausible_births=True))
     assert born.scan(centers, sizes, [CAR], [0.9], 0.0, plausible=[False]).detections[0].track_id == 0
+
+
+def _car_points(x0: float, x1: float, y: float = 0.0) -> np.ndarray:
+    """A car's side seen from x0 to x1 (m) and its end at x0: footprint points."""
+    side = np.column_stack([np.linspace(x0, x1, 30), np.full(30, y - 0.8)])
+    end = np.column_stack([np.full(8, x0), np.linspace(y - 0.8, y + 0.8, 8)])
+    return np.vstack([side, end])
+
+
+def test_edge_shifts_read_a_move_from_the_edge_that_moved_least() -> None:
+    """Both ends moved: the move; one end kept (another view of a parked car): no move; too few points: unread."""
+    whole = _car_points(18.0, 22.0)
+    state = np.array([[20.0, 0.0, 0.0, 0.0]])
+    offsets = np.zeros((1, 128, 2))
+    offsets[0, :len(whole)] = whole - state[0, :2]
+    counts = np.array([len(whole)])
+    rows = np.array([0])
+    for seen, want in ((_car_points(19.0, 23.0), (1.0, 0.0)), (_car_points(18.0, 19.5), (0.0, 0.0))):
+        shifts, _, read = edge_shifts(rows, state, offsets, counts, seen, np.array([0, len(seen)]))
+        assert read[0] and np.allclose(shifts[0], want, atol=0.05), (shifts, want)
+    _, _, read = edge_shifts(rows, state, offsets, counts, whole[:3], np.array([0, 3]))
+    assert not read[0]
+
+
+def test_a_parked_car_whose_box_jumps_between_views_does_not_start_driving() -> None:
+    """A parked car 4 m long, tracked whole, then cut in two (both halves its track's) and seen by one half or the
+    other: boxes of one size whose centres jump 2.2 m. Read from the edge its points kept, it stands still, so its
+    track's speed stays low; without `edge_shift` the track takes up the jumps as a speed. A car driving 10 m/s
+    seen whole keeps its speed."""
+    speeds = {}
+    for on in (False, True):
+        tracker = Tracker(TrackerConfig(edge_shift=on))
+        top = 0.0
+        for k in range(14):
+            if k < 3:
+                views = [(18.0, 22.0)]
+            elif k % 2:
+                views = [(18.0, 19.8), (20.2, 22.0)]
+            else:
+                views = [(18.0, 19.8)] if k % 4 == 0 else [(20.2, 22.0)]
+            out = tracker.update(np.array([[(a + b) / 2, 0.0, -1.0] for a, b in views]),
+                                 np.array([[b - a, 1.6, 1.5] for a, b in views]), [CAR] * len(views),
+                                 [0.9] * len(views), 0.1 * k, footprints=Footprints.of([_car_points(a, b)
+                                                                                        for a, b in views]))
+            assert {said.track_id for said in out} == {0}
+            top = max(top, float(np.hypot(*tracker.tracks[0].state[2:])))
+        speeds[on] = top
+    assert speeds[True] < 1.0 and speeds[False] > 3.0, speeds
+    tracker = Tracker()
+    for k in range(12):
+        x = 10.0 + 1.0 * k
+        tracker.update(np.array([[x, 0.0, -1.0]]), np.array([[4.0, 1.6, 1.5]]), [CAR], [0.9], 0.1 * k,
+                       footprints=Footprints.of([_car_points(x - 2.0, x + 2.0)]))
+    assert abs(tracker.tracks[0].state[2] - 10.0) < 1.0 and len(tracker.tracks) == 1
