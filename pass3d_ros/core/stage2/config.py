@@ -105,6 +105,11 @@ class Stage2Config:
         "in part (docs/outputs.md). Off by rule N of docs/experiments/tracks.md: class changes of cars fewer on "
         "synthetic drives, but the tracker's time over 1 ms at 60 objects and the parking lot's car IoU 1 point lower",
     )
+    track_edge_shift: bool = _setting(
+        _TRACKER.edge_shift, "tracking: a car's move read from its box edge that moved least: a view whose box centre "
+        "jumps while one end stays put (a parked car seen by another side) corrects the track's position, and its "
+        "velocity by that move, not by the jump (rule V of docs/experiments/tracks.md)",
+    )
     stage2_timeout: float = _setting(
         5.0, "seconds a frame may take in stage 2: a child process (process) that answers nothing this long is killed "
         "and restarted, ERROR on /diagnostics; a later result is dropped, never published late (raise it for a "
@@ -144,7 +149,8 @@ class Stage2Config:
                                          (CYCLIST, self.track_gate_cyclist)),
                        min_hits=self.track_min_hits, max_misses=self.track_max_misses,
                        reid_misses=self.track_reid_misses,
-                       vote_window=self.track_vote_window, fill_shapes=self.track_fill_shapes)
+                       vote_window=self.track_vote_window, fill_shapes=self.track_fill_shapes,
+                       edge_shift=self.track_edge_shift)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all settings (for logs and JSON)."""

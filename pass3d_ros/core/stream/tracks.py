@@ -130,6 +130,9 @@ class TrackerConfig:
     edge_shift: bool = True  # a car's move read from its box edge that moved least (`footprints.edge_shifts`): a
     # detection whose centre moved more than reshape_m apart from that is a new view, and that move corrects the
     # velocity (a parked car seen by another side keeps one end where it was: it does not start driving)
+    edge_min_hits: int = 5  # sightings a track needs before the move its edges read corrects its velocity in a new
+    # view (a younger track's velocity is its prior's guess, which one sparse view's edges would set; its new views
+    # correct the position alone)
     fill_shapes: bool = False  # a confirmed car track's remembered shape (`shapes`: the voxels its objects' points
     # filled over its last shape_sightings sightings) takes the scan's points stage 2 left background, in no proposal
     # and off the ground, that fall in it (core.tracked_scan). Off: rule N of docs/experiments/tracks.md (flicker
@@ -716,8 +719,8 @@ class Tracker:
         the change) and not the velocity (a parked car seen by its rear, then whole, moves its box centre by metres
         while it stands still). With `edge_shift` and the detections' footprint `points` (tracking frame), a long
         object's move is also read from its box edge that moved least (`edge_shifts`): a footprint whose box centre
-        moved more than `reshape_m` apart from that is a new view too, and the move read corrects the velocity
-        first."""
+        moved more than `reshape_m` apart from that is a new view too, and on a track seen `edge_min_hits` times the
+        move read corrects the velocity first."""
         if not len(slots):
             return
         store = self.store
@@ -738,7 +741,8 @@ class Tracker:
         apart = np.hypot(*(centres - shifts).T)
         by_edges = read & long & (apart > self.config.reshape_m)
         view = np.where(by_edges, np.maximum(view, (apart / 2) ** 2), view)
-        first = read & long & (view > 0)  # the move read corrects the velocity before the new view's centre
+        # the move read corrects the velocity before the new view's centre, on a track seen often enough
+        first = read & long & (view > 0) & (store.hits[slots] >= self.config.edge_min_hits)
         noise = self.config.measurement_m ** 2
         kalman.correct_moved_rows(slots[first], store.state, store.cov, moved[first], measured[first], noise,
                                   view[first])
