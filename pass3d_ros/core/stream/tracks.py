@@ -127,9 +127,10 @@ class TrackerConfig:
     implausible_births: bool = False  # a detection whose box cannot be one object of its class (core.objects'
     # plausible flag: a car 1.2 x 0.2 x 0.01 m, a sliver of a car's roof) may start a track; False: it starts none
     # (it may still match a track, be a part of one or find an ended one again) and has no track this scan
-    edge_shift: bool = True  # a car's move read from its box edge that moved least (`footprints.edge_shifts`): a
+    edge_shift: bool = False  # a car's move read from its box edge that moved least (`footprints.edge_shifts`): a
     # detection whose centre moved more than reshape_m apart from that is a new view, and that move corrects the
-    # velocity (a parked car seen by another side keeps one end where it was: it does not start driving)
+    # velocity (a parked car seen by another side keeps one end where it was). Off: rule V of
+    # docs/experiments/tracks.md (36 fresh drives: id switches 33 -> 37, all on one drive; nothing else moved)
     edge_min_hits: int = 5  # sightings a track needs before the move its edges read corrects its velocity in a new
     # view (a younger track's velocity is its prior's guess, which one sparse view's edges would set; its new views
     # correct the position alone)

@@ -299,7 +299,7 @@ def test_a_parked_car_whose_box_jumps_between_views_does_not_start_driving() -> 
             top = max(top, float(np.hypot(*tracker.tracks[0].state[2:])))
         speeds[on] = top
     assert speeds[True] < 1.0 and speeds[False] > 3.0, speeds
-    tracker = Tracker()
+    tracker = Tracker(TrackerConfig(edge_shift=True))
     for k in range(12):
         x = 10.0 + 1.0 * k
         tracker.update(np.array([[x, 0.0, -1.0]]), np.array([[4.0, 1.6, 1.5]]), [CAR], [0.9], 0.1 * k,
