@@ -98,6 +98,11 @@ class Stage2Config:
     track_vote_window: int = _setting(
         _TRACKER.vote_window, "tracking: recent sightings a track's class is voted over", (1, 1000),
     )
+    track_first_score: float = _setting(
+        _TRACKER.first_score, "tracking: objects at least this confident are matched to the tracks first, the rest to "
+        "the tracks left (ByteTrack's two rounds): a faint fragment beside a person does not take the person's track "
+        "from the person's own object; 0: one round", (0.0, 1.0),
+    )
     track_fill_shapes: bool = _setting(
         _TRACKER.fill_shapes, f"tracking: a confirmed car track's remembered shape (the {VOXEL_M:g} m voxels its "
         f"points filled over its last {_TRACKER.shape_sightings} sightings, moved with it) takes the points stage 2 "
@@ -151,7 +156,7 @@ class Stage2Config:
                        min_hits=self.track_min_hits, max_misses=self.track_max_misses,
                        reid_misses=self.track_reid_misses,
                        vote_window=self.track_vote_window, fill_shapes=self.track_fill_shapes,
-                       edge_shift=self.track_edge_shift)
+                       edge_shift=self.track_edge_shift, first_score=self.track_first_score)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all settings (for logs and JSON)."""

@@ -127,6 +127,9 @@ class TrackerConfig:
     implausible_births: bool = False  # a detection whose box cannot be one object of its class (core.objects'
     # plausible flag: a car 1.2 x 0.2 x 0.01 m, a sliver of a car's roof) may start a track; False: it starts none
     # (it may still match a track, be a part of one or find an ended one again) and has no track this scan
+    first_score: float = 0.6  # detections at least this confident are matched to the tracks first, the rest to the
+    # tracks left (ByteTrack's two rounds, Zhang et al. 2022): a faint fragment beside a person never takes the
+    # person's track from the person's own detection; 0: one round
     edge_shift: bool = False  # a car's move read from its box edge that moved least (`footprints.edge_shifts`): a
     # detection whose centre moved more than reshape_m apart from that is a new view, and that move corrects the
     # velocity (a parked car seen by another side keeps one end where it was). Off: rule V of
@@ -167,6 +170,15 @@ class TrackerConfig:
         """The gate of each class id, as `gate` says (one array: a scan looks up every detection's at once)."""
         widest = max(g for _, g in self.gate_m)
         return np.array([dict(self.gate_m).get(label, widest) for label in range(NUM_CLASSES)])
+
+
+def _best_pairs(margin: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The allowed (row, column) pairs of the most summed margin (scipy's Hungarian method)."""
+    if not margin.size:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    rows, cols = linear_sum_assignment(margin, maximize=True)
+    keep = allowed[rows, cols]
+    return rows[keep], cols[keep]
 
 
 class Tracked(NamedTuple):
@@ -293,7 +305,7 @@ class Tracker:
         tracks = self._footprints()
         if tracks is not None and detections is not None:
             shared = _Shared(shared_cells(tracks, detections), np.diff(tracks[1]), np.diff(detections[1]))
-        rows, cols = self._associate(centers, labels, shared, usable)
+        rows, cols = self._associate(centers, labels, shared, usable, np.asarray(scores, dtype=np.float64))
         matched = dict(zip(cols.tolist(), rows.tolist(), strict=True))
         split = world.split() if world is not None else None  # each detection's footprint points, once a scan
         self._correct_all(self._live()[rows], centers[cols], sizes[cols],
@@ -507,13 +519,15 @@ class Tracker:
         return rows_cells(self.store.offsets, self.store.points, slots, self.store.state)
 
     def _associate(self, centers: np.ndarray, labels: Sequence[int], shared: _Shared | None = None,
-                   usable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   usable: np.ndarray | None = None, scores: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The matched pairs' track indices and detection indices: a pair's cost is its centre distance (plus
         class_penalty_m for another class) times 1 - the share of footprint cells it shares; a pair may match within
         the detection's gate, or beyond it when its footprints share match_overlap of their cells. The pairs chosen
         have the most summed margin (gate less cost; MIN_MARGIN_M beyond the gate): a pair is worth its margin, leaving
         both unmatched nothing, so two poor pairs never beat one good one (a least summed cost would match as many as
-        it can: a track taking a neighbour's fragment so that its own object's track can take the other)."""
+        it can: a track taking a neighbour's fragment so that its own object's track can take the other). With
+        `first_score` and the detections' `scores`, the detections that confident are matched first and the rest to
+        the tracks left (ByteTrack's two rounds)."""
         if not self.tracks or len(centers) == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         slots = self._live()
@@ -528,9 +542,13 @@ class Tracker:
         if usable is not None and not usable.all():  # a detection not finite matches nothing
             allowed[:, ~usable] = False
             margin[:, ~usable] = 0.0
-        rows, cols = linear_sum_assignment(margin, maximize=True)
-        keep = allowed[rows, cols]
-        return rows[keep], cols[keep]
+        if scores is None or self.config.first_score <= 0.0:
+            return _best_pairs(margin, allowed)
+        sure = scores >= self.config.first_score
+        rows, cols = _best_pairs(np.where(sure[None, :], margin, 0.0), allowed & sure[None, :])
+        left = np.setdiff1d(np.arange(len(slots)), rows)
+        more_rows, more_cols = _best_pairs(np.where(sure[None, :], 0.0, margin[left]), allowed[left] & ~sure[None, :])
+        return np.concatenate([rows, left[more_rows]]), np.concatenate([cols, more_cols])
 
     def _parts(self, matched: dict[int, int], shared: _Shared | None, confirmed: np.ndarray) -> dict[int, int]:
         """Unmatched detections that are part of a confirmed track another detection matched this scan: most of

@@ -305,3 +305,15 @@ def test_a_parked_car_whose_box_jumps_between_views_does_not_start_driving() -> 
         tracker.update(np.array([[x, 0.0, -1.0]]), np.array([[4.0, 1.6, 1.5]]), [CAR], [0.9], 0.1 * k,
                        footprints=Footprints.of([_car_points(x - 2.0, x + 2.0)]))
     assert abs(tracker.tracks[0].state[2] - 10.0) < 1.0 and len(tracker.tracks) == 1
+
+
+def test_a_faint_fragment_beside_a_person_does_not_take_the_person_s_track() -> None:
+    """A walking person tracked stops as a faint fragment (confidence 0.45) appears nearer the track's prediction
+    than the person's own detection (0.99): matched in two rounds the person keeps the track; in one round (the most
+    summed margin) the fragment takes it."""
+    for first, keeps in ((0.6, True), (0.0, False)):
+        tracker = Tracker(TrackerConfig(first_score=first))
+        for k in range(5):
+            scan(tracker, [(10.0, 0.15 * k, PEDESTRIAN, 0.99)], 0.1 * k)  # walking 1.5 m/s: predicted at 0.75 m next
+        out = scan(tracker, [(10.0, 0.6, PEDESTRIAN, 0.99), (10.0, 0.8, PEDESTRIAN, 0.45)], 0.5)  # stopped
+        assert (out[0].track_id == 0) is keeps, (first, out)
