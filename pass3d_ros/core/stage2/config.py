@@ -101,7 +101,8 @@ class Stage2Config:
     track_first_score: float = _setting(
         _TRACKER.first_score, "tracking: objects at least this confident are matched to the tracks first, the rest to "
         "the tracks left (ByteTrack's two rounds): a faint fragment beside a person does not take the person's track "
-        "from the person's own object; 0: one round", (0.0, 1.0),
+        "from the person's own object; 0: one round. One round by rule W of docs/experiments/tracks.md: on 36 fresh "
+        "synthetic drives 0.6 gave 51 id switches, as one round did", (0.0, 1.0),
     )
     track_fill_shapes: bool = _setting(
         _TRACKER.fill_shapes, f"tracking: a confirmed car track's remembered shape (the {VOXEL_M:g} m voxels its "

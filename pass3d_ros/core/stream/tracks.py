@@ -127,9 +127,10 @@ class TrackerConfig:
     implausible_births: bool = False  # a detection whose box cannot be one object of its class (core.objects'
     # plausible flag: a car 1.2 x 0.2 x 0.01 m, a sliver of a car's roof) may start a track; False: it starts none
     # (it may still match a track, be a part of one or find an ended one again) and has no track this scan
-    first_score: float = 0.6  # detections at least this confident are matched to the tracks first, the rest to the
+    first_score: float = 0.0  # detections at least this confident are matched to the tracks first, the rest to the
     # tracks left (ByteTrack's two rounds, Zhang et al. 2022): a faint fragment beside a person never takes the
-    # person's track from the person's own detection; 0: one round
+    # person's track from the person's own detection; 0: one round. One round by rule W of docs/experiments/tracks.md
+    # (36 fresh drives: id switches 51 -> 51 with 0.6)
     edge_shift: bool = False  # a car's move read from its box edge that moved least (`footprints.edge_shifts`): a
     # detection whose centre moved more than reshape_m apart from that is a new view, and that move corrects the
     # velocity (a parked car seen by another side keeps one end where it was). Off: rule V of

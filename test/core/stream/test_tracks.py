@@ -311,7 +311,7 @@ def test_a_faint_fragment_beside_a_person_does_not_take_the_person_s_track() -> 
     """A walking person tracked stops as a faint fragment (confidence 0.45) appears nearer the track's prediction
     than the person's own detection (0.99): matched in two rounds the person keeps the track; in one round (the most
     summed margin) the fragment takes it."""
-    for first, keeps in ((0.6, True), (0.0, False)):
+    for first, keeps in ((0.6, True), (0.0, False)):  # 0.0, one round: the default (rule W)
         tracker = Tracker(TrackerConfig(first_score=first))
         for k in range(5):
             scan(tracker, [(10.0, 0.15 * k, PEDESTRIAN, 0.99)], 0.1 * k)  # walking 1.5 m/s: predicted at 0.75 m next
