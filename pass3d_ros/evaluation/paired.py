@@ -34,11 +34,17 @@ def paired(summary: dict, baseline: dict, source: str) -> dict:
     """This run minus `baseline`, per foreground class: {"with": source, "pooled_draws": [ours, theirs] or null,
     "classes": {name: {"difference", interval}}}. When both runs drew several samples (`--sample-draws`), each
     frame's confusion is pooled over its run's draws, so the difference is of the draws' pooled IoU, not of one
-    draw each. UserError when the two runs did not score the same frames in the same order."""
+    draw each. UserError when the two runs did not score the same frames in the same order, or a frame's labelled
+    points per class differ (the same names, other data)."""
     ours, theirs = [row["frame"] for row in summary["per_frame"]], [row["frame"] for row in baseline["per_frame"]]
     if ours != theirs:
         raise UserError(f"--paired-with {source}: it scored other frames ({len(theirs)}, this run {len(ours)}; "
                         "the same --data and --limit make a pair)")
+    for mine, other in zip(summary["per_frame"], baseline["per_frame"], strict=True):
+        truth_mine, truth_other = (np.asarray(row["confusion"]).sum(axis=1).tolist() for row in (mine, other))
+        if truth_mine != truth_other:  # the data changed under the same names (a new dataset copy, a new world)
+            raise UserError(f"--paired-with {source}: frame {mine['frame']} holds other labelled points there "
+                            f"(points per class {truth_other}, this run {truth_mine}): not the same frames")
     pooled = all("confusion_draws" in row for row in summary["per_frame"] + baseline["per_frame"])
     key = "confusion_draws" if pooled else "confusion"
     first = np.array([row[key] for row in baseline["per_frame"]])

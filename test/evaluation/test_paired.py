@@ -73,3 +73,18 @@ def test_a_baseline_that_is_other_json_is_named(text, tmp_path):
     path.write_text(text)
     with pytest.raises(UserError, match=r"--paired-with .*other\.json: not a full evaluation's --json"):
         read_baseline(path)
+
+
+def test_a_pair_whose_frames_hold_other_labels_under_the_same_names_is_refused() -> None:
+    """Two runs of frames named alike whose labelled points differ (a dataset copy or a synthetic world changed between
+    the runs) are not a pair: the one-line UserError names the frame, before any difference is read."""
+    from pass3d_ros.evaluation.paired import paired
+    from pass3d_ros.msgs.errors import UserError
+
+    def run(car_points: int) -> dict:
+        confusion = [[900, 0, 0, 0], [10, car_points, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]]
+        return {"per_frame": [{"frame": "synthetic:frames=1,seed=3#000000", "confusion": confusion}]}
+
+    assert paired(run(90), run(90), "base.json")["classes"]["car"]["difference"] == pytest.approx(0.0)
+    with pytest.raises(UserError, match=r"base\.json: frame synthetic:frames=1,seed=3#000000 holds other labelled"):
+        paired(run(90), run(95), "base.json")
