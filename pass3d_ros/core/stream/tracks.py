@@ -310,7 +310,7 @@ class Tracker:
         matched = dict(zip(cols.tolist(), rows.tolist(), strict=True))
         split = world.split() if world is not None else None  # each detection's footprint points, once a scan
         self._correct_all(self._live()[rows], centers[cols], sizes[cols],
-                          None if split is None else [split[c] for c in cols.tolist()])
+                          [split[c] for c in cols.tolist()] if split is not None and self.config.edge_shift else None)
         confirmed = self.store.hits[self._live()] >= self.config.min_hits
         parts = self._parts(matched, shared, confirmed)
         if self.config.part_extent is not None:
@@ -746,11 +746,14 @@ class Tracker:
         store = self.store
         measured = np.ascontiguousarray(centers[:, :2], dtype=np.float64)
         view = np.zeros(len(slots))
+        if self.config.reshape_m is None or (sizes is None and points is None):
+            kalman.correct_rows(slots, store.state, store.cov, measured, self.config.measurement_m ** 2, view)
+            return
         long = LONG_CLASS[store.voted(slots)[0]]
-        if sizes is not None and self.config.reshape_m is not None:
+        if sizes is not None:
             view = new_views(slots, store.box, np.ascontiguousarray(sizes, dtype=np.float64), long,
                              self.config.reshape_m)
-        if points is None or not self.config.edge_shift or self.config.reshape_m is None or not long.any():
+        if points is None or not self.config.edge_shift or not long.any():
             kalman.correct_rows(slots, store.state, store.cov, measured, self.config.measurement_m ** 2, view)
             return
         starts = np.concatenate([[0], np.cumsum([len(p) for p in points])]).astype(np.int64)
